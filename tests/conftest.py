@@ -1,0 +1,9 @@
+import pytest
+
+from clradcom.opencl import get_runtime
+
+
+@pytest.fixture(scope="session")
+def runtime():
+    """The default OpenCL runtime (PoCL's CPU device in CI)."""
+    return get_runtime()
