@@ -1,0 +1,93 @@
+"""Errors and warnings raised for bad user input.
+
+Every refusal of a scene file (or a file it refers to) is a :class:`SceneError`
+that names the file, the key path inside it (``objects[2].velocity``) and the
+offending value, so a user can find and fix the line without a traceback.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+__all__ = ["SceneError", "SceneWarning", "NOVALUE"]
+
+
+class _NoValue:
+    """Marker for "no value to report" (distinct from a value of ``None``)."""
+
+    def __repr__(self) -> str:  # pragma: no cover - trivial
+        return "<no value>"
+
+
+NOVALUE = _NoValue()
+
+
+def _short(value: object, limit: int = 80) -> str:
+    text = repr(value)
+    if len(text) > limit:
+        text = text[: limit - 3] + "..."
+    return text
+
+
+class SceneError(ValueError):
+    """A scene file (or a mesh/pattern file it names) was refused.
+
+    Attributes
+    ----------
+    file : str or None
+        The file the problem is in (scene file, mesh file or pattern file).
+    key : str or None
+        Key path inside the file, e.g. ``objects[2].velocity``; ``None`` when the
+        problem is not tied to a key (a TOML syntax error, say).
+    value : object
+        The offending value (``NOVALUE`` when there is none, e.g. a missing key).
+    line : int or None
+        Line number when known (TOML syntax errors).
+    reason : str
+        What is wrong and, where possible, how to fix it.
+    """
+
+    def __init__(
+        self,
+        reason: str,
+        *,
+        file: str | Path | None = None,
+        key: str | None = None,
+        value: object = NOVALUE,
+        line: int | None = None,
+    ) -> None:
+        self.reason = reason
+        self.file = None if file is None else str(file)
+        self.key = key
+        self.value = value
+        self.line = line
+        super().__init__(str(self))
+
+    def __str__(self) -> str:
+        where = self.file if self.file is not None else "<scene>"
+        if self.line is not None:
+            where = f"{where}:{self.line}"
+        parts = [where]
+        if self.key is not None:
+            if self.value is NOVALUE:
+                parts.append(self.key)
+            else:
+                parts.append(f"{self.key} = {_short(self.value)}")
+        elif self.value is not NOVALUE:
+            parts.append(f"value {_short(self.value)}")
+        return ": ".join(parts) + ": " + self.reason
+
+    def __reduce__(self):  # keep pickling (multiprocessing) working
+        return (
+            _rebuild,
+            (self.reason, self.file, self.key, self.value, self.line),
+        )
+
+
+def _rebuild(reason, file, key, value, line):  # pragma: no cover - pickling helper
+    return SceneError(reason, file=file, key=key, value=value, line=line)
+
+
+class SceneWarning(UserWarning):
+    """Something in a scene was accepted but deserves attention (e.g. a material
+    model evaluated outside its validated frequency range)."""
