@@ -1,0 +1,144 @@
+"""Procedural meshes for traffic scenes: a rounded car and a street of triangles.
+
+The paper's street needs a PEC car model of about 700 triangles (3.8 m x
+1.85 m x 1.7 m) with a rounded body, a cabin and wheels; nothing in the
+package registry ships one, so it is generated: superellipsoid body and
+cabin (rounded boxes whose roundness is one exponent) and cylinder wheels.
+The street builder is the synthetic scene the benchmarks use (road, facades
+with recessed windows, cars, trees) and is deterministic for a seed.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import trimesh
+
+
+def superellipsoid(extents, n_theta: int, n_phi: int, exponent: float) -> trimesh.Trimesh:
+    """Closed rounded box: |x/a|^(2/e) + |y/b|^(2/e) + |z/c|^(2/e) = 1 on a lat-long grid.
+
+    exponent 1 is an ellipsoid; toward 0 it becomes a box with rounded edges.
+    """
+    a, b, c = (0.5 * float(e) for e in extents)
+    theta = np.linspace(-0.5 * np.pi, 0.5 * np.pi, n_phi + 1)  # latitude
+    phi = np.linspace(-np.pi, np.pi, n_theta + 1)[:-1]  # longitude, wraps
+
+    def spow(x, p):
+        return np.sign(x) * np.abs(x) ** p
+
+    th, ph = np.meshgrid(theta, phi, indexing="ij")
+    x = a * spow(np.cos(th), exponent) * spow(np.cos(ph), exponent)
+    y = b * spow(np.cos(th), exponent) * spow(np.sin(ph), exponent)
+    z = c * spow(np.sin(th), exponent)
+    grid = np.stack([x, y, z], axis=-1)  # (n_phi+1, n_theta, 3)
+    # poles collapse to single vertices so the mesh is closed and has no slivers
+    body = grid[1:-1].reshape(-1, 3)
+    verts = np.vstack([body, [[0.0, 0.0, -c]], [[0.0, 0.0, c]]])
+    south, north = len(body), len(body) + 1
+    rings = n_phi - 1
+    faces = []
+    for i in range(rings - 1):
+        for j in range(n_theta):
+            p = i * n_theta + j
+            q = i * n_theta + (j + 1) % n_theta
+            faces.append([p, q, q + n_theta])
+            faces.append([p, q + n_theta, p + n_theta])
+    for j in range(n_theta):
+        faces.append([south, (j + 1) % n_theta, j])
+        top = (rings - 1) * n_theta
+        faces.append([north, top + j, top + (j + 1) % n_theta])
+    mesh = trimesh.Trimesh(verts, np.array(faces), process=True)
+    mesh.fix_normals()
+    return mesh
+
+
+def car_mesh(length=3.8, width=1.85, height=1.7, wheel_sections=12) -> trimesh.Trimesh:
+    """A rounded car about 700 triangles, centred on x, y; wheels touch z = 0; nose at +x."""
+    wheel_r = 0.32
+    body_h = 0.75
+    body = superellipsoid((length, width, body_h), 20, 10, 0.25)
+    body.apply_translation([0.0, 0.0, wheel_r * 0.55 + 0.5 * body_h])
+    cabin_h = height - (wheel_r * 0.55 + body_h) + 0.08
+    cabin = superellipsoid((0.55 * length, 0.9 * width, cabin_h), 14, 8, 0.35)
+    cabin.apply_translation([-0.1 * length, 0.0, height - 0.5 * cabin_h])
+    parts = [body, cabin]
+    for sx in (-0.32 * length, 0.3 * length):
+        for sy in (-0.5 * width + 0.12, 0.5 * width - 0.12):
+            wheel = trimesh.creation.cylinder(radius=wheel_r, height=0.22,
+                                              sections=wheel_sections)
+            wheel.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [1, 0, 0]))
+            wheel.apply_translation([sx, sy, wheel_r])
+            parts.append(wheel)
+    return trimesh.util.concatenate(parts)
+
+
+def _grid_plane(x0, x1, y0, y1, z, nx, ny) -> np.ndarray:
+    xs = np.linspace(x0, x1, nx + 1)
+    ys = np.linspace(y0, y1, ny + 1)
+    gx, gy = np.meshgrid(xs, ys, indexing="ij")
+    p = np.stack([gx, gy, np.full_like(gx, z)], axis=-1)
+    q = np.stack([p[:-1, :-1], p[1:, :-1], p[1:, 1:], p[:-1, 1:]], axis=2).reshape(-1, 4, 3)
+    return np.concatenate([q[:, [0, 1, 2]], q[:, [0, 2, 3]]])
+
+
+def _facade(x0, length, y, depth, height, side, rng) -> list[np.ndarray]:
+    """A building block: a box with recessed windows on its street face."""
+    tris = []
+    box = trimesh.creation.box(extents=[length, depth, height])
+    box.apply_translation([x0 + 0.5 * length, y + side * 0.5 * depth, 0.5 * height])
+    tris.append(box.vertices[box.faces])
+    n_cols = max(int(length / 2.5), 1)
+    n_rows = max(int(height / 3.0), 1)
+    for i in range(n_cols):
+        for j in range(n_rows):
+            w = trimesh.creation.box(extents=[1.2, 0.15, 1.4])
+            cx = x0 + (i + 0.5) * length / n_cols
+            cz = (j + 0.5) * height / n_rows
+            w.apply_translation([cx, y - side * 0.05 + side * rng.uniform(0.0, 0.02), cz])
+            tris.append(w.vertices[w.faces])
+    return tris
+
+
+def street_triangles(seed: int = 0, street_length: float = 160.0):
+    """A synthetic street (road, facades, cars, trees) as (T,3,3) triangles and object ids.
+
+    Lanes run along +x; the road spans y in [-7, 7]; buildings stand beyond.
+    """
+    rng = np.random.default_rng(seed)
+    parts: list[np.ndarray] = []
+    ids: list[int] = []
+
+    def add(tris, obj):
+        parts.append(np.asarray(tris, dtype=np.float64).reshape(-1, 3, 3))
+        ids.append(obj)
+
+    half = 0.5 * street_length
+    add(_grid_plane(-half, half, -7.0, 7.0, 0.0, 80, 14), 0)
+    obj = 1
+    for side, y in ((1, 7.5), (-1, -7.5)):
+        x = -half
+        while x < half - 4.0:
+            length = float(rng.uniform(8.0, 16.0))
+            height = float(rng.uniform(8.0, 20.0))
+            for t in _facade(x, min(length, half - x), y, 10.0, height, side, rng):
+                add(t, obj)
+            obj += 1
+            x += length + float(rng.uniform(0.5, 3.0))
+    car = car_mesh()
+    for cx, cy in ((0.0, -1.75), (16.4, -1.75), (26.0, 1.75), (34.6, 1.75),
+                   (-20.0, 1.75), (55.0, -1.75)):
+        add(car.vertices[car.faces] + [cx, cy, 0.0], obj)
+        obj += 1
+    tree = trimesh.creation.icosphere(subdivisions=2, radius=1.6)
+    trunk = trimesh.creation.cylinder(radius=0.15, height=2.5, sections=8)
+    for side in (1, -1):
+        for x in np.arange(-half + 6.0, half - 6.0, 12.0):
+            crown = tree.vertices[tree.faces] + [x, side * 6.3, 4.0]
+            stem = trunk.vertices[trunk.faces] + [x, side * 6.3, 1.25]
+            add(np.concatenate([crown, stem]), obj)
+            obj += 1
+    tris = np.concatenate(parts)
+    object_id = np.concatenate(
+        [np.full(len(p), i, dtype=np.int32) for p, i in zip(parts, ids, strict=True)]
+    )
+    return tris, object_id

@@ -1,0 +1,26 @@
+/* Reports the device's sizes and member offsets of the shared structs so the
+ * host can prove its numpy dtypes match (tests/test_opencl.py). OpenCL C has
+ * no offsetof, so offsets are pointer differences within a local instance. */
+#include "types.h"
+
+#define MEMBER_OFFSET(s, m) ((int)((const char *)&(s).m - (const char *)&(s)))
+
+__kernel void struct_layout(__global int *out)
+{
+    if (get_global_id(0) != 0) return;
+    BVHNode n;
+    Ray r;
+    Hit h;
+    out[0] = sizeof(BVHNode);
+    out[1] = MEMBER_OFFSET(n, left_first);
+    out[2] = MEMBER_OFFSET(n, bmax);
+    out[3] = MEMBER_OFFSET(n, count);
+    out[4] = sizeof(Ray);
+    out[5] = MEMBER_OFFSET(r, tmin);
+    out[6] = MEMBER_OFFSET(r, dir);
+    out[7] = MEMBER_OFFSET(r, tmax);
+    out[8] = sizeof(Hit);
+    out[9] = MEMBER_OFFSET(h, prim);
+    out[10] = MEMBER_OFFSET(h, ng);
+    out[11] = MEMBER_OFFSET(h, pad);
+}

@@ -1,0 +1,52 @@
+/* Batch ray casting against a flattened BVH: one kernel per query type. */
+#include "intersect.h"
+
+__kernel void closest_hit(__global const PairNode *nodes,
+                          __global const float4 *tri_verts,
+                          __global const int *tri_index,
+                          __global const Ray *rays,
+                          __global const int *ignore_prim,
+                          __global Hit *hits,
+                          const int n_rays)
+{
+    int gid = get_global_id(0);
+    if (gid >= n_rays) return;
+    Ray ray = rays[gid];
+    float3 org = (float3)(ray.org[0], ray.org[1], ray.org[2]);
+    float3 dir = (float3)(ray.dir[0], ray.dir[1], ray.dir[2]);
+    PreparedRay pr = prepare_ray(org, dir);
+    float tmax = ray.tmax, u = 0.0f, v = 0.0f;
+    int slot = bvh_closest(nodes, tri_verts, tri_index, &pr, ray.tmin, &tmax, &u, &v,
+                           ignore_prim[gid]);
+    Hit h;
+    h.pad = 0;
+    if (slot < 0) {
+        h.t = INFINITY; h.u = 0.0f; h.v = 0.0f; h.prim = -1;
+        h.ng[0] = 0.0f; h.ng[1] = 0.0f; h.ng[2] = 0.0f;
+    } else {
+        float3 v0 = tri_verts[3 * slot].xyz;
+        float3 ng = normalize(cross(tri_verts[3 * slot + 1].xyz - v0,
+                                    tri_verts[3 * slot + 2].xyz - v0));
+        h.t = tmax; h.u = u; h.v = v; h.prim = tri_index[slot];
+        h.ng[0] = ng.x; h.ng[1] = ng.y; h.ng[2] = ng.z;
+    }
+    hits[gid] = h;
+}
+
+__kernel void any_hit(__global const PairNode *nodes,
+                      __global const float4 *tri_verts,
+                      __global const int *tri_index,
+                      __global const Ray *rays,
+                      __global const int *ignore_prim,
+                      __global uchar *occluded,
+                      const int n_rays)
+{
+    int gid = get_global_id(0);
+    if (gid >= n_rays) return;
+    Ray ray = rays[gid];
+    float3 org = (float3)(ray.org[0], ray.org[1], ray.org[2]);
+    float3 dir = (float3)(ray.dir[0], ray.dir[1], ray.dir[2]);
+    PreparedRay pr = prepare_ray(org, dir);
+    occluded[gid] = bvh_any(nodes, tri_verts, tri_index, &pr, ray.tmin, ray.tmax,
+                            ignore_prim[gid], -1) ? 1 : 0;
+}

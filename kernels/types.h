@@ -1,0 +1,55 @@
+/* Structs shared between host and kernels. The host mirrors each one with a
+ * numpy dtype in clradcom/raycast.py (and clradcom/bvh.py for BVHNode); a test
+ * checks the sizes agree. No float3 in shared structs: its 16-byte alignment
+ * differs between host and device, so every member is a scalar or array and
+ * padding is explicit. */
+#ifndef CLRADCOM_TYPES_H
+#define CLRADCOM_TYPES_H
+
+/* 32 bytes. Inner node: count == 0, children at left_first and left_first+1.
+ * Leaf: count > 0 triangles at tri_index[left_first .. left_first+count). */
+typedef struct {
+    float bmin[3];
+    int left_first;
+    float bmax[3];
+    int count;
+} BVHNode;
+
+/* 64 bytes: the traversal layout, made on the host from BVHNode arrays
+ * (clradcom/raycast.py: pair_nodes). Each record holds both children's
+ * boxes (Aila & Laine, "Understanding the efficiency of ray traversal on
+ * GPUs", HPG 2009), so one fetch tests both. Per child: count == 0 means an
+ * inner child whose own record is ref; count > 0 a leaf of count triangle
+ * slots from ref; count < 0 no child (a one-leaf tree's root record). */
+typedef struct {
+    float lmin[3];
+    int lref;
+    float lmax[3];
+    int lcount;
+    float rmin[3];
+    int rref;
+    float rmax[3];
+    int rcount;
+} PairNode;
+
+/* 32 bytes. A hit is accepted for tmin < t < tmax. */
+typedef struct {
+    float org[3];
+    float tmin;
+    float dir[3];
+    float tmax;
+} Ray;
+
+/* 32 bytes. prim is the scene's triangle id (-1: miss); the point is
+ * (1-u-v)*v0 + u*v1 + v*v2; ng = (v1-v0) x (v2-v0), normalised, so it
+ * follows the triangle's winding, not the ray. */
+typedef struct {
+    float t;
+    float u;
+    float v;
+    int prim;
+    float ng[3];
+    int pad;
+} Hit;
+
+#endif

@@ -1,0 +1,100 @@
+import numpy as np
+import pyopencl as cl
+import pytest
+
+from clradcom import opencl
+from clradcom.bvh import BVH_NODE_DTYPE
+from clradcom.cli import main as cli_main
+from clradcom.opencl import OpenCLError, Runtime, choose_device, kernel_source, list_devices
+from clradcom.raycast import HIT_DTYPE, RAY_DTYPE
+
+
+def test_device_list_and_default_is_gpu_or_pocl():
+    infos = list_devices()
+    assert infos
+    chosen = choose_device()
+    gpus = [i for i in infos if i.device_type == "GPU"]
+    if gpus:
+        assert chosen == gpus[0]
+    else:
+        assert chosen.device_type == "CPU"
+        assert "portable computing language" in chosen.platform_name.lower()
+
+
+def test_device_spec_by_index_name_and_env(monkeypatch):
+    first = list_devices()[0]
+    assert choose_device(first.spec) == first
+    assert choose_device(first.device_name[:6]) == first
+    monkeypatch.setenv(opencl.ENV_DEVICE, first.spec)
+    assert choose_device() == first
+
+
+def test_unknown_device_spec_names_source_and_value(monkeypatch):
+    with pytest.raises(OpenCLError, match=r"--device='no-such-device-xyz'.*Devices seen"):
+        choose_device("no-such-device-xyz")
+    monkeypatch.setenv(opencl.ENV_DEVICE, "9:9")
+    with pytest.raises(OpenCLError, match=r"CLRADCOM_DEVICE='9:9'"):
+        choose_device()
+
+
+def test_no_platform_is_one_clear_error(monkeypatch):
+    def no_platforms():
+        raise cl.LogicError("clGetPlatformIDs failed: PLATFORM_NOT_FOUND_KHR")
+
+    monkeypatch.setattr(cl, "get_platforms", no_platforms)
+    with pytest.raises(OpenCLError, match=r"pip install 'clradcom\[pocl\]'"):
+        list_devices()
+    monkeypatch.setattr(cl, "get_platforms", lambda: [])
+    with pytest.raises(OpenCLError, match="pocl-binary-distribution"):
+        choose_device()
+
+
+def test_cli_lists_devices(capsys):
+    assert cli_main(["devices"]) == 0
+    out = capsys.readouterr().out
+    assert choose_device().device_name.strip() in out
+    assert cli_main(["devices", "--device", "nothing-like-this"]) == 2
+
+
+def test_kernel_sources_come_from_the_package_with_line_markers():
+    src = kernel_source("raycast.cl")
+    assert '#line 1 "raycast.cl"' in src
+    assert '#line 1 "types.h"' in src  # expanded through intersect.h
+    assert "typedef struct" in src
+    with pytest.raises(OpenCLError, match="kernels/missing.cl not found"):
+        kernel_source("missing.cl")
+
+
+def test_build_error_names_file_line_and_log(runtime):
+    broken = (
+        '#line 1 "broken.cl"\n__kernel void k(__global int *a)\n{\n'
+        "  a[0] = undefined_thing;\n}\n"
+    )
+    with pytest.raises(OpenCLError) as info:
+        runtime.build(broken, "broken.cl")
+    text = str(info.value)
+    assert "broken.cl:3" in text  # #line 1 numbers the line after it
+    assert "undefined_thing" in text
+
+
+def test_programs_are_cached_per_runtime(runtime):
+    assert runtime.program("raycast.cl") is runtime.program("raycast.cl")
+    other = Runtime(runtime.info.spec)
+    assert other.program("raycast.cl") is not runtime.program("raycast.cl")
+
+
+def test_host_dtypes_match_kernel_structs(runtime):
+    prog = runtime.program("layout.cl")
+    out = np.zeros(12, dtype=np.int32)
+    buf = runtime.empty(out.nbytes)
+    prog.struct_layout(runtime.queue, (1,), None, buf)
+    cl.enqueue_copy(runtime.queue, out, buf)
+    expected = [
+        BVH_NODE_DTYPE.itemsize, BVH_NODE_DTYPE.fields["left_first"][1],
+        BVH_NODE_DTYPE.fields["bmax"][1], BVH_NODE_DTYPE.fields["count"][1],
+        RAY_DTYPE.itemsize, RAY_DTYPE.fields["tmin"][1],
+        RAY_DTYPE.fields["dir"][1], RAY_DTYPE.fields["tmax"][1],
+        HIT_DTYPE.itemsize, HIT_DTYPE.fields["prim"][1],
+        HIT_DTYPE.fields["ng"][1], HIT_DTYPE.fields["pad"][1],
+    ]
+    assert out.tolist() == expected

@@ -1,0 +1,287 @@
+"""Ray casting on the OpenCL device against a brute-force reference.
+
+The reference tests every ray against every triangle in float64 (Moller-
+Trumbore on the float32-rounded inputs the kernel sees) and classifies each
+candidate hit by its distance (in metres) inside the triangle's outline: a
+hit more than a few float32 ulps of the scene's coordinates inside must be
+found, a miss by more than that must not be, and only the sliver in between
+may go either way. A distance, not a barycentric margin, so needles are
+judged fairly.
+"""
+
+import numpy as np
+import pytest
+import trimesh
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from clradcom.raycast import RayCaster, make_rays, spawn_origins
+
+MARGIN_ULPS = 64  # float32 ulps of the coordinates where rounding may decide either way
+
+
+def brute_force(origins, directions, triangles):
+    """Every ray against every triangle: t and signed distance inside the outline, (R, T)."""
+    o = np.asarray(origins, np.float32).astype(np.float64)
+    d = np.asarray(directions, np.float32).astype(np.float64)
+    tri = np.asarray(triangles, np.float32).astype(np.float64)
+    v0, e1, e2 = tri[:, 0], tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    p = np.cross(d[:, None, :], e2[None])
+    det = np.einsum("rtk,tk->rt", p, e1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = o[:, None, :] - v0[None]
+        u = np.einsum("rtk,rtk->rt", s, p) / det
+        q = np.cross(s, e1[None])
+        v = np.einsum("rk,rtk->rt", d, q) / det
+        t = np.einsum("tk,rtk->rt", e2, q) / det
+        # barycentric weight times the height over the opposite edge = distance to that edge
+        area2 = np.linalg.norm(np.cross(e1, e2), axis=1)
+        h0 = area2 / np.linalg.norm(tri[:, 2] - tri[:, 1], axis=1)
+        h1 = area2 / np.linalg.norm(e2, axis=1)
+        h2 = area2 / np.linalg.norm(e1, axis=1)
+        inside = np.minimum(np.minimum(u * h1, v * h2), (1.0 - u - v) * h0)
+    inside = np.where(np.isfinite(inside) & (det != 0), inside, -np.inf)
+    t = np.where(np.isfinite(t), t, -np.inf)
+    return t, inside
+
+
+def point_triangle_distance(p, tri):
+    """Euclidean distance from points (R,3) to triangles (R,3,3), in float64."""
+    v0, v1, v2 = tri[:, 0], tri[:, 1], tri[:, 2]
+    n = np.cross(v1 - v0, v2 - v0)
+    nn = np.einsum("ij,ij->i", n, n)
+
+    def segment(a, b):
+        ab = b - a
+        denom = np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-300)
+        s = np.clip(np.einsum("ij,ij->i", p - a, ab) / denom, 0.0, 1.0)
+        return np.linalg.norm(p - (a + s[:, None] * ab), axis=1)
+
+    best = np.minimum(np.minimum(segment(v0, v1), segment(v1, v2)), segment(v2, v0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        h = np.einsum("ij,ij->i", p - v0, n) / nn
+        q = p - h[:, None] * n
+        w0 = np.einsum("ij,ij->i", np.cross(v1 - q, v2 - q), n)
+        w1 = np.einsum("ij,ij->i", np.cross(v2 - q, v0 - q), n)
+        w2 = np.einsum("ij,ij->i", np.cross(v0 - q, v1 - q), n)
+    inside = (nn > 0) & (w0 >= 0) & (w1 >= 0) & (w2 >= 0)
+    return np.where(inside, np.minimum(best, np.abs(h) * np.sqrt(nn)), best)
+
+
+def check_against_reference(caster, origins, directions, tmin=1e-6):
+    """Assert the kernel's closest hits agree with the brute force.
+
+    A reported hit must lie on its triangle (point-to-triangle distance within
+    float32 resolution) and no certain hit may lie closer; a miss is only
+    allowed where the reference has no certain hit.
+    """
+    rays = make_rays(origins, directions, tmin=tmin)
+    hits = caster.closest_hit(rays)
+    t, inside = brute_force(origins, directions, caster.triangles)
+    scale = 1.0 + np.abs(t)
+    extent = 1.0 + np.abs(caster.triangles).max() + np.abs(origins).max()
+    margin = MARGIN_ULPS * float(np.finfo(np.float32).eps) * extent
+    sure = (inside > margin) & (t > tmin + 1e-5 * scale)
+    maybe = (inside > -margin) & (t > tmin - 1e-5 * scale)
+    t_sure = np.where(sure, t, np.inf).min(axis=1)
+    hit = hits["prim"] >= 0
+    missed = ~hit & np.isfinite(t_sure)
+    assert not missed.any(), f"rays {np.flatnonzero(missed)[:5]} missed certain hits"
+    idx = np.flatnonzero(hit)
+    prim = hits["prim"][idx]
+    assert maybe[idx, prim].all(), f"rays {idx[~maybe[idx, prim]][:5]} hit ruled-out triangles"
+    o32 = np.asarray(origins, np.float32).astype(np.float64)[idx]
+    d32 = np.asarray(directions, np.float32).astype(np.float64)[idx]
+    points = o32 + hits["t"][idx, None].astype(np.float64) * d32
+    tris32 = np.asarray(caster.triangles, np.float32).astype(np.float64)[prim]
+    off = point_triangle_distance(points, tris32)
+    # t from a float32 watertight test is ill-conditioned on needles (the edge
+    # functions cancel to the needle's width), so their hit points may sit
+    # further off; exact path geometry is recomputed in float64 on the host.
+    longest = np.linalg.norm(tris32 - np.roll(tris32, 1, axis=1), axis=2).max(axis=1)
+    area2 = np.linalg.norm(np.cross(tris32[:, 1] - tris32[:, 0], tris32[:, 2] - tris32[:, 0]),
+                           axis=1)
+    needle = longest**2 > 100.0 * area2
+    allowed = np.where(needle, 1e-3, 1e-5) * extent
+    assert (off < allowed).all(), f"hit points {off.max():.2e} m off their triangle"
+    tol = 1e-4 * (1.0 + hits["t"][idx])
+    assert (hits["t"][idx] <= t_sure[idx] + tol).all(), "a nearer certain hit was skipped"
+    return hits
+
+
+@pytest.fixture(scope="module")
+def sphere():
+    mesh = trimesh.creation.icosphere(subdivisions=3, radius=1.0)
+    return mesh
+
+
+def test_random_soup_matches_brute_force(runtime):
+    rng = np.random.default_rng(1)
+    tris = rng.uniform(-1, 1, (1500, 3, 3)) * 0.15 + rng.uniform(-1, 1, (1500, 1, 3))
+    caster = RayCaster(tris, runtime=runtime)
+    origins = rng.uniform(-1.5, 1.5, (1200, 3))
+    hits = check_against_reference(caster, origins, rng.normal(size=(1200, 3)))
+    assert 0.1 < (hits["prim"] >= 0).mean() < 0.9  # the scene is neither empty nor solid
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    seed=st.integers(0, 2**31 - 1),
+    n_tris=st.integers(1, 300),
+    spread=st.floats(0.01, 2.0),
+    offset=st.sampled_from([0.0, 100.0, 1000.0]),
+)
+def test_hypothesis_scenes_match_brute_force(runtime, seed, n_tris, spread, offset):
+    rng = np.random.default_rng(seed)
+    tris = rng.uniform(-1, 1, (n_tris, 3, 3)) * spread + rng.uniform(-1, 1, (n_tris, 1, 3))
+    tris += offset
+    caster = RayCaster(tris, runtime=runtime)
+    origins = rng.uniform(-2, 2, (200, 3)) + offset
+    targets = tris[rng.integers(0, n_tris, 200)].mean(axis=1) + rng.normal(0, 0.05, (200, 3))
+    check_against_reference(caster, origins, targets - origins)
+
+
+def test_rays_through_shared_edges_and_vertices_never_slip(runtime, sphere):
+    """Rays from inside a closed mesh aimed exactly at its vertices and edges all hit."""
+    verts = np.asarray(sphere.vertices, np.float32).astype(np.float64)
+    tris = verts[sphere.faces]
+    caster = RayCaster(tris, runtime=runtime)
+    edges = sphere.edges_unique
+    edge_points = 0.5 * (verts[edges[:, 0]] + verts[edges[:, 1]])
+    for origin in ([0.0, 0.0, 0.0], [0.31, -0.2, 0.17], [-0.5, 0.4, -0.3]):
+        for targets in (verts, edge_points):
+            origins = np.broadcast_to(origin, targets.shape)
+            hits = caster.closest_hit(make_rays(origins, targets - origins))
+            assert (hits["prim"] >= 0).all(), f"{(hits['prim'] < 0).sum()} rays slipped through"
+            np.testing.assert_allclose(hits["t"], 1.0, atol=1e-4)  # target is at t = 1
+
+
+def test_rays_through_the_diagonal_of_a_quad_grid(runtime):
+    """A flat grid of quads split on the diagonal: rays at the seams never pass."""
+    n = 20
+    xs = np.linspace(-1.0, 1.0, n + 1)
+    gx, gy = np.meshgrid(xs, xs, indexing="ij")
+    p = np.stack([gx, gy, np.zeros_like(gx)], axis=-1)
+    quads = np.stack([p[:-1, :-1], p[1:, :-1], p[1:, 1:], p[:-1, 1:]], axis=2).reshape(-1, 4, 3)
+    tris = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
+    caster = RayCaster(tris, runtime=runtime)
+    rng = np.random.default_rng(7)
+    f = rng.uniform(0, 1, (len(quads), 1))
+    seam_points = quads[:, 0] + f * (quads[:, 2] - quads[:, 0])  # on the shared diagonal
+    for origins in (np.array([[0.3, -0.2, 2.0]]), rng.uniform(-3, 3, (len(quads), 3))):
+        origins = np.broadcast_to(origins, seam_points.shape).copy()
+        origins[:, 2] = np.abs(origins[:, 2]) + 0.5
+        hits = caster.closest_hit(make_rays(origins, seam_points - origins))
+        assert (hits["prim"] >= 0).all()
+        np.testing.assert_allclose(hits["t"], 1.0, atol=1e-5)
+
+
+def test_grazing_rays_hit_on_the_surface(runtime):
+    plane = np.array([[[-50, -50, 0], [50, -50, 0], [50, 50, 0]],
+                      [[-50, -50, 0], [50, 50, 0], [-50, 50, 0]]], dtype=np.float64)
+    caster = RayCaster(plane, runtime=runtime)
+    angles = np.logspace(-6, -1, 40)
+    origins = np.zeros((40, 3))
+    origins[:, 2] = 1e-3
+    dirs = np.stack([np.cos(angles), np.zeros(40), -np.sin(angles)], axis=1)
+    hits = caster.closest_hit(make_rays(origins, dirs))
+    expected = 1e-3 / np.sin(angles)
+    inside = expected * np.cos(angles) < 49.0
+    assert (hits["prim"][inside] >= 0).all()
+    assert (hits["prim"][~inside] < 0).all()
+    # the hit point lies on the plane to float32 precision along the ray
+    z = origins[:, 2] + hits["t"] * dirs[:, 2]
+    assert np.all(np.abs(z[inside]) < 1e-6 * (1 + hits["t"][inside]))
+    # rays exactly in the plane of a triangle meet no area: a clean miss, no NaN
+    flat = caster.closest_hit(make_rays([[-60.0, 0.0, 0.0]], [[1.0, 0.0, 0.0]]))
+    assert flat["prim"][0] == -1 and np.isinf(flat["t"][0])
+    assert not np.isnan(caster.closest_hit(make_rays(origins, dirs))["u"]).any()
+
+
+def test_degenerate_and_needle_triangles(runtime):
+    rng = np.random.default_rng(3)
+    good = rng.uniform(-1, 1, (200, 3, 3)) * 0.2 + rng.uniform(-1, 1, (200, 1, 3))
+    # on a 1/64 grid so midpoints are exact in float32 and collinear stays collinear
+    a = rng.integers(-64, 65, (60, 3)) / 64.0
+    b = rng.integers(-64, 65, (60, 3)) / 64.0
+    collinear = np.stack([a, b, 0.5 * (a + b)], axis=1)
+    repeated = np.stack([a, a, b], axis=1)
+    point = np.stack([a, a, a], axis=1)
+    needles = np.stack([a, b, b + rng.normal(0, 1e-5, (60, 3))], axis=1)
+    tris = np.concatenate([good, collinear, repeated, point, needles])
+    caster = RayCaster(tris, runtime=runtime)
+    origins = rng.uniform(-1.5, 1.5, (1000, 3))
+    hits = check_against_reference(caster, origins, rng.normal(size=(1000, 3)))
+    zero_area = np.arange(200, 380)
+    assert not np.isin(hits["prim"], zero_area).any()
+    # rays aimed at needles: a hit must be a true one, at the reference's distance
+    n_origins = rng.uniform(-1.5, 1.5, (60, 3))
+    check_against_reference(caster, n_origins, needles.mean(axis=1) - n_origins)
+
+
+@pytest.mark.parametrize("offset", [0.0, 1000.0])
+def test_rays_leaving_a_surface_do_not_hit_it_again(runtime, offset):
+    """Reflected rays from points on a closed box reach the far wall, not themselves."""
+    box = trimesh.creation.box(extents=[4.0, 3.0, 2.0])
+    box = box.subdivide().subdivide()
+    tris = box.vertices[box.faces] + offset
+    caster = RayCaster(tris, runtime=runtime)
+    rng = np.random.default_rng(5)
+    face = rng.integers(0, len(tris), 2000)
+    bary = rng.dirichlet([1, 1, 1], 2000)
+    points = np.einsum("rk,rkj->rj", bary, tris[face])
+    normals = np.cross(tris[face, 1] - tris[face, 0], tris[face, 2] - tris[face, 0])
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    inward = -normals  # trimesh boxes wind outward
+    dirs = rng.normal(size=(2000, 3))
+    dirs -= np.minimum(np.einsum("ij,ij->i", dirs, inward), 0)[:, None] * 2 * inward
+    origins = spawn_origins(points, inward, dirs)
+    assert np.all(np.linalg.norm(origins - points, axis=1) < 1e-3)  # well under a wavelength
+    # exit distance from inside an axis-aligned box, in closed form
+    lo, hi = box.bounds[0] + offset, box.bounds[1] + offset
+    with np.errstate(divide="ignore"):
+        exit_t = np.where(dirs > 0, (hi - origins) / dirs, (lo - origins) / dirs)
+    exit_t = np.where(dirs == 0, np.inf, exit_t).min(axis=1)
+    for ignore in (face, None):
+        hits = caster.closest_hit(make_rays(origins, dirs), ignore_prim=ignore)
+        assert (hits["prim"] >= 0).all()
+        np.testing.assert_allclose(hits["t"], exit_t, rtol=1e-4, atol=2e-3,
+                                   err_msg="a ray stopped short: it hit the surface it leaves")
+
+
+def test_any_hit_agrees_with_closest_hit(runtime):
+    rng = np.random.default_rng(11)
+    tris = rng.uniform(-1, 1, (800, 3, 3)) * 0.2 + rng.uniform(-1, 1, (800, 1, 3))
+    caster = RayCaster(tris, runtime=runtime)
+    origins = rng.uniform(-1.5, 1.5, (3000, 3))
+    dirs = rng.normal(size=(3000, 3))
+    tmax = rng.uniform(0.1, 3.0, 3000).astype(np.float32)
+    closest = caster.closest_hit(make_rays(origins, dirs, tmin=1e-5))
+    occluded = caster.occluded(make_rays(origins, dirs, tmin=1e-5, tmax=tmax))
+    definite = np.abs(closest["t"] - tmax) > 1e-4 * (1 + tmax)
+    np.testing.assert_array_equal(occluded[definite], (closest["t"] < tmax)[definite])
+    assert 0.05 < occluded.mean() < 0.95
+
+
+def test_hit_record_fields(runtime):
+    tri = np.array([[[0, 0, 0], [1, 0, 0], [0, 1, 0]]], dtype=np.float64)
+    caster = RayCaster(tri, runtime=runtime)
+    hits = caster.closest_hit(make_rays([[0.2, 0.3, 2.0], [0.2, 0.3, -2.0]],
+                                        [[0, 0, -1], [0, 0, 1]]))
+    np.testing.assert_allclose(hits["t"], [2.0, 2.0], rtol=1e-6)
+    np.testing.assert_allclose(hits["u"], [0.2, 0.2], atol=1e-6)
+    np.testing.assert_allclose(hits["v"], [0.3, 0.3], atol=1e-6)
+    np.testing.assert_allclose(hits["ng"], [[0, 0, 1], [0, 0, 1]], atol=1e-6)
+    assert hits["prim"].tolist() == [0, 0]
+    # tmax bounds the search
+    short = caster.closest_hit(make_rays([[0.2, 0.3, 2.0]], [[0, 0, -1]], tmax=1.5))
+    assert short["prim"][0] == -1
+
+
+def test_bad_rays_are_refused():
+    with pytest.raises(ValueError, match=r"origins\[1\] is not finite"):
+        make_rays([[0, 0, 0], [np.nan, 0, 0]], [[1, 0, 0], [1, 0, 0]])
+    with pytest.raises(ValueError, match=r"directions\[0\] is the zero vector"):
+        make_rays([[0, 0, 0]], [[0, 0, 0]])
+    with pytest.raises(ValueError, match="shape"):
+        make_rays([[0, 0, 0]], [[1, 0, 0], [1, 0, 0]])
