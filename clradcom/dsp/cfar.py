@@ -1,0 +1,183 @@
+"""2-D CFAR detection on the square-law radar image, peak interpolation, detection table.
+
+- CA-CFAR: T = α·mean(training cells), α = N_T(P_fa^{−1/N_T} − 1) (Richards, Fundamentals
+  of Radar Signal Processing, ch. 6; exact for exponential (square-law Gaussian) noise in
+  independent cells).
+- OS-CFAR (Rohling, IEEE T-AES 19(4), 1983): T = α·x_(k), the k-th smallest training cell;
+  P_fa = Π_{i=0}^{k−1} (N_T − i)/(N_T − i + α), solved for α.
+- Training cells: a rectangle of half-size guard+train around the cell under test, minus
+  the guard rectangle; the map wraps around on both axes (range and Doppler are DFT axes,
+  so the map is periodic).  Sizes are in image bins: with zero padding, scale them by the
+  padding factor, and note that padded cells are correlated, so the design P_fa no longer
+  holds exactly (it does for an unpadded rectangular-window image).
+- Peaks: cells above threshold that are the maximum of their neighbourhood; their position
+  is refined by a 3-point parabola on the dB values along each axis (docs/dsp.md §5).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy import ndimage
+from scipy.optimize import brentq
+
+from .processing import RadarImage
+
+DETECTION_DTYPE = np.dtype([
+    ("range_m", float), ("velocity_mps", float), ("power_db", float), ("snr_db", float),
+    ("range_bin", float), ("doppler_bin", float),
+])
+
+
+def _check_pfa(p_fa):
+    if not (isinstance(p_fa, int | float | np.floating) and 0.0 < p_fa < 1.0):
+        raise ValueError(f"p_fa must lie in (0, 1), got {p_fa!r}")
+    return float(p_fa)
+
+
+def ca_cfar_alpha(n_train: int, p_fa: float) -> float:
+    """α = N_T (P_fa^{−1/N_T} − 1) for cell-averaging CFAR on square-law power."""
+    if isinstance(n_train, bool) or not isinstance(n_train, int | np.integer) or n_train < 1:
+        raise ValueError(f"n_train must be a positive integer, got {n_train!r}")
+    p_fa = _check_pfa(p_fa)
+    return float(n_train * (p_fa ** (-1.0 / n_train) - 1.0))
+
+
+def os_cfar_pfa(n_train: int, k: int, alpha: float) -> float:
+    """Rohling's P_fa = Π_{i=0}^{k−1} (N_T − i)/(N_T − i + α)."""
+    i = np.arange(k)
+    return float(np.exp(np.sum(np.log(n_train - i) - np.log(n_train - i + alpha))))
+
+
+def os_cfar_alpha(n_train: int, k: int, p_fa: float) -> float:
+    """Scale α that gives OS-CFAR with the k-th smallest of N_T cells the design P_fa."""
+    if isinstance(n_train, bool) or not isinstance(n_train, int | np.integer) or n_train < 1:
+        raise ValueError(f"n_train must be a positive integer, got {n_train!r}")
+    if isinstance(k, bool) or not isinstance(k, int | np.integer) or not 1 <= k <= n_train:
+        raise ValueError(f"rank k must be an integer in [1, {n_train}], got {k!r}")
+    p_fa = _check_pfa(p_fa)
+    target = math.log(p_fa)
+
+    def f(log_alpha):
+        return math.log(os_cfar_pfa(n_train, k, math.exp(log_alpha))) - target
+
+    hi = 1.0
+    while f(hi) > 0:  # P_fa falls monotonically with α
+        hi += 2.0
+    return float(math.exp(brentq(f, -30.0, hi, xtol=1e-13)))
+
+
+def _pair(name, value):
+    v = (value, value) if np.isscalar(value) else tuple(value)
+    if len(v) != 2 or any(isinstance(x, bool) or not isinstance(x, int | np.integer) or x < 0
+                          for x in v):
+        raise ValueError(f"{name} must be a non-negative int or a pair of them, got {value!r}")
+    return int(v[0]), int(v[1])
+
+
+def training_footprint(guard=(2, 2), train=(4, 4)) -> np.ndarray:
+    """Boolean mask of the training cells (outer rectangle minus guard rectangle)."""
+    g, t = _pair("guard", guard), _pair("train", train)
+    h = (g[0] + t[0], g[1] + t[1])
+    fp = np.ones((2 * h[0] + 1, 2 * h[1] + 1), bool)
+    fp[h[0] - g[0]:h[0] + g[0] + 1, h[1] - g[1]:h[1] + g[1] + 1] = False
+    return fp
+
+
+def cfar_threshold(power, guard=(2, 2), train=(4, 4), p_fa: float = 1e-6,
+                   method: str = "ca", rank: int | None = None):
+    """CFAR threshold and noise-power estimate for every cell of a square-law map.
+
+    Returns (threshold, noise, alpha): arrays shaped like ``power`` and the scale α.
+    ``noise`` is the per-cell noise estimate (CA: training mean; OS: x_(k)/E[x_(k)/σ²],
+    E[x_(k)/σ²] = Σ_{i=N_T−k+1}^{N_T} 1/i for exponential noise).  ``rank`` (OS only) is k,
+    default round(0.75·N_T) (Rohling).
+    """
+    pw = np.asarray(power, dtype=float)
+    if pw.ndim != 2:
+        raise ValueError(f"power must be a 2-D map, got shape {pw.shape}")
+    if not np.all(np.isfinite(pw)) or (pw < 0).any():
+        raise ValueError("power must be finite and non-negative (square-law, not dB)")
+    fp = training_footprint(guard, train)
+    n_t = int(fp.sum())
+    if n_t == 0:
+        raise ValueError(f"train={train!r} leaves no training cells")
+    if fp.shape[0] > pw.shape[0] or fp.shape[1] > pw.shape[1]:
+        raise ValueError(f"CFAR window {fp.shape} is larger than the map {pw.shape}")
+    if method == "ca":
+        g, t = _pair("guard", guard), _pair("train", train)
+        outer = (2 * (g[0] + t[0]) + 1, 2 * (g[1] + t[1]) + 1)
+        inner = (2 * g[0] + 1, 2 * g[1] + 1)
+        s_out = ndimage.uniform_filter(pw, size=outer, mode="wrap") * (outer[0] * outer[1])
+        s_in = ndimage.uniform_filter(pw, size=inner, mode="wrap") * (inner[0] * inner[1])
+        noise = np.maximum(s_out - s_in, 0.0) / n_t
+        alpha = ca_cfar_alpha(n_t, p_fa)
+        return alpha * noise, noise, alpha
+    if method == "os":
+        k = int(round(0.75 * n_t)) if rank is None else rank
+        alpha = os_cfar_alpha(n_t, k, p_fa)
+        xk = ndimage.rank_filter(pw, rank=k - 1, footprint=fp, mode="wrap")
+        mean_ratio = float(np.sum(1.0 / np.arange(n_t - k + 1, n_t + 1)))
+        return alpha * xk, xk / mean_ratio, alpha
+    raise ValueError(f"method must be 'ca' or 'os', got {method!r}")
+
+
+def parabolic_offset(y_minus, y0, y_plus):
+    """Vertex offset (bins, in [−0.5, 0.5]) and height of the parabola through 3 points."""
+    den = y_minus - 2.0 * y0 + y_plus
+    with np.errstate(divide="ignore", invalid="ignore"):
+        delta = np.where(den < 0, 0.5 * (y_minus - y_plus) / den, 0.0)
+    delta = np.clip(delta, -0.5, 0.5)
+    return delta, y0 - 0.25 * (y_minus - y_plus) * delta
+
+
+def interpolate_peaks(power, rows, cols):
+    """Parabolic (on dB) sub-bin refinement of peaks at integer (rows, cols), wrapping at
+    the edges.  Returns (row_float, col_float, peak_db)."""
+    pdb = 10.0 * np.log10(np.maximum(np.asarray(power, float), 1e-300))
+    n, m = pdb.shape
+    rows = np.asarray(rows, int)
+    cols = np.asarray(cols, int)
+    y0 = pdb[rows, cols]
+    dr, hr = parabolic_offset(pdb[(rows - 1) % n, cols], y0, pdb[(rows + 1) % n, cols])
+    dc, hc = parabolic_offset(pdb[rows, (cols - 1) % m], y0, pdb[rows, (cols + 1) % m])
+    return rows + dr, cols + dc, hr + hc - y0
+
+
+def detect(image: RadarImage, guard=(2, 2), train=(4, 4), p_fa: float = 1e-6,
+           method: str = "ca", rank: int | None = None, neighbourhood=(3, 3),
+           max_detections: int | None = None) -> np.ndarray:
+    """CFAR detections with local-maximum suppression and sub-bin interpolation.
+
+    Returns a structured array (``DETECTION_DTYPE``): range_m, velocity_mps, power_db
+    (interpolated peak, image units), snr_db (peak over the CFAR noise estimate), range_bin,
+    doppler_bin (fractional indices into ``image.power``), strongest first.
+    """
+    power, _, r_axis, v_axis = image
+    thr, noise, _ = cfar_threshold(power, guard, train, p_fa, method, rank)
+    nb = _pair("neighbourhood", neighbourhood)
+    local_max = power >= ndimage.maximum_filter(power, size=nb, mode="wrap")
+    rows, cols = np.nonzero((power > thr) & local_max)
+    out = np.zeros(rows.size, DETECTION_DTYPE)
+    if rows.size == 0:
+        return out
+    rf, cf, peak_db = interpolate_peaks(power, rows, cols)
+    dr = r_axis[1] - r_axis[0] if r_axis.size > 1 else 0.0
+    dv = v_axis[1] - v_axis[0] if v_axis.size > 1 else 0.0
+    out["range_m"] = r_axis[0] + rf * dr
+    out["velocity_mps"] = v_axis[0] + cf * dv
+    out["power_db"] = peak_db
+    out["snr_db"] = peak_db - 10.0 * np.log10(np.maximum(noise[rows, cols], 1e-300))
+    out["range_bin"] = rf
+    out["doppler_bin"] = cf
+    out = out[np.argsort(-out["power_db"], kind="stable")]
+    return out[:max_detections] if max_detections is not None else out
+
+
+def cfar_false_alarms(power, guard=(2, 2), train=(4, 4), p_fa: float = 1e-6,
+                      method: str = "ca", rank: int | None = None) -> int:
+    """Number of raw threshold crossings (no peak suppression): for noise-only maps this
+    divided by the cell count estimates the realised P_fa."""
+    thr, _, _ = cfar_threshold(power, guard, train, p_fa, method, rank)
+    return int(np.count_nonzero(np.asarray(power) > thr))

@@ -1,0 +1,81 @@
+"""Radar image plot in the style of the paper's Fig. 3 (range–velocity map, dB colour).
+
+Uses matplotlib's object API with the Agg canvas directly, so importing this module never
+changes pyplot's global backend or state.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from .processing import RadarImage
+
+
+def _limits(name, lim):
+    lo, hi = (float(x) for x in lim)
+    if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
+        raise ValueError(f"{name} must be an increasing pair of finite numbers, got {lim!r}")
+    return lo, hi
+
+
+def plot_radar_image(image: RadarImage, detections=None, range_lim_m=(0.0, 100.0),
+                     velocity_lim_mps=(-30.0, 30.0), dynamic_range_db: float = 50.0,
+                     title: str | None = "Radar image", figsize=(7.0, 4.5)) -> Figure:
+    """Figure with range on x, relative velocity on y (approaching positive), colour in dB
+    relative to the strongest cell shown; detections (``cfar.detect`` output) as circles."""
+    rlo, rhi = _limits("range_lim_m", range_lim_m)
+    vlo, vhi = _limits("velocity_lim_mps", velocity_lim_mps)
+    if not (np.isfinite(dynamic_range_db) and dynamic_range_db > 0):
+        raise ValueError(f"dynamic_range_db must be positive, got {dynamic_range_db!r}")
+    r, v = image.range_m, image.velocity_mps
+    ri = np.flatnonzero((r >= rlo) & (r <= rhi))
+    vi = np.flatnonzero((v >= vlo) & (v <= vhi))
+    if ri.size == 0 or vi.size == 0:
+        raise ValueError(
+            f"limits {range_lim_m!r} m, {velocity_lim_mps!r} m/s select no image cells "
+            f"(image covers {r[0]:.3g}..{r[-1]:.3g} m, {v[0]:.3g}..{v[-1]:.3g} m/s)"
+        )
+    crop = np.asarray(image.power_db)[np.ix_(ri, vi)]
+    top = np.max(crop[np.isfinite(crop)]) if np.isfinite(crop).any() else 0.0
+    dr = r[1] - r[0] if r.size > 1 else 1.0
+    dv = v[1] - v[0] if v.size > 1 else 1.0
+    fig = Figure(figsize=figsize)
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot()
+    im = ax.imshow(
+        (crop - top).T, origin="lower", aspect="auto", cmap="jet",
+        vmin=-dynamic_range_db, vmax=0.0,
+        extent=(r[ri[0]] - dr / 2, r[ri[-1]] + dr / 2, v[vi[0]] - dv / 2, v[vi[-1]] + dv / 2),
+        interpolation="nearest",
+    )
+    fig.colorbar(im, ax=ax, label="relative power [dB]")
+    if detections is not None and len(detections):
+        det = np.asarray(detections)
+        ax.plot(det["range_m"], det["velocity_mps"], "o", mfc="none", mec="white", ms=9,
+                mew=1.5, label="detections")
+        ax.legend(loc="upper right", fontsize="small")
+    ax.set_xlim(rlo, rhi)
+    ax.set_ylim(vlo, vhi)
+    ax.set_xlabel("range [m]")
+    ax.set_ylabel("relative velocity [m/s]")
+    if title:
+        ax.set_title(title)
+    fig.tight_layout()
+    return fig
+
+
+def save_radar_image(image: RadarImage, path_stem, detections=None, **kwargs):
+    """Plot (see ``plot_radar_image``) and write ``<stem>.png`` and ``<stem>.svg``.
+    Returns the two paths."""
+    stem = Path(path_stem)
+    if stem.suffix.lower() in (".png", ".svg"):
+        stem = stem.with_suffix("")
+    fig = plot_radar_image(image, detections, **kwargs)
+    paths = (stem.with_suffix(".png"), stem.with_suffix(".svg"))
+    fig.savefig(paths[0], dpi=150)
+    fig.savefig(paths[1])
+    return paths
