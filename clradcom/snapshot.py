@@ -1,0 +1,909 @@
+"""Snapshots: the propagation paths of every tx -> rx link of a scene, as one file.
+
+The tracer writes a :class:`Snapshot`; the radar back end reads it. On disk a snapshot is
+an uncompressed ``.npz`` archive (a zip of ``.npy`` members) that plain
+``numpy.load(path, allow_pickle=False)`` reads; ``docs/snapshot-format.md`` describes every
+key. In memory:
+
+* :class:`Paths` -- the paths of one link, as arrays of length ``P`` along axis 0
+  (complex gain, 2x2 polarimetric matrix, delay, Doppler, interaction codes, points,
+  object and face ids);
+* :class:`Link` -- tx name/index, rx name/index and its :class:`Paths`;
+* :class:`Snapshot` -- scene name, carrier, scene hash, scene time, a metadata dict of
+  scalars and the list of links.
+
+:func:`save_snapshot` writes atomically (temporary file in the same directory, fsync,
+``os.replace``) and deterministically: the same snapshot always gives the same bytes
+(fixed member order, fixed zip timestamps, little-endian arrays, no compression).
+:func:`load_snapshot` checks the format version, every key, dtype, shape and value, and
+names the file and key of anything it refuses.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import secrets
+import zipfile
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field
+from enum import IntEnum
+from pathlib import Path
+
+import numpy as np
+
+__all__ = [
+    "FORMAT_NAME",
+    "FORMAT_VERSION",
+    "InteractionType",
+    "Link",
+    "Paths",
+    "Snapshot",
+    "SnapshotError",
+    "assert_snapshot_equal",
+    "load_snapshot",
+    "save_snapshot",
+]
+
+#: Value of the ``meta/format`` key: marks a file as a clradcom snapshot.
+FORMAT_NAME = "clradcom-snapshot"
+#: The format version this module writes (and the newest it reads).
+FORMAT_VERSION = 1
+
+#: Fixed timestamp of every zip member, so identical snapshots give identical bytes.
+_ZIP_DATE_TIME = (1980, 1, 1, 0, 0, 0)
+#: Unix permission bits recorded in every zip member (what numpy.savez records).
+_ZIP_EXTERNAL_ATTR = 0o600 << 16
+
+_HEX = re.compile(r"[0-9a-fA-F]*")
+_META_KEY = re.compile(r"[A-Za-z0-9_.\-]+")
+
+
+class InteractionType(IntEnum):
+    """What happens to a path at one interaction point (``Paths.interaction`` codes).
+
+    Codes, not bit flags: every interaction slot holds exactly one of them; ``NONE``
+    pads the slots past a path's ``n_interactions``. The whole project uses these codes
+    (kernels mirror them as ``#define``s).
+    """
+
+    NONE = 0
+    REFLECTION = 1
+    DIFFRACTION = 2
+    SCATTERING = 3
+
+
+_VALID_CODES = np.array([int(t) for t in InteractionType if t != InteractionType.NONE],
+                        dtype=np.int8)
+
+
+class SnapshotError(ValueError):
+    """A snapshot (in memory or on disk) was refused.
+
+    ``file`` is the snapshot file (``None`` for an object being built in memory), ``key``
+    the field or npz key (``link2/delay_s[3]``), ``reason`` what is wrong.
+    """
+
+    def __init__(self, reason: str, *, file: str | os.PathLike | None = None,
+                 key: str | None = None) -> None:
+        self.reason = reason
+        self.file = None if file is None else str(file)
+        self.key = key
+        super().__init__(str(self))
+
+    def __str__(self) -> str:
+        parts = [p for p in (self.file, self.key) if p is not None]
+        return ": ".join([*parts, self.reason])
+
+    def __reduce__(self):  # keep pickling (multiprocessing) working
+        return (_rebuild_error, (self.reason, self.file, self.key))
+
+
+def _rebuild_error(reason, file, key):  # pragma: no cover - pickling helper
+    return SnapshotError(reason, file=file, key=key)
+
+
+# ---------------------------------------------------------------------------
+# Paths
+
+
+#: (field, dtype, shape in terms of P and K) in file order.
+_PATH_FIELDS: tuple[tuple[str, np.dtype, str], ...] = (
+    ("gain", np.dtype(np.complex128), "(P,)"),
+    ("matrix", np.dtype(np.complex128), "(P, 2, 2)"),
+    ("delay_s", np.dtype(np.float64), "(P,)"),
+    ("doppler_hz", np.dtype(np.float64), "(P,)"),
+    ("n_interactions", np.dtype(np.int16), "(P,)"),
+    ("interaction", np.dtype(np.int8), "(P, K)"),
+    ("points", np.dtype(np.float64), "(P, K+2, 3)"),
+    ("object_id", np.dtype(np.int32), "(P, K)"),
+    ("face_id", np.dtype(np.int32), "(P, K)"),
+)
+_PATH_FIELD_NAMES = tuple(name for name, _, _ in _PATH_FIELDS)
+
+
+def _expected_shape(spec: str, p: int, k: int) -> tuple[int, ...]:
+    return {
+        "(P,)": (p,),
+        "(P, 2, 2)": (p, 2, 2),
+        "(P, K)": (p, k),
+        "(P, K+2, 3)": (p, k + 2, 3),
+    }[spec]
+
+
+def _index_str(idx) -> str:
+    return "[" + ", ".join(str(int(i)) for i in idx) + "]"
+
+
+def _first_bad(mask: np.ndarray) -> tuple[int, ...] | None:
+    """Row-major index of the first True in ``mask`` (None if there is none)."""
+    flat = np.flatnonzero(mask)
+    if flat.size == 0:
+        return None
+    return tuple(int(i) for i in np.unravel_index(flat[0], mask.shape))
+
+
+def _coerce(name: str, value, dtype: np.dtype) -> np.ndarray:
+    """A C-contiguous, native-order copy of ``value`` as ``dtype``, refusing lossy casts."""
+    try:
+        arr = np.asarray(value)
+    except Exception as exc:  # ragged lists and the like
+        raise SnapshotError(f"cannot be read as an array: {exc}", key=name) from None
+    if arr.dtype.kind == "O":
+        raise SnapshotError("object arrays are not allowed; give numbers", key=name)
+    kind = arr.dtype.kind
+    if arr.size == 0 and kind in "biufc":
+        pass  # an empty list is float64 to numpy; any numeric empty array will do
+    elif dtype.kind == "c":
+        if kind not in "iufc":
+            raise SnapshotError(f"dtype {arr.dtype} is not numeric (want {dtype})", key=name)
+    elif dtype.kind == "f":
+        if kind not in "iuf":
+            raise SnapshotError(f"dtype {arr.dtype} is not real (want {dtype})", key=name)
+    else:  # integer target
+        if kind not in "iu":
+            raise SnapshotError(f"dtype {arr.dtype} is not an integer type (want {dtype})",
+                                key=name)
+        if arr.size:
+            info = np.iinfo(dtype)
+            bad = _first_bad((arr < info.min) | (arr > info.max))
+            if bad is not None:
+                raise SnapshotError(
+                    f"value {arr[bad]} does not fit in {dtype} at index {_index_str(bad)}",
+                    key=name)
+    out = np.array(arr, dtype=dtype, order="C", copy=True)
+    out.setflags(write=False)
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class Paths:
+    """The propagation paths of one link: ``P`` paths, at most ``K`` interactions each.
+
+    All arrays are copied on construction, converted to the dtypes below and made
+    read-only; the constructor refuses inconsistent or invalid values with a
+    :class:`SnapshotError` (a ``ValueError``) naming the field and the first bad index.
+
+    Attributes
+    ----------
+    gain : complex128 (P,)
+        Baseband channel coefficient a_k (carrier phase -2 pi f_c tau_k, antenna
+        patterns and polarization inside): the received baseband signal is
+        sum_k a_k x(t - tau_k) exp(j 2 pi f_D,k t). Finite.
+    matrix : complex128 (P, 2, 2)
+        Polarimetric transfer matrix: rx field [E_theta, E_phi] = matrix @ tx field
+        [E_theta, E_phi], in the tx/rx antenna's spherical bases (theta-hat, phi-hat) along
+        the departure/arrival directions, without antenna patterns. Finite.
+    delay_s : float64 (P,)
+        Propagation delay tau_k (s), finite and >= 0.
+    doppler_hz : float64 (P,)
+        Doppler shift f_D,k = -(1/lambda) dL/dt (Hz), finite.
+    n_interactions : int16 (P,)
+        Number n of interactions of each path, 0 <= n <= K.
+    interaction : int8 (P, K)
+        :class:`InteractionType` code of interaction j (j < n: 1, 2 or 3); 0 past n.
+    points : float64 (P, K+2, 3)
+        Polyline of the path (m): row 0 the tx point, rows 1..n the interaction points,
+        row n+1 the rx point; rows past n+1 are NaN. Rows 0..n+1 are finite.
+    object_id : int32 (P, K)
+        Scene object index hit at interaction j (>= 0 for j < n); -1 past n.
+    face_id : int32 (P, K)
+        Scene triangle index hit at interaction j (>= 0 for j < n; for a diffraction, a
+        triangle that owns the edge); -1 past n.
+    """
+
+    gain: np.ndarray
+    matrix: np.ndarray
+    delay_s: np.ndarray
+    doppler_hz: np.ndarray
+    n_interactions: np.ndarray
+    interaction: np.ndarray
+    points: np.ndarray
+    object_id: np.ndarray
+    face_id: np.ndarray
+
+    def __post_init__(self) -> None:
+        for name, dtype, _ in _PATH_FIELDS:
+            object.__setattr__(self, name, _coerce(name, getattr(self, name), dtype))
+        self._check_shapes()
+        self._check_values()
+
+    # -- construction helpers ------------------------------------------------------
+
+    @classmethod
+    def empty(cls, k_max: int = 0) -> Paths:
+        """A link without paths (P = 0) whose arrays are K = ``k_max`` wide."""
+        k = int(k_max)
+        if k < 0:
+            raise SnapshotError(f"must be >= 0, got {k_max}", key="k_max")
+        return cls(
+            gain=np.zeros(0, np.complex128),
+            matrix=np.zeros((0, 2, 2), np.complex128),
+            delay_s=np.zeros(0),
+            doppler_hz=np.zeros(0),
+            n_interactions=np.zeros(0, np.int16),
+            interaction=np.zeros((0, k), np.int8),
+            points=np.zeros((0, k + 2, 3)),
+            object_id=np.zeros((0, k), np.int32),
+            face_id=np.zeros((0, k), np.int32),
+        )
+
+    # -- checks ----------------------------------------------------------------------
+
+    def _check_shapes(self) -> None:
+        if self.gain.ndim != 1:
+            raise SnapshotError(f"shape {self.gain.shape}, want (P,)", key="gain")
+        if self.interaction.ndim != 2:
+            raise SnapshotError(f"shape {self.interaction.shape}, want (P, K)",
+                                key="interaction")
+        p = self.gain.shape[0]
+        k = self.interaction.shape[1]
+        for name, _, spec in _PATH_FIELDS:
+            want = _expected_shape(spec, p, k)
+            got = getattr(self, name).shape
+            if got != want:
+                raise SnapshotError(
+                    f"shape {got}, want {spec} = {want} (P = {p} from gain, "
+                    f"K = {k} from interaction)", key=name)
+
+    def _check_values(self) -> None:
+        def refuse(name, idx, value, reason):
+            raise SnapshotError(f"{reason} (value {value!r})", key=f"{name}{_index_str(idx)}")
+
+        for name in ("gain", "matrix", "delay_s", "doppler_hz"):
+            arr = getattr(self, name)
+            bad = _first_bad(~np.isfinite(arr))
+            if bad is not None:
+                refuse(name, bad, arr[bad].item(), "must be finite")
+        bad = _first_bad(self.delay_s < 0)
+        if bad is not None:
+            refuse("delay_s", bad, self.delay_s[bad].item(), "delays must be >= 0")
+
+        k = self.k_max
+        n = self.n_interactions.astype(np.int64)
+        bad = _first_bad((n < 0) | (n > k))
+        if bad is not None:
+            refuse("n_interactions", bad, int(n[bad]), f"must lie in [0, K = {k}]")
+
+        active = np.arange(k)[None, :] < n[:, None]  # (P, K) real interaction slots
+        code = self.interaction
+        bad = _first_bad(active & ~np.isin(code, _VALID_CODES))
+        if bad is not None:
+            refuse("interaction", bad, int(code[bad]),
+                   "slot below n_interactions needs a code 1 (reflection), 2 (diffraction) "
+                   "or 3 (scattering)")
+        bad = _first_bad(~active & (code != InteractionType.NONE))
+        if bad is not None:
+            refuse("interaction", bad, int(code[bad]),
+                   "padding slot (at or past n_interactions) must be 0")
+        for name in ("object_id", "face_id"):
+            arr = getattr(self, name)
+            bad = _first_bad(active & (arr < 0))
+            if bad is not None:
+                refuse(name, bad, int(arr[bad]), "a real interaction needs an id >= 0")
+            bad = _first_bad(~active & (arr != -1))
+            if bad is not None:
+                refuse(name, bad, int(arr[bad]),
+                       "padding slot (at or past n_interactions) must be -1")
+
+        used = np.arange(k + 2)[None, :] < (n + 2)[:, None]  # (P, K+2) polyline rows
+        finite = np.isfinite(self.points)
+        bad = _first_bad(used[:, :, None] & ~finite)
+        if bad is not None:
+            refuse("points", bad, self.points[bad].item(),
+                   "tx, interaction and rx points must be finite")
+        bad = _first_bad(~used[:, :, None] & ~np.isnan(self.points))
+        if bad is not None:
+            refuse("points", bad, self.points[bad].item(),
+                   "rows past the rx point (row n_interactions + 1) must be NaN")
+
+    # -- conveniences ----------------------------------------------------------------
+
+    @property
+    def n_paths(self) -> int:
+        """P, the number of paths."""
+        return int(self.gain.shape[0])
+
+    @property
+    def k_max(self) -> int:
+        """K, the width of the interaction arrays (0: line of sight only)."""
+        return int(self.interaction.shape[1])
+
+    def __len__(self) -> int:
+        return self.n_paths
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Paths):
+            return NotImplemented
+        return _paths_difference(self, other) is None
+
+    __hash__ = None  # mutable-looking arrays inside: not hashable
+
+
+# ---------------------------------------------------------------------------
+# Link and Snapshot
+
+
+def _check_name(value, key: str) -> str:
+    if not isinstance(value, str):
+        raise SnapshotError(f"must be a str, got {type(value).__name__} {value!r}", key=key)
+    if "\x00" in value:
+        raise SnapshotError(f"must not contain NUL characters: {value!r}", key=key)
+    return value
+
+
+def _check_index(value, key: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise SnapshotError(f"must be an int, got {type(value).__name__} {value!r}", key=key)
+    if not 0 <= int(value) <= np.iinfo(np.int64).max:
+        raise SnapshotError(f"must be >= 0, got {value}", key=key)
+    return int(value)
+
+
+@dataclass(frozen=True, eq=False)
+class Link:
+    """One transmitter -> receiver link: names and indices (in the scene's radar list)
+    of both ends, and the link's :class:`Paths`. ``tx == rx`` is a monostatic radar."""
+
+    tx_name: str
+    rx_name: str
+    tx_index: int
+    rx_index: int
+    paths: Paths
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "tx_name", _check_name(self.tx_name, "tx_name"))
+        object.__setattr__(self, "rx_name", _check_name(self.rx_name, "rx_name"))
+        object.__setattr__(self, "tx_index", _check_index(self.tx_index, "tx_index"))
+        object.__setattr__(self, "rx_index", _check_index(self.rx_index, "rx_index"))
+        if not isinstance(self.paths, Paths):
+            raise SnapshotError(f"must be a Paths, got {type(self.paths).__name__}",
+                                key="paths")
+
+    @property
+    def label(self) -> str:
+        return f"{self.tx_name}->{self.rx_name}"
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Link):
+            return NotImplemented
+        return _link_difference(self, other) is None
+
+    __hash__ = None
+
+
+MetaValue = bool | int | float | str
+
+
+def _check_metadata(metadata) -> dict[str, MetaValue]:
+    if not isinstance(metadata, Mapping):
+        raise SnapshotError(f"must be a dict, got {type(metadata).__name__}", key="metadata")
+    out: dict[str, MetaValue] = {}
+    for key in sorted(metadata, key=lambda k: (not isinstance(k, str), str(k))):
+        value = metadata[key]
+        if not isinstance(key, str) or not _META_KEY.fullmatch(key):
+            raise SnapshotError(
+                f"key {key!r} must be a non-empty str of letters, digits, '_', '.', '-'",
+                key="metadata")
+        kp = f"metadata.{key}"
+        if isinstance(value, (bool, np.bool_)):
+            out[key] = bool(value)
+        elif isinstance(value, (int, np.integer)):
+            if not np.iinfo(np.int64).min <= int(value) <= np.iinfo(np.int64).max:
+                raise SnapshotError(f"int {value} does not fit in int64", key=kp)
+            out[key] = int(value)
+        elif isinstance(value, (float, np.floating)):
+            out[key] = float(value)
+        elif isinstance(value, str):
+            out[key] = _check_name(value, kp)
+        else:
+            raise SnapshotError(
+                f"value {value!r} of type {type(value).__name__}: only bool, int, float and "
+                "str are stored", key=kp)
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class Snapshot:
+    """All links of one scene at one instant.
+
+    Attributes
+    ----------
+    scene_name : str
+    carrier_hz : float
+        Carrier frequency f_c (Hz), finite and > 0.
+    scene_hash : str
+        Hex digest of the scene (:meth:`clradcom.scene.Scene.content_hash`); ``""`` for a
+        snapshot not made from a scene (synthetic test data).
+    links : tuple of Link
+        At most one link per (tx_name, rx_name); a name always has the same index.
+    time_s : float or None
+        Scene time of the snapshot (s), or None when the scene is static/unspecified.
+    metadata : dict of str -> bool | int | float | str
+        Tracer settings and provenance (``max_reflections``, ``rays``,
+        ``clradcom_version`` ...). Stored sorted by key.
+    version : int
+        Format version; only :data:`FORMAT_VERSION` can be built.
+    """
+
+    scene_name: str
+    carrier_hz: float
+    scene_hash: str
+    links: tuple[Link, ...] = ()
+    time_s: float | None = None
+    metadata: dict[str, MetaValue] = field(default_factory=dict)
+    version: int = FORMAT_VERSION
+
+    def __post_init__(self) -> None:
+        if isinstance(self.version, bool) or not isinstance(self.version, (int, np.integer)) \
+                or int(self.version) != FORMAT_VERSION:
+            raise SnapshotError(
+                f"only format version {FORMAT_VERSION} can be built, got {self.version!r}",
+                key="version")
+        object.__setattr__(self, "version", int(self.version))
+        object.__setattr__(self, "scene_name", _check_name(self.scene_name, "scene_name"))
+        carrier = _real_scalar(self.carrier_hz, "carrier_hz")
+        if not (math.isfinite(carrier) and carrier > 0):
+            raise SnapshotError(f"must be finite and > 0, got {self.carrier_hz!r}",
+                                key="carrier_hz")
+        object.__setattr__(self, "carrier_hz", carrier)
+        h = _check_name(self.scene_hash, "scene_hash")
+        if not _HEX.fullmatch(h):
+            raise SnapshotError(f"must be a hex digest (or ''), got {h!r}", key="scene_hash")
+        if self.time_s is not None:
+            t = _real_scalar(self.time_s, "time_s")
+            if not math.isfinite(t):
+                raise SnapshotError(f"must be finite or None, got {self.time_s!r}",
+                                    key="time_s")
+            object.__setattr__(self, "time_s", t)
+        object.__setattr__(self, "metadata", _check_metadata(self.metadata))
+
+        links = tuple(self.links)
+        seen: dict[tuple[str, str], int] = {}
+        name_to_index: dict[str, int] = {}
+        index_to_name: dict[int, str] = {}
+        for i, link in enumerate(links):
+            if not isinstance(link, Link):
+                raise SnapshotError(f"must be a Link, got {type(link).__name__}",
+                                    key=f"links[{i}]")
+            pair = (link.tx_name, link.rx_name)
+            if pair in seen:
+                raise SnapshotError(
+                    f"link {link.label} appears twice (links[{seen[pair]}] and links[{i}])",
+                    key=f"links[{i}]")
+            seen[pair] = i
+            for name, idx, what in ((link.tx_name, link.tx_index, "tx"),
+                                    (link.rx_name, link.rx_index, "rx")):
+                if name_to_index.setdefault(name, idx) != idx:
+                    raise SnapshotError(
+                        f"{what} {name!r} has index {idx} here but {name_to_index[name]} in "
+                        "an earlier link", key=f"links[{i}].{what}_index")
+                if index_to_name.setdefault(idx, name) != name:
+                    raise SnapshotError(
+                        f"{what} index {idx} is {name!r} here but {index_to_name[idx]!r} in "
+                        "an earlier link", key=f"links[{i}].{what}_name")
+        object.__setattr__(self, "links", links)
+
+    # -- conveniences ----------------------------------------------------------------
+
+    def link(self, tx: str | int, rx: str | int) -> Link:
+        """The link ``tx -> rx`` by names (or by radar indices when both are ints)."""
+        by_index = isinstance(tx, (int, np.integer)) and isinstance(rx, (int, np.integer))
+        for link in self.links:
+            if by_index:
+                if (link.tx_index, link.rx_index) == (int(tx), int(rx)):
+                    return link
+            elif (link.tx_name, link.rx_name) == (tx, rx):
+                return link
+        have = ", ".join(lk.label for lk in self.links) or "none"
+        raise KeyError(f"snapshot {self.scene_name!r} has no link {tx!r} -> {rx!r} "
+                       f"(links: {have})")
+
+    def __iter__(self) -> Iterator[Link]:
+        return iter(self.links)
+
+    def __len__(self) -> int:
+        return len(self.links)
+
+    @property
+    def total_paths(self) -> int:
+        """Number of paths over all links."""
+        return sum(link.paths.n_paths for link in self.links)
+
+    def summary(self) -> str:
+        """A few lines for humans: links, path counts, strongest path (dB), delay span."""
+        t = "static" if self.time_s is None else f"t = {self.time_s:g} s"
+        h = self.scene_hash[:12] if self.scene_hash else "none"
+        lines = [
+            f"snapshot of {self.scene_name!r} (v{self.version}, scene hash {h}), "
+            f"carrier {self.carrier_hz / 1e9:.6g} GHz, {t}",
+            f"{len(self.links)} links, {self.total_paths} paths",
+        ]
+        if self.links:
+            width = max(len(lk.label) for lk in self.links)
+            width = max(width, len("link"))
+            lines.append(f"  {'link':<{width}}  {'paths':>6}  {'max K':>5}  "
+                         f"{'strongest dB':>12}  {'delay min..max ns':>21}")
+            for lk in self.links:
+                p = lk.paths
+                if p.n_paths:
+                    peak = float(np.max(np.abs(p.gain)))
+                    db = 20 * math.log10(peak) if peak > 0 else -math.inf
+                    dmin, dmax = float(p.delay_s.min()) * 1e9, float(p.delay_s.max()) * 1e9
+                    kmax = int(p.n_interactions.max())
+                    strongest = f"{db:12.2f}"
+                    delays = f"{dmin:10.3f}..{dmax:<10.3f}"
+                else:
+                    kmax, strongest, delays = 0, f"{'-':>12}", f"{'-':>21}"
+                lines.append(f"  {lk.label:<{width}}  {p.n_paths:>6}  {kmax:>5}  "
+                             f"{strongest}  {delays}".rstrip())
+        for key, value in self.metadata.items():
+            lines.append(f"  {key} = {value!r}")
+        return "\n".join(lines)
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Snapshot):
+            return NotImplemented
+        return _snapshot_difference(self, other) is None
+
+    __hash__ = None
+
+
+def _real_scalar(value, key: str) -> float:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer,
+                                                                      np.floating)):
+        raise SnapshotError(f"must be a real number, got {type(value).__name__} {value!r}",
+                            key=key)
+    return float(value)
+
+
+# ---------------------------------------------------------------------------
+# exact comparison
+
+
+def _array_difference(a: np.ndarray, b: np.ndarray) -> str | None:
+    if a.dtype != b.dtype:
+        return f"dtype {a.dtype} != {b.dtype}"
+    if a.shape != b.shape:
+        return f"shape {a.shape} != {b.shape}"
+    if a.dtype.kind in "fc":
+        ra, rb = (a.view(np.float64), b.view(np.float64)) if a.dtype.kind == "c" else (a, b)
+        same = (ra == rb) | (np.isnan(ra) & np.isnan(rb))
+        if a.dtype.kind == "c":
+            same = same.reshape(*a.shape, 2).all(axis=-1)
+    else:
+        same = a == b
+    bad = _first_bad(~np.asarray(same))
+    if bad is None:
+        return None
+    return f"at {_index_str(bad)}: {a[bad]!r} != {b[bad]!r}"
+
+
+def _paths_difference(a: Paths, b: Paths) -> str | None:
+    for name in _PATH_FIELD_NAMES:
+        diff = _array_difference(getattr(a, name), getattr(b, name))
+        if diff is not None:
+            return f"{name}: {diff}"
+    return None
+
+
+def _link_difference(a: Link, b: Link) -> str | None:
+    for name in ("tx_name", "rx_name", "tx_index", "rx_index"):
+        if getattr(a, name) != getattr(b, name):
+            return f"{name}: {getattr(a, name)!r} != {getattr(b, name)!r}"
+    return _paths_difference(a.paths, b.paths)
+
+
+def _same_scalar(x, y) -> bool:
+    if type(x) is not type(y):
+        return False
+    if isinstance(x, float):
+        return x == y or (math.isnan(x) and math.isnan(y))
+    return x == y
+
+
+def _snapshot_difference(a: Snapshot, b: Snapshot) -> str | None:
+    for name in ("version", "scene_name", "carrier_hz", "scene_hash", "time_s"):
+        if not _same_scalar(getattr(a, name), getattr(b, name)):
+            return f"{name}: {getattr(a, name)!r} != {getattr(b, name)!r}"
+    if list(a.metadata) != list(b.metadata):
+        return f"metadata keys: {sorted(a.metadata)} != {sorted(b.metadata)}"
+    for key in a.metadata:
+        if not _same_scalar(a.metadata[key], b.metadata[key]):
+            return f"metadata.{key}: {a.metadata[key]!r} != {b.metadata[key]!r}"
+    if len(a.links) != len(b.links):
+        return f"number of links: {len(a.links)} != {len(b.links)}"
+    for i, (la, lb) in enumerate(zip(a.links, b.links, strict=True)):
+        diff = _link_difference(la, lb)
+        if diff is not None:
+            return f"links[{i}] ({la.label}).{diff}"
+    return None
+
+
+def assert_snapshot_equal(a: Snapshot, b: Snapshot) -> None:
+    """Raise AssertionError naming the first difference unless ``a`` and ``b`` are
+    exactly equal: same scalars, metadata (and types), link order, dtypes, shapes and
+    array values (NaN equals NaN; +0.0 equals -0.0)."""
+    diff = _snapshot_difference(a, b)
+    if diff is not None:
+        raise AssertionError(f"snapshots differ: {diff}")
+
+
+# ---------------------------------------------------------------------------
+# writing
+
+
+def _scalar_array(value: MetaValue) -> np.ndarray:
+    if isinstance(value, bool):
+        return np.array(value, dtype=np.bool_)
+    if isinstance(value, int):
+        return np.array(value, dtype=np.int64)
+    if isinstance(value, float):
+        return np.array(value, dtype=np.float64)
+    return np.array(value, dtype=np.str_)
+
+
+def _str_array(values: list[str]) -> np.ndarray:
+    if not values:
+        return np.zeros(0, dtype="<U1")
+    return np.array(values, dtype=np.str_)
+
+
+def _entries(snapshot: Snapshot) -> list[tuple[str, np.ndarray]]:
+    """Every (key, array) of the file, in file order."""
+    out: list[tuple[str, np.ndarray]] = [
+        ("meta/format", np.array(FORMAT_NAME)),
+        ("meta/version", np.array(snapshot.version, dtype=np.int64)),
+        ("meta/scene_name", np.array(snapshot.scene_name, dtype=np.str_)),
+        ("meta/carrier_hz", np.array(snapshot.carrier_hz, dtype=np.float64)),
+        ("meta/scene_hash", np.array(snapshot.scene_hash, dtype=np.str_)),
+    ]
+    if snapshot.time_s is not None:
+        out.append(("meta/time_s", np.array(snapshot.time_s, dtype=np.float64)))
+    for key in sorted(snapshot.metadata):
+        out.append((f"metadata/{key}", _scalar_array(snapshot.metadata[key])))
+    links = snapshot.links
+    out += [
+        ("links/tx_name", _str_array([lk.tx_name for lk in links])),
+        ("links/rx_name", _str_array([lk.rx_name for lk in links])),
+        ("links/tx_index", np.array([lk.tx_index for lk in links], dtype=np.int64)),
+        ("links/rx_index", np.array([lk.rx_index for lk in links], dtype=np.int64)),
+    ]
+    for i, lk in enumerate(links):
+        for name in _PATH_FIELD_NAMES:
+            out.append((f"link{i}/{name}", getattr(lk.paths, name)))
+    return out
+
+
+def _write_member(zf: zipfile.ZipFile, key: str, array: np.ndarray) -> None:
+    """One ``key.npy`` member: fixed timestamp and attributes, little-endian, C order."""
+    arr = np.asarray(array, order="C")  # (ascontiguousarray would make 0-d arrays 1-d)
+    arr = arr.astype(arr.dtype.newbyteorder("<"), copy=False)
+    info = zipfile.ZipInfo(key + ".npy", date_time=_ZIP_DATE_TIME)
+    info.compress_type = zipfile.ZIP_STORED
+    info.create_system = 3  # "unix", whatever the writing OS, for identical bytes
+    info.external_attr = _ZIP_EXTERNAL_ATTR
+    with zf.open(info, "w", force_zip64=True) as member:
+        np.lib.format.write_array(member, arr, allow_pickle=False)
+
+
+def _write_zip(fileobj, snapshot: Snapshot) -> None:
+    with zipfile.ZipFile(fileobj, "w", compression=zipfile.ZIP_STORED) as zf:
+        for key, array in _entries(snapshot):
+            _write_member(zf, key, array)
+
+
+def _open_temp(directory: Path, name: str) -> tuple[int, Path]:
+    """Create a new temporary file beside the target (mode 0666 minus the umask)."""
+    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0)
+    for _ in range(100):
+        tmp = directory / f".{name}.{secrets.token_hex(6)}.tmp"
+        try:
+            return os.open(tmp, flags, 0o666), tmp
+        except FileExistsError:  # pragma: no cover - 48 random bits collided
+            continue
+    raise FileExistsError(f"could not create a temporary file in {directory}")  # pragma: no cover
+
+
+def _fsync_directory(directory: Path) -> None:
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:  # pragma: no cover - e.g. Windows
+        return
+    try:
+        os.fsync(fd)
+    except OSError:  # pragma: no cover - some filesystems refuse directory fsync
+        pass
+    finally:
+        os.close(fd)
+
+
+def save_snapshot(path: str | os.PathLike, snapshot: Snapshot) -> Path:
+    """Write ``snapshot`` to ``path`` (an ``.npz`` zip; the name is used as given).
+
+    Atomic: the data go to a temporary file in the same directory, which is fsynced and
+    then renamed over ``path`` with :func:`os.replace`. On any error or interrupt
+    (including KeyboardInterrupt) the temporary file is removed and an existing file at
+    ``path`` is left as it was. Deterministic: the same snapshot gives the same bytes.
+    Returns ``path`` as a :class:`~pathlib.Path`.
+    """
+    if not isinstance(snapshot, Snapshot):
+        raise TypeError(f"save_snapshot needs a Snapshot, got {type(snapshot).__name__}")
+    target = Path(path)
+    directory = target.parent if str(target.parent) else Path(".")
+    fd, tmp = _open_temp(directory, target.name)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            _write_zip(fh, snapshot)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, target)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+    _fsync_directory(directory)
+    return target
+
+
+# ---------------------------------------------------------------------------
+# reading
+
+
+class _Reader:
+    """Checked access to the members of one npz file."""
+
+    def __init__(self, path: Path, npz) -> None:
+        self.path = path
+        self.npz = npz
+        self.keys = set(npz.files)
+        self.used: set[str] = set()
+
+    def err(self, key: str | None, reason: str) -> SnapshotError:
+        return SnapshotError(reason, file=self.path, key=key)
+
+    def get(self, key: str, kind: str, ndim: int | None = None,
+            itemsize: int | None = None) -> np.ndarray:
+        if key not in self.keys:
+            raise self.err(key, "missing key (the file is incomplete or not a snapshot of "
+                                "this format version)")
+        self.used.add(key)
+        try:
+            arr = self.npz[key]
+        except Exception as exc:
+            raise self.err(key, f"cannot read the array ({type(exc).__name__}: {exc}); "
+                                "the file is corrupt") from None
+        if arr.dtype.kind not in kind or (itemsize is not None
+                                          and arr.dtype.itemsize != itemsize):
+            want = {"U": "a unicode string", "i": "an integer", "f": "a float",
+                    "b": "a bool"}.get(kind, kind)
+            if itemsize is not None:
+                want = f"{want} of {itemsize} bytes"
+            raise self.err(key, f"dtype {arr.dtype}, want {want}")
+        if ndim is not None and arr.ndim != ndim:
+            raise self.err(key, f"shape {arr.shape}, want {ndim} dimension(s)")
+        if arr.dtype.byteorder == (">" if np.little_endian else "<"):
+            arr = arr.astype(arr.dtype.newbyteorder("="))
+        return arr
+
+    def scalar(self, key: str, kind: str, itemsize: int | None = None):
+        return self.get(key, kind, 0, itemsize).item()
+
+
+def load_snapshot(path: str | os.PathLike) -> Snapshot:
+    """Read a snapshot written by :func:`save_snapshot`.
+
+    Refuses (with a :class:`SnapshotError` naming the file and key) a file that is not a
+    zip/npz, not a clradcom snapshot, of a newer format version, with a missing or unknown
+    key, a wrong dtype or shape, or invalid values. A missing file raises
+    FileNotFoundError.
+    """
+    p = Path(path)
+    if not p.exists():
+        raise FileNotFoundError(f"{p}: no such snapshot file")
+    if not zipfile.is_zipfile(p):
+        raise SnapshotError("not a snapshot: not a zip (.npz) file, or the file is "
+                            "truncated or corrupt", file=p)
+    try:
+        npz = np.load(p, allow_pickle=False)
+    except Exception as exc:
+        raise SnapshotError(f"cannot open as .npz ({type(exc).__name__}: {exc})",
+                            file=p) from None
+    with npz:
+        if not isinstance(npz, np.lib.npyio.NpzFile):  # pragma: no cover - is_zipfile said so
+            raise SnapshotError("not an .npz archive", file=p)
+        return _read(_Reader(p, npz))
+
+
+def _read(r: _Reader) -> Snapshot:
+    if "meta/format" not in r.keys:
+        raise r.err("meta/format", "missing key: this .npz is not a clradcom snapshot")
+    fmt = r.scalar("meta/format", "U")
+    if fmt != FORMAT_NAME:
+        raise r.err("meta/format", f"is {fmt!r}, not {FORMAT_NAME!r}: not a clradcom snapshot")
+    version = r.scalar("meta/version", "i")
+    if version > FORMAT_VERSION:
+        raise r.err("meta/version",
+                    f"snapshot format version {version} is newer than this clradcom reads "
+                    f"(up to version {FORMAT_VERSION}); upgrade clradcom to read it")
+    if version < 1:
+        raise r.err("meta/version", f"invalid snapshot format version {version}")
+
+    scene_name = r.scalar("meta/scene_name", "U")
+    carrier_hz = r.scalar("meta/carrier_hz", "f", 8)
+    scene_hash = r.scalar("meta/scene_hash", "U")
+    time_s = r.scalar("meta/time_s", "f", 8) if "meta/time_s" in r.keys else None
+    metadata: dict[str, MetaValue] = {}
+    for key in sorted(k for k in r.keys if k.startswith("metadata/")):
+        arr = r.get(key, "bifU", 0)
+        if arr.dtype.kind in "if" and arr.dtype.itemsize != 8:
+            raise r.err(key, f"dtype {arr.dtype}, want int64, float64, bool or str")
+        metadata[key[len("metadata/"):]] = arr.item()
+
+    tx_name = r.get("links/tx_name", "U", 1)
+    n_links = tx_name.shape[0]
+    columns = {"links/tx_name": tx_name}
+    for key, kind in (("links/rx_name", "U"), ("links/tx_index", "i"),
+                      ("links/rx_index", "i")):
+        columns[key] = r.get(key, kind, 1)
+        if columns[key].shape != (n_links,):
+            raise r.err(key, f"shape {columns[key].shape}, want ({n_links},) like "
+                             "links/tx_name")
+
+    links = []
+    for i in range(n_links):
+        arrays = {}
+        for name, dtype, _ in _PATH_FIELDS:
+            key = f"link{i}/{name}"
+            arrays[name] = r.get(key, dtype.kind, None, dtype.itemsize)
+        try:
+            paths = Paths(**arrays)
+            link = Link(tx_name=str(columns["links/tx_name"][i]),
+                        rx_name=str(columns["links/rx_name"][i]),
+                        tx_index=int(columns["links/tx_index"][i]),
+                        rx_index=int(columns["links/rx_index"][i]), paths=paths)
+        except SnapshotError as exc:
+            key = exc.key or ""
+            if key.split("[")[0] in _PATH_FIELD_NAMES:
+                key = f"link{i}/{key}"
+            else:  # a Link field: tx_name, rx_index, ...
+                key = f"links/{key}[{i}]"
+            raise r.err(key, exc.reason) from None
+        links.append(link)
+
+    unknown = sorted(r.keys - r.used)
+    if unknown:
+        raise r.err(unknown[0], f"unknown key for format version {version} "
+                                f"({len(unknown)} unknown in all)")
+    try:
+        return Snapshot(scene_name=scene_name, carrier_hz=carrier_hz, scene_hash=scene_hash,
+                        links=tuple(links), time_s=time_s, metadata=metadata, version=version)
+    except SnapshotError as exc:
+        key = {"scene_name": "meta/scene_name", "carrier_hz": "meta/carrier_hz",
+               "scene_hash": "meta/scene_hash", "time_s": "meta/time_s",
+               "version": "meta/version"}.get(exc.key or "", exc.key)
+        raise r.err(key, exc.reason) from None
+
