@@ -130,6 +130,21 @@ class RayCaster:
         self._verts = rt.to_device(verts)
         self._tri_index = rt.to_device(self.bvh.tri_index.astype(np.int32))
 
+    @property
+    def device_nodes(self):
+        """Device buffer of the traversal layout (PairNode records)."""
+        return self._nodes
+
+    @property
+    def device_verts(self):
+        """Device buffer of the float4 vertices in leaf-slot order."""
+        return self._verts
+
+    @property
+    def device_tri_index(self):
+        """Device buffer mapping leaf slots to scene triangle ids."""
+        return self._tri_index
+
     def _launch(self, kernel_name, rays, ignore_prim, out_dtype):
         import pyopencl as cl
 

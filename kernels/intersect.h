@@ -26,6 +26,8 @@
  * rests on, so contraction is off for everything that includes this file. */
 #pragma OPENCL FP_CONTRACT OFF
 
+/* The stack never holds more entries than the tree is deep; the builder
+ * caps depth at this (clradcom.bvh.build_bvh max_depth) and RayCaster checks. */
 #define BVH_STACK_SIZE 64
 #define ROBUST_TMAX_SCALE 1.0000003576f /* 1 + 2*gamma(3), gamma(n) = n*eps/(1-n*eps) */
 
@@ -123,21 +125,37 @@ inline float3 box_min(__global const float *p) { return (float3)(p[0], p[1], p[2
  * per leaf slot (slot i is scene triangle tri_index[i]); returns the slot,
  * -1 on a miss. ignore_prim (a scene id, or -1) is skipped: the surface a
  * reflected ray leaves. */
+/* A traversal stack entry packs a child into one int: an inner child's record
+ * index (>= 0), or a leaf as -(first_slot * 32 + count) - 1 (leaves hold at
+ * most 31 triangles; the builder caps them at 16). Fewer private arrays make
+ * PoCL's work-item loops markedly faster. */
+#define LEAF_CODE(first, count) (-((first) * 32 + (count)) - 1)
+
+inline int child_code(int ref, int count)
+{
+    return (count > 0) ? LEAF_CODE(ref, count) : ref;
+}
+
+/* Closest hit along the ray in (tmin, tmax). tri_verts holds three float4
+ * per leaf slot (slot i is scene triangle tri_index[i]); returns the slot,
+ * -1 on a miss. ignore_prim (a scene id, or -1) is skipped: the surface a
+ * reflected ray leaves. */
 inline int bvh_closest(__global const PairNode *nodes, __global const float4 *tri_verts,
                        __global const int *tri_index, const PreparedRay *r,
                        float tmin, float *tmax_io, float *u_out, float *v_out,
                        int ignore_prim)
 {
-    int stack_ref[BVH_STACK_SIZE];
-    int stack_count[BVH_STACK_SIZE];
+    int stack_code[BVH_STACK_SIZE];
     float stack_dist[BVH_STACK_SIZE];
     int sp = 0;
-    int ref = 0, count = 0;   /* start at the root record */
+    int code = 0;   /* the root record */
     int best = -1;
     float tmax = *tmax_io;
     for (;;) {
-        if (count > 0) {
-            for (int i = ref; i < ref + count; ++i) {
+        if (code < 0) {
+            int packed = -code - 1;
+            int first = packed >> 5, last = first + (packed & 31);
+            for (int i = first; i < last; ++i) {
                 float t, u, v;
                 if (ray_triangle(r, tri_verts[3 * i], tri_verts[3 * i + 1], tri_verts[3 * i + 2],
                                  tmin, tmax, &t, &u, &v)
@@ -146,22 +164,21 @@ inline int bvh_closest(__global const PairNode *nodes, __global const float4 *tr
                 }
             }
         } else {
-            __global const PairNode *n = nodes + ref;
+            __global const PairNode *n = nodes + code;
             float dl = (n->lcount >= 0)
                 ? ray_box(r, box_min(n->lmin), box_min(n->lmax), tmin, tmax) : INFINITY;
             float dr = (n->rcount >= 0)
                 ? ray_box(r, box_min(n->rmin), box_min(n->rmax), tmin, tmax) : INFINITY;
-            int lref = n->lref, lcount = n->lcount, rref = n->rref, rcount = n->rcount;
+            int lc = child_code(n->lref, n->lcount), rc = child_code(n->rref, n->rcount);
             if (dl > dr) {
                 float td = dl; dl = dr; dr = td;
-                int t0 = lref; lref = rref; rref = t0;
-                int t1 = lcount; lcount = rcount; rcount = t1;
+                int tc = lc; lc = rc; rc = tc;
             }
             if (dl != INFINITY) {
-                if (dr != INFINITY && sp < BVH_STACK_SIZE) {
-                    stack_ref[sp] = rref; stack_count[sp] = rcount; stack_dist[sp] = dr; ++sp;
+                if (dr != INFINITY) {
+                    stack_code[sp] = rc; stack_dist[sp] = dr; ++sp;
                 }
-                ref = lref; count = lcount;
+                code = lc;
                 continue;
             }
         }
@@ -171,7 +188,7 @@ inline int bvh_closest(__global const PairNode *nodes, __global const float4 *tr
             --sp;
             if (stack_dist[sp] <= tmax) break;
         }
-        ref = stack_ref[sp]; count = stack_count[sp];
+        code = stack_code[sp];
     }
 }
 
@@ -180,13 +197,14 @@ inline bool bvh_any(__global const PairNode *nodes, __global const float4 *tri_v
                     __global const int *tri_index, const PreparedRay *r,
                     float tmin, float tmax, int ignore_a, int ignore_b)
 {
-    int stack_ref[BVH_STACK_SIZE];
-    int stack_count[BVH_STACK_SIZE];
+    int stack_code[BVH_STACK_SIZE];
     int sp = 0;
-    int ref = 0, count = 0;
+    int code = 0;
     for (;;) {
-        if (count > 0) {
-            for (int i = ref; i < ref + count; ++i) {
+        if (code < 0) {
+            int packed = -code - 1;
+            int first = packed >> 5, last = first + (packed & 31);
+            for (int i = first; i < last; ++i) {
                 float t, u, v;
                 int prim = tri_index[i];
                 if (prim != ignore_a && prim != ignore_b
@@ -195,23 +213,21 @@ inline bool bvh_any(__global const PairNode *nodes, __global const float4 *tri_v
                     return true;
             }
         } else {
-            __global const PairNode *n = nodes + ref;
+            __global const PairNode *n = nodes + code;
             bool hl = (n->lcount >= 0)
                 && ray_box(r, box_min(n->lmin), box_min(n->lmax), tmin, tmax) != INFINITY;
             bool hr = (n->rcount >= 0)
                 && ray_box(r, box_min(n->rmin), box_min(n->rmax), tmin, tmax) != INFINITY;
             if (hl || hr) {
-                if (hl && hr && sp < BVH_STACK_SIZE) {
-                    stack_ref[sp] = n->rref; stack_count[sp] = n->rcount; ++sp;
+                if (hl && hr) {
+                    stack_code[sp++] = child_code(n->rref, n->rcount);
                 }
-                ref = hl ? n->lref : n->rref;
-                count = hl ? n->lcount : n->rcount;
+                code = hl ? child_code(n->lref, n->lcount) : child_code(n->rref, n->rcount);
                 continue;
             }
         }
         if (sp == 0) return false;
-        --sp;
-        ref = stack_ref[sp]; count = stack_count[sp];
+        code = stack_code[--sp];
     }
 }
 
