@@ -1,0 +1,117 @@
+"""Planar faces: coplanar triangles of one object and material are one reflector.
+
+A mesh tessellates a wall or a road into many triangles; a specular
+reflection off that plane is one path, whichever triangle the reflection
+point falls in. The tracer therefore works with *faces*: every triangle gets
+the id of the plane it lies in (per object and material, since objects move
+independently and materials reflect differently). Two triangles share a face
+when their unit normals agree up to sign within ``angle_tol`` and their plane
+offsets within ``offset_tol``; faces are two-sided (which side is lit is
+decided per path by the image method).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+
+@dataclass(frozen=True)
+class Faces:
+    """Per-triangle face ids and per-face planes (unit normal n, offset d: n.x = d)."""
+
+    tri_face: np.ndarray  # (T,) int32
+    normal: np.ndarray  # (F, 3) float64, unit, sign canonical
+    offset: np.ndarray  # (F,) float64
+    object_id: np.ndarray  # (F,) int32
+    material_id: np.ndarray  # (F,) int32
+
+    @property
+    def n_faces(self) -> int:
+        return len(self.offset)
+
+
+def triangle_planes(triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Unit normals with a canonical sign, plane offsets and twice the areas, in float64.
+
+    The sign is fixed so the largest-magnitude component is positive: the
+    two sides of a plane are one reflector, so normals that differ only in
+    sign must compare equal.
+    """
+    tri = np.asarray(triangles, dtype=np.float64)
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    area2 = np.linalg.norm(n, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        n = n / area2[:, None]
+    big = np.argmax(np.abs(n), axis=1)
+    sign = np.sign(n[np.arange(len(n)), big])
+    sign[sign == 0] = 1.0
+    n *= sign[:, None]
+    # the offset from the centroid: rounding of any single vertex averages out
+    d = np.einsum("ij,ij->i", n, tri.mean(axis=1))
+    return n, d, area2
+
+
+def merge_coplanar(triangles, tri_object, tri_material, angle_tol=1e-5, offset_tol=1e-5):
+    """Group triangles into planar faces per (object, material, plane).
+
+    angle_tol is in radians between normals; offset_tol in metres between
+    plane offsets (relative to 1 + |d| so distant planes are judged by
+    their float resolution). Grouping sorts on quantised keys and then joins
+    neighbours in that order that agree within the tolerances, so a plane
+    whose key straddles a quantisation step is still one face.
+    """
+    tri = np.asarray(triangles, dtype=np.float64)
+    obj = np.asarray(tri_object, dtype=np.int64)
+    mat = np.asarray(tri_material, dtype=np.int64)
+    if tri.ndim != 3 or tri.shape[1:] != (3, 3):
+        raise ValueError(f"triangles must have shape (T, 3, 3), got {tri.shape}")
+    if obj.shape != (len(tri),) or mat.shape != (len(tri),):
+        raise ValueError("tri_object and tri_material need one entry per triangle")
+    n, d, area2 = triangle_planes(tri)
+    if not np.all(area2 > 0):
+        bad = int(np.flatnonzero(~(area2 > 0))[0])
+        raise ValueError(f"triangle {bad} is degenerate (zero area): it has no plane")
+    T = len(tri)
+    q = np.round(np.column_stack([n / angle_tol * 0.5, d / (offset_tol * (1 + np.abs(d)))]))
+    pairs_a, pairs_b = [], []
+    for lead in range(4):
+        # sort with each key component leading once so near-equal planes end up adjacent
+        keys = [q[:, (lead + j) % 4] for j in range(4)][::-1] + [mat, obj]
+        order = np.lexsort(keys)
+        a, b = order[:-1], order[1:]
+        same = (obj[a] == obj[b]) & (mat[a] == mat[b])
+        same &= np.einsum("ij,ij->i", n[a], n[b]) > np.cos(angle_tol)
+        same &= np.abs(d[a] - d[b]) <= offset_tol * (1 + np.abs(d[a]))
+        pairs_a.append(a[same])
+        pairs_b.append(b[same])
+    ia, ib = np.concatenate(pairs_a), np.concatenate(pairs_b)
+    graph = coo_matrix((np.ones(len(ia), dtype=np.int8), (ia, ib)), shape=(T, T))
+    _, labels = connected_components(graph, directed=False)
+    # number faces by their first triangle so ids are stable and ordered
+    first = np.full(labels.max() + 1, T, dtype=np.int64)
+    np.minimum.at(first, labels, np.arange(T))
+    rank = np.argsort(np.argsort(first))
+    tri_face = rank[labels]
+    uniq = np.sort(first)
+    tri_face = tri_face.astype(np.int32)
+    F = len(uniq)
+    # area-weighted plane per face
+    w = area2
+    normal = np.zeros((F, 3))
+    np.add.at(normal, tri_face, n * w[:, None])
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    centroid_sum = np.zeros((F, 3))
+    np.add.at(centroid_sum, tri_face, tri.mean(axis=1) * w[:, None])
+    wsum = np.bincount(tri_face, weights=w, minlength=F)
+    offset = np.einsum("ij,ij->i", normal, centroid_sum / wsum[:, None])
+    return Faces(
+        tri_face=tri_face,
+        normal=normal,
+        offset=offset,
+        object_id=obj[uniq].astype(np.int32),
+        material_id=mat[uniq].astype(np.int32),
+    )

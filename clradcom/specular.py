@@ -1,0 +1,204 @@
+"""Specular paths: candidate search on the device, exact geometry on the host.
+
+Stages (each plain arrays in and out):
+
+1. :func:`launch_directions` - a Fibonacci lattice over the transmit
+   pattern's support (directions where its gain is non-zero).
+2. :func:`reflection_sequences` - the OpenCL kernel ``trace_reflections``
+   follows every ray through up to ``max_order`` specular bounces and
+   returns the faces it reflects off, in order.
+3. :func:`unique_candidates` - every prefix of every sequence is a
+   candidate for a path to any receiver (the approach of Sionna RT's
+   shooting-and-bouncing candidate stage); duplicates go.
+4. :func:`image_points` - the image method in float64 gives the exact
+   reflection points of a candidate for one tx/rx pair and rejects those
+   whose line to an image misses the plane between its ends (wrong side).
+5. :func:`confirm_paths` - one closest-hit query per segment: the segment
+   toward a reflection point must first meet exactly that face there (so the
+   point lies inside the face and nothing blocks it), and the last segment
+   must reach the receiver unobstructed.
+
+The ray density only decides which candidates are proposed; every kept path
+is exact, and the set stops growing once the lattice is dense enough.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .raycast import RayCaster, make_rays, spawn_origins
+
+#: A segment counts as reaching its reflection point when the first thing it
+#: meets is that face within this many metres (plus float32 resolution).
+CONFIRM_TOL_M = 1e-3
+
+
+def fibonacci_sphere(n: int) -> np.ndarray:
+    """n nearly uniform unit vectors (golden-angle spiral), float64 (n, 3)."""
+    if n < 1:
+        raise ValueError(f"need at least one direction, got n={n}")
+    k = np.arange(n, dtype=np.float64)
+    z = 1.0 - 2.0 * (k + 0.5) / n
+    r = np.sqrt(np.maximum(1.0 - z * z, 0.0))
+    phi = k * np.pi * (3.0 - np.sqrt(5.0))
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+
+
+def launch_directions(n_rays: int, gain_fn=None, orientation=None) -> np.ndarray:
+    """About n_rays world directions covering where the pattern radiates.
+
+    gain_fn maps local unit directions (K,3) to gain; orientation (3,3) has
+    the antenna's local axes as columns. The lattice is made dense enough on
+    the whole sphere that about n_rays of it fall inside the support.
+    """
+    if gain_fn is None:
+        return fibonacci_sphere(n_rays)
+    probe = fibonacci_sphere(4096)
+    share = float(np.mean(np.asarray(gain_fn(probe)) > 0))
+    if share == 0.0:
+        raise ValueError("the antenna pattern has zero gain everywhere")
+    local = fibonacci_sphere(int(np.ceil(n_rays / share)))
+    local = local[np.asarray(gain_fn(local)) > 0]
+    if orientation is None:
+        return local
+    return local @ np.asarray(orientation, dtype=np.float64).T
+
+
+def reflection_sequences(caster: RayCaster, tri_face, origin, directions, max_order: int,
+                         batch: int = 1 << 20) -> np.ndarray:
+    """(R, max_order) int32 face ids of each ray's specular bounces, -1 after it escapes."""
+    import pyopencl as cl
+
+    if max_order < 1:
+        return np.zeros((len(directions), 0), dtype=np.int32)
+    rt = caster.runtime
+    kernel = rt.kernel("reflect.cl", "trace_reflections")
+    face_buf = rt.to_device(np.asarray(tri_face, dtype=np.int32))
+    o = np.asarray(origin, dtype=np.float64)
+    out = np.empty((len(directions), max_order), dtype=np.int32)
+    for start in range(0, len(directions), batch):
+        d = np.zeros((min(batch, len(directions) - start), 4), dtype=np.float32)
+        d[:, :3] = directions[start:start + len(d)]
+        n = len(d)
+        d_buf = rt.to_device(d)
+        o_buf = rt.empty(n * max_order * 4)
+        kernel(rt.queue, (n,), None, caster.device_nodes, caster.device_verts,
+               caster.device_tri_index, face_buf, np.float32(o[0]), np.float32(o[1]),
+               np.float32(o[2]), d_buf, np.int32(max_order), o_buf, np.int32(n))
+        chunk = np.empty((n, max_order), dtype=np.int32)
+        cl.enqueue_copy(rt.queue, chunk, o_buf)
+        out[start:start + n] = chunk
+    return out
+
+
+def unique_candidates(face_seq: np.ndarray) -> dict[int, np.ndarray]:
+    """Unique face sequences of each length 1..max_order from all prefixes.
+
+    Sequences that reflect off one plane twice in a row are dropped: a planar
+    face cannot do that, so they are float32 artefacts of a ray re-hitting a
+    neighbouring triangle of the face it left.
+    """
+    out: dict[int, np.ndarray] = {}
+    for k in range(1, face_seq.shape[1] + 1):
+        pref = face_seq[:, :k]
+        pref = pref[pref[:, k - 1] >= 0]
+        if k > 1:
+            pref = pref[np.all(pref[:, 1:] != pref[:, :-1], axis=1)]
+        out[k] = np.unique(pref, axis=0) if len(pref) else np.zeros((0, k), np.int32)
+    return out
+
+
+def mirror(points, normal, offset):
+    """Reflect points (C,3) across planes n.x = d (n unit), all float64."""
+    dist = np.einsum("ij,ij->i", points, normal) - offset
+    return points - 2.0 * dist[:, None] * normal
+
+
+def image_points(tx, rx, normals, offsets, seqs: np.ndarray):
+    """Exact reflection points for candidate face sequences, by the image method.
+
+    tx, rx: (3,) positions; normals (F,3) unit and offsets (F,) of the
+    faces' planes; seqs (C,k) face ids. Returns points (C, k+2, 3) - tx, the
+    k reflection points, rx - and a mask of candidates whose every point lies
+    strictly between its neighbours' image line ends (so each reflection
+    happens on the side both segments are on).
+    """
+    seqs = np.asarray(seqs)
+    C, k = seqs.shape
+    tx = np.asarray(tx, dtype=np.float64)
+    rx = np.asarray(rx, dtype=np.float64)
+    points = np.empty((C, k + 2, 3))
+    points[:, 0] = tx
+    points[:, -1] = rx
+    ok = np.ones(C, dtype=bool)
+    if C == 0:
+        return points, ok
+    images = np.empty((C, k, 3))
+    current = np.broadcast_to(tx, (C, 3))
+    for i in range(k):
+        n = normals[seqs[:, i]]
+        d = offsets[seqs[:, i]]
+        current = mirror(current, n, d)
+        images[:, i] = current
+    target = np.broadcast_to(rx, (C, 3)).copy()
+    for i in range(k - 1, -1, -1):
+        n = normals[seqs[:, i]]
+        d = offsets[seqs[:, i]]
+        line = images[:, i] - target
+        denom = np.einsum("ij,ij->i", line, n)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = (d - np.einsum("ij,ij->i", target, n)) / denom
+        good = np.isfinite(s) & (s > 1e-12) & (s < 1.0 - 1e-12)
+        ok &= good
+        s = np.where(good, s, 0.5)
+        target = target + s[:, None] * line
+        points[:, i + 1] = target
+    return points, ok
+
+
+def confirm_paths(caster: RayCaster, tri_face, face_normals, points: np.ndarray,
+                  seqs: np.ndarray, ok: np.ndarray | None = None):
+    """Mask of candidate paths whose every segment is confirmed by a ray cast.
+
+    Returns (keep (C,) bool, triangles (C, k) int32): the scene triangle each
+    kept path's reflection points lie in (-1 where not confirmed).
+
+    Segment i runs from points[:, i] to points[:, i+1]. Toward a reflection
+    point it must first meet that point's face at the point (within
+    CONFIRM_TOL_M): that proves the point lies inside the face, not just in
+    its plane, and that nothing stands in between. The last segment must reach
+    the receiver with nothing in between. Segments leave reflection points
+    from just off the face, on the side they leave into.
+    """
+    tri_face = np.asarray(tri_face)
+    C, k2, _ = points.shape
+    k = k2 - 2
+    keep = np.ones(C, dtype=bool) if ok is None else ok.copy()
+    triangles = np.full((C, k), -1, dtype=np.int32)
+    if C == 0:
+        return keep, triangles
+    idx = np.flatnonzero(keep)
+    for i in range(k + 1):
+        if len(idx) == 0:
+            break
+        start = points[idx, i]
+        end = points[idx, i + 1]
+        seg = end - start
+        length = np.linalg.norm(seg, axis=1)
+        if i > 0:
+            start = spawn_origins(start, face_normals[seqs[idx, i - 1]], seg)
+            seg = end - start
+        slack = (CONFIRM_TOL_M + 1e-6 * np.abs(end).max(axis=1)) / np.maximum(length, 1e-12)
+        if i < k:
+            rays = make_rays(start, seg, tmin=0.0, tmax=1.0 + 2.0 * slack)
+            hits = caster.closest_hit(rays)
+            hit_face = np.where(hits["prim"] >= 0, tri_face[np.maximum(hits["prim"], 0)], -1)
+            good = (hit_face == seqs[idx, i]) & (np.abs(hits["t"] - 1.0) <= slack)
+            triangles[idx, i] = hits["prim"]
+        else:
+            rays = make_rays(start, seg, tmin=0.0, tmax=1.0 - slack)
+            good = ~caster.occluded(rays) & (length > 0)
+        keep[idx[~good]] = False
+        idx = idx[good]
+    triangles[~keep] = -1
+    return keep, triangles

@@ -1,0 +1,210 @@
+"""Trace every tx -> rx link of a scene into a snapshot.
+
+Stages, each a function of plain arrays (see :mod:`clradcom.specular` for
+the geometric ones):
+
+``build_geometry``   scene -> planar faces, BVH, ray caster (once per scene)
+``candidate_sequences`` one transmitter -> unique face sequences (OpenCL)
+``specular_paths``   candidates + one tx/rx pair -> exact, confirmed paths
+``path_fields``      paths -> complex gain, 2x2 matrix, delay, Doppler
+``trace_scene``      all of it for every link -> :class:`Snapshot`
+
+Geometry is float32 only inside the kernels that propose candidates and
+confirm visibility; every point, length, delay and phase of a kept path is
+computed in float64 on the host.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from . import __version__, em
+from . import specular as sp
+from .faces import Faces, merge_coplanar
+from .opencl import Runtime, get_runtime
+from .raycast import RayCaster
+from .scene import Radar, Scene
+from .snapshot import InteractionType, Link, Paths, Snapshot
+
+
+@dataclass(frozen=True)
+class TraceSettings:
+    """What the tracer models and how hard it searches."""
+
+    max_reflections: int = 5
+    rays: int = 1_000_000  # launched per transmitter over its pattern's support
+    line_of_sight: bool = True
+
+    def __post_init__(self):
+        if not (isinstance(self.max_reflections, int) and 0 <= self.max_reflections <= 16):
+            raise ValueError(f"max_reflections must be an integer 0..16, got "
+                             f"{self.max_reflections!r}")
+        if not (isinstance(self.rays, int) and self.rays >= 1):
+            raise ValueError(f"rays must be a positive integer, got {self.rays!r}")
+
+
+@dataclass
+class Geometry:
+    """What the kernels need about a scene, built once."""
+
+    scene: Scene
+    faces: Faces
+    caster: RayCaster
+
+
+@dataclass
+class PathGeometry:
+    """Exact paths of one link before fields: padded to k_max interactions."""
+
+    points: np.ndarray  # (P, k_max+2, 3)
+    n_interactions: np.ndarray  # (P,)
+    faces: np.ndarray  # (P, k_max) planar face ids, -1 padding
+    triangles: np.ndarray  # (P, k_max) scene triangle ids, -1 padding
+
+    @property
+    def n_paths(self) -> int:
+        return len(self.n_interactions)
+
+
+@dataclass
+class StageTimes:
+    """Wall-clock seconds per stage, for reports and benchmarks."""
+
+    seconds: dict[str, float] = field(default_factory=dict)
+
+    def add(self, stage: str, dt: float) -> None:
+        self.seconds[stage] = self.seconds.get(stage, 0.0) + dt
+
+
+def build_geometry(scene: Scene, runtime: Runtime | None = None) -> Geometry:
+    faces = merge_coplanar(scene.triangles, scene.tri_object, scene.tri_material)
+    caster = RayCaster(scene.triangles, runtime=runtime or get_runtime())
+    return Geometry(scene=scene, faces=faces, caster=caster)
+
+
+def candidate_sequences(geom: Geometry, tx: Radar, settings: TraceSettings):
+    """Unique face sequences (dict order -> (C, order) int32) proposed by tx's rays."""
+    if settings.max_reflections == 0:
+        return {}
+    dirs = sp.launch_directions(settings.rays, tx.pattern.gain, tx.orientation)
+    seqs = sp.reflection_sequences(geom.caster, geom.faces.tri_face, tx.position, dirs,
+                                   settings.max_reflections)
+    return sp.unique_candidates(seqs)
+
+
+def specular_paths(geom: Geometry, tx_pos, rx_pos, candidates, line_of_sight=True
+                   ) -> PathGeometry:
+    """Exact, confirmed specular paths (and line of sight) between two points."""
+    tx_pos = np.asarray(tx_pos, dtype=np.float64)
+    rx_pos = np.asarray(rx_pos, dtype=np.float64)
+    k_max = max(candidates.keys(), default=0)
+    blocks = []
+    if line_of_sight and np.linalg.norm(rx_pos - tx_pos) > 0:
+        pts = np.stack([tx_pos, rx_pos])[None]
+        keep, _ = sp.confirm_paths(geom.caster, geom.faces.tri_face, geom.faces.normal, pts,
+                                   np.zeros((1, 0), dtype=np.int32))
+        if keep[0]:
+            blocks.append((pts, np.zeros((1, 0), np.int32), np.zeros((1, 0), np.int32)))
+    for k in sorted(candidates):
+        seqs = candidates[k]
+        if len(seqs) == 0:
+            continue
+        pts, ok = sp.image_points(tx_pos, rx_pos, geom.faces.normal, geom.faces.offset, seqs)
+        keep, tris = sp.confirm_paths(geom.caster, geom.faces.tri_face, geom.faces.normal,
+                                      pts, seqs, ok)
+        if keep.any():
+            blocks.append((pts[keep], seqs[keep], tris[keep]))
+    P = sum(len(b[0]) for b in blocks)
+    points = np.full((P, k_max + 2, 3), np.nan)
+    n_int = np.zeros(P, dtype=np.int16)
+    faces = np.full((P, k_max), -1, dtype=np.int32)
+    triangles = np.full((P, k_max), -1, dtype=np.int32)
+    row = 0
+    for pts, seqs, tris in blocks:
+        n, k = len(pts), seqs.shape[1]
+        points[row:row + n, :k + 2] = pts
+        n_int[row:row + n] = k
+        faces[row:row + n, :k] = seqs
+        triangles[row:row + n, :k] = tris
+        row += n
+    return PathGeometry(points=points, n_interactions=n_int, faces=faces, triangles=triangles)
+
+
+def path_fields(geom: Geometry, pg: PathGeometry, tx: Radar, rx: Radar) -> Paths:
+    """Gains, polarimetric matrices, delays and Doppler of exact paths -> :class:`Paths`."""
+    scene = geom.scene
+    P, k_max = pg.faces.shape
+    if P == 0:
+        return Paths.empty(k_max)
+    nk = pg.n_interactions.astype(np.int64)
+    face = np.maximum(pg.faces, 0)
+    active = pg.faces >= 0
+    mat = geom.faces.material_id[face]
+    obj = np.where(active, geom.faces.object_id[face], -1)
+    # padding rows must stay finite for the vectorised physics; they are masked by nk
+    pts = np.where(np.isnan(pg.points), 0.0, pg.points)
+    for i in range(P):
+        pts[i, nk[i] + 2:] = pts[i, nk[i] + 1]
+    T, L = em.path_transfer(
+        pts, geom.faces.normal[face],
+        scene.material_eps_r[mat], scene.material_pec[mat],
+        scene.material_roughness_m[mat], scene.material_roughness_model[mat],
+        scene.carrier_hz, num_interactions=nk)
+    k_dep, k_arr = em.path_directions(pts, nk)
+    gain, M = em.path_gains(T, L, k_dep, k_arr, tx, rx, scene.carrier_hz)
+    vel = np.zeros_like(pts)
+    vel[:, 0] = tx.velocity
+    vel[:, 1:k_max + 1] = np.where(active[..., None], scene.object_velocity[np.maximum(obj, 0)],
+                                   0.0)
+    vel[np.arange(P), nk + 1] = rx.velocity
+    doppler = em.doppler_hz(pts, vel, scene.wavelength_m, num_interactions=nk)
+    interaction = np.where(active, int(InteractionType.REFLECTION), 0).astype(np.int8)
+    return Paths(gain=gain, matrix=M, delay_s=em.delay_s(L), doppler_hz=doppler,
+                 n_interactions=pg.n_interactions, interaction=interaction,
+                 points=pg.points, object_id=obj.astype(np.int32),
+                 face_id=pg.triangles)
+
+
+def trace_scene(scene: Scene, settings: TraceSettings | None = None,
+                runtime: Runtime | None = None, links=None,
+                progress: Callable[[str], None] | None = None,
+                times: StageTimes | None = None) -> Snapshot:
+    """Trace the links of a scene (default: every transmitter to every receiver)."""
+    settings = settings or TraceSettings()
+    times = times if times is not None else StageTimes()
+    say = progress or (lambda msg: None)
+    t0 = time.perf_counter()
+    geom = build_geometry(scene, runtime)
+    times.add("geometry", time.perf_counter() - t0)
+    txs = [i for i, r in enumerate(scene.radars) if r.role in ("txrx", "tx")]
+    rxs = [i for i, r in enumerate(scene.radars) if r.role in ("txrx", "rx")]
+    if links is None:
+        links = [(t, r) for t in txs for r in rxs]
+    out = []
+    cache = {}
+    for t_idx, r_idx in links:
+        tx, rx = scene.radars[t_idx], scene.radars[r_idx]
+        if t_idx not in cache:
+            say(f"candidates from {tx.name}")
+            t0 = time.perf_counter()
+            cache[t_idx] = candidate_sequences(geom, tx, settings)
+            times.add("candidates", time.perf_counter() - t0)
+        say(f"paths {tx.name} -> {rx.name}")
+        t0 = time.perf_counter()
+        pg = specular_paths(geom, tx.position, rx.position, cache[t_idx],
+                            settings.line_of_sight)
+        times.add("exact paths", time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        paths = path_fields(geom, pg, tx, rx)
+        times.add("fields", time.perf_counter() - t0)
+        out.append(Link(tx_name=tx.name, rx_name=rx.name, tx_index=t_idx, rx_index=r_idx,
+                        paths=paths))
+    meta = {f"settings.{k}": v for k, v in asdict(settings).items()}
+    meta["clradcom_version"] = __version__
+    meta["device"] = geom.caster.runtime.info.device_name.strip()
+    return Snapshot(scene_name=scene.name, carrier_hz=float(scene.carrier_hz),
+                    scene_hash=scene.content_hash(), links=tuple(out), metadata=meta)

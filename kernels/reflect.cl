@@ -1,0 +1,50 @@
+/* Candidate search for specular paths: each work item follows one ray from
+ * the transmitter through up to max_order specular bounces and writes the
+ * ordered sequence of faces it reflects off. The host turns every prefix of
+ * every sequence into a candidate and confirms it with the image method, so
+ * nothing here needs to be exact: float32 geometry is enough. */
+#include "intersect.h"
+
+/* Push a point off the surface it lies on, toward the side the ray leaves
+ * into, by a float32 error bound that grows with |p| (as spawn_origins does
+ * on the host). */
+inline float3 spawn_point(float3 p, float3 n, float3 dir)
+{
+    float3 ap = fabs(p);
+    float bound = 8.0f * 0.5f * FLT_EPSILON * (fmax(fmax(ap.x, ap.y), ap.z) + 1.0f);
+    return p + ((dot(n, dir) >= 0.0f) ? bound : -bound) * n;
+}
+
+__kernel void trace_reflections(__global const PairNode *nodes,
+                                __global const float4 *tri_verts,
+                                __global const int *tri_index,
+                                __global const int *tri_face,
+                                const float ox, const float oy, const float oz,
+                                __global const float4 *directions,
+                                const int max_order,
+                                __global int *face_seq,
+                                const int n_rays)
+{
+    int gid = get_global_id(0);
+    if (gid >= n_rays) return;
+    __global int *out = face_seq + (size_t)gid * max_order;
+    float3 org = (float3)(ox, oy, oz);
+    float3 dir = directions[gid].xyz;
+    int last_prim = -1;
+    int depth = 0;
+    for (; depth < max_order; ++depth) {
+        PreparedRay pr = prepare_ray(org, dir);
+        float t = INFINITY, u, v;
+        int slot = bvh_closest(nodes, tri_verts, tri_index, &pr, 0.0f, &t, &u, &v, last_prim);
+        if (slot < 0) break;
+        last_prim = tri_index[slot];
+        out[depth] = tri_face[last_prim];
+        float3 v0 = tri_verts[3 * slot].xyz;
+        float3 n = normalize(cross(tri_verts[3 * slot + 1].xyz - v0,
+                                   tri_verts[3 * slot + 2].xyz - v0));
+        float3 p = org + t * dir;
+        dir = dir - 2.0f * dot(dir, n) * n;
+        org = spawn_point(p, n, dir);
+    }
+    for (; depth < max_order; ++depth) out[depth] = -1;
+}
