@@ -1,0 +1,79 @@
+"""From a snapshot link to a radar image and detections (the radar half of a run).
+
+``radar_frame``  paths of a monostatic link -> received symbols D_r (plus noise)
+``process``      D_r and D -> radar image -> CFAR detections
+``match_truth``  detections against the scene's ground truth (nearest in range and velocity)
+
+Each is a plain function so tools/trace.py, the benchmarks and tests share them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .dsp import (
+    Waveform,
+    add_thermal_noise,
+    detect,
+    radar_image,
+    random_symbols,
+    spectral_estimate,
+    synthesize_frequency_domain,
+    synthesize_time_domain,
+)
+from .dsp.waveform import ofdm_demodulate
+
+SYNTHESIS_METHODS = ("fast", "exact")
+
+
+def radar_frame(paths, waveform: Waveform, *, seed: int = 0, method: str = "fast",
+                tx_power_w: float | None = None, noise_figure_db: float | None = None,
+                rng=None):
+    """Transmit symbols D and received symbols D_r (N, M) for one link's paths.
+
+    method "fast" is the frequency-domain model (no ICI/ISI); "exact" the
+    time-domain superposition. Thermal noise is added when both tx power and
+    noise figure are given.
+    """
+    if method not in SYNTHESIS_METHODS:
+        raise ValueError(f"method must be one of {SYNTHESIS_METHODS}, got {method!r}")
+    D = random_symbols(waveform, seed)
+    gains = np.asarray(paths.gain)
+    if method == "fast":
+        Dr = synthesize_frequency_domain(D, gains, paths.delay_s, paths.doppler_hz, waveform,
+                                         time_origin_s=waveform.fft_window_centre)
+    else:
+        rx = synthesize_time_domain(D, gains, paths.delay_s, paths.doppler_hz, waveform)
+        Dr = ofdm_demodulate(rx, waveform)
+    if tx_power_w is not None and noise_figure_db is not None:
+        rng = rng if rng is not None else np.random.default_rng(seed + 1)
+        Dr = add_thermal_noise(Dr, tx_power_w, noise_figure_db, waveform.bandwidth, rng=rng)
+    return D, Dr
+
+
+def process(D, Dr, waveform: Waveform, *, window="hann", zero_pad=(2, 2), p_fa=1e-6,
+            cfar="ca", guard=(3, 2), train=(8, 4)):
+    """Radar image and CFAR detections from transmit and received symbols."""
+    F = spectral_estimate(Dr, D, "divide")
+    image = radar_image(F, waveform, window, window, zero_pad[0], zero_pad[1])
+    detections = detect(image, guard=guard, train=train, p_fa=p_fa, method=cfar)
+    return image, detections
+
+
+def match_truth(detections, truth, range_tol_m: float, velocity_tol_mps: float):
+    """For each truth row the best detection within tolerances, or None.
+
+    truth rows need range_nearest_m, range_centre_m and v_rel_m_s; a detection
+    matches when its range lies in [nearest - range_tol, centre + range_tol]
+    and its velocity within velocity_tol of v_rel; the strongest such wins.
+    """
+    out = []
+    for t in truth:
+        lo = t["range_nearest_m"] - range_tol_m
+        hi = t["range_centre_m"] + range_tol_m
+        ok = ((detections["range_m"] >= lo) & (detections["range_m"] <= hi)
+              & (np.abs(detections["velocity_mps"] - t["v_rel_m_s"]) <= velocity_tol_mps))
+        idx = np.flatnonzero(ok)
+        out.append(None if len(idx) == 0 else detections[idx[np.argmax(
+            detections["power_db"][idx])]])
+    return out
