@@ -310,3 +310,37 @@ def point_triangle_distance(point, triangles) -> np.ndarray:
     q = np.where(((d3 >= 0) & (d4 <= d3))[:, None], b, q)
     q = np.where(((d6 >= 0) & (d5 <= d6))[:, None], c, q)
     return np.linalg.norm(p - q, axis=1)
+
+
+def ray_hit_distances(origin, direction, triangles) -> np.ndarray:
+    """Distances t > 0 along one ray to every triangle it crosses (float64, Moller-Trumbore).
+
+    A plain numpy check for scene generation and tests, where trimesh's own ray
+    queries would need optional packages (rtree or embreex).
+    """
+    o = np.asarray(origin, dtype=np.float64)
+    d = np.asarray(direction, dtype=np.float64)
+    tri = np.asarray(triangles, dtype=np.float64)
+    e1 = tri[:, 1] - tri[:, 0]
+    e2 = tri[:, 2] - tri[:, 0]
+    p = np.cross(d, e2)
+    det = np.einsum("ij,ij->i", e1, p)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = 1.0 / det
+        s = o - tri[:, 0]
+        u = np.einsum("ij,ij->i", s, p) * inv
+        q = np.cross(s, e1)
+        v = (q @ d) * inv
+        t = np.einsum("ij,ij->i", e2, q) * inv
+        hit = (det != 0) & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 0)
+    return np.sort(t[hit])
+
+
+def inside_closed_mesh(point, triangles) -> bool:
+    """Parity test: a point is inside a closed mesh when a ray from it crosses it oddly often.
+
+    The ray direction is irrational-looking so it does not graze edges of
+    axis-aligned or symmetric meshes.
+    """
+    d = np.array([0.5773502691896258, 0.5772502691896258, 0.5774502691896258])
+    return len(ray_hit_distances(point, d, triangles)) % 2 == 1

@@ -28,7 +28,7 @@ import trimesh
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
-from clradcom.models import detection_truth, rounded_car  # noqa: E402
+from clradcom.models import detection_truth, ray_hit_distances, rounded_car  # noqa: E402
 
 DEFAULT_OUT = REPO / "scenes" / "street"
 
@@ -168,8 +168,8 @@ def tree_layout(x_start, x_end):
 
 def nose_x(mesh: trimesh.Trimesh, z: float) -> float:
     """x of the car's front surface at height z on the centre line (ray from inside)."""
-    loc, _, _ = mesh.ray.intersects_location([[0.0, 0.0, z]], [[1.0, 0.0, 0.0]])
-    return float(loc[:, 0].max())
+    t = ray_hit_distances([0.0, 0.0, z], [1.0, 0.0, 0.0], mesh.vertices[mesh.faces])
+    return float(t.max())
 
 
 # --- TOML writing ------------------------------------------------------------------------------
