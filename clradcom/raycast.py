@@ -162,7 +162,11 @@ class RayCaster:
         ign_buf = rt.to_device(ignore)
         out_buf = rt.empty(out.nbytes)
         kernel = rt.kernel("raycast.cl", kernel_name)
-        kernel(rt.queue, (n,), None, self._nodes, self._verts, self._tri_index, ray_buf,
+        # A fixed work-group size: PoCL's own pick (hundreds to thousands of
+        # work items) ran ~15% slower; 64 also suits GPUs. The kernels ignore
+        # the work items past n.
+        local = 64
+        kernel(rt.queue, (-(-n // local) * local,), (local,), self._nodes, self._verts, self._tri_index, ray_buf,
                ign_buf, out_buf, np.int32(n))
         cl.enqueue_copy(rt.queue, out, out_buf)
         return out

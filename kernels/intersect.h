@@ -31,66 +31,123 @@
 #define BVH_STACK_SIZE 64
 #define ROBUST_TMAX_SCALE 1.0000003576f /* 1 + 2*gamma(3), gamma(n) = n*eps/(1-n*eps) */
 
+/* PoCL (3.0, LLVM 14) leaves plain `inline` helpers and even the fmin/fmax/
+ * fabs/shuffle builtins as out-of-line calls in the kernel, each passing float3
+ * through memory: that, not the algorithm, cost ~100 cycles per node. So the
+ * hot path is forced inline and written with scalar compares and selects. */
+#define CLR_INLINE inline __attribute__((always_inline))
+#define MINF(a, b) ((a) < (b) ? (a) : (b))
+#define MAXF(a, b) ((a) > (b) ? (a) : (b))
+
 typedef struct {
-    float3 org;
-    float3 inv_dir;
-    uint4 perm;         /* (kx, ky, kz, 3): the shear frame as a shuffle mask */
+    float ox, oy, oz;
+    float ix, iy, iz;   /* 1 / dir */
+    int kx, ky, kz;     /* the shear frame: dir[kz] is the largest component */
     float sx, sy, sz;
-    int axis_parallel;  /* some direction component is exactly 0 */
+    int axis_parallel;  /* some 1/dir component is infinite (dir component 0 or denormal) */
 } PreparedRay;
 
-inline PreparedRay prepare_ray(float3 org, float3 dir)
+CLR_INLINE float component(float3 a, int k)
+{
+    return (k == 0) ? a.x : ((k == 1) ? a.y : a.z);
+}
+
+CLR_INLINE PreparedRay prepare_ray(float3 org, float3 dir)
 {
     PreparedRay r;
-    r.org = org;
-    r.inv_dir = (float3)(1.0f / dir.x, 1.0f / dir.y, 1.0f / dir.z);
-    r.axis_parallel = (dir.x == 0.0f) || (dir.y == 0.0f) || (dir.z == 0.0f);
+    r.ox = org.x; r.oy = org.y; r.oz = org.z;
+    r.ix = 1.0f / dir.x; r.iy = 1.0f / dir.y; r.iz = 1.0f / dir.z;
+    r.axis_parallel = !(isfinite(r.ix) && isfinite(r.iy) && isfinite(r.iz));
     float ax = fabs(dir.x), ay = fabs(dir.y), az = fabs(dir.z);
-    uint kz = (ax > ay) ? ((ax > az) ? 0u : 2u) : ((ay > az) ? 1u : 2u);
-    uint kx = (kz == 2u) ? 0u : kz + 1u;
-    uint ky = (kx == 2u) ? 0u : kx + 1u;
-    float4 d = shuffle((float4)(dir, 0.0f), (uint4)(kx, ky, kz, 3u));
+    int kz = (ax > ay) ? ((ax > az) ? 0 : 2) : ((ay > az) ? 1 : 2);
+    int kx = (kz == 2) ? 0 : kz + 1;
+    int ky = (kx == 2) ? 0 : kx + 1;
+    float dz = component(dir, kz);
     /* keep the sheared frame right-handed so the winding (and sign of det) is kept */
-    if (d.z < 0.0f) { uint tmp = kx; kx = ky; ky = tmp; float td = d.x; d.x = d.y; d.y = td; }
-    r.perm = (uint4)(kx, ky, kz, 3u);
-    r.sx = d.x / d.z;
-    r.sy = d.y / d.z;
-    r.sz = 1.0f / d.z;
+    if (dz < 0.0f) { int tmp = kx; kx = ky; ky = tmp; }
+    r.kx = kx; r.ky = ky; r.kz = kz;
+    r.sx = component(dir, kx) / dz;
+    r.sy = component(dir, ky) / dz;
+    r.sz = 1.0f / dz;
     return r;
 }
 
-/* Entry distance of the ray into the box, or INFINITY when it misses
- * (tmin, tmax). */
-inline float ray_box(const PreparedRay *r, float3 bmin, float3 bmax, float tmin, float tmax)
+/* One slab: entry and exit distance along one axis, ordered. */
+#define SLAB(lo_, hi_, b0, b1, o, inv)                                      \
+    do {                                                                   \
+        float a_ = ((b0) - (o)) * (inv), b_ = ((b1) - (o)) * (inv);        \
+        lo_ = MINF(a_, b_); hi_ = MAXF(a_, b_);                            \
+    } while (0)
+
+/* As SLAB, for a ray with an infinite 1/dir: 0*inf = NaN only for a ray
+ * lying in a slab plane, which is inside that slab for all t, so that axis
+ * must not cull it. */
+#define SLAB_NAN(lo_, hi_, b0, b1, o, inv)                                  \
+    do {                                                                   \
+        float a_ = ((b0) - (o)) * (inv), b_ = ((b1) - (o)) * (inv);        \
+        bool nan_ = (a_ != a_) || (b_ != b_);                              \
+        lo_ = nan_ ? -INFINITY : MINF(a_, b_);                             \
+        hi_ = nan_ ? INFINITY : MAXF(a_, b_);                              \
+    } while (0)
+
+/* Entry distance of the ray into the box b = (xmin, ymin, zmin, xmax, ymax,
+ * zmax), or INFINITY when it misses (tmin, tmax). */
+CLR_INLINE float ray_box(const PreparedRay *r, __global const float *bmin,
+                         __global const float *bmax, float tmin, float tmax)
 {
-    float3 lo = (bmin - r->org) * r->inv_dir;
-    float3 hi = (bmax - r->org) * r->inv_dir;
-    float3 tn = fmin(lo, hi);
-    float3 tf = fmax(lo, hi);
+    float nx, fx, ny, fy, nz, fz;
     if (r->axis_parallel) {
-        /* 0*inf = NaN only for an axis-parallel ray lying in a slab plane: the
-         * ray is inside that slab for all t, so that axis must not cull it.
-         * Only such rays pay for the test (vector isnan is slow on PoCL). */
-        int3 in_plane = isnan(lo) | isnan(hi);
-        tn = select(tn, (float3)(-INFINITY), in_plane);
-        tf = select(tf, (float3)(INFINITY), in_plane);
+        SLAB_NAN(nx, fx, bmin[0], bmax[0], r->ox, r->ix);
+        SLAB_NAN(ny, fy, bmin[1], bmax[1], r->oy, r->iy);
+        SLAB_NAN(nz, fz, bmin[2], bmax[2], r->oz, r->iz);
+    } else {
+        SLAB(nx, fx, bmin[0], bmax[0], r->ox, r->ix);
+        SLAB(ny, fy, bmin[1], bmax[1], r->oy, r->iy);
+        SLAB(nz, fz, bmin[2], bmax[2], r->oz, r->iz);
     }
-    float t0 = fmax(fmax(tn.x, tn.y), fmax(tn.z, tmin));
-    float t1 = fmin(fmin(tf.x, tf.y), fmin(tf.z, tmax)) * ROBUST_TMAX_SCALE;
+    float t0 = MAXF(MAXF(nx, ny), MAXF(nz, tmin));
+    float t1 = MINF(MINF(fx, fy), MINF(fz, tmax)) * ROBUST_TMAX_SCALE;
     return (t0 <= t1) ? t0 : INFINITY;
 }
 
-/* Watertight test of one triangle; on a hit in (tmin, tmax) writes t, u, v. */
-inline bool ray_triangle(const PreparedRay *r, float4 v0, float4 v1, float4 v2,
-                         float tmin, float tmax, float *t_out, float *u_out, float *v_out)
+/* Both boxes of a PairNode record at once with float8 ops (x, y, z of the
+ * left box in lanes 0-2, of the right in 4-6). */
+CLR_INLINE void ray_box2(const PreparedRay *r, __global const float *rec, float tmin, float tmax,
+                         float *dl, float *dr)
 {
-    float4 org = (float4)(r->org, 0.0f);
-    float4 a = shuffle(v0 - org, r->perm);
-    float4 b = shuffle(v1 - org, r->perm);
-    float4 c = shuffle(v2 - org, r->perm);
-    float ax = a.x - r->sx * a.z, ay = a.y - r->sy * a.z;
-    float bx = b.x - r->sx * b.z, by = b.y - r->sy * b.z;
-    float cx = c.x - r->sx * c.z, cy = c.y - r->sy * c.z;
+    if (r->axis_parallel) {
+        *dl = ray_box(r, rec, rec + 4, tmin, tmax);
+        *dr = ray_box(r, rec + 8, rec + 12, tmin, tmax);
+        return;
+    }
+    float16 q = vload16(0, rec);
+    float8 lo = (float8)(q.s012, 0.0f, q.s89a, 0.0f);
+    float8 hi = (float8)(q.s456, 0.0f, q.scde, 0.0f);
+    float8 o = (float8)(r->ox, r->oy, r->oz, 0.0f, r->ox, r->oy, r->oz, 0.0f);
+    float8 inv = (float8)(r->ix, r->iy, r->iz, 0.0f, r->ix, r->iy, r->iz, 0.0f);
+    float8 a = (lo - o) * inv, b = (hi - o) * inv;
+    float8 tn = (a < b) ? a : b, tf = (a > b) ? a : b;
+    float l0 = MAXF(MAXF(tn.s0, tn.s1), MAXF(tn.s2, tmin));
+    float l1 = MINF(MINF(tf.s0, tf.s1), MINF(tf.s2, tmax)) * ROBUST_TMAX_SCALE;
+    float r0 = MAXF(MAXF(tn.s4, tn.s5), MAXF(tn.s6, tmin));
+    float r1 = MINF(MINF(tf.s4, tf.s5), MINF(tf.s6, tmax)) * ROBUST_TMAX_SCALE;
+    *dl = (l0 <= l1) ? l0 : INFINITY;
+    *dr = (r0 <= r1) ? r0 : INFINITY;
+}
+
+/* Watertight test of one triangle (vertices at p[0..2], p[4..6], p[8..10]);
+ * on a hit in (tmin, tmax) writes t, u, v. The shear frame's components are
+ * fetched by index (scalar loads) rather than shuffled. */
+CLR_INLINE bool ray_triangle(const PreparedRay *r, __global const float *p,
+                             float tmin, float tmax, float *t_out, float *u_out, float *v_out)
+{
+    float okx = (r->kx == 0) ? r->ox : ((r->kx == 1) ? r->oy : r->oz);
+    float oky = (r->ky == 0) ? r->ox : ((r->ky == 1) ? r->oy : r->oz);
+    float okz = (r->kz == 0) ? r->ox : ((r->kz == 1) ? r->oy : r->oz);
+    float az = p[r->kz] - okz, bz = p[4 + r->kz] - okz, cz = p[8 + r->kz] - okz;
+    float ax = (p[r->kx] - okx) - r->sx * az, ay = (p[r->ky] - oky) - r->sy * az;
+    float bx = (p[4 + r->kx] - okx) - r->sx * bz, by = (p[4 + r->ky] - oky) - r->sy * bz;
+    float cx = (p[8 + r->kx] - okx) - r->sx * cz, cy = (p[8 + r->ky] - oky) - r->sy * cz;
     float U = cx * by - cy * bx;
     float V = ax * cy - ay * cx;
     float W = bx * ay - by * ax;
@@ -106,7 +163,7 @@ inline bool ray_triangle(const PreparedRay *r, float4 v0, float4 v1, float4 v2,
     float det = U + V + W;
     if (det == 0.0f)
         return false;
-    float T = U * (r->sz * a.z) + V * (r->sz * b.z) + W * (r->sz * c.z);
+    float T = U * (r->sz * az) + V * (r->sz * bz) + W * (r->sz * cz);
     /* compare t = T/det against the range without dividing first */
     float sdet = (det < 0.0f) ? -1.0f : 1.0f;
     float Ts = T * sdet, adet = det * sdet;
@@ -119,8 +176,6 @@ inline bool ray_triangle(const PreparedRay *r, float4 v0, float4 v1, float4 v2,
     return true;
 }
 
-inline float3 box_min(__global const float *p) { return (float3)(p[0], p[1], p[2]); }
-
 /* Closest hit along the ray in (tmin, tmax). tri_verts holds three float4
  * per leaf slot (slot i is scene triangle tri_index[i]); returns the slot,
  * -1 on a miss. ignore_prim (a scene id, or -1) is skipped: the surface a
@@ -131,7 +186,7 @@ inline float3 box_min(__global const float *p) { return (float3)(p[0], p[1], p[2
  * PoCL's work-item loops markedly faster. */
 #define LEAF_CODE(first, count) (-((first) * 32 + (count)) - 1)
 
-inline int child_code(int ref, int count)
+CLR_INLINE int child_code(int ref, int count)
 {
     return (count > 0) ? LEAF_CODE(ref, count) : ref;
 }
@@ -140,7 +195,7 @@ inline int child_code(int ref, int count)
  * per leaf slot (slot i is scene triangle tri_index[i]); returns the slot,
  * -1 on a miss. ignore_prim (a scene id, or -1) is skipped: the surface a
  * reflected ray leaves. */
-inline int bvh_closest(__global const PairNode *nodes, __global const float4 *tri_verts,
+CLR_INLINE int bvh_closest(__global const PairNode *nodes, __global const float4 *tri_verts,
                        __global const int *tri_index, const PreparedRay *r,
                        float tmin, float *tmax_io, float *u_out, float *v_out,
                        int ignore_prim)
@@ -157,7 +212,7 @@ inline int bvh_closest(__global const PairNode *nodes, __global const float4 *tr
             int first = packed >> 5, last = first + (packed & 31);
             for (int i = first; i < last; ++i) {
                 float t, u, v;
-                if (ray_triangle(r, tri_verts[3 * i], tri_verts[3 * i + 1], tri_verts[3 * i + 2],
+                if (ray_triangle(r, (__global const float *)(tri_verts + 3 * i),
                                  tmin, tmax, &t, &u, &v)
                     && tri_index[i] != ignore_prim) {
                     tmax = t; best = i; *u_out = u; *v_out = v;
@@ -165,10 +220,9 @@ inline int bvh_closest(__global const PairNode *nodes, __global const float4 *tr
             }
         } else {
             __global const PairNode *n = nodes + code;
-            float dl = (n->lcount >= 0)
-                ? ray_box(r, box_min(n->lmin), box_min(n->lmax), tmin, tmax) : INFINITY;
-            float dr = (n->rcount >= 0)
-                ? ray_box(r, box_min(n->rmin), box_min(n->rmax), tmin, tmax) : INFINITY;
+            float dl, dr;
+            ray_box2(r, (__global const float *)n, tmin, tmax, &dl, &dr);
+            if (n->rcount < 0) dr = INFINITY;
             int lc = child_code(n->lref, n->lcount), rc = child_code(n->rref, n->rcount);
             if (dl > dr) {
                 float td = dl; dl = dr; dr = td;
@@ -193,7 +247,7 @@ inline int bvh_closest(__global const PairNode *nodes, __global const float4 *tr
 }
 
 /* Any hit in (tmin, tmax): shadow / visibility rays. */
-inline bool bvh_any(__global const PairNode *nodes, __global const float4 *tri_verts,
+CLR_INLINE bool bvh_any(__global const PairNode *nodes, __global const float4 *tri_verts,
                     __global const int *tri_index, const PreparedRay *r,
                     float tmin, float tmax, int ignore_a, int ignore_b)
 {
@@ -208,16 +262,15 @@ inline bool bvh_any(__global const PairNode *nodes, __global const float4 *tri_v
                 float t, u, v;
                 int prim = tri_index[i];
                 if (prim != ignore_a && prim != ignore_b
-                    && ray_triangle(r, tri_verts[3 * i], tri_verts[3 * i + 1],
-                                    tri_verts[3 * i + 2], tmin, tmax, &t, &u, &v))
+                    && ray_triangle(r, (__global const float *)(tri_verts + 3 * i), tmin, tmax, &t, &u, &v))
                     return true;
             }
         } else {
             __global const PairNode *n = nodes + code;
-            bool hl = (n->lcount >= 0)
-                && ray_box(r, box_min(n->lmin), box_min(n->lmax), tmin, tmax) != INFINITY;
-            bool hr = (n->rcount >= 0)
-                && ray_box(r, box_min(n->rmin), box_min(n->rmax), tmin, tmax) != INFINITY;
+            float dl, dr;
+            ray_box2(r, (__global const float *)n, tmin, tmax, &dl, &dr);
+            bool hl = dl != INFINITY;
+            bool hr = n->rcount >= 0 && dr != INFINITY;
             if (hl || hr) {
                 if (hl && hr) {
                     stack_code[sp++] = child_code(n->rref, n->rcount);
