@@ -23,6 +23,16 @@ PAIR_NODE_DTYPE = np.dtype(
      ("rmin", "<f4", (3,)), ("rref", "<i4"), ("rmax", "<f4", (3,)), ("rcount", "<i4")]
 )
 
+BVH4_NODE_DTYPE = np.dtype(
+    [("minx", "<f4", (4,)), ("miny", "<f4", (4,)), ("minz", "<f4", (4,)),
+     ("maxx", "<f4", (4,)), ("maxy", "<f4", (4,)), ("maxz", "<f4", (4,)),
+     ("child", "<i4", (4,)), ("pad", "<i4", (4,))]
+)
+
+# kernels/intersect.h: BVH4_STACK_SIZE, and the leaf code's 5-bit count
+BVH4_STACK_SIZE = 192
+_MAX_LEAF_COUNT = 31
+
 # float32 unit roundoff; spawn offsets are a few multiples of it times |p|
 _F32_EPS = float(np.finfo(np.float32).eps) * 0.5
 
@@ -107,6 +117,90 @@ def pair_nodes(nodes: np.ndarray) -> np.ndarray:
     return out
 
 
+def bvh4_nodes(nodes: np.ndarray) -> np.ndarray:
+    """4-wide traversal layout (BVH4_NODE_DTYPE) from a builder's BVH_NODE_DTYPE array.
+
+    Each binary inner node that starts a record gets its two children, and
+    then, while it has fewer than four, the inner child with the largest
+    surface area is replaced by its own two children (the usual greedy
+    collapse). Record 0 is the root; child codes are a record index (> 0), a
+    leaf ``-(first * 32 + count) - 1``, or 0 for an empty slot, whose bounds
+    are +inf / -inf. A tree that is one leaf gets one record holding that leaf.
+    Raises ValueError if a leaf holds more than 31 triangles or the tree needs
+    a deeper traversal stack than the kernels have.
+    """
+    nodes = np.asarray(nodes)
+    counts = nodes["count"].astype(np.int64)
+    left = nodes["left_first"].astype(np.int64)
+    if counts.max(initial=0) > _MAX_LEAF_COUNT:
+        raise ValueError(f"a BVH leaf holds {int(counts.max())} triangles; at most "
+                         f"{_MAX_LEAF_COUNT} are supported")
+    ext = (nodes["bmax"].astype(np.float64) - nodes["bmin"].astype(np.float64))
+    area = ext[:, 0] * ext[:, 1] + ext[:, 1] * ext[:, 2] + ext[:, 2] * ext[:, 0]
+    counts_l, left_l, area_l = counts.tolist(), left.tolist(), area.tolist()
+
+    if counts_l[0] > 0:
+        groups = [[0]]
+    else:
+        groups = []          # per record: the binary nodes in its child slots
+        queue = [0]          # binary nodes that start a record, in record order
+        record_of = {0: 0}
+        q = 0
+        while q < len(queue):
+            b = queue[q]
+            q += 1
+            kids = [left_l[b], left_l[b] + 1]
+            while len(kids) < 4:
+                best, best_area = -1, -1.0
+                for j, k in enumerate(kids):
+                    if counts_l[k] == 0 and area_l[k] > best_area:
+                        best, best_area = j, area_l[k]
+                if best < 0:
+                    break
+                k = kids.pop(best)
+                kids[best:best] = [left_l[k], left_l[k] + 1]
+            for k in kids:
+                if counts_l[k] == 0:
+                    record_of[k] = len(queue)
+                    queue.append(k)
+            groups.append(kids)
+    n_rec = len(groups)
+    slot = np.zeros((n_rec, 4), dtype=np.int64)
+    used = np.zeros((n_rec, 4), dtype=bool)
+    for r, kids in enumerate(groups):
+        slot[r, :len(kids)] = kids
+        used[r, :len(kids)] = True
+    c = nodes[slot]
+    out = np.zeros(n_rec, dtype=BVH4_NODE_DTYPE)
+    for name, field, axis in (("minx", "bmin", 0), ("miny", "bmin", 1), ("minz", "bmin", 2),
+                              ("maxx", "bmax", 0), ("maxy", "bmax", 1), ("maxz", "bmax", 2)):
+        empty = np.float32(np.inf if field == "bmin" else -np.inf)
+        out[name] = np.where(used, c[field][:, :, axis], empty)
+    is_leaf = c["count"] > 0
+    if counts_l[0] > 0:
+        inner_code = np.zeros_like(slot)
+    else:
+        rec_index = np.zeros(len(nodes), dtype=np.int64)
+        rec_index[list(record_of)] = list(record_of.values())
+        inner_code = rec_index[slot]
+    leaf_code = -(c["left_first"].astype(np.int64) * 32 + c["count"]) - 1
+    if leaf_code.min(initial=0) < np.iinfo(np.int32).min:
+        raise ValueError("too many leaf slots for the 4-wide leaf codes")
+    out["child"] = np.where(used, np.where(is_leaf, leaf_code, inner_code), 0)
+
+    # stack need: a record pushes up to (children - 1) entries before going on
+    k_minus_1 = used.sum(axis=1) - 1
+    need = np.zeros(n_rec, dtype=np.int64)
+    child = out["child"]
+    for r in range(n_rec - 1, -1, -1):   # children have larger record indices
+        sub = child[r][child[r] > 0]
+        need[r] = k_minus_1[r] + (need[sub].max() if len(sub) else 0)
+    if need[0] > BVH4_STACK_SIZE:
+        raise ValueError(f"BVH needs a traversal stack of {int(need[0])} entries; the kernels "
+                         f"hold {BVH4_STACK_SIZE} (build it with a smaller max_depth)")
+    return out
+
+
 class RayCaster:
     """Closest-hit and any-hit queries for one triangle set on one OpenCL device."""
 
@@ -126,13 +220,13 @@ class RayCaster:
         verts = np.zeros((len(triangles), 3, 4), dtype=np.float32)
         verts[:, :, :3] = triangles[self.bvh.tri_index]
         rt = self.runtime
-        self._nodes = rt.to_device(pair_nodes(self.bvh.nodes))
+        self._nodes = rt.to_device(bvh4_nodes(self.bvh.nodes))
         self._verts = rt.to_device(verts)
         self._tri_index = rt.to_device(self.bvh.tri_index.astype(np.int32))
 
     @property
     def device_nodes(self):
-        """Device buffer of the traversal layout (PairNode records)."""
+        """Device buffer of the traversal layout (Bvh4Node records, see bvh4_nodes)."""
         return self._nodes
 
     @property
@@ -166,8 +260,8 @@ class RayCaster:
         # work items) ran ~15% slower; 64 also suits GPUs. The kernels ignore
         # the work items past n.
         local = 64
-        kernel(rt.queue, (-(-n // local) * local,), (local,), self._nodes, self._verts, self._tri_index, ray_buf,
-               ign_buf, out_buf, np.int32(n))
+        kernel(rt.queue, (-(-n // local) * local,), (local,), self._nodes, self._verts,
+               self._tri_index, ray_buf, ign_buf, out_buf, np.int32(n))
         cl.enqueue_copy(rt.queue, out, out_buf)
         return out
 

@@ -191,23 +191,74 @@ CLR_INLINE int child_code(int ref, int count)
     return (count > 0) ? LEAF_CODE(ref, count) : ref;
 }
 
+/* The 4-wide stack: a Bvh4Node pushes at most 3 children, and every record
+ * on a root-to-leaf path stands for at least one level of the binary tree
+ * (depth <= 64, clradcom.bvh.build_bvh max_depth), so 3 * 64 entries always
+ * suffice; bvh4_nodes on the host also computes the tree's exact need and
+ * refuses a tree that would exceed this. */
+#define BVH4_STACK_SIZE 192
+
+#define MINF4(a, b) (((a) < (b)) ? (a) : (b))
+#define MAXF4(a, b) (((a) > (b)) ? (a) : (b))
+
+/* Entry distances of the ray into the four child boxes of a Bvh4Node record
+ * (INFINITY for a miss or an empty slot). Per axis the near plane is picked
+ * by the sign of 1/dir, so no min/max orders the slab ends; empty slots have
+ * +inf/-inf bounds and are masked by their code as well. */
+CLR_INLINE float4 ray_box4(const PreparedRay *r, __global const float *rec, int4 code,
+                           float tmin, float tmax)
+{
+    float4 lx = vload4(0, rec), ly = vload4(1, rec), lz = vload4(2, rec);
+    float4 hx = vload4(3, rec), hy = vload4(4, rec), hz = vload4(5, rec);
+    float4 nx = (r->ix < 0.0f) ? hx : lx, fx = (r->ix < 0.0f) ? lx : hx;
+    float4 ny = (r->iy < 0.0f) ? hy : ly, fy = (r->iy < 0.0f) ? ly : hy;
+    float4 nz = (r->iz < 0.0f) ? hz : lz, fz = (r->iz < 0.0f) ? lz : hz;
+    float4 ox = (float4)(r->ox), oy = (float4)(r->oy), oz = (float4)(r->oz);
+    float4 ix = (float4)(r->ix), iy = (float4)(r->iy), iz = (float4)(r->iz);
+    float4 tnx = (nx - ox) * ix, tfx = (fx - ox) * ix;
+    float4 tny = (ny - oy) * iy, tfy = (fy - oy) * iy;
+    float4 tnz = (nz - oz) * iz, tfz = (fz - oz) * iz;
+    if (r->axis_parallel) {
+        /* 0 * inf = NaN only for a ray lying in a slab plane: inside that slab */
+        float4 ninf = (float4)(-INFINITY), pinf = (float4)(INFINITY);
+        tnx = (tnx != tnx) ? ninf : tnx; tfx = (tfx != tfx) ? pinf : tfx;
+        tny = (tny != tny) ? ninf : tny; tfy = (tfy != tfy) ? pinf : tfy;
+        tnz = (tnz != tnz) ? ninf : tnz; tfz = (tfz != tfz) ? pinf : tfz;
+    }
+    float4 t0 = MAXF4(MAXF4(tnx, tny), MAXF4(tnz, (float4)(tmin)));
+    float4 t1 = MINF4(MINF4(tfx, tfy), MINF4(tfz, (float4)(tmax))) * ROBUST_TMAX_SCALE;
+    int4 hit = (t0 <= t1) & (code != (int4)(0));
+    return hit ? t0 : (float4)(INFINITY);
+}
+
+#define CSWAP(da, ca, db, cb)                                               \
+    do {                                                                   \
+        bool s_ = (db) < (da);                                             \
+        float td_ = s_ ? (db) : (da); (db) = s_ ? (da) : (db); (da) = td_; \
+        int tc_ = s_ ? (cb) : (ca); (cb) = s_ ? (ca) : (cb); (ca) = tc_;   \
+    } while (0)
+
 /* Closest hit along the ray in (tmin, tmax). tri_verts holds three float4
  * per leaf slot (slot i is scene triangle tri_index[i]); returns the slot,
  * -1 on a miss. ignore_prim (a scene id, or -1) is skipped: the surface a
- * reflected ray leaves. */
-CLR_INLINE int bvh_closest(__global const PairNode *nodes, __global const float4 *tri_verts,
+ * reflected ray leaves. A record with one hit child goes straight on to it;
+ * with more, the hit children are sorted near to far (a 5-exchange network,
+ * misses sort last as INFINITY), the nearest is visited next and the rest
+ * pushed far first. */
+CLR_INLINE int bvh_closest(__global const Bvh4Node *nodes, __global const float4 *tri_verts,
                        __global const int *tri_index, const PreparedRay *r,
                        float tmin, float *tmax_io, float *u_out, float *v_out,
                        int ignore_prim)
 {
-    int stack_code[BVH_STACK_SIZE];
-    float stack_dist[BVH_STACK_SIZE];
+    int stack_code[BVH4_STACK_SIZE];
+    float stack_dist[BVH4_STACK_SIZE];
     int sp = 0;
     int code = 0;   /* the root record */
+    bool inner = true;
     int best = -1;
     float tmax = *tmax_io;
     for (;;) {
-        if (code < 0) {
+        if (!inner) {
             int packed = -code - 1;
             int first = packed >> 5, last = first + (packed & 31);
             for (int i = first; i < last; ++i) {
@@ -219,43 +270,55 @@ CLR_INLINE int bvh_closest(__global const PairNode *nodes, __global const float4
                 }
             }
         } else {
-            __global const PairNode *n = nodes + code;
-            float dl, dr;
-            ray_box2(r, (__global const float *)n, tmin, tmax, &dl, &dr);
-            if (n->rcount < 0) dr = INFINITY;
-            int lc = child_code(n->lref, n->lcount), rc = child_code(n->rref, n->rcount);
-            if (dl > dr) {
-                float td = dl; dl = dr; dr = td;
-                int tc = lc; lc = rc; rc = tc;
+            __global const float *rec = (__global const float *)(nodes + code);
+            int4 c = vload4(6, (__global const int *)rec);
+            float4 d = ray_box4(r, rec, c, tmin, tmax);
+            float d0 = d.s0, d1 = d.s1, d2 = d.s2, d3 = d.s3;
+            int c0 = c.s0, c1 = c.s1, c2 = c.s2, c3 = c.s3;
+            int nh = (d0 != INFINITY) + (d1 != INFINITY) + (d2 != INFINITY) + (d3 != INFINITY);
+            if (nh == 0) goto pop;
+            if (nh == 1) {
+                code = (d0 != INFINITY) ? c0 : ((d1 != INFINITY) ? c1 : ((d2 != INFINITY) ? c2 : c3));
+                inner = code > 0;
+                continue;
             }
-            if (dl != INFINITY) {
-                if (dr != INFINITY) {
-                    stack_code[sp] = rc; stack_dist[sp] = dr; ++sp;
-                }
-                code = lc;
+            CSWAP(d0, c0, d1, c1);
+            CSWAP(d2, c2, d3, c3);
+            CSWAP(d0, c0, d2, c2);
+            CSWAP(d1, c1, d3, c3);
+            CSWAP(d1, c1, d2, c2);
+            if (d0 != INFINITY) {
+                if (d3 != INFINITY) { stack_code[sp] = c3; stack_dist[sp] = d3; ++sp; }
+                if (d2 != INFINITY) { stack_code[sp] = c2; stack_dist[sp] = d2; ++sp; }
+                if (d1 != INFINITY) { stack_code[sp] = c1; stack_dist[sp] = d1; ++sp; }
+                code = c0;
+                inner = code > 0;
                 continue;
             }
         }
         /* pop, skipping subtrees that start beyond the current closest hit */
+    pop:
         for (;;) {
             if (sp == 0) { *tmax_io = tmax; return best; }
             --sp;
             if (stack_dist[sp] <= tmax) break;
         }
         code = stack_code[sp];
+        inner = code > 0;
     }
 }
 
 /* Any hit in (tmin, tmax): shadow / visibility rays. */
-CLR_INLINE bool bvh_any(__global const PairNode *nodes, __global const float4 *tri_verts,
+CLR_INLINE bool bvh_any(__global const Bvh4Node *nodes, __global const float4 *tri_verts,
                     __global const int *tri_index, const PreparedRay *r,
                     float tmin, float tmax, int ignore_a, int ignore_b)
 {
-    int stack_code[BVH_STACK_SIZE];
+    int stack_code[BVH4_STACK_SIZE + 1];   /* pushes all hit children, then pops one */
     int sp = 0;
     int code = 0;
+    bool inner = true;
     for (;;) {
-        if (code < 0) {
+        if (!inner) {
             int packed = -code - 1;
             int first = packed >> 5, last = first + (packed & 31);
             for (int i = first; i < last; ++i) {
@@ -266,21 +329,17 @@ CLR_INLINE bool bvh_any(__global const PairNode *nodes, __global const float4 *t
                     return true;
             }
         } else {
-            __global const PairNode *n = nodes + code;
-            float dl, dr;
-            ray_box2(r, (__global const float *)n, tmin, tmax, &dl, &dr);
-            bool hl = dl != INFINITY;
-            bool hr = n->rcount >= 0 && dr != INFINITY;
-            if (hl || hr) {
-                if (hl && hr) {
-                    stack_code[sp++] = child_code(n->rref, n->rcount);
-                }
-                code = hl ? child_code(n->lref, n->lcount) : child_code(n->rref, n->rcount);
-                continue;
-            }
+            __global const float *rec = (__global const float *)(nodes + code);
+            int4 c = vload4(6, (__global const int *)rec);
+            float4 d = ray_box4(r, rec, c, tmin, tmax);
+            if (d.s3 != INFINITY) stack_code[sp++] = c.s3;
+            if (d.s2 != INFINITY) stack_code[sp++] = c.s2;
+            if (d.s1 != INFINITY) stack_code[sp++] = c.s1;
+            if (d.s0 != INFINITY) stack_code[sp++] = c.s0;
         }
         if (sp == 0) return false;
         code = stack_code[--sp];
+        inner = code > 0;
     }
 }
 

@@ -1,7 +1,7 @@
 /* Batch ray casting against a flattened BVH: one kernel per query type. */
 #include "intersect.h"
 
-__kernel void closest_hit(__global const PairNode *nodes,
+__kernel void closest_hit(__global const Bvh4Node *nodes,
                           __global const float4 *tri_verts,
                           __global const int *tri_index,
                           __global const Ray *rays,
@@ -33,7 +33,7 @@ __kernel void closest_hit(__global const PairNode *nodes,
     hits[gid] = h;
 }
 
-__kernel void any_hit(__global const PairNode *nodes,
+__kernel void any_hit(__global const Bvh4Node *nodes,
                       __global const float4 *tri_verts,
                       __global const int *tri_index,
                       __global const Ray *rays,

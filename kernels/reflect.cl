@@ -15,7 +15,7 @@ inline float3 spawn_point(float3 p, float3 n, float3 dir)
     return p + ((dot(n, dir) >= 0.0f) ? bound : -bound) * n;
 }
 
-__kernel void trace_reflections(__global const PairNode *nodes,
+__kernel void trace_reflections(__global const Bvh4Node *nodes,
                                 __global const float4 *tri_verts,
                                 __global const int *tri_index,
                                 __global const int *tri_face,

@@ -32,6 +32,24 @@ typedef struct {
     int rcount;
 } PairNode;
 
+/* 128 bytes: the 4-wide traversal layout (clradcom/raycast.py: bvh4_nodes),
+ * collapsed on the host from the binary BVHNode tree. Bounds are stored per
+ * axis for the four child slots (structure of arrays) so one float4 op tests
+ * all four. child[i] > 0: an inner child, its record index; child[i] < 0: a
+ * leaf, -(first_slot * 32 + count) - 1; child[i] == 0: an empty slot (record 0
+ * is the root, never a child), whose bounds are +inf / -inf and which the
+ * kernel masks out by its code anyway. */
+typedef struct {
+    float minx[4];
+    float miny[4];
+    float minz[4];
+    float maxx[4];
+    float maxy[4];
+    float maxz[4];
+    int child[4];
+    int pad[4];
+} Bvh4Node;
+
 /* 32 bytes. A hit is accepted for tmin < t < tmax. */
 typedef struct {
     float org[3];
