@@ -59,8 +59,12 @@ def merge_coplanar(triangles, tri_object, tri_material, angle_tol=1e-5, offset_t
     """Group triangles into planar faces per (object, material, plane).
 
     angle_tol is in radians between normals; offset_tol in metres between
-    plane offsets (relative to 1 + |d| so distant planes are judged by
-    their float resolution). Grouping sorts on quantised keys and then joins
+    plane offsets, widened by 1e-7 of the scene's extent (max |coordinate|,
+    about twice float32 resolution there) for meshes stored in float32. The
+    tolerance is the same for every plane of a scene: it must not grow with
+    |d| as such, or the two sides of a thin sheet far from the origin (1 mm at
+    100 m, 5 mm at 1 km with a tolerance of 1e-5 |d|) would be merged into one
+    plane between them. Grouping sorts on quantised keys and then joins
     neighbours in that order that agree within the tolerances, so a plane
     whose key straddles a quantisation step is still one face.
     """
@@ -71,12 +75,17 @@ def merge_coplanar(triangles, tri_object, tri_material, angle_tol=1e-5, offset_t
         raise ValueError(f"triangles must have shape (T, 3, 3), got {tri.shape}")
     if obj.shape != (len(tri),) or mat.shape != (len(tri),):
         raise ValueError("tri_object and tri_material need one entry per triangle")
+    if len(tri) == 0:  # a free-space scene: no faces
+        return Faces(tri_face=np.zeros(0, np.int32), normal=np.zeros((0, 3)),
+                     offset=np.zeros(0), object_id=np.zeros(0, np.int32),
+                     material_id=np.zeros(0, np.int32))
     n, d, area2 = triangle_planes(tri)
     if not np.all(area2 > 0):
         bad = int(np.flatnonzero(~(area2 > 0))[0])
         raise ValueError(f"triangle {bad} is degenerate (zero area): it has no plane")
     T = len(tri)
-    q = np.round(np.column_stack([n / angle_tol * 0.5, d / (offset_tol * (1 + np.abs(d)))]))
+    d_tol = offset_tol * (1.0 + 1e-2 * float(np.abs(tri).max()))
+    q = np.round(np.column_stack([n / angle_tol * 0.5, d / d_tol]))
     pairs_a, pairs_b = [], []
     for lead in range(4):
         # sort with each key component leading once so near-equal planes end up adjacent
@@ -85,7 +94,7 @@ def merge_coplanar(triangles, tri_object, tri_material, angle_tol=1e-5, offset_t
         a, b = order[:-1], order[1:]
         same = (obj[a] == obj[b]) & (mat[a] == mat[b])
         same &= np.einsum("ij,ij->i", n[a], n[b]) > np.cos(angle_tol)
-        same &= np.abs(d[a] - d[b]) <= offset_tol * (1 + np.abs(d[a]))
+        same &= np.abs(d[a] - d[b]) <= d_tol
         pairs_a.append(a[same])
         pairs_b.append(b[same])
     ia, ib = np.concatenate(pairs_a), np.concatenate(pairs_b)

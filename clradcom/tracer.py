@@ -53,7 +53,8 @@ class Geometry:
 
     scene: Scene
     faces: Faces
-    caster: RayCaster
+    caster: RayCaster | None  # None for a scene without triangles (free space)
+    runtime: Runtime
 
 
 @dataclass
@@ -81,14 +82,16 @@ class StageTimes:
 
 
 def build_geometry(scene: Scene, runtime: Runtime | None = None) -> Geometry:
+    runtime = runtime or get_runtime()
     faces = merge_coplanar(scene.triangles, scene.tri_object, scene.tri_material)
-    caster = RayCaster(scene.triangles, runtime=runtime or get_runtime())
-    return Geometry(scene=scene, faces=faces, caster=caster)
+    # a BVH needs triangles; a free-space scene has only line-of-sight paths
+    caster = RayCaster(scene.triangles, runtime=runtime) if len(scene.triangles) else None
+    return Geometry(scene=scene, faces=faces, caster=caster, runtime=runtime)
 
 
 def candidate_sequences(geom: Geometry, tx: Radar, settings: TraceSettings):
     """Unique face sequences (dict order -> (C, order) int32) proposed by tx's rays."""
-    if settings.max_reflections == 0:
+    if settings.max_reflections == 0 or geom.caster is None:
         return {}
     dirs = sp.launch_directions(settings.rays, tx.pattern.gain, tx.orientation)
     seqs = sp.reflection_sequences(geom.caster, geom.faces.tri_face, tx.position, dirs,
@@ -105,8 +108,11 @@ def specular_paths(geom: Geometry, tx_pos, rx_pos, candidates, line_of_sight=Tru
     blocks = []
     if line_of_sight and np.linalg.norm(rx_pos - tx_pos) > 0:
         pts = np.stack([tx_pos, rx_pos])[None]
-        keep, _ = sp.confirm_paths(geom.caster, geom.faces.tri_face, geom.faces.normal, pts,
-                                   np.zeros((1, 0), dtype=np.int32))
+        if geom.caster is None:  # free space: nothing can block it
+            keep = np.ones(1, dtype=bool)
+        else:
+            keep, _ = sp.confirm_paths(geom.caster, geom.faces.tri_face, geom.faces.normal,
+                                       pts, np.zeros((1, 0), dtype=np.int32))
         if keep[0]:
             blocks.append((pts, np.zeros((1, 0), np.int32), np.zeros((1, 0), np.int32)))
     for k in sorted(candidates):
@@ -205,6 +211,6 @@ def trace_scene(scene: Scene, settings: TraceSettings | None = None,
                         paths=paths))
     meta = {f"settings.{k}": v for k, v in asdict(settings).items()}
     meta["clradcom_version"] = __version__
-    meta["device"] = geom.caster.runtime.info.device_name.strip()
+    meta["device"] = geom.runtime.info.device_name.strip()
     return Snapshot(scene_name=scene.name, carrier_hz=float(scene.carrier_hz),
                     scene_hash=scene.content_hash(), links=tuple(out), metadata=meta)
