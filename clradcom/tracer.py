@@ -169,10 +169,14 @@ def path_fields(geom: Geometry, pg: PathGeometry, tx: Radar, rx: Radar) -> Paths
     vel[np.arange(P), nk + 1] = rx.velocity
     doppler = em.doppler_hz(pts, vel, scene.wavelength_m, num_interactions=nk)
     interaction = np.where(active, int(InteractionType.REFLECTION), 0).astype(np.int8)
-    return Paths(gain=gain, matrix=M, delay_s=em.delay_s(L), doppler_hz=doppler,
-                 n_interactions=pg.n_interactions, interaction=interaction,
-                 points=pg.points, object_id=obj.astype(np.int32),
-                 face_id=pg.triangles)
+    # a path leaving or arriving outside an antenna's pattern carries nothing: model no more
+    # than the link can see
+    seen = (np.asarray(tx.pattern.gain(k_dep @ np.asarray(tx.orientation))) > 0) & (
+        np.asarray(rx.pattern.gain(-k_arr @ np.asarray(rx.orientation))) > 0)
+    return Paths(gain=gain[seen], matrix=M[seen], delay_s=em.delay_s(L)[seen],
+                 doppler_hz=doppler[seen], n_interactions=pg.n_interactions[seen],
+                 interaction=interaction[seen], points=pg.points[seen],
+                 object_id=obj.astype(np.int32)[seen], face_id=pg.triangles[seen])
 
 
 def trace_scene(scene: Scene, settings: TraceSettings | None = None,

@@ -682,3 +682,24 @@ def test_thin_sheet_far_from_origin_keeps_both_sides(runtime, x0, thickness):
     L = 2 * (R - thickness / 2)  # off the front side
     assert abs(p.delay_s[0] - L / C0) < 1e-15
     np.testing.assert_allclose(p.points[0, 1], [x0 + R - thickness / 2, 0, 0], atol=1e-9)
+
+
+def test_paths_outside_the_antenna_pattern_are_not_emitted(runtime):
+    """A wall behind a forward-looking sector antenna gives no path; an isotropic one sees it."""
+    def scene(pattern):
+        return scene_from_dict({
+            "scene": {"name": "behind", "carrier_hz": 24e9},
+            "objects": [{"name": "wall", "material": "metal", "shape": "plane",
+                         "size": [4.0, 4.0], "position": [-5.0, 0.0, 0.0],
+                         "rotation_deg": [0.0, 90.0, 0.0]},
+                        {"name": "front", "material": "metal", "shape": "plane",
+                         "size": [4.0, 4.0], "position": [6.0, 0.0, 0.0],
+                         "rotation_deg": [0.0, -90.0, 0.0]}],
+            "radars": [{"name": "r", "position": [0.0, 0.0, 0.0], "pattern": pattern}]})
+
+    settings = TraceSettings(max_reflections=1, rays=20000)
+    iso = trace_scene(scene("isotropic"), settings, runtime=runtime).links[0].paths
+    sector = trace_scene(scene("sector"), settings, runtime=runtime).links[0].paths
+    assert sorted(np.round(iso.delay_s * C0, 6)) == [10.0, 12.0]
+    np.testing.assert_allclose(sector.delay_s * C0, [12.0], rtol=1e-12)
+    assert np.all(sector.gain != 0)
