@@ -94,16 +94,25 @@ def reflection_sequences(caster: RayCaster, tri_face, origin, directions, max_or
 def unique_candidates(face_seq: np.ndarray) -> dict[int, np.ndarray]:
     """Unique face sequences of each length 1..max_order from all prefixes.
 
-    Sequences that reflect off one plane twice in a row are dropped: a planar
-    face cannot do that, so they are float32 artefacts of a ray re-hitting a
-    neighbouring triangle of the face it left.
+    Sequences that reflect off one plane twice in a row are cut there: a
+    planar face cannot do that, so the rest of such a ray is a float32
+    artefact of re-hitting a neighbouring triangle of the face it left.
+    Rays repeat each other massively, so whole rows are de-duplicated first
+    (one sort) and prefixes are taken from the few unique rows.
     """
+    seq = np.ascontiguousarray(face_seq, dtype=np.int32)
+    k_max = seq.shape[1]
+    if k_max > 1:
+        repeat = np.zeros(seq.shape, dtype=bool)
+        repeat[:, 1:] = (seq[:, 1:] == seq[:, :-1]) & (seq[:, 1:] >= 0)
+        cut = np.cumsum(repeat, axis=1) > 0
+        seq = np.where(cut, -1, seq)
+    if len(seq):
+        rows = seq.view(np.dtype((np.void, seq.dtype.itemsize * k_max))).ravel()
+        seq = seq[np.unique(rows, return_index=True)[1]]
     out: dict[int, np.ndarray] = {}
-    for k in range(1, face_seq.shape[1] + 1):
-        pref = face_seq[:, :k]
-        pref = pref[pref[:, k - 1] >= 0]
-        if k > 1:
-            pref = pref[np.all(pref[:, 1:] != pref[:, :-1], axis=1)]
+    for k in range(1, k_max + 1):
+        pref = seq[seq[:, k - 1] >= 0, :k]
         out[k] = np.unique(pref, axis=0) if len(pref) else np.zeros((0, k), np.int32)
     return out
 
