@@ -19,35 +19,12 @@ def superellipsoid(extents, n_theta: int, n_phi: int, exponent: float) -> trimes
 
     exponent 1 is an ellipsoid; toward 0 it becomes a box with rounded edges.
     """
-    a, b, c = (0.5 * float(e) for e in extents)
-    theta = np.linspace(-0.5 * np.pi, 0.5 * np.pi, n_phi + 1)  # latitude
-    phi = np.linspace(-np.pi, np.pi, n_theta + 1)[:-1]  # longitude, wraps
-
-    def spow(x, p):
-        return np.sign(x) * np.abs(x) ** p
-
-    th, ph = np.meshgrid(theta, phi, indexing="ij")
-    x = a * spow(np.cos(th), exponent) * spow(np.cos(ph), exponent)
-    y = b * spow(np.cos(th), exponent) * spow(np.sin(ph), exponent)
-    z = c * spow(np.sin(th), exponent)
-    grid = np.stack([x, y, z], axis=-1)  # (n_phi+1, n_theta, 3)
+    c = 0.5 * float(extents[2])
+    body = _superellipsoid_rings(extents, n_theta, n_phi, exponent)
     # poles collapse to single vertices so the mesh is closed and has no slivers
-    body = grid[1:-1].reshape(-1, 3)
     verts = np.vstack([body, [[0.0, 0.0, -c]], [[0.0, 0.0, c]]])
-    south, north = len(body), len(body) + 1
-    rings = n_phi - 1
-    faces = []
-    for i in range(rings - 1):
-        for j in range(n_theta):
-            p = i * n_theta + j
-            q = i * n_theta + (j + 1) % n_theta
-            faces.append([p, q, q + n_theta])
-            faces.append([p, q + n_theta, p + n_theta])
-    for j in range(n_theta):
-        faces.append([south, (j + 1) % n_theta, j])
-        top = (rings - 1) * n_theta
-        faces.append([north, top + j, top + (j + 1) % n_theta])
-    mesh = trimesh.Trimesh(verts, np.array(faces), process=True)
+    faces = _lat_long_faces(n_theta, n_phi)
+    mesh = trimesh.Trimesh(verts, faces, process=True)
     mesh.fix_normals()
     return mesh
 
@@ -152,19 +129,8 @@ def superellipsoid_face_centred(extents, n_theta: int, n_phi: int,
     +-x (a specular mirror straight back), which the vertex-on-axis grid lacks."""
     if n_theta % 4 or n_phi % 2 == 0:
         raise ValueError("n_theta must be a multiple of 4 and n_phi odd")
-    # same construction as `superellipsoid`, longitude shifted by half a step
     a, b, c = (0.5 * float(e) for e in extents)
-    theta = np.linspace(-0.5 * np.pi, 0.5 * np.pi, n_phi + 1)
-    phi = np.linspace(-np.pi, np.pi, n_theta + 1)[:-1] + np.pi / n_theta
-
-    def spow(x, p):
-        return np.sign(x) * np.abs(x) ** p
-
-    th, ph = np.meshgrid(theta, phi, indexing="ij")
-    x = a * spow(np.cos(th), exponent) * spow(np.cos(ph), exponent)
-    y = b * spow(np.cos(th), exponent) * spow(np.sin(ph), exponent)
-    z = c * spow(np.sin(th), exponent)
-    body = np.stack([x, y, z], axis=-1)[1:-1].reshape(-1, 3)
+    body = _superellipsoid_rings(extents, n_theta, n_phi, exponent, np.pi / n_theta)
     # the axis points are now face centres: stretch so the extents are met exactly
     body[:, 0] *= a / np.abs(body[:, 0]).max()
     body[:, 1] *= b / np.abs(body[:, 1]).max()
@@ -173,6 +139,22 @@ def superellipsoid_face_centred(extents, n_theta: int, n_phi: int,
     out = trimesh.Trimesh(verts, faces, process=True)
     out.fix_normals()
     return out
+
+
+def _superellipsoid_rings(extents, n_theta, n_phi, exponent, phi_shift=0.0) -> np.ndarray:
+    """Vertices of the lat-long rings between the poles, ring by ring."""
+    a, b, c = (0.5 * float(e) for e in extents)
+    theta = np.linspace(-0.5 * np.pi, 0.5 * np.pi, n_phi + 1)  # latitude
+    phi = np.linspace(-np.pi, np.pi, n_theta + 1)[:-1] + phi_shift  # longitude, wraps
+
+    def spow(x, p):
+        return np.sign(x) * np.abs(x) ** p
+
+    th, ph = np.meshgrid(theta, phi, indexing="ij")
+    x = a * spow(np.cos(th), exponent) * spow(np.cos(ph), exponent)
+    y = b * spow(np.cos(th), exponent) * spow(np.sin(ph), exponent)
+    z = c * spow(np.sin(th), exponent)
+    return np.stack([x, y, z], axis=-1)[1:-1].reshape(-1, 3)
 
 
 def _lat_long_faces(n_theta: int, n_phi: int) -> np.ndarray:
