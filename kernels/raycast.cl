@@ -1,6 +1,12 @@
 /* Batch ray casting against a flattened BVH: one kernel per query type. */
 #include "intersect.h"
 
+CLR_INLINE PreparedRay prepare_packed_ray(const Ray *ray)
+{
+    return prepare_ray((float3)(ray->org[0], ray->org[1], ray->org[2]),
+                       (float3)(ray->dir[0], ray->dir[1], ray->dir[2]));
+}
+
 __kernel void closest_hit(__global const Bvh4Node *nodes,
                           __global const float4 *tri_verts,
                           __global const int *tri_index,
@@ -12,9 +18,7 @@ __kernel void closest_hit(__global const Bvh4Node *nodes,
     int gid = get_global_id(0);
     if (gid >= n_rays) return;
     Ray ray = rays[gid];
-    float3 org = (float3)(ray.org[0], ray.org[1], ray.org[2]);
-    float3 dir = (float3)(ray.dir[0], ray.dir[1], ray.dir[2]);
-    PreparedRay pr = prepare_ray(org, dir);
+    PreparedRay pr = prepare_packed_ray(&ray);
     float tmax = ray.tmax, u = 0.0f, v = 0.0f;
     int slot = bvh_closest(nodes, tri_verts, tri_index, &pr, ray.tmin, &tmax, &u, &v,
                            ignore_prim[gid]);
@@ -44,9 +48,7 @@ __kernel void any_hit(__global const Bvh4Node *nodes,
     int gid = get_global_id(0);
     if (gid >= n_rays) return;
     Ray ray = rays[gid];
-    float3 org = (float3)(ray.org[0], ray.org[1], ray.org[2]);
-    float3 dir = (float3)(ray.dir[0], ray.dir[1], ray.dir[2]);
-    PreparedRay pr = prepare_ray(org, dir);
+    PreparedRay pr = prepare_packed_ray(&ray);
     occluded[gid] = bvh_any(nodes, tri_verts, tri_index, &pr, ray.tmin, ray.tmax,
                             ignore_prim[gid], -1) ? 1 : 0;
 }
