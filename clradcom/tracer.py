@@ -23,12 +23,14 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from . import __version__, em
+from . import diffraction as diff
 from . import specular as sp
 from .faces import Faces, merge_coplanar
 from .opencl import Runtime, get_runtime
 from .raycast import RayCaster
 from .scene import Radar, Scene
 from .snapshot import InteractionType, Link, Paths, Snapshot
+from .wedges import extract_wedges
 
 
 @dataclass(frozen=True)
@@ -38,8 +40,16 @@ class TraceSettings:
     max_reflections: int = 5
     rays: int = 1_000_000  # launched per transmitter over its pattern's support
     line_of_sight: bool = True
+    max_diffractions: int = 1  # 0 turns UTD edge diffraction off; 1 is what is modelled
+    wedge_angle_deg: float = 20.0  # faces turning less than this meet in no wedge
 
     def __post_init__(self):
+        if self.max_diffractions not in (0, 1):
+            raise ValueError(f"max_diffractions must be 0 or 1 (single diffraction is what is "
+                             f"modelled so far), got {self.max_diffractions!r}")
+        if not (0.0 < float(self.wedge_angle_deg) < 180.0):
+            raise ValueError(f"wedge_angle_deg must lie in (0, 180), got "
+                             f"{self.wedge_angle_deg!r}")
         if not (isinstance(self.max_reflections, int) and 0 <= self.max_reflections <= 16):
             raise ValueError(f"max_reflections must be an integer 0..16, got "
                              f"{self.max_reflections!r}")
@@ -140,6 +150,43 @@ def specular_paths(geom: Geometry, tx_pos, rx_pos, candidates, line_of_sight=Tru
     return PathGeometry(points=points, n_interactions=n_int, faces=faces, triangles=triangles)
 
 
+def seen_by_antennas(tx: Radar, rx: Radar, k_dep, k_arr) -> np.ndarray:
+    """Paths that leave inside tx's pattern and arrive inside rx's (non-zero gain)."""
+    return (np.asarray(tx.pattern.gain(k_dep @ np.asarray(tx.orientation))) > 0) & (
+        np.asarray(rx.pattern.gain(-k_arr @ np.asarray(rx.orientation))) > 0)
+
+
+def concat_paths(parts: list[Paths]) -> Paths:
+    """One Paths from several, padded to the largest number of interactions."""
+    k_max = max((p.k_max for p in parts), default=0)
+    fields = {}
+    for name in ("gain", "matrix", "delay_s", "doppler_hz", "n_interactions"):
+        fields[name] = np.concatenate([getattr(p, name) for p in parts])
+    pads = {"interaction": 0, "object_id": -1, "face_id": -1}
+    for name, fill in pads.items():
+        fields[name] = np.concatenate([
+            np.pad(getattr(p, name), ((0, 0), (0, k_max - p.k_max)), constant_values=fill)
+            for p in parts])
+    fields["points"] = np.concatenate([
+        np.pad(p.points, ((0, 0), (0, k_max - p.k_max), (0, 0)), constant_values=np.nan)
+        for p in parts])
+    return Paths(**fields)
+
+
+def diffraction_paths(geom: Geometry, wedges, tx: Radar, rx: Radar) -> Paths:
+    """First-order UTD diffraction paths of one link (see clradcom.diffraction)."""
+    idx, q, phi_p, phi, beta0 = diff.keller_candidates(wedges, tx.position, rx.position)
+    keep = diff.confirm_diffraction(geom.caster, tx.position, rx.position, q)
+    idx, q, phi_p, phi, beta0 = idx[keep], q[keep], phi_p[keep], phi[keep], beta0[keep]
+    k_dep = q - tx.position
+    k_arr = rx.position - q
+    k_dep /= np.linalg.norm(k_dep, axis=1, keepdims=True)
+    k_arr /= np.linalg.norm(k_arr, axis=1, keepdims=True)
+    seen = seen_by_antennas(tx, rx, k_dep, k_arr)
+    return diff.diffraction_fields(geom.scene, wedges, idx[seen], q[seen], phi_p[seen],
+                                   phi[seen], beta0[seen], tx, rx)
+
+
 def path_fields(geom: Geometry, pg: PathGeometry, tx: Radar, rx: Radar) -> Paths:
     """Gains, polarimetric matrices, delays and Doppler of exact paths -> :class:`Paths`."""
     scene = geom.scene
@@ -171,8 +218,7 @@ def path_fields(geom: Geometry, pg: PathGeometry, tx: Radar, rx: Radar) -> Paths
     interaction = np.where(active, int(InteractionType.REFLECTION), 0).astype(np.int8)
     # a path leaving or arriving outside an antenna's pattern carries nothing: model no more
     # than the link can see
-    seen = (np.asarray(tx.pattern.gain(k_dep @ np.asarray(tx.orientation))) > 0) & (
-        np.asarray(rx.pattern.gain(-k_arr @ np.asarray(rx.orientation))) > 0)
+    seen = seen_by_antennas(tx, rx, k_dep, k_arr)
     return Paths(gain=gain[seen], matrix=M[seen], delay_s=em.delay_s(L)[seen],
                  doppler_hz=doppler[seen], n_interactions=pg.n_interactions[seen],
                  interaction=interaction[seen], points=pg.points[seen],
@@ -196,6 +242,12 @@ def trace_scene(scene: Scene, settings: TraceSettings | None = None,
         links = [(t, r) for t in txs for r in rxs]
     out = []
     cache = {}
+    wedges = None
+    if settings.max_diffractions and len(scene.triangles):
+        t0 = time.perf_counter()
+        wedges = extract_wedges(scene.triangles, scene.tri_object, scene.tri_material,
+                                settings.wedge_angle_deg)
+        times.add("wedges", time.perf_counter() - t0)
     for t_idx, r_idx in links:
         tx, rx = scene.radars[t_idx], scene.radars[r_idx]
         if t_idx not in cache:
@@ -211,6 +263,10 @@ def trace_scene(scene: Scene, settings: TraceSettings | None = None,
         t0 = time.perf_counter()
         paths = path_fields(geom, pg, tx, rx)
         times.add("fields", time.perf_counter() - t0)
+        if wedges is not None:
+            t0 = time.perf_counter()
+            paths = concat_paths([paths, diffraction_paths(geom, wedges, tx, rx)])
+            times.add("diffraction", time.perf_counter() - t0)
         out.append(Link(tx_name=tx.name, rx_name=rx.name, tx_index=t_idx, rx_index=r_idx,
                         paths=paths))
     meta = {f"settings.{k}": v for k, v in asdict(settings).items()}
