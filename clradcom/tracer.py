@@ -27,6 +27,7 @@ from . import diffraction as diff
 from . import specular as sp
 from .faces import Faces, merge_coplanar
 from .opencl import Runtime, get_runtime
+from .po import po_paths
 from .raycast import RayCaster
 from .scene import Radar, Scene
 from .snapshot import InteractionType, Link, Paths, Snapshot
@@ -42,8 +43,15 @@ class TraceSettings:
     line_of_sight: bool = True
     max_diffractions: int = 1  # 0 turns UTD edge diffraction off; 1 is what is modelled
     wedge_angle_deg: float = 20.0  # faces turning less than this meet in no wedge
+    # "pec": PEC objects' single-bounce returns are physical-optics facet integrals
+    # instead of GO image paths (a facet's true RCS, not an infinite mirror's);
+    # "none": pure GO
+    physical_optics: str = "none"
 
     def __post_init__(self):
+        if self.physical_optics not in ("none", "pec"):
+            raise ValueError(f"physical_optics must be 'none' or 'pec', got "
+                             f"{self.physical_optics!r}")
         if self.max_diffractions not in (0, 1):
             raise ValueError(f"max_diffractions must be 0 or 1 (single diffraction is what is "
                              f"modelled so far), got {self.max_diffractions!r}")
@@ -173,6 +181,30 @@ def concat_paths(parts: list[Paths]) -> Paths:
     return Paths(**fields)
 
 
+def select_paths(paths: Paths, mask) -> Paths:
+    """The paths where mask is true."""
+    return Paths(**{name: getattr(paths, name)[mask] for name in (
+        "gain", "matrix", "delay_s", "doppler_hz", "n_interactions", "interaction", "points",
+        "object_id", "face_id")})
+
+
+def with_physical_optics(geom: Geometry, paths: Paths, tx: Radar, rx: Radar) -> Paths:
+    """Swap PEC objects' single GO reflections for their PO facet returns.
+
+    A GO image path off a flat facet is the return of an infinite mirror; the PO
+    integral over the lit facets gives the facet's own strength and its
+    off-specular lobes. Multi-bounce paths stay GO.
+    """
+    pec_objects = np.flatnonzero(geom.scene.material_pec[
+        [o.material for o in geom.scene.objects]])
+    single_on_pec = (paths.n_interactions == 1) & np.isin(paths.object_id[:, 0], pec_objects) \
+        if paths.k_max else np.zeros(paths.n_paths, dtype=bool)
+    if geom.caster is None or len(pec_objects) == 0:
+        return paths
+    return concat_paths([select_paths(paths, ~single_on_pec),
+                         po_paths(geom, tx, rx, objects=pec_objects)])
+
+
 def diffraction_paths(geom: Geometry, wedges, tx: Radar, rx: Radar) -> Paths:
     """First-order UTD diffraction paths of one link (see clradcom.diffraction)."""
     idx, q, phi_p, phi, beta0 = diff.keller_candidates(wedges, tx.position, rx.position)
@@ -263,6 +295,10 @@ def trace_scene(scene: Scene, settings: TraceSettings | None = None,
         t0 = time.perf_counter()
         paths = path_fields(geom, pg, tx, rx)
         times.add("fields", time.perf_counter() - t0)
+        if settings.physical_optics == "pec":
+            t0 = time.perf_counter()
+            paths = with_physical_optics(geom, paths, tx, rx)
+            times.add("physical optics", time.perf_counter() - t0)
         if wedges is not None:
             t0 = time.perf_counter()
             paths = concat_paths([paths, diffraction_paths(geom, wedges, tx, rx)])

@@ -77,3 +77,33 @@ def test_moving_edge_doppler_and_shadow_continuity(runtime):
     z = 0.3
     expected = -(1 / lam) * 2 * z / np.hypot(10.0, z) * 2.0
     assert paths.doppler_hz[top] == pytest.approx(expected, rel=1e-9)
+
+
+def test_physical_optics_replaces_the_go_mirror_return_of_a_pec_plate(runtime):
+    """With physical_optics='pec' a small far plate returns 4 pi A^2 / lambda^2, not pi R^2."""
+    lam = C0 / 24e9
+    side, R = 0.2, 40.0  # 6x the far-field distance 2 D^2 / lambda of the plate's side
+    scene = scene_from_dict({
+        "scene": {"name": "far_plate", "carrier_hz": 24e9},
+        "objects": [{"name": "plate", "material": "metal", "shape": "plane",
+                     "size": [side, side], "position": [R, 0.0, 0.0],
+                     "rotation_deg": [0.0, -90.0, 0.0]}],
+        "radars": [{"name": "r", "position": [0.0, 0.0, 0.0],
+                    "pattern": {"type": "sector", "azimuth_width_deg": 10.0,
+                                "elevation_width_deg": 10.0}}]})
+
+    def rcs(paths):
+        total = paths.gain.sum()
+        gain = scene.radars[0].pattern.gain(np.array([[1.0, 0.0, 0.0]]))[0]
+        return abs(total) ** 2 * (4 * np.pi) ** 3 * R**4 / (lam**2 * gain**2)
+
+    base = dict(max_reflections=1, rays=100_000, max_diffractions=0)
+    go = trace_scene(scene, TraceSettings(**base), runtime=runtime).links[0].paths
+    po = trace_scene(scene, TraceSettings(**base, physical_optics="pec"),
+                     runtime=runtime).links[0].paths
+    assert go.n_paths == 1 and rcs(go) == pytest.approx(np.pi * R**2, rel=1e-6)
+    assert po.n_paths == 2  # one PO term per triangle, the GO mirror path gone
+    # residual: the facets' own Fresnel phase k rho^2 / 2R at this finite range
+    assert rcs(po) == pytest.approx(4 * np.pi * side**4 / lam**2, rel=1e-2)
+    with pytest.raises(ValueError, match="physical_optics"):
+        TraceSettings(physical_optics="sometimes")

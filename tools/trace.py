@@ -6,7 +6,8 @@
 Stages and what they write into the output folder (default: out/<scene name>/):
 
   1. trace      every transmitter -> receiver link with the OpenCL ray tracer
-                (specular reflections up to --reflections, line of sight)
+                (line of sight, specular reflections up to --reflections, single
+                UTD edge diffraction, physical-optics returns of PEC objects)
                 -> snapshot.npz (documented in docs/snapshot-format.md)
   2. radar      for every radar that both transmits and receives: its own
                 echoes (the monostatic link) drive the paper's OFDM frame
@@ -81,6 +82,11 @@ def main(argv=None) -> int:
                     help="rays launched per transmitter over its pattern (default 1e6)")
     ap.add_argument("--reflections", type=int, default=5,
                     help="maximum specular reflections per path (default 5, the paper's)")
+    ap.add_argument("--diffractions", type=int, choices=(0, 1), default=1,
+                    help="UTD edge diffractions per path (default 1; 0 turns them off)")
+    ap.add_argument("--physical-optics", choices=("none", "pec"), default="pec",
+                    help="pec (default): PEC objects return their physical-optics facet "
+                         "integrals instead of single GO mirror paths; none: pure GO")
     ap.add_argument("--synthesis", choices=SYNTHESIS_METHODS, default="fast",
                     help="fast: frequency-domain model; exact: time-domain with ICI/ISI")
     ap.add_argument("--seed", type=int, default=0, help="seed of the random OFDM data")
@@ -96,7 +102,9 @@ def main(argv=None) -> int:
         with sw.stage("open OpenCL device"):
             runtime = get_runtime(args.device)
         print(f"  device: {runtime.info.describe()}")
-        settings = TraceSettings(max_reflections=args.reflections, rays=args.rays)
+        settings = TraceSettings(max_reflections=args.reflections, rays=args.rays,
+                                 max_diffractions=args.diffractions,
+                                 physical_optics=args.physical_optics)
         times = StageTimes()
         with sw.stage(f"trace {len(scene.triangles)} triangles, {args.rays} rays per tx"):
             snap = trace_scene(scene, settings, runtime=runtime, times=times,
