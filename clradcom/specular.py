@@ -33,31 +33,47 @@ from .raycast import RayCaster, make_rays, spawn_origins
 CONFIRM_TOL_M = 1e-3
 
 
-def fibonacci_sphere(n: int) -> np.ndarray:
-    """n nearly uniform unit vectors (golden-angle spiral), float64 (n, 3)."""
+def fibonacci_cap(n: int, half_angle: float = np.pi) -> np.ndarray:
+    """n nearly uniform unit vectors (golden-angle spiral) within half_angle of +x.
+
+    half_angle = pi covers the whole sphere. Uniform steps in x = cos(angle
+    from +x) give equal areas, so the lattice density is the same everywhere.
+    """
     if n < 1:
         raise ValueError(f"need at least one direction, got n={n}")
     k = np.arange(n, dtype=np.float64)
-    z = 1.0 - 2.0 * (k + 0.5) / n
-    r = np.sqrt(np.maximum(1.0 - z * z, 0.0))
+    x = 1.0 - (1.0 - np.cos(half_angle)) * (k + 0.5) / n
+    r = np.sqrt(np.maximum(1.0 - x * x, 0.0))
     phi = k * np.pi * (3.0 - np.sqrt(5.0))
-    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+    return np.stack([x, r * np.cos(phi), r * np.sin(phi)], axis=1)
+
+
+def fibonacci_sphere(n: int) -> np.ndarray:
+    """n nearly uniform unit vectors over the whole sphere, float64 (n, 3)."""
+    return fibonacci_cap(n, np.pi)
 
 
 def launch_directions(n_rays: int, gain_fn=None, orientation=None) -> np.ndarray:
     """About n_rays world directions covering where the pattern radiates.
 
     gain_fn maps local unit directions (K,3) to gain; orientation (3,3) has
-    the antenna's local axes as columns. The lattice is made dense enough on
-    the whole sphere that about n_rays of it fall inside the support.
+    the antenna's local axes as columns. The lattice is laid over the
+    smallest cap around boresight (+x) that holds the pattern's support, at
+    the density that puts about n_rays inside the support, so a narrow beam
+    costs no more than a wide one.
     """
     if gain_fn is None:
         return fibonacci_sphere(n_rays)
-    probe = fibonacci_sphere(4096)
-    share = float(np.mean(np.asarray(gain_fn(probe)) > 0))
-    if share == 0.0:
-        raise ValueError("the antenna pattern has zero gain everywhere")
-    local = fibonacci_sphere(int(np.ceil(n_rays / share)))
+    probe = fibonacci_sphere(1 << 16)
+    inside = np.asarray(gain_fn(probe)) > 0
+    if not inside.any():
+        raise ValueError("the antenna pattern has zero gain everywhere (or in a region "
+                         "narrower than 0.01 sr)")
+    spacing = np.sqrt(4.0 * np.pi / len(probe))
+    half_angle = min(np.pi, float(np.arccos(probe[inside, 0].min())) + 2.0 * spacing)
+    in_cap = probe[:, 0] >= np.cos(half_angle)
+    share = float(inside[in_cap].mean())
+    local = fibonacci_cap(int(np.ceil(n_rays / share)), half_angle)
     local = local[np.asarray(gain_fn(local)) > 0]
     if orientation is None:
         return local

@@ -604,9 +604,10 @@ def test_path_set_converges_with_ray_density(runtime):
         counts.append(len(seqs))
         sets.append(set(seqs))
         objs = {int(o) for o in p.object_id[p.object_id >= 0]}
-    # denser lattices find at least as much, and the two densest agree exactly
-    assert all(b >= a for a, b in zip(counts, counts[1:], strict=False)), counts
-    assert all(a <= b for a, b in zip(sets, sets[1:], strict=False)), counts
+    # lattices of different sizes are not nested, so a sparse one may find a path a
+    # slightly denser one misses; but every path any lattice finds is in the converged
+    # set, and the two densest agree exactly
+    assert all(s <= sets[-1] for s in sets), counts
     assert sets[-1] == sets[-2], (counts, sets[-1] ^ sets[-2])
     assert counts[0] < counts[-1]  # the coarsest lattice misses the small signs ...
     assert {4, 5} <= objs  # ... which the dense ones find
@@ -641,10 +642,13 @@ def test_wall_blocks_line_of_sight(runtime):
     wall = box("wall", "concrete_building", (0.2, 4.0, 3.0), (5.0, 0.0, 1.5))
     p = link_paths(scene_dict(objects=[wall], radars=radars), order=1, runtime=runtime)
     assert len(p) == 0
-    # a wall that stops just below the line of sight does not block it
+    # a wall that stops just below the line of sight does not block it (its top may add
+    # a grazing reflection at x = 5 m)
     low = box("wall", "concrete_building", (0.2, 4.0, 0.99), (5.0, 0.0, 0.495))
     p = link_paths(scene_dict(objects=[low], radars=radars), order=1, runtime=runtime)
-    assert np.asarray(p.n_interactions).tolist() == [0]
+    assert 0 in np.asarray(p.n_interactions).tolist()
+    for i in np.flatnonzero(np.asarray(p.n_interactions) == 1):
+        np.testing.assert_allclose(p.points[i, 1], [5.0, 0.0, 0.99], atol=1e-9)
 
 
 @pytest.mark.parametrize("edge", ["near", "far"])
