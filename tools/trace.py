@@ -133,7 +133,11 @@ def main(argv=None) -> int:
         from clradcom.dsp.plots import save_radar_image
 
         with sw.stage(f"radar {radar.name}: image and tables"):
-            save_radar_image(image, out / f"{radar.name}_image", dets)
+            # colour down to the noise floor, so weak echoes beside the ground return show
+            finite = image.power_db[np.isfinite(image.power_db)]
+            span = float(finite.max() - np.median(finite)) if finite.size else 50.0
+            save_radar_image(image, out / f"{radar.name}_image", dets,
+                             dynamic_range_db=max(span, 20.0))
             write_csv(out / f"{radar.name}_detections.csv",
                       [(f"{d['range_m']:.3f}", f"{d['velocity_mps']:.3f}",
                         f"{d['power_db']:.2f}", f"{d['snr_db']:.2f}") for d in dets],
