@@ -1,0 +1,302 @@
+"""Diffuse (Lambertian, effective-roughness) tile scattering (clradcom.scattering).
+
+Reference: /work/shared/reference/propagation-physics.md §3 (hemisphere power
+S^2 Gamma^2 P_inc; tile RCS sigma = 4 S^2 Gamma^2 A cos^2 theta, -25.0 dBsm for
+A = 0.01 m^2, S = 0.5, Gamma = 0.562; incoherent sum independent of tile size).
+Radar equation with isotropic antennas: |a|^2 = lambda^2 sigma / ((4 pi)^3 R^4).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from clradcom import em
+from clradcom.em import C0
+from clradcom.scattering import choose_tile_size, make_tiles, scattering_paths, tile_transfer
+from clradcom.scene import scene_from_dict
+from clradcom.snapshot import InteractionType
+from clradcom.tracer import build_geometry
+
+F_C = 24e9
+LAM = C0 / F_C
+S = 0.5
+# |r| = 0.562 at normal incidence: sqrt(eps) = 1.562 / 0.438
+EPS_0562 = (1.562 / 0.438) ** 2
+
+
+def plate(size, x=0.0, n=1, tilt_deg=0.0):
+    """Square plate of side ``size`` in the x = const plane facing -x (2 n^2 triangles),
+    rotated by tilt_deg about z."""
+    s = np.linspace(-size / 2, size / 2, n + 1)
+    verts = np.array([[0.0, y, z] for y in s for z in s])
+    th = np.radians(tilt_deg)
+    rot = np.array([[np.cos(th), -np.sin(th), 0], [np.sin(th), np.cos(th), 0], [0, 0, 1]])
+    verts = verts @ rot.T + [x, 0.0, 0.0]
+    faces = []
+    for i in range(n):
+        for j in range(n):
+            a, b = i * (n + 1) + j, i * (n + 1) + j + 1
+            c, d = a + n + 1, b + n + 1
+            faces += [[a, b, d], [a, d, c]]
+    return verts.tolist(), faces
+
+
+def make_scene(objects, radars, materials=None):
+    mats = materials if materials is not None else [
+        {"name": "rough", "eps_r": [EPS_0562, 0.0], "scattering_coefficient": S},
+        {"name": "roughpec", "pec": True, "scattering_coefficient": S},
+    ]
+    return scene_from_dict({"scene": {"name": "scat", "carrier_hz": F_C},
+                            "materials": mats, "objects": objects, "radars": radars})
+
+
+def obj(name, verts, faces, material="rough", velocity=(0.0, 0.0, 0.0)):
+    return {"name": name, "material": material, "shape": "triangles", "vertices": verts,
+            "faces": faces, "position": [0.0, 0.0, 0.0], "velocity": list(velocity)}
+
+
+def radar(pos, name="r"):
+    return {"name": name, "position": [float(p) for p in pos], "pattern": "isotropic"}
+
+
+def hemisphere_power(tx, e_tx, gamma, K, area=0.01, r_s=2.0, n=48):
+    """int_hemisphere |E_s|^2 r_s^2 dOmega for one tile at the origin, normal +z."""
+    mu, w = np.polynomial.legendre.leggauss(n)
+    mu, w = 0.5 * (mu + 1), 0.5 * w  # cos theta_s in (0, 1)
+    phi = np.linspace(0, 2 * np.pi, 2 * n, endpoint=False)
+    M, P = np.meshgrid(mu, phi, indexing="ij")
+    W = np.repeat(w[:, None], len(phi), axis=1) * (2 * np.pi / len(phi))
+    st = np.sqrt(1 - M**2)
+    rx = r_s * np.stack([st * np.cos(P), st * np.sin(P), M], axis=-1).reshape(-1, 3)
+    N = len(rx)
+    T, L, _, _ = tile_transfer(np.zeros((N, 3)), np.full(N, area), np.tile([0, 0, 1.0], (N, 1)),
+                               tx, rx, S, gamma, K, np.zeros((N, 2)))
+    E = np.einsum("pij,j->pi", T, e_tx) / L[:, None]
+    return np.sum(W.ravel() * np.sum(np.abs(E) ** 2, axis=-1) * r_s**2)
+
+
+# ---------------------------------------------------------------------------
+# tiles
+
+
+def test_make_tiles_areas_sum_exactly_and_sizes():
+    rng = np.random.default_rng(1)
+    tris = rng.normal(size=(5, 3, 3))
+    area = 0.5 * np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]),
+                                axis=-1)
+    c, a, nrm, ids = make_tiles(tris, 0.3)
+    for t in range(5):
+        m = ids == t
+        n = int(np.ceil(np.max(np.linalg.norm(tris[t, [1, 2, 0]] - tris[t], axis=-1)) / 0.3))
+        assert m.sum() == n * n
+        assert a[m].sum() == pytest.approx(area[t], rel=1e-12)
+        # centroids of the sub-triangles average to the triangle's centroid
+        np.testing.assert_allclose(c[m].mean(axis=0), tris[t].mean(axis=0), atol=1e-12)
+        # on the triangle's plane
+        np.testing.assert_allclose((c[m] - tris[t, 0]) @ nrm[m][0], 0.0, atol=1e-12)
+    assert np.all(np.diff(ids) >= 0)
+
+
+def test_choose_tile_size_rule():
+    d = choose_tile_size(LAM, 10.0, 0.05)
+    # dphi = pi D^2 / (2 lambda R) = sqrt(45 * 0.05 / 4)
+    assert np.pi * d**2 / (2 * LAM * 10.0) == pytest.approx(np.sqrt(45 * 0.05 / 4))
+    assert choose_tile_size(LAM, 40.0, 0.05) == pytest.approx(2 * d)
+    assert 0.2 < d < 0.3
+
+
+# ---------------------------------------------------------------------------
+# normalisation
+
+
+@pytest.mark.parametrize("theta_i", [0.0, 30.0, 70.0])
+@pytest.mark.parametrize("K", [0.0, 0.3])
+def test_hemisphere_power_equals_s2_gamma2_incident(theta_i, K):
+    th = np.radians(theta_i)
+    r_i = 3.0
+    tx = r_i * np.array([np.sin(th), 0.0, np.cos(th)])
+    e = np.array([0.0, 1.0, 0.0])  # transverse to k_i, |e| = 1
+    gamma, area = 0.562, 0.01
+    p_inc = area * np.cos(th) / r_i**2  # |E_i|^2 A cos(theta_i)
+    p_s = hemisphere_power(tx, e, gamma, K, area=area)
+    assert p_s == pytest.approx(S**2 * gamma**2 * p_inc, rel=1e-6)
+
+
+def test_energy_never_exceeds_incident():
+    """(1 - S^2) Gamma^2 (specular) + scattered (hemisphere integral) = Gamma^2 <= 1."""
+    r_i = 3.0
+    for eps in (EPS_0562, 3.0 - 0.2j, 80.0 - 30j):
+        for theta_i in (0.0, 20.0, 45.0, 70.0, 85.0):
+            th = np.radians(theta_i)
+            tx = r_i * np.array([np.sin(th), 0.0, np.cos(th)])
+            ki = -tx / r_i
+            r_te, r_tm = em.fresnel_coefficients(eps, np.cos(th))
+            te = np.array([0.0, 1.0, 0.0])
+            tm = np.cross(te, ki)
+            for e, r in ((te, r_te), (tm, r_tm)):
+                g2 = abs(r) ** 2
+                p_inc = np.cos(th) / r_i**2
+                frac = hemisphere_power(tx, e, np.sqrt(g2), 0.2, area=1.0, n=24) / p_inc
+                assert frac == pytest.approx(S**2 * g2, rel=1e-6)
+                assert (1 - S**2) * g2 + frac <= g2 * (1 + 1e-9) <= 1.0 + 1e-12
+
+
+@pytest.mark.parametrize("tilt", [0.0, 40.0])
+def test_monostatic_tile_rcs(runtime, tilt):
+    R = 20.0
+    v, f = plate(0.1, x=R, tilt_deg=tilt)  # A = 0.01 m^2, facing -x, tilted about z
+    sc = make_scene([obj("p", v, f)], [radar((0.0, 0.0, 0.0))])
+    geom = build_geometry(sc, runtime)
+    r = sc.radars[0]
+    paths, dropped = scattering_paths(geom, r, r, tile_size_m=1.0)
+    assert len(paths) == 2 and dropped == 0
+    sigma = np.sum(np.abs(paths.gain) ** 2) * (4 * np.pi) ** 3 * R**4 / LAM**2
+    th = np.radians(tilt)
+    r_te, r_tm = em.fresnel_coefficients(EPS_0562, np.cos(th))
+    # V-pol radar, plate turned about z: the incident field is TE (along z)
+    g2 = abs(r_te) ** 2
+    expect = 4 * S**2 * g2 * 0.01 * np.cos(th) ** 2
+    assert sigma == pytest.approx(expect, rel=2e-3)
+    if tilt == 0.0:
+        assert 10 * np.log10(sigma) == pytest.approx(-25.0, abs=0.02)
+    assert np.all(paths.interaction[:, 0] == int(InteractionType.SCATTERING))
+    assert set(paths.face_id[:, 0]) == {0, 1}
+    np.testing.assert_allclose(paths.delay_s,
+                               2 * np.linalg.norm(paths.points[:, 1], axis=-1) / C0,
+                               rtol=1e-12)
+    np.testing.assert_allclose(paths.delay_s, 2 * R / C0, rtol=1e-3)
+
+
+def test_cross_pol_share_splits_monostatic_power(runtime):
+    R = 20.0
+    v, f = plate(0.1, x=R)
+    mats = [{"name": "rough", "eps_r": [EPS_0562, 0.0], "scattering_coefficient": S,
+             "cross_pol_share": 0.25}]
+    sc = make_scene([obj("p", v, f)], [radar((0.0, 0.0, 0.0))], materials=mats)
+    r = sc.radars[0]
+    paths, _ = scattering_paths(build_geometry(sc, runtime), r, r, tile_size_m=1.0)
+    sigma_co = np.sum(np.abs(paths.gain) ** 2) * (4 * np.pi) ** 3 * R**4 / LAM**2
+    # matrix: total (co + cross) for a theta-polarised tx
+    tot = np.sum(np.abs(paths.matrix[:, :, 0]) ** 2) * (4 * np.pi) ** 3 * R**4 / LAM**2
+    assert sigma_co == pytest.approx(0.75 * 10 ** -2.5, rel=5e-3)
+    assert tot == pytest.approx(10 ** -2.5, rel=5e-3)
+
+
+def test_bistatic_pattern_follows_cos_theta_s(runtime):
+    R = 10.0
+    v, f = plate(0.05)  # at the origin facing -x
+    out = []
+    angles = np.array([0.0, 20.0, 40.0, 60.0, 80.0])
+    for ang in angles:
+        a = np.radians(ang)
+        rxp = (-R * np.cos(a), R * np.sin(a), 0.0)
+        sc = make_scene([obj("p", v, f, material="roughpec")],
+                        [radar((-R, 0.0, 0.0), "t"), radar(rxp, "r")])
+        geom = build_geometry(sc, runtime)
+        p, _ = scattering_paths(geom, sc.radars[0], sc.radars[1], tile_size_m=1.0)
+        # power of a theta-polarised tx, both rx polarisations (Gamma = 1 for PEC)
+        pw = np.sum(np.abs(p.matrix[:, :, 0]) ** 2)
+        out.append(pw * (4 * np.pi) ** 2 * R**4 / LAM**2 / (S**2 * 0.05**2 / np.pi))
+    np.testing.assert_allclose(out, np.cos(np.radians(angles)), rtol=2e-3, atol=1e-4)
+
+
+def test_incoherent_sum_independent_of_tile_size(runtime):
+    v, f = plate(1.0, x=5.0, tilt_deg=25.0)
+    sc = make_scene([obj("p", v, f)], [radar((0.0, 0.0, 0.5), "t"), radar((0.0, 1.0, 0.0), "r")])
+    geom = build_geometry(sc, runtime)
+    t, r = sc.radars
+    sums, counts = [], []
+    for size in (0.25, 0.05):
+        p, _ = scattering_paths(geom, t, r, tile_size_m=size, threshold_db=-200)
+        sums.append(np.sum(np.abs(p.matrix[:, :, 0]) ** 2))
+        counts.append(len(p))
+    assert counts[1] > 10 * counts[0]
+    assert sums[1] == pytest.approx(sums[0], rel=1e-3)  # measured 1e-4
+
+
+def test_threshold_drops_and_counts(runtime):
+    v, f = plate(4.0, x=2.0, n=2)
+    sc = make_scene([obj("p", v, f)], [radar((0.0, 0.0, 0.0))])
+    geom = build_geometry(sc, runtime)
+    r = sc.radars[0]
+    allp, d0 = scattering_paths(geom, r, r, tile_size_m=0.2, threshold_db=-200)
+    assert d0 == 0
+    some, d1 = scattering_paths(geom, r, r, tile_size_m=0.2, threshold_db=-6)
+    assert d1 > 0 and len(some) + d1 == len(allp)
+    top = np.abs(allp.gain).max()
+    assert np.all(np.abs(some.gain) >= top * 10 ** (-6 / 20))
+    assert np.sum(np.abs(allp.gain) < top * 10 ** (-6 / 20)) == d1
+    none, d2 = scattering_paths(geom, r, r, tile_size_m=0.2, reference_gain=1e6 * top)
+    assert len(none) == 0 and d2 == len(allp)
+
+
+def test_doppler_per_tile_of_moving_plate(runtime):
+    vel = np.array([-3.0, 1.5, 0.5])
+    v, f = plate(1.0, x=6.0, tilt_deg=15.0)
+    tx, rx = np.array([0.0, 0.0, 0.0]), np.array([0.5, -2.0, 0.3])
+    sc = make_scene([obj("p", v, f, velocity=vel)], [radar(tx, "t"), radar(rx, "r")])
+    p, _ = scattering_paths(build_geometry(sc, runtime), sc.radars[0], sc.radars[1],
+                            tile_size_m=0.3, threshold_db=-200)
+    assert len(p) > 10
+    q = p.points[:, 1]
+    dt = 1e-6
+
+    def length(qq):
+        return np.linalg.norm(qq - tx, axis=-1) + np.linalg.norm(rx - qq, axis=-1)
+
+    dLdt = (length(q + vel * dt) - length(q - vel * dt)) / (2 * dt)
+    np.testing.assert_allclose(p.doppler_hz, -dLdt / LAM, rtol=1e-6, atol=1e-6)
+    assert np.ptp(p.doppler_hz) > 1.0  # a spread, not one value
+
+
+def test_occlusion_and_back_side(runtime):
+    v, f = plate(0.5, x=5.0)
+    bv, bf = plate(2.0, x=2.5)
+    blocker = obj("b", bv, bf, material="metal")
+    r = radar((0.0, 0.0, 0.0))
+    geom = build_geometry(make_scene([obj("p", v, f), blocker], [r]), runtime)
+    rr = geom.scene.radars[0]
+    p, d = scattering_paths(geom, rr, rr, tile_size_m=0.1)
+    assert len(p) == 0 and d == 0
+    # radar behind the plate: back side, nothing
+    sc = make_scene([obj("p", v, f)], [radar((10.0, 0.0, 0.0))])
+    geom = build_geometry(sc, runtime)
+    p, _ = scattering_paths(geom, sc.radars[0], sc.radars[0], tile_size_m=0.1)
+    assert len(p) == 0
+
+
+def test_random_phases_fixed_by_seed(runtime):
+    v, f = plate(1.0, x=5.0)
+    sc = make_scene([obj("p", v, f)], [radar((0.0, 0.0, 0.0))])
+    geom = build_geometry(sc, runtime)
+    r = sc.radars[0]
+    a, _ = scattering_paths(geom, r, r, tile_size_m=0.2, seed=3)
+    b, _ = scattering_paths(geom, r, r, tile_size_m=0.2, seed=3)
+    c, _ = scattering_paths(geom, r, r, tile_size_m=0.2, seed=4)
+    np.testing.assert_array_equal(a.gain, b.gain)
+    np.testing.assert_allclose(np.abs(a.gain), np.abs(c.gain), rtol=1e-12)
+    assert not np.allclose(a.gain, c.gain)
+
+
+def test_no_scattering_material_gives_nothing(runtime):
+    v, f = plate(1.0, x=5.0)
+    sc = make_scene([obj("p", v, f, material="metal")], [radar((0.0, 0.0, 0.0))])
+    r = sc.radars[0]
+    p, d = scattering_paths(build_geometry(sc, runtime), r, r)
+    assert len(p) == 0 and d == 0
+
+
+def test_default_tile_size_and_cap(runtime):
+    v, f = plate(2.0, x=5.0)
+    sc = make_scene([obj("p", v, f)], [radar((0.0, 0.0, 0.0))])
+    geom = build_geometry(sc, runtime)
+    r = sc.radars[0]
+    p, _ = scattering_paths(geom, r, r, threshold_db=-200)
+    d = choose_tile_size(LAM, np.linalg.norm(geom.scene.triangles.mean(axis=1), axis=-1).min())
+    n = int(np.ceil(2 * np.sqrt(2) / d))
+    assert len(p) == 2 * n * n
+    small, _ = scattering_paths(geom, r, r, threshold_db=-200, max_tiles=50)
+    assert 0 < len(small) <= 50
+    with pytest.raises(ValueError, match="max_tiles"):
+        scattering_paths(geom, r, r, tile_size_m=0.01, max_tiles=1000)
