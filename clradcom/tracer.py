@@ -29,6 +29,7 @@ from .faces import Faces, merge_coplanar
 from .opencl import Runtime, get_runtime
 from .po import po_paths
 from .raycast import RayCaster
+from .scattering import scattering_paths
 from .scene import Radar, Scene
 from .snapshot import InteractionType, Link, Paths, Snapshot
 from .wedges import extract_wedges
@@ -47,6 +48,9 @@ class TraceSettings:
     # instead of GO image paths (a facet's true RCS, not an infinite mirror's);
     # "none": pure GO
     physical_optics: str = "none"
+    # single Lambertian scattering from tiles of materials with S > 0 (trees); their
+    # specular reflections then carry sqrt(1 - S^2) of the field (effective roughness)
+    scattering: bool = False
 
     def __post_init__(self):
         if self.physical_optics not in ("none", "pec"):
@@ -241,6 +245,11 @@ def path_fields(geom: Geometry, pg: PathGeometry, tx: Radar, rx: Radar) -> Paths
         scene.carrier_hz, num_interactions=nk)
     k_dep, k_arr = em.path_directions(pts, nk)
     gain, M = em.path_gains(T, L, k_dep, k_arr, tx, rx, scene.carrier_hz)
+    # effective roughness: a share S^2 of the reflected power goes into diffuse scattering
+    s_coef = np.where(active, scene.material_scattering[mat], 0.0)
+    specular_share = np.prod(np.sqrt(1.0 - s_coef**2), axis=1)
+    gain = gain * specular_share
+    M = M * specular_share[:, None, None]
     vel = np.zeros_like(pts)
     vel[:, 0] = tx.velocity
     vel[:, 1:k_max + 1] = np.where(active[..., None], scene.object_velocity[np.maximum(obj, 0)],
@@ -274,6 +283,7 @@ def trace_scene(scene: Scene, settings: TraceSettings | None = None,
         links = [(t, r) for t in txs for r in rxs]
     out = []
     cache = {}
+    n_dropped_tiles = 0
     wedges = None
     if settings.max_diffractions and len(scene.triangles):
         t0 = time.perf_counter()
@@ -299,6 +309,12 @@ def trace_scene(scene: Scene, settings: TraceSettings | None = None,
             t0 = time.perf_counter()
             paths = with_physical_optics(geom, paths, tx, rx)
             times.add("physical optics", time.perf_counter() - t0)
+        if settings.scattering and geom.caster is not None:
+            t0 = time.perf_counter()
+            diffuse, dropped = scattering_paths(geom, tx, rx)
+            paths = concat_paths([paths, diffuse])
+            n_dropped_tiles += dropped
+            times.add("scattering", time.perf_counter() - t0)
         if wedges is not None:
             t0 = time.perf_counter()
             paths = concat_paths([paths, diffraction_paths(geom, wedges, tx, rx)])
@@ -307,6 +323,8 @@ def trace_scene(scene: Scene, settings: TraceSettings | None = None,
                         paths=paths))
     meta = {f"settings.{k}": v for k, v in asdict(settings).items()}
     meta["clradcom_version"] = __version__
+    if settings.scattering:
+        meta["scattering.tiles_dropped"] = int(n_dropped_tiles)
     meta["device"] = geom.runtime.info.device_name.strip()
     return Snapshot(scene_name=scene.name, carrier_hz=float(scene.carrier_hz),
                     scene_hash=scene.content_hash(), links=tuple(out), metadata=meta)

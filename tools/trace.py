@@ -7,7 +7,8 @@ Stages and what they write into the output folder (default: out/<scene name>/):
 
   1. trace      every transmitter -> receiver link with the OpenCL ray tracer
                 (line of sight, specular reflections up to --reflections, single
-                UTD edge diffraction, physical-optics returns of PEC objects)
+                UTD edge diffraction, physical-optics returns of PEC objects,
+                Lambertian scattering from tiles of the trees)
                 -> snapshot.npz (documented in docs/snapshot-format.md)
   2. radar      for every radar that both transmits and receives: its own
                 echoes (the monostatic link) drive the paper's OFDM frame
@@ -87,6 +88,9 @@ def main(argv=None) -> int:
     ap.add_argument("--physical-optics", choices=("none", "pec"), default="pec",
                     help="pec (default): PEC objects return their physical-optics facet "
                          "integrals instead of single GO mirror paths; none: pure GO")
+    ap.add_argument("--no-scattering", action="store_true",
+                    help="leave out single Lambertian scattering from tiles of materials with "
+                         "a scattering coefficient (the trees)")
     ap.add_argument("--synthesis", choices=SYNTHESIS_METHODS, default="fast",
                     help="fast: frequency-domain model; exact: time-domain with ICI/ISI")
     ap.add_argument("--seed", type=int, default=0, help="seed of the random OFDM data")
@@ -104,7 +108,8 @@ def main(argv=None) -> int:
         print(f"  device: {runtime.info.describe()}")
         settings = TraceSettings(max_reflections=args.reflections, rays=args.rays,
                                  max_diffractions=args.diffractions,
-                                 physical_optics=args.physical_optics)
+                                 physical_optics=args.physical_optics,
+                                 scattering=not args.no_scattering)
         times = StageTimes()
         with sw.stage(f"trace {len(scene.triangles)} triangles, {args.rays} rays per tx"):
             snap = trace_scene(scene, settings, runtime=runtime, times=times,
