@@ -201,10 +201,12 @@ def with_physical_optics(geom: Geometry, paths: Paths, tx: Radar, rx: Radar) -> 
     """
     pec_objects = np.flatnonzero(geom.scene.material_pec[
         [o.material for o in geom.scene.objects]])
-    single_on_pec = (paths.n_interactions == 1) & np.isin(paths.object_id[:, 0], pec_objects) \
-        if paths.k_max else np.zeros(paths.n_paths, dtype=bool)
     if geom.caster is None or len(pec_objects) == 0:
         return paths
+    single_on_pec = np.zeros(paths.n_paths, dtype=bool)
+    if paths.k_max:
+        single_on_pec = (paths.n_interactions == 1) & np.isin(paths.object_id[:, 0],
+                                                             pec_objects)
     return concat_paths([select_paths(paths, ~single_on_pec),
                          po_paths(geom, tx, rx, objects=pec_objects)])
 
