@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from geometry_helpers import plate_tris
 
 from clradcom import em
 from clradcom.em import C0
@@ -28,18 +29,7 @@ EPS_0562 = (1.562 / 0.438) ** 2
 def plate(size, x=0.0, n=1, tilt_deg=0.0):
     """Square plate of side ``size`` in the x = const plane facing -x (2 n^2 triangles),
     rotated by tilt_deg about z."""
-    s = np.linspace(-size / 2, size / 2, n + 1)
-    verts = np.array([[0.0, y, z] for y in s for z in s])
-    th = np.radians(tilt_deg)
-    rot = np.array([[np.cos(th), -np.sin(th), 0], [np.sin(th), np.cos(th), 0], [0, 0, 1]])
-    verts = verts @ rot.T + [x, 0.0, 0.0]
-    faces = []
-    for i in range(n):
-        for j in range(n):
-            a, b = i * (n + 1) + j, i * (n + 1) + j + 1
-            c, d = a + n + 1, b + n + 1
-            faces += [[a, b, d], [a, d, c]]
-    return verts.tolist(), faces
+    return plate_tris(n, size, x, tilt_deg=tilt_deg)
 
 
 def make_scene(objects, radars, materials=None):
