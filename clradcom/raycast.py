@@ -18,11 +18,6 @@ HIT_DTYPE = np.dtype(
      ("pad", "<i4")]
 )
 
-PAIR_NODE_DTYPE = np.dtype(
-    [("lmin", "<f4", (3,)), ("lref", "<i4"), ("lmax", "<f4", (3,)), ("lcount", "<i4"),
-     ("rmin", "<f4", (3,)), ("rref", "<i4"), ("rmax", "<f4", (3,)), ("rcount", "<i4")]
-)
-
 BVH4_NODE_DTYPE = np.dtype(
     [("minx", "<f4", (4,)), ("miny", "<f4", (4,)), ("minz", "<f4", (4,)),
      ("maxx", "<f4", (4,)), ("maxy", "<f4", (4,)), ("maxz", "<f4", (4,)),
@@ -83,38 +78,6 @@ def spawn_origins(points, normals, directions) -> np.ndarray:
     n_len = np.linalg.norm(normals, axis=1)
     n_len[n_len == 0] = 1.0
     return points + (side * bound / n_len)[:, None] * normals
-
-
-def pair_nodes(nodes: np.ndarray) -> np.ndarray:
-    """Traversal layout (PAIR_NODE_DTYPE) from a builder's BVH_NODE_DTYPE array.
-
-    One record per inner node holding both children's boxes; record 0 is the
-    root. A tree that is one leaf gets one record with the leaf on the left
-    and no right child (count -1).
-    """
-    nodes = np.asarray(nodes)
-    inner = np.flatnonzero(nodes["count"] == 0)
-    if len(inner) == 0:
-        out = np.zeros(1, dtype=PAIR_NODE_DTYPE)
-        root = nodes[0]
-        out["lmin"], out["lmax"] = root["bmin"], root["bmax"]
-        out["lref"], out["lcount"] = root["left_first"], root["count"]
-        out["rcount"] = -1
-        return out
-    if inner[0] != 0:
-        raise ValueError("BVH root (node 0) must be an inner node when any node is")
-    record = np.full(len(nodes), -1, dtype=np.int64)
-    record[inner] = np.arange(len(inner))
-    out = np.zeros(len(inner), dtype=PAIR_NODE_DTYPE)
-    for side, offset in (("l", 0), ("r", 1)):
-        child = nodes["left_first"][inner] + offset
-        c = nodes[child]
-        out[side + "min"] = c["bmin"]
-        out[side + "max"] = c["bmax"]
-        is_leaf = c["count"] > 0
-        out[side + "count"] = c["count"]
-        out[side + "ref"] = np.where(is_leaf, c["left_first"], record[child])
-    return out
 
 
 def bvh4_nodes(nodes: np.ndarray) -> np.ndarray:

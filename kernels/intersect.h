@@ -26,9 +26,6 @@
  * rests on, so contraction is off for everything that includes this file. */
 #pragma OPENCL FP_CONTRACT OFF
 
-/* The stack never holds more entries than the tree is deep; the builder
- * caps depth at this (clradcom.bvh.build_bvh max_depth) and RayCaster checks. */
-#define BVH_STACK_SIZE 64
 #define ROBUST_TMAX_SCALE 1.0000003576f /* 1 + 2*gamma(3), gamma(n) = n*eps/(1-n*eps) */
 
 /* PoCL (3.0, LLVM 14) leaves plain `inline` helpers and even the fmin/fmax/
@@ -72,69 +69,6 @@ CLR_INLINE PreparedRay prepare_ray(float3 org, float3 dir)
     return r;
 }
 
-/* One slab: entry and exit distance along one axis, ordered. */
-#define SLAB(lo_, hi_, b0, b1, o, inv)                                      \
-    do {                                                                   \
-        float a_ = ((b0) - (o)) * (inv), b_ = ((b1) - (o)) * (inv);        \
-        lo_ = MINF(a_, b_); hi_ = MAXF(a_, b_);                            \
-    } while (0)
-
-/* As SLAB, for a ray with an infinite 1/dir: 0*inf = NaN only for a ray
- * lying in a slab plane, which is inside that slab for all t, so that axis
- * must not cull it. */
-#define SLAB_NAN(lo_, hi_, b0, b1, o, inv)                                  \
-    do {                                                                   \
-        float a_ = ((b0) - (o)) * (inv), b_ = ((b1) - (o)) * (inv);        \
-        bool nan_ = (a_ != a_) || (b_ != b_);                              \
-        lo_ = nan_ ? -INFINITY : MINF(a_, b_);                             \
-        hi_ = nan_ ? INFINITY : MAXF(a_, b_);                              \
-    } while (0)
-
-/* Entry distance of the ray into the box b = (xmin, ymin, zmin, xmax, ymax,
- * zmax), or INFINITY when it misses (tmin, tmax). */
-CLR_INLINE float ray_box(const PreparedRay *r, __global const float *bmin,
-                         __global const float *bmax, float tmin, float tmax)
-{
-    float nx, fx, ny, fy, nz, fz;
-    if (r->axis_parallel) {
-        SLAB_NAN(nx, fx, bmin[0], bmax[0], r->ox, r->ix);
-        SLAB_NAN(ny, fy, bmin[1], bmax[1], r->oy, r->iy);
-        SLAB_NAN(nz, fz, bmin[2], bmax[2], r->oz, r->iz);
-    } else {
-        SLAB(nx, fx, bmin[0], bmax[0], r->ox, r->ix);
-        SLAB(ny, fy, bmin[1], bmax[1], r->oy, r->iy);
-        SLAB(nz, fz, bmin[2], bmax[2], r->oz, r->iz);
-    }
-    float t0 = MAXF(MAXF(nx, ny), MAXF(nz, tmin));
-    float t1 = MINF(MINF(fx, fy), MINF(fz, tmax)) * ROBUST_TMAX_SCALE;
-    return (t0 <= t1) ? t0 : INFINITY;
-}
-
-/* Both boxes of a PairNode record at once with float8 ops (x, y, z of the
- * left box in lanes 0-2, of the right in 4-6). */
-CLR_INLINE void ray_box2(const PreparedRay *r, __global const float *rec, float tmin, float tmax,
-                         float *dl, float *dr)
-{
-    if (r->axis_parallel) {
-        *dl = ray_box(r, rec, rec + 4, tmin, tmax);
-        *dr = ray_box(r, rec + 8, rec + 12, tmin, tmax);
-        return;
-    }
-    float16 q = vload16(0, rec);
-    float8 lo = (float8)(q.s012, 0.0f, q.s89a, 0.0f);
-    float8 hi = (float8)(q.s456, 0.0f, q.scde, 0.0f);
-    float8 o = (float8)(r->ox, r->oy, r->oz, 0.0f, r->ox, r->oy, r->oz, 0.0f);
-    float8 inv = (float8)(r->ix, r->iy, r->iz, 0.0f, r->ix, r->iy, r->iz, 0.0f);
-    float8 a = (lo - o) * inv, b = (hi - o) * inv;
-    float8 tn = (a < b) ? a : b, tf = (a > b) ? a : b;
-    float l0 = MAXF(MAXF(tn.s0, tn.s1), MAXF(tn.s2, tmin));
-    float l1 = MINF(MINF(tf.s0, tf.s1), MINF(tf.s2, tmax)) * ROBUST_TMAX_SCALE;
-    float r0 = MAXF(MAXF(tn.s4, tn.s5), MAXF(tn.s6, tmin));
-    float r1 = MINF(MINF(tf.s4, tf.s5), MINF(tf.s6, tmax)) * ROBUST_TMAX_SCALE;
-    *dl = (l0 <= l1) ? l0 : INFINITY;
-    *dr = (r0 <= r1) ? r0 : INFINITY;
-}
-
 /* Watertight test of one triangle (vertices at p[0..2], p[4..6], p[8..10]);
  * on a hit in (tmin, tmax) writes t, u, v. The shear frame's components are
  * fetched by index (scalar loads) rather than shuffled. */
@@ -176,20 +110,11 @@ CLR_INLINE bool ray_triangle(const PreparedRay *r, __global const float *p,
     return true;
 }
 
-/* Closest hit along the ray in (tmin, tmax). tri_verts holds three float4
- * per leaf slot (slot i is scene triangle tri_index[i]); returns the slot,
- * -1 on a miss. ignore_prim (a scene id, or -1) is skipped: the surface a
- * reflected ray leaves. */
 /* A traversal stack entry packs a child into one int: an inner child's record
  * index (>= 0), or a leaf as -(first_slot * 32 + count) - 1 (leaves hold at
  * most 31 triangles; the builder caps them at 16). Fewer private arrays make
  * PoCL's work-item loops markedly faster. */
 #define LEAF_CODE(first, count) (-((first) * 32 + (count)) - 1)
-
-CLR_INLINE int child_code(int ref, int count)
-{
-    return (count > 0) ? LEAF_CODE(ref, count) : ref;
-}
 
 /* The 4-wide stack: a Bvh4Node pushes at most 3 children, and every record
  * on a root-to-leaf path stands for at least one level of the binary tree
@@ -197,9 +122,6 @@ CLR_INLINE int child_code(int ref, int count)
  * suffice; bvh4_nodes on the host also computes the tree's exact need and
  * refuses a tree that would exceed this. */
 #define BVH4_STACK_SIZE 192
-
-#define MINF4(a, b) (((a) < (b)) ? (a) : (b))
-#define MAXF4(a, b) (((a) > (b)) ? (a) : (b))
 
 /* Entry distances of the ray into the four child boxes of a Bvh4Node record
  * (INFINITY for a miss or an empty slot). Per axis the near plane is picked
@@ -225,8 +147,8 @@ CLR_INLINE float4 ray_box4(const PreparedRay *r, __global const float *rec, int4
         tny = (tny != tny) ? ninf : tny; tfy = (tfy != tfy) ? pinf : tfy;
         tnz = (tnz != tnz) ? ninf : tnz; tfz = (tfz != tfz) ? pinf : tfz;
     }
-    float4 t0 = MAXF4(MAXF4(tnx, tny), MAXF4(tnz, (float4)(tmin)));
-    float4 t1 = MINF4(MINF4(tfx, tfy), MINF4(tfz, (float4)(tmax))) * ROBUST_TMAX_SCALE;
+    float4 t0 = MAXF(MAXF(tnx, tny), MAXF(tnz, (float4)(tmin)));
+    float4 t1 = MINF(MINF(tfx, tfy), MINF(tfz, (float4)(tmax))) * ROBUST_TMAX_SCALE;
     int4 hit = (t0 <= t1) & (code != (int4)(0));
     return hit ? t0 : (float4)(INFINITY);
 }

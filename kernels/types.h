@@ -15,23 +15,6 @@ typedef struct {
     int count;
 } BVHNode;
 
-/* 64 bytes: the traversal layout, made on the host from BVHNode arrays
- * (clradcom/raycast.py: pair_nodes). Each record holds both children's
- * boxes (Aila & Laine, "Understanding the efficiency of ray traversal on
- * GPUs", HPG 2009), so one fetch tests both. Per child: count == 0 means an
- * inner child whose own record is ref; count > 0 a leaf of count triangle
- * slots from ref; count < 0 no child (a one-leaf tree's root record). */
-typedef struct {
-    float lmin[3];
-    int lref;
-    float lmax[3];
-    int lcount;
-    float rmin[3];
-    int rref;
-    float rmax[3];
-    int rcount;
-} PairNode;
-
 /* 128 bytes: the 4-wide traversal layout (clradcom/raycast.py: bvh4_nodes),
  * collapsed on the host from the binary BVHNode tree. Bounds are stored per
  * axis for the four child slots (structure of arrays) so one float4 op tests
