@@ -236,10 +236,7 @@ def path_fields(geom: Geometry, pg: PathGeometry, tx: Radar, rx: Radar) -> Paths
     active = pg.faces >= 0
     mat = geom.faces.material_id[face]
     obj = np.where(active, geom.faces.object_id[face], -1)
-    # padding rows must stay finite for the vectorised physics; they are masked by nk
-    pts = np.where(np.isnan(pg.points), 0.0, pg.points)
-    for i in range(P):
-        pts[i, nk[i] + 2:] = pts[i, nk[i] + 1]
+    pts = pg.points  # NaN padding past each path's rx point is ignored by em (masked by nk)
     T, L = em.path_transfer(
         pts, geom.faces.normal[face],
         scene.material_eps_r[mat], scene.material_pec[mat],
