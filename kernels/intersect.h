@@ -6,11 +6,17 @@
  * sharing an edge evaluate with the same operands, so a ray through the edge
  * can never slip between them. Where an edge function rounds to exactly 0 it
  * is recomputed in double (when the device has it), as the paper advises.
+ * Leaves keep their triangles in groups of four (Tri4 below) tested with
+ * float4 operations: every lane does exactly the scalar test's operations in
+ * the same order, so each lane's result is the scalar test's, bit for bit.
  *
  * Box test: slabs with the far distance scaled by 1 + 2*gamma(3) (Ize,
  * "Robust BVH Ray Traversal", JCGT 2(2), 2013) so rounding never culls a box
  * that holds a hit the triangle test would find; an axis-parallel ray lying
- * in a slab plane counts as inside that slab. */
+ * in a slab plane is never culled by that slab. Eight boxes per record
+ * (Bvh8Node), tested with float8 operations.
+ *
+ * docs/bvh.md ("Performance") records what was measured to get here. */
 #ifndef CLRADCOM_INTERSECT_H
 #define CLRADCOM_INTERSECT_H
 
@@ -28,20 +34,41 @@
 
 #define ROBUST_TMAX_SCALE 1.0000003576f /* 1 + 2*gamma(3), gamma(n) = n*eps/(1-n*eps) */
 
-/* PoCL (3.0, LLVM 14) leaves plain `inline` helpers and even the fmin/fmax/
- * fabs/shuffle builtins as out-of-line calls in the kernel, each passing float3
- * through memory: that, not the algorithm, cost ~100 cycles per node. So the
- * hot path is forced inline and written with scalar compares and selects. */
+/* PoCL (3.0, LLVM 14) leaves plain `inline` helpers and even builtins such as
+ * vload4/vstore8, fabs, isfinite, any, fmin/fmax as out-of-line calls in the
+ * kernel, each passing vectors through memory: in the traversal loop that,
+ * not the algorithm, cost ~100 cycles per node (seven vload4 calls per node
+ * cost ~25% of the 4-wide traversal). So the hot path is forced inline,
+ * loads vectors through typed pointers and uses plain compares and selects
+ * instead of those builtins. */
 #define CLR_INLINE inline __attribute__((always_inline))
 #define MINF(a, b) ((a) < (b) ? (a) : (b))
 #define MAXF(a, b) ((a) > (b) ? (a) : (b))
+#define ABSF(a) ((a) < 0.0f ? -(a) : (a))
+
+#if defined(__has_builtin)
+#if __has_builtin(__builtin_ctz)
+#define CLR_CTZ(x) __builtin_ctz(x)
+#endif
+#endif
+#ifndef CLR_CTZ   /* lowest set bit by clz (OpenCL 1.1; ctz needs OpenCL C 2.0) */
+#define CLR_CTZ(x) (31 - (int)clz((uint)(x) & (0u - (uint)(x))))
+#endif
+
+/* The hit mask of eight box tests: one vmovmskps on an AVX CPU (PoCL), ~10%
+ * faster traversal than the portable OR-reduction every other device gets. */
+#if defined(__AVX__) && defined(__has_builtin) && !defined(CLR_NO_MOVMSK)
+#if __has_builtin(__builtin_ia32_movmskps256)
+#define CLR_MOVMSK8 1
+#endif
+#endif
 
 typedef struct {
     float ox, oy, oz;
     float ix, iy, iz;   /* 1 / dir */
+    int nx, ny, nz;     /* the Bvh8Node rows holding the near planes (far: 3 rows on) */
     int kx, ky, kz;     /* the shear frame: dir[kz] is the largest component */
     float sx, sy, sz;
-    int axis_parallel;  /* some 1/dir component is infinite (dir component 0 or denormal) */
 } PreparedRay;
 
 CLR_INLINE float component(float3 a, int k)
@@ -54,8 +81,12 @@ CLR_INLINE PreparedRay prepare_ray(float3 org, float3 dir)
     PreparedRay r;
     r.ox = org.x; r.oy = org.y; r.oz = org.z;
     r.ix = 1.0f / dir.x; r.iy = 1.0f / dir.y; r.iz = 1.0f / dir.z;
-    r.axis_parallel = !(isfinite(r.ix) && isfinite(r.iy) && isfinite(r.iz));
-    float ax = fabs(dir.x), ay = fabs(dir.y), az = fabs(dir.z);
+    /* rows 0-2 of a record hold the minima, rows 3-5 the maxima; a ray running
+     * toward -axis enters through the maximum */
+    r.nx = (r.ix < 0.0f) ? 3 : 0;
+    r.ny = (r.iy < 0.0f) ? 4 : 1;
+    r.nz = (r.iz < 0.0f) ? 5 : 2;
+    float ax = ABSF(dir.x), ay = ABSF(dir.y), az = ABSF(dir.z);
     int kz = (ax > ay) ? ((ax > az) ? 0 : 2) : ((ay > az) ? 1 : 2);
     int kx = (kz == 2) ? 0 : kz + 1;
     int ky = (kx == 2) ? 0 : kx + 1;
@@ -69,199 +100,253 @@ CLR_INLINE PreparedRay prepare_ray(float3 org, float3 dir)
     return r;
 }
 
-/* Watertight test of one triangle (vertices at p[0..2], p[4..6], p[8..10]);
- * on a hit in (tmin, tmax) writes t, u, v. The shear frame's components are
- * fetched by index (scalar loads) rather than shuffled. */
-CLR_INLINE bool ray_triangle(const PreparedRay *r, __global const float *p,
-                             float tmin, float tmax, float *t_out, float *u_out, float *v_out)
+/* A Tri4 group is 9 float4 rows (144 bytes): row 3*j + k holds coordinate k
+ * (x, y, z) of vertex j of four triangles, one per lane, so the shear frame
+ * picks its rows by index, without shuffles. Leaf slot s is lane s % 4 of
+ * group s / 4; lanes past a leaf's last triangle repeat that triangle (an
+ * equal t never replaces a hit, and a repeat has the same scene id, so
+ * ignore_prim treats it alike). See clradcom/raycast.py: tri4_groups. */
+#define TRI4_ROWS 9
+
+#define ANY4(m) (((m).s0 | (m).s1 | (m).s2 | (m).s3) != 0)
+
+/* Watertight test of the four triangles of group g: returns the lanes hit in
+ * (tmin, tmax) (all bits set) and writes T, det and the edge functions V, W
+ * (t = T/det, u = V/det, v = W/det). */
+CLR_INLINE int4 ray_tri4(const PreparedRay *r, __global const float4 *g, float tmin, float tmax,
+                         float4 *T_out, float4 *det_out, float4 *V_out, float4 *W_out)
 {
     float okx = (r->kx == 0) ? r->ox : ((r->kx == 1) ? r->oy : r->oz);
     float oky = (r->ky == 0) ? r->ox : ((r->ky == 1) ? r->oy : r->oz);
     float okz = (r->kz == 0) ? r->ox : ((r->kz == 1) ? r->oy : r->oz);
-    float az = p[r->kz] - okz, bz = p[4 + r->kz] - okz, cz = p[8 + r->kz] - okz;
-    float ax = (p[r->kx] - okx) - r->sx * az, ay = (p[r->ky] - oky) - r->sy * az;
-    float bx = (p[4 + r->kx] - okx) - r->sx * bz, by = (p[4 + r->ky] - oky) - r->sy * bz;
-    float cx = (p[8 + r->kx] - okx) - r->sx * cz, cy = (p[8 + r->ky] - oky) - r->sy * cz;
-    float U = cx * by - cy * bx;
-    float V = ax * cy - ay * cx;
-    float W = bx * ay - by * ax;
+    float4 sx = (float4)(r->sx), sy = (float4)(r->sy);
+    float4 az = g[r->kz] - okz, bz = g[3 + r->kz] - okz, cz = g[6 + r->kz] - okz;
+    float4 ax = (g[r->kx] - okx) - sx * az, ay = (g[r->ky] - oky) - sy * az;
+    float4 bx = (g[3 + r->kx] - okx) - sx * bz, by = (g[3 + r->ky] - oky) - sy * bz;
+    float4 cx = (g[6 + r->kx] - okx) - sx * cz, cy = (g[6 + r->ky] - oky) - sy * cz;
+    float4 U = cx * by - cy * bx;
+    float4 V = ax * cy - ay * cx;
+    float4 W = bx * ay - by * ax;
 #ifdef CLRADCOM_HAS_FP64
-    if (U == 0.0f || V == 0.0f || W == 0.0f) {
-        U = (float)((double)cx * (double)by - (double)cy * (double)bx);
-        V = (float)((double)ax * (double)cy - (double)ay * (double)cx);
-        W = (float)((double)bx * (double)ay - (double)by * (double)ax);
+    int4 zero = (U == 0.0f) | (V == 0.0f) | (W == 0.0f);
+    if (ANY4(zero)) {
+        double4 dax = convert_double4(ax), day = convert_double4(ay);
+        double4 dbx = convert_double4(bx), dby = convert_double4(by);
+        double4 dcx = convert_double4(cx), dcy = convert_double4(cy);
+        U = zero ? convert_float4(dcx * dby - dcy * dbx) : U;
+        V = zero ? convert_float4(dax * dcy - day * dcx) : V;
+        W = zero ? convert_float4(dbx * day - dby * dax) : W;
     }
 #endif
-    if ((U < 0.0f || V < 0.0f || W < 0.0f) && (U > 0.0f || V > 0.0f || W > 0.0f))
-        return false;
-    float det = U + V + W;
-    if (det == 0.0f)
-        return false;
-    float T = U * (r->sz * az) + V * (r->sz * bz) + W * (r->sz * cz);
+    int4 mixed = ((U < 0.0f) | (V < 0.0f) | (W < 0.0f)) & ((U > 0.0f) | (V > 0.0f) | (W > 0.0f));
+    float4 det = U + V + W;
+    float4 sz = (float4)(r->sz);
+    float4 T = U * (sz * az) + V * (sz * bz) + W * (sz * cz);
     /* compare t = T/det against the range without dividing first */
-    float sdet = (det < 0.0f) ? -1.0f : 1.0f;
-    float Ts = T * sdet, adet = det * sdet;
-    if (Ts <= tmin * adet || Ts >= tmax * adet)
-        return false;
-    float inv = 1.0f / det;
-    *t_out = T * inv;
-    *u_out = V * inv;
-    *v_out = W * inv;
-    return true;
+    float4 sdet = (det < 0.0f) ? (float4)(-1.0f) : (float4)(1.0f);
+    float4 Ts = T * sdet, adet = det * sdet;
+    *T_out = T;
+    *det_out = det;
+    *V_out = V;
+    *W_out = W;
+    return ~mixed & (det != 0.0f) & (Ts > tmin * adet) & (Ts < tmax * adet);
 }
 
-/* A traversal stack entry packs a child into one int: an inner child's record
- * index (>= 0), or a leaf as -(first_slot * 32 + count) - 1 (leaves hold at
- * most 31 triangles; the builder caps them at 16). Fewer private arrays make
- * PoCL's work-item loops markedly faster. */
+/* Vertex j (0-2) of leaf slot s. */
+CLR_INLINE float3 tri4_vertex(__global const float4 *tri4, int slot, int j)
+{
+    __global const float *p = (__global const float *)(tri4 + (slot >> 2) * TRI4_ROWS + 3 * j)
+                              + (slot & 3);
+    return (float3)(p[0], p[4], p[8]);
+}
+
+/* Unit geometric normal (v1 - v0) x (v2 - v0) of leaf slot s. */
+CLR_INLINE float3 tri4_normal(__global const float4 *tri4, int slot)
+{
+    float3 v0 = tri4_vertex(tri4, slot, 0);
+    return normalize(cross(tri4_vertex(tri4, slot, 1) - v0, tri4_vertex(tri4, slot, 2) - v0));
+}
+
+/* A child code (and a traversal stack entry) is one int: an inner child's
+ * record index (> 0; record 0 is the root), or a leaf as
+ * -(first_group * 32 + groups) - 1 (at most 31 Tri4 groups); empty slots hold
+ * 0 and have +inf/-inf bounds, which no ray can hit. */
 #define LEAF_CODE(first, count) (-((first) * 32 + (count)) - 1)
 
-/* The 4-wide stack: a Bvh4Node pushes at most 3 children, and every record
- * on a root-to-leaf path stands for at least one level of the binary tree
- * (depth <= 64, clradcom.bvh.build_bvh max_depth), so 3 * 64 entries always
- * suffice; bvh4_nodes on the host also computes the tree's exact need and
- * refuses a tree that would exceed this. */
-#define BVH4_STACK_SIZE 192
+/* Every Bvh8Node on a root-to-leaf path stands for at least one level of the
+ * binary tree (depth <= 64, clradcom.bvh.build_bvh max_depth) and pushes at
+ * most 7 entries; clradcom/raycast.py: bvh8_nodes computes the tree's exact
+ * need and refuses a tree that needs more than this. */
+#define BVH_STACK_SIZE 192
 
-/* Entry distances of the ray into the four child boxes of a Bvh4Node record
- * (INFINITY for a miss or an empty slot). Per axis the near plane is picked
- * by the sign of 1/dir, so no min/max orders the slab ends; empty slots have
- * +inf/-inf bounds and are masked by their code as well. */
-CLR_INLINE float4 ray_box4(const PreparedRay *r, __global const float *rec, int4 code,
-                           float tmin, float tmax)
+/* Entry distances of the ray into the eight child boxes of a record, and
+ * the mask of boxes hit in [tmin, tmax]. Empty slots never hit: their +inf
+ * minima and -inf maxima give an entry of +inf and an exit of -inf. */
+CLR_INLINE float8 ray_box8(const PreparedRay *r, __global const float8 *q, float tmin,
+                           float tmax, int *mask)
 {
-    float4 lx = vload4(0, rec), ly = vload4(1, rec), lz = vload4(2, rec);
-    float4 hx = vload4(3, rec), hy = vload4(4, rec), hz = vload4(5, rec);
-    float4 nx = (r->ix < 0.0f) ? hx : lx, fx = (r->ix < 0.0f) ? lx : hx;
-    float4 ny = (r->iy < 0.0f) ? hy : ly, fy = (r->iy < 0.0f) ? ly : hy;
-    float4 nz = (r->iz < 0.0f) ? hz : lz, fz = (r->iz < 0.0f) ? lz : hz;
-    float4 ox = (float4)(r->ox), oy = (float4)(r->oy), oz = (float4)(r->oz);
-    float4 ix = (float4)(r->ix), iy = (float4)(r->iy), iz = (float4)(r->iz);
-    float4 tnx = (nx - ox) * ix, tfx = (fx - ox) * ix;
-    float4 tny = (ny - oy) * iy, tfy = (fy - oy) * iy;
-    float4 tnz = (nz - oz) * iz, tfz = (fz - oz) * iz;
-    if (r->axis_parallel) {
-        /* 0 * inf = NaN only for a ray lying in a slab plane: inside that slab */
-        float4 ninf = (float4)(-INFINITY), pinf = (float4)(INFINITY);
-        tnx = (tnx != tnx) ? ninf : tnx; tfx = (tfx != tfx) ? pinf : tfx;
-        tny = (tny != tny) ? ninf : tny; tfy = (tfy != tfy) ? pinf : tfy;
-        tnz = (tnz != tnz) ? ninf : tnz; tfz = (tfz != tfz) ? pinf : tfz;
-    }
-    float4 t0 = MAXF(MAXF(tnx, tny), MAXF(tnz, (float4)(tmin)));
-    float4 t1 = MINF(MINF(tfx, tfy), MINF(tfz, (float4)(tmax))) * ROBUST_TMAX_SCALE;
-    int4 hit = (t0 <= t1) & (code != (int4)(0));
-    return hit ? t0 : (float4)(INFINITY);
+    float8 ox = (float8)(r->ox), oy = (float8)(r->oy), oz = (float8)(r->oz);
+    float8 ix = (float8)(r->ix), iy = (float8)(r->iy), iz = (float8)(r->iz);
+    float8 tnx = (q[r->nx] - ox) * ix, tfx = (q[3 - r->nx] - ox) * ix;
+    float8 tny = (q[r->ny] - oy) * iy, tfy = (q[5 - r->ny] - oy) * iy;
+    float8 tnz = (q[r->nz] - oz) * iz, tfz = (q[7 - r->nz] - oz) * iz;
+    /* A ray lying in a slab plane gives 0 * inf = NaN. MAXF(a, b) and MINF(a, b)
+     * return b when either is NaN, so in this order a NaN only ever drops
+     * distances (never tmin or tmax): the interval widens, and a box the ray
+     * touches is never culled (tests/test_raycast.py: the octahedron ridge). */
+    float8 t0 = MAXF(MAXF(tnx, tny), MAXF(tnz, (float8)(tmin)));
+    float8 t1 = MINF(MINF(tfx, tfy), MINF(tfz, (float8)(tmax))) * ROBUST_TMAX_SCALE;
+#ifdef CLR_MOVMSK8
+    *mask = __builtin_ia32_movmskps256(as_float8(t0 <= t1));
+#else
+    int8 bits = (t0 <= t1) & (int8)(1, 2, 4, 8, 16, 32, 64, 128);
+    int4 b4 = bits.lo | bits.hi;
+    int2 b2 = b4.lo | b4.hi;
+    *mask = b2.x | b2.y;
+#endif
+    return t0;
 }
 
-#define CSWAP(da, ca, db, cb)                                               \
-    do {                                                                   \
-        bool s_ = (db) < (da);                                             \
-        float td_ = s_ ? (db) : (da); (db) = s_ ? (da) : (db); (da) = td_; \
-        int tc_ = s_ ? (cb) : (ca); (cb) = s_ ? (ca) : (cb); (ca) = tc_;   \
-    } while (0)
-
-/* Closest hit along the ray in (tmin, tmax). tri_verts holds three float4
- * per leaf slot (slot i is scene triangle tri_index[i]); returns the slot,
- * -1 on a miss. ignore_prim (a scene id, or -1) is skipped: the surface a
- * reflected ray leaves. A record with one hit child goes straight on to it;
- * with more, the hit children are sorted near to far (a 5-exchange network,
- * misses sort last as INFINITY), the nearest is visited next and the rest
- * pushed far first. */
-CLR_INLINE int bvh_closest(__global const Bvh4Node *nodes, __global const float4 *tri_verts,
-                       __global const int *tri_index, const PreparedRay *r,
-                       float tmin, float *tmax_io, float *u_out, float *v_out,
-                       int ignore_prim)
+/* Closest hit along the ray in (tmin, tmax). tri4 holds the Tri4 groups in
+ * leaf order, slot_prim the scene triangle id of every leaf slot; returns the
+ * slot (-1 on a miss) and sets *tmax_io, *u_out, *v_out. ignore_prim (a scene
+ * id, or -1) is skipped: the surface a reflected ray leaves.
+ *
+ * Ordered traversal: a record with one hit child goes straight on to it; with
+ * two, the far one is pushed; with more, all are pushed and the run sorted far
+ * to near by insertion, and the nearest popped at once. Stack entries keep
+ * their entry distance, so subtrees beyond the closest hit so far are skipped
+ * when popped. */
+CLR_INLINE int bvh_closest(__global const Bvh8Node *nodes, __global const float4 *tri4,
+                           __global const int *slot_prim, const PreparedRay *r,
+                           float tmin, float *tmax_io, float *u_out, float *v_out,
+                           int ignore_prim)
 {
-    int stack_code[BVH4_STACK_SIZE];
-    float stack_dist[BVH4_STACK_SIZE];
+    int stack_code[BVH_STACK_SIZE + 1];   /* a record may push all 8 before popping one */
+    float stack_dist[BVH_STACK_SIZE + 1];
     int sp = 0;
     int code = 0;   /* the root record */
-    bool inner = true;
     int best = -1;
     float tmax = *tmax_io;
     for (;;) {
-        if (!inner) {
+        if (code < 0) {
             int packed = -code - 1;
             int first = packed >> 5, last = first + (packed & 31);
-            for (int i = first; i < last; ++i) {
-                float t, u, v;
-                if (ray_triangle(r, (__global const float *)(tri_verts + 3 * i),
-                                 tmin, tmax, &t, &u, &v)
-                    && tri_index[i] != ignore_prim) {
-                    tmax = t; best = i; *u_out = u; *v_out = v;
-                }
+            for (int gi = first; gi < last; ++gi) {
+                float4 T, det, V, W;
+                int4 ok = ray_tri4(r, tri4 + gi * TRI4_ROWS, tmin, tmax, &T, &det, &V, &W);
+                if (ignore_prim >= 0)
+                    ok &= (*(__global const int4 *)(slot_prim + 4 * gi) != (int4)(ignore_prim));
+                if (!ANY4(ok))
+                    continue;
+                float4 inv = (float4)(1.0f) / det;
+                float4 t = ok ? T * inv : (float4)(INFINITY);
+                float4 u = V * inv, v = W * inv;
+                /* the nearest lane, the first of equals */
+                float tb = t.s0, ub = u.s0, vb = v.s0;
+                int lane = 0;
+                if (t.s1 < tb) { tb = t.s1; ub = u.s1; vb = v.s1; lane = 1; }
+                if (t.s2 < tb) { tb = t.s2; ub = u.s2; vb = v.s2; lane = 2; }
+                if (t.s3 < tb) { tb = t.s3; ub = u.s3; vb = v.s3; lane = 3; }
+                tmax = tb;
+                *u_out = ub;
+                *v_out = vb;
+                best = 4 * gi + lane;
             }
         } else {
-            __global const float *rec = (__global const float *)(nodes + code);
-            int4 c = vload4(6, (__global const int *)rec);
-            float4 d = ray_box4(r, rec, c, tmin, tmax);
-            float d0 = d.s0, d1 = d.s1, d2 = d.s2, d3 = d.s3;
-            int c0 = c.s0, c1 = c.s1, c2 = c.s2, c3 = c.s3;
-            int nh = (d0 != INFINITY) + (d1 != INFINITY) + (d2 != INFINITY) + (d3 != INFINITY);
-            if (nh == 0) goto pop;
-            if (nh == 1) {
-                code = (d0 != INFINITY) ? c0 : ((d1 != INFINITY) ? c1 : ((d2 != INFINITY) ? c2 : c3));
-                inner = code > 0;
-                continue;
-            }
-            CSWAP(d0, c0, d1, c1);
-            CSWAP(d2, c2, d3, c3);
-            CSWAP(d0, c0, d2, c2);
-            CSWAP(d1, c1, d3, c3);
-            CSWAP(d1, c1, d2, c2);
-            if (d0 != INFINITY) {
-                if (d3 != INFINITY) { stack_code[sp] = c3; stack_dist[sp] = d3; ++sp; }
-                if (d2 != INFINITY) { stack_code[sp] = c2; stack_dist[sp] = d2; ++sp; }
-                if (d1 != INFINITY) { stack_code[sp] = c1; stack_dist[sp] = d1; ++sp; }
-                code = c0;
-                inner = code > 0;
+            __global const float8 *q = (__global const float8 *)(nodes + code);
+            int mask;
+            float8 dv = ray_box8(r, q, tmin, tmax, &mask);
+            if (mask != 0) {
+                const float *d = (const float *)&dv;
+                __global const int *cc = (__global const int *)(q + 6);
+                int i0 = CLR_CTZ(mask);
+                mask &= mask - 1;
+                if (mask == 0) {
+                    code = cc[i0];
+                    continue;
+                }
+                int i1 = CLR_CTZ(mask);
+                mask &= mask - 1;
+                float da = d[i0], db = d[i1];
+                int ca = cc[i0], cb = cc[i1];
+                if (db < da) {
+                    float tf = da; da = db; db = tf;
+                    int tc = ca; ca = cb; cb = tc;
+                }
+                if (mask == 0) {
+                    stack_code[sp] = cb; stack_dist[sp] = db; ++sp;
+                    code = ca;
+                    continue;
+                }
+                int base = sp;
+                stack_code[sp] = cb; stack_dist[sp] = db; ++sp;
+                stack_code[sp] = ca; stack_dist[sp] = da; ++sp;
+                do {
+                    int i = CLR_CTZ(mask);
+                    mask &= mask - 1;
+                    float di = d[i];
+                    int ci = cc[i];
+                    int j = sp;
+                    while (j > base && stack_dist[j - 1] < di) {
+                        stack_dist[j] = stack_dist[j - 1];
+                        stack_code[j] = stack_code[j - 1];
+                        --j;
+                    }
+                    stack_dist[j] = di;
+                    stack_code[j] = ci;
+                    ++sp;
+                } while (mask != 0);
+                code = stack_code[--sp];
                 continue;
             }
         }
-        /* pop, skipping subtrees that start beyond the current closest hit */
-    pop:
+        /* pop, skipping subtrees that start beyond the closest hit so far */
         for (;;) {
             if (sp == 0) { *tmax_io = tmax; return best; }
             --sp;
             if (stack_dist[sp] <= tmax) break;
         }
         code = stack_code[sp];
-        inner = code > 0;
     }
 }
 
-/* Any hit in (tmin, tmax): shadow / visibility rays. */
-CLR_INLINE bool bvh_any(__global const Bvh4Node *nodes, __global const float4 *tri_verts,
-                    __global const int *tri_index, const PreparedRay *r,
-                    float tmin, float tmax, int ignore_a, int ignore_b)
+/* Any hit in (tmin, tmax): shadow / visibility rays. Slots whose scene id is
+ * ignore_a or ignore_b do not count. */
+CLR_INLINE bool bvh_any(__global const Bvh8Node *nodes, __global const float4 *tri4,
+                        __global const int *slot_prim, const PreparedRay *r,
+                        float tmin, float tmax, int ignore_a, int ignore_b)
 {
-    int stack_code[BVH4_STACK_SIZE + 1];   /* pushes all hit children, then pops one */
+    int stack_code[BVH_STACK_SIZE + 1];   /* pushes all hit children, then pops one */
     int sp = 0;
     int code = 0;
-    bool inner = true;
     for (;;) {
-        if (!inner) {
+        if (code < 0) {
             int packed = -code - 1;
             int first = packed >> 5, last = first + (packed & 31);
-            for (int i = first; i < last; ++i) {
-                float t, u, v;
-                int prim = tri_index[i];
-                if (prim != ignore_a && prim != ignore_b
-                    && ray_triangle(r, (__global const float *)(tri_verts + 3 * i), tmin, tmax, &t, &u, &v))
-                    return true;
+            for (int gi = first; gi < last; ++gi) {
+                float4 T, det, V, W;
+                int4 ok = ray_tri4(r, tri4 + gi * TRI4_ROWS, tmin, tmax, &T, &det, &V, &W);
+                if (ANY4(ok)) {
+                    int4 prim = *(__global const int4 *)(slot_prim + 4 * gi);
+                    ok &= (prim != (int4)(ignore_a)) & (prim != (int4)(ignore_b));
+                    if (ANY4(ok))
+                        return true;
+                }
             }
         } else {
-            __global const float *rec = (__global const float *)(nodes + code);
-            int4 c = vload4(6, (__global const int *)rec);
-            float4 d = ray_box4(r, rec, c, tmin, tmax);
-            if (d.s3 != INFINITY) stack_code[sp++] = c.s3;
-            if (d.s2 != INFINITY) stack_code[sp++] = c.s2;
-            if (d.s1 != INFINITY) stack_code[sp++] = c.s1;
-            if (d.s0 != INFINITY) stack_code[sp++] = c.s0;
+            __global const float8 *q = (__global const float8 *)(nodes + code);
+            int mask;
+            ray_box8(r, q, tmin, tmax, &mask);
+            __global const int *cc = (__global const int *)(q + 6);
+            while (mask != 0) {
+                int i = CLR_CTZ(mask);
+                mask &= mask - 1;
+                stack_code[sp++] = cc[i];
+            }
         }
         if (sp == 0) return false;
         code = stack_code[--sp];
-        inner = code > 0;
     }
 }
 

@@ -11,7 +11,7 @@ __kernel void struct_layout(__global int *out)
     BVHNode n;
     Ray r;
     Hit h;
-    Bvh4Node b4;
+    Bvh8Node b8;
     out[0] = sizeof(BVHNode);
     out[1] = MEMBER_OFFSET(n, left_first);
     out[2] = MEMBER_OFFSET(n, bmax);
@@ -24,9 +24,9 @@ __kernel void struct_layout(__global int *out)
     out[9] = MEMBER_OFFSET(h, prim);
     out[10] = MEMBER_OFFSET(h, ng);
     out[11] = MEMBER_OFFSET(h, pad);
-    out[12] = sizeof(Bvh4Node);
-    out[13] = MEMBER_OFFSET(b4, miny);
-    out[14] = MEMBER_OFFSET(b4, maxx);
-    out[15] = MEMBER_OFFSET(b4, child);
-    out[16] = MEMBER_OFFSET(b4, pad);
+    out[12] = sizeof(Bvh8Node);
+    out[13] = MEMBER_OFFSET(b8, miny);
+    out[14] = MEMBER_OFFSET(b8, maxx);
+    out[15] = MEMBER_OFFSET(b8, child);
+    out[16] = MEMBER_OFFSET(b8, pad);
 }

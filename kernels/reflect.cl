@@ -15,7 +15,7 @@ inline float3 spawn_point(float3 p, float3 n, float3 dir)
     return p + ((dot(n, dir) >= 0.0f) ? bound : -bound) * n;
 }
 
-__kernel void trace_reflections(__global const Bvh4Node *nodes,
+__kernel void trace_reflections(__global const Bvh8Node *nodes,
                                 __global const float4 *tri_verts,
                                 __global const int *tri_index,
                                 __global const int *tri_face,
@@ -39,9 +39,7 @@ __kernel void trace_reflections(__global const Bvh4Node *nodes,
         if (slot < 0) break;
         last_prim = tri_index[slot];
         out[depth] = tri_face[last_prim];
-        float3 v0 = tri_verts[3 * slot].xyz;
-        float3 n = normalize(cross(tri_verts[3 * slot + 1].xyz - v0,
-                                   tri_verts[3 * slot + 2].xyz - v0));
+        float3 n = tri4_normal(tri_verts, slot);
         float3 p = org + t * dir;
         dir = dir - 2.0f * dot(dir, n) * n;
         org = spawn_point(p, n, dir);

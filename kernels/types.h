@@ -15,23 +15,23 @@ typedef struct {
     int count;
 } BVHNode;
 
-/* 128 bytes: the 4-wide traversal layout (clradcom/raycast.py: bvh4_nodes),
+/* 256 bytes: the 8-wide traversal layout (clradcom/raycast.py: bvh8_nodes),
  * collapsed on the host from the binary BVHNode tree. Bounds are stored per
- * axis for the four child slots (structure of arrays) so one float4 op tests
- * all four. child[i] > 0: an inner child, its record index; child[i] < 0: a
- * leaf, -(first_slot * 32 + count) - 1; child[i] == 0: an empty slot (record 0
- * is the root, never a child), whose bounds are +inf / -inf and which the
- * kernel masks out by its code anyway. */
+ * axis for the eight child slots (structure of arrays, 32-byte rows) so one
+ * float8 op tests all eight. child[i] > 0: an inner child, its record index;
+ * child[i] < 0: a leaf, -(first_group * 32 + groups) - 1 over the Tri4 groups
+ * (kernels/intersect.h); child[i] == 0: an empty slot (record 0 is the root,
+ * never a child), whose bounds are +inf / -inf so that no ray hits it. */
 typedef struct {
-    float minx[4];
-    float miny[4];
-    float minz[4];
-    float maxx[4];
-    float maxy[4];
-    float maxz[4];
-    int child[4];
-    int pad[4];
-} Bvh4Node;
+    float minx[8];
+    float miny[8];
+    float minz[8];
+    float maxx[8];
+    float maxy[8];
+    float maxz[8];
+    int child[8];
+    int pad[8];
+} Bvh8Node;
 
 /* 32 bytes. A hit is accepted for tmin < t < tmax. */
 typedef struct {

@@ -6,7 +6,7 @@ from clradcom import opencl
 from clradcom.bvh import BVH_NODE_DTYPE
 from clradcom.cli import main as cli_main
 from clradcom.opencl import OpenCLError, Runtime, choose_device, kernel_source, list_devices
-from clradcom.raycast import BVH4_NODE_DTYPE, HIT_DTYPE, RAY_DTYPE
+from clradcom.raycast import BVH8_NODE_DTYPE, HIT_DTYPE, RAY_DTYPE
 
 
 def test_device_list_and_default_is_gpu_or_pocl():
@@ -96,8 +96,8 @@ def test_host_dtypes_match_kernel_structs(runtime):
         RAY_DTYPE.fields["dir"][1], RAY_DTYPE.fields["tmax"][1],
         HIT_DTYPE.itemsize, HIT_DTYPE.fields["prim"][1],
         HIT_DTYPE.fields["ng"][1], HIT_DTYPE.fields["pad"][1],
-        BVH4_NODE_DTYPE.itemsize, BVH4_NODE_DTYPE.fields["miny"][1],
-        BVH4_NODE_DTYPE.fields["maxx"][1], BVH4_NODE_DTYPE.fields["child"][1],
-        BVH4_NODE_DTYPE.fields["pad"][1],
+        BVH8_NODE_DTYPE.itemsize, BVH8_NODE_DTYPE.fields["miny"][1],
+        BVH8_NODE_DTYPE.fields["maxx"][1], BVH8_NODE_DTYPE.fields["child"][1],
+        BVH8_NODE_DTYPE.fields["pad"][1],
     ]
     assert out.tolist() == expected

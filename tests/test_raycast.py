@@ -15,7 +15,9 @@ import trimesh
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from clradcom.raycast import RayCaster, make_rays, spawn_origins
+from clradcom import raycast
+from clradcom.bvh import build_bvh
+from clradcom.raycast import RayCaster, bvh8_nodes, make_rays, spawn_origins, tri4_groups
 
 MARGIN_ULPS = 64  # float32 ulps of the coordinates where rounding may decide either way
 
@@ -276,6 +278,121 @@ def test_hit_record_fields(runtime):
     # tmax bounds the search
     short = caster.closest_hit(make_rays([[0.2, 0.3, 2.0]], [[0, 0, -1]], tmax=1.5))
     assert short["prim"][0] == -1
+
+
+def test_tri4_groups_hold_every_leaf_triangle():
+    rng = np.random.default_rng(21)
+    tris = rng.uniform(-1, 1, (700, 3, 3)) * 0.1 + rng.uniform(-1, 1, (700, 1, 3))
+    bvh = build_bvh(tris, max_leaf_size=8, max_leaf_cap=16)
+    tri4, slot_prim, first, groups = tri4_groups(bvh, tris)
+    assert tri4.dtype == np.float32 and tri4.shape == (len(slot_prim) // 4, 9, 4)
+    assert sorted(set(slot_prim.tolist())) == list(range(len(tris)))
+    lanes = tri4.reshape(-1, 3, 3, 4).transpose(0, 3, 1, 2).reshape(-1, 3, 3)  # slot, vertex, xyz
+    np.testing.assert_array_equal(lanes, tris.astype(np.float32)[slot_prim])
+    count = bvh.nodes["count"]
+    leaves = np.flatnonzero(count > 0)
+    np.testing.assert_array_equal(groups[leaves], (count[leaves] + 3) // 4)
+    assert groups.sum() == len(tri4) and (groups[count == 0] == 0).all()
+    for leaf in leaves:   # a leaf's slots: its triangles in tri_index order, then repeats
+        lf = bvh.nodes["left_first"][leaf]
+        own = bvh.tri_index[lf:lf + count[leaf]]
+        slots = slot_prim[4 * first[leaf]:4 * (first[leaf] + groups[leaf])]
+        np.testing.assert_array_equal(slots[:count[leaf]], own)
+        assert (slots[count[leaf]:] == own[-1]).all()
+
+
+def test_bvh8_records_reach_every_group_once_inside_their_boxes():
+    rng = np.random.default_rng(22)
+    tris = rng.uniform(-1, 1, (2000, 3, 3)) * 0.05 + rng.uniform(-1, 1, (2000, 1, 3))
+    bvh = build_bvh(tris)
+    tri4, _, first, groups = tri4_groups(bvh, tris)
+    rec = bvh8_nodes(bvh.nodes, first, groups)
+    assert rec.dtype.itemsize == 256 and len(rec) < bvh.n_nodes / 3
+    lo = np.stack([rec["minx"], rec["miny"], rec["minz"]], axis=-1)   # (R, 8, 3)
+    hi = np.stack([rec["maxx"], rec["maxy"], rec["maxz"]], axis=-1)
+    child = rec["child"]
+    empty = child == 0
+    assert np.isposinf(lo[empty]).all() and np.isneginf(hi[empty]).all()
+    seen_groups = np.zeros(len(tri4), dtype=int)
+    seen_records = np.zeros(len(rec), dtype=int)
+    todo = [(0, np.full(3, -np.inf, np.float32), np.full(3, np.inf, np.float32))]
+    while todo:
+        r, box_lo, box_hi = todo.pop()
+        seen_records[r] += 1
+        for k in np.flatnonzero(~empty[r]):
+            assert (lo[r, k] >= box_lo).all() and (hi[r, k] <= box_hi).all()
+            c = int(child[r, k])
+            if c > 0:
+                todo.append((c, lo[r, k], hi[r, k]))
+                continue
+            packed = -c - 1
+            g0, ng = packed >> 5, packed & 31
+            seen_groups[g0:g0 + ng] += 1
+            v = tri4[g0:g0 + ng].reshape(ng, 3, 3, 4)   # group, vertex, xyz, lane
+            assert (v.min(axis=(1, 3)) >= lo[r, k]).all() and (v.max(axis=(1, 3)) <= hi[r, k]).all()
+    assert (seen_groups == 1).all() and (seen_records == 1).all()
+    for r in range(len(rec)):   # depth-first numbering: a record's first inner child follows it
+        kids = child[r][child[r] > 0]
+        assert not len(kids) or kids[0] == r + 1
+
+
+def test_bvh8_refuses_a_tree_deeper_than_the_kernel_stack(monkeypatch):
+    rng = np.random.default_rng(23)
+    tris = rng.uniform(-1, 1, (3000, 3, 3)) * 0.05 + rng.uniform(-1, 1, (3000, 1, 3))
+    bvh = build_bvh(tris)
+    bvh8_nodes(bvh.nodes)
+    monkeypatch.setattr(raycast, "BVH_STACK_SIZE", 8)
+    with pytest.raises(ValueError, match="traversal stack"):
+        bvh8_nodes(bvh.nodes)
+
+
+def test_ignore_prim_also_skips_the_repeats_that_pad_a_group(runtime):
+    """Five stacked triangles in one leaf: two Tri4 groups, the second padded with the fifth."""
+    base = np.array([[-1.0, -1.0, 0.0], [1.0, -1.0, 0.0], [0.0, 1.0, 0.0]])
+    heights = np.array([3.0, 5.0, 1.0, 4.0, 2.0])
+    tris = base[None] + heights[:, None, None] * np.array([0.0, 0.0, 1.0])
+    caster = RayCaster(tris, bvh=build_bvh(tris, max_leaf_size=8), runtime=runtime)
+    assert caster.bvh.n_nodes == 1
+    order = np.argsort(heights)
+    rays = make_rays(np.zeros((6, 3)), np.tile([0.0, 0.0, 1.0], (6, 1)))
+    ignore = np.concatenate([[-1], order])   # each triangle, the nearest first
+    hits = caster.closest_hit(rays, ignore_prim=ignore)
+    expected = [order[0], order[1], order[0], order[0], order[0], order[0]]
+    assert hits["prim"].tolist() == [int(p) for p in expected]
+    np.testing.assert_allclose(hits["t"], heights[expected])
+    # any hit: only the one triangle in range, ignored -> nothing
+    for i in range(5):
+        short = make_rays([[0.0, 0.0, heights[i] - 0.5]], [[0.0, 0.0, 1.0]], tmax=1.0)
+        assert caster.occluded(short).tolist() == [True]
+        assert caster.occluded(short, ignore_prim=i).tolist() == [False]
+    np.testing.assert_array_equal(caster.closest_hit(rays),
+                                  caster.closest_hit(rays, ignore_prim=-1))
+
+
+def test_rays_in_a_coordinate_plane_hit_the_ridge_of_a_closed_mesh(runtime):
+    """An octahedron's equator (z = 0) is a ridge of shared edges; rays from inside that
+    lie in the plane (dir z exactly 0, so 1/dir = inf) must hit it. The boxes of the
+    upper and lower faces end exactly in the plane: the robust slab test's NaN case."""
+    octa = trimesh.Trimesh(
+        vertices=[[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]],
+        faces=[[0, 2, 4], [2, 1, 4], [1, 3, 4], [3, 0, 4],
+               [2, 0, 5], [1, 2, 5], [3, 1, 5], [0, 3, 5]])
+    octa = octa.subdivide().subdivide()
+    caster = RayCaster(np.asarray(octa.vertices)[octa.faces], runtime=runtime)
+    rng = np.random.default_rng(24)
+    phi = rng.uniform(0.0, 2.0 * np.pi, 400)
+    plane_dirs = np.stack([np.cos(phi), np.sin(phi), np.zeros_like(phi)], axis=1)
+    plane_dirs[:8] = [[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0],
+                      [1, 1, 0], [-1, 1, 0], [1, -1, 0], [-1, -1, 0]]
+    plane_origins = np.zeros((400, 3))
+    plane_origins[:, :2] = rng.integers(-3, 4, (400, 2)) / 8.0
+    for perm in ([0, 1, 2], [1, 2, 0], [2, 0, 1]):   # the planes z = 0, x = 0, y = 0
+        origins, dirs = plane_origins[:, perm], plane_dirs[:, perm]
+        hits = caster.closest_hit(make_rays(origins, dirs))
+        assert (hits["prim"] >= 0).all(), f"{(hits['prim'] < 0).sum()} rays slipped through"
+        points = origins + hits["t"][:, None] * dirs
+        np.testing.assert_allclose(np.abs(points).sum(axis=1), 1.0, atol=1e-5)  # |x|+|y|+|z|=1
+        assert caster.occluded(make_rays(origins, dirs)).all()
 
 
 def test_bad_rays_are_refused():

@@ -13,7 +13,10 @@ Embree (the ``embreex`` package, ``pip install clradcom[bench]``) traces on
 one thread per process, so it runs in as many processes as the machine has
 cores, each on its share of the rays; its time is the slowest process's.
 The ratio printed is clradcom's throughput over Embree's on the same cores.
-BVH build times are set beside each other too.
+The timed repetitions alternate between the two casters (best of each kept),
+so a machine that other jobs load unevenly slows both alike. Build times are
+set beside each other too: clradcom's is the whole RayCaster set-up (binary
+SAH build, 8-wide collapse, Tri4 groups, upload).
 
     python tools/bench_raycast.py [--rays 1000000] [--device SPEC] [--repeat 3]
 """
@@ -27,7 +30,6 @@ from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
-from clradcom.bvh import build_bvh
 from clradcom.models import street_triangles
 from clradcom.opencl import get_runtime
 from clradcom.raycast import RayCaster, make_rays, spawn_origins
@@ -78,35 +80,25 @@ def embree_build_time(tris32) -> float:
     return best
 
 
-def run_embree(pool, origins, dirs, n_proc, repeat):
+def embree_once(pool, origins, dirs, n_proc):
     chunks = np.array_split(np.arange(len(origins)), n_proc)
-    best = np.inf
-    prim = tfar = None
-    for _ in range(repeat):
-        jobs = [(origins[c], dirs[c]) for c in chunks]
-        results = list(pool.map(_embree_worker_run, jobs))
-        best = min(best, max(r[0] for r in results))
-        prim = np.concatenate([r[1] for r in results])
-        tfar = np.concatenate([r[2] for r in results])
-    return best, prim, tfar
+    jobs = [(origins[c], dirs[c]) for c in chunks]
+    results = list(pool.map(_embree_worker_run, jobs))
+    return (max(r[0] for r in results), np.concatenate([r[1] for r in results]),
+            np.concatenate([r[2] for r in results]))
 
 
-def run_clradcom(caster, rays, repeat):
-    caster.closest_hit(rays[:1024])  # compile and warm up
-    best = np.inf
-    hits = None
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        hits = caster.closest_hit(rays)
-        best = min(best, time.perf_counter() - t0)
-    return best, hits
+def clradcom_once(caster, rays):
+    t0 = time.perf_counter()
+    hits = caster.closest_hit(rays)
+    return time.perf_counter() - t0, hits
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("--rays", type=int, default=1_000_000, help="primary rays (default 1e6)")
     ap.add_argument("--device", default=None, help="OpenCL device spec (see: clradcom devices)")
-    ap.add_argument("--repeat", type=int, default=3, help="timed repetitions, best kept")
+    ap.add_argument("--repeat", type=int, default=5, help="timed repetitions, best kept")
     ap.add_argument("--no-embree", action="store_true", help="skip the Embree reference")
     args = ap.parse_args(argv)
 
@@ -117,14 +109,14 @@ def main(argv=None):
     print(f"scene  : synthetic street, {len(tris)} triangles")
 
     t0 = time.perf_counter()
-    bvh = build_bvh(tris)
+    caster = RayCaster(tris, runtime=runtime)
     t_build = time.perf_counter() - t0
-    caster = RayCaster(tris, bvh=bvh, runtime=runtime)
 
     bumper = np.array([1.95, -1.75, 0.55])
     dirs = sector_directions(args.rays)
     primary = make_rays(np.broadcast_to(bumper, dirs.shape), dirs, tmin=1e-4)
-    t_primary, hits = run_clradcom(caster, primary, args.repeat)
+    caster.closest_hit(primary[:1024])  # compile and warm up
+    _, hits = clradcom_once(caster, primary)
 
     ok = hits["prim"] >= 0
     p = bumper + hits["t"][ok, None] * dirs[ok]
@@ -132,11 +124,10 @@ def main(argv=None):
     d_in = dirs[ok]
     d_out = d_in - 2.0 * np.einsum("ij,ij->i", d_in, n)[:, None] * n
     bounce = make_rays(spawn_origins(p, n, d_out), d_out, tmin=1e-4)
-    t_bounce, bhits = run_clradcom(caster, bounce, args.repeat)
+    sets = {"primary": primary, "bounce": bounce}
 
-    rows = [("primary", len(primary), t_primary, hits), ("bounce", len(bounce), t_bounce, bhits)]
     n_proc = os.cpu_count() or 1
-    embree = {}
+    pool = None
     t_embree_build = None
     if not args.no_embree:
         try:
@@ -145,12 +136,26 @@ def main(argv=None):
             print("embreex not installed (pip install 'clradcom[bench]'): no reference")
         else:
             t_embree_build = embree_build_time(tris32)
-            with ProcessPoolExecutor(n_proc, initializer=_embree_worker_init,
-                                     initargs=(tris32,)) as pool:
-                for name, rays in (("primary", primary), ("bounce", bounce)):
+            pool = ProcessPoolExecutor(n_proc, initializer=_embree_worker_init,
+                                       initargs=(tris32,))
+    best = {name: np.inf for name in sets}
+    out = {}
+    embree = {}
+    try:
+        for _ in range(args.repeat):
+            for name, rays in sets.items():
+                t, out[name] = clradcom_once(caster, rays)
+                best[name] = min(best[name], t)
+                if pool is not None:
                     o = np.ascontiguousarray(rays["org"])
                     d = np.ascontiguousarray(rays["dir"])
-                    embree[name] = run_embree(pool, o, d, n_proc, args.repeat)
+                    te, prim, tfar = embree_once(pool, o, d, n_proc)
+                    if name not in embree or te < embree[name][0]:
+                        embree[name] = (te, prim, tfar)
+    finally:
+        if pool is not None:
+            pool.shutdown()
+    rows = [(name, len(sets[name]), best[name], out[name]) for name in sets]
 
     print(f"\nBVH build: clradcom {t_build * 1e3:.1f} ms", end="")
     if t_embree_build is not None:
