@@ -35,10 +35,13 @@ docs/physics.md "Receive projection".
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 from scipy.special import i0e
 
 from .antenna import directions_to_angles, theta_phi_unit_vectors
+from .errors import NearFieldWarning
 
 __all__ = [
     "C0",
@@ -106,12 +109,16 @@ def fresnel_coefficients(eps_r, cos_theta, pec=None):
         is_pec = is_pec | np.asarray(pec, dtype=bool)
     eps, c, is_pec = np.broadcast_arrays(eps, c, is_pec)
     eps_d = np.where(is_pec, 1.0 + 0.0j, eps)  # dummy for PEC rows, replaced below
-    sin2 = 1.0 - c * c
-    a = np.sqrt(eps_d - sin2)
+    # eps - sin^2 = (eps - 1) + c^2: written so, c^2 survives next to eps = 1 at grazing
+    # (1 - c^2 rounds to 1 below c = 1e-8, which made eps = 1 reflect totally there)
+    a = np.sqrt((eps_d - 1.0) + c * c)
     a = a.real - 1j * np.abs(a.imag)  # Im a <= 0 (passive medium)
     with np.errstate(invalid="ignore", divide="ignore"):
         r_te = (c - a) / (c + a)
         r_tm = (eps_d * c - a) / (eps_d * c + a)
+    # 0/0 only for eps = 1 at c = 0: no interface, nothing reflected (the limit c -> 0)
+    r_te = np.where((c + a == 0) & ~np.isnan(a), 0.0 + 0.0j, r_te)
+    r_tm = np.where((eps_d * c + a == 0) & ~np.isnan(a), 0.0 + 0.0j, r_tm)
     r_te = np.where(is_pec, -1.0 + 0.0j, r_te)
     r_tm = np.where(is_pec, 1.0 + 0.0j, r_tm)
     return r_te, r_tm
@@ -416,11 +423,19 @@ def polarimetric_matrix(T, L, k_dep, k_arr, tx_orientation, rx_orientation, carr
         raise ValueError(f"T must be (P,3,3) and L (P,), got {T.shape} and {L.shape}")
     if np.any(~np.isfinite(L)) or np.any(L <= 0):
         raise ValueError("path lengths L must be finite and > 0")
+    lam = C0 / float(carrier_hz)
+    short = L < lam
+    if short.any():
+        # 1/L is finite for any L > 0, but below a wavelength it is not a field any more
+        # (|a| > 1 below lambda/(4 pi)): say so rather than hand back a silent number
+        i = int(np.argmin(L))
+        warnings.warn(f"{int(short.sum())} path(s) shorter than a wavelength (L[{i}] = "
+                      f"{L[i]!r} m < lambda = {lam!r} m): the far-field spreading "
+                      "lambda/(4 pi L) does not hold there", NearFieldWarning, stacklevel=3)
     _, th_t, ph_t = _antenna_basis_world(k_dep, tx_orientation)
     _, th_r, ph_r = _antenna_basis_world(-np.asarray(k_arr, dtype=np.float64), rx_orientation)
     b_tx = np.stack([th_t, ph_t], axis=-1)  # (P,3,2)
     b_rx = np.stack([th_r, ph_r], axis=-1)
-    lam = C0 / float(carrier_hz)
     scale = lam / (4.0 * np.pi) * np.exp(-1j * (2.0 * np.pi / lam) * L) / L
     return scale[:, None, None] * (np.swapaxes(b_rx, 1, 2) @ T @ b_tx)
 

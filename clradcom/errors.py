@@ -9,7 +9,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-__all__ = ["SceneError", "SceneWarning", "NOVALUE"]
+__all__ = ["SceneError", "SceneWarning", "NOVALUE", "PhysicsWarning", "CyclicPrefixWarning",
+           "AliasingWarning", "NearFieldWarning", "SurfaceContactWarning"]
 
 
 class _NoValue:
@@ -91,3 +92,33 @@ def _rebuild(reason, file, key, value, line):  # pragma: no cover - pickling hel
 class SceneWarning(UserWarning):
     """Something in a scene was accepted but deserves attention (e.g. a material
     model evaluated outside its validated frequency range)."""
+
+
+class PhysicsWarning(UserWarning):
+    """A result was computed where the model behind it stops being valid (docs/stability.md).
+
+    The subclasses name the case, so a user can silence or escalate one of them alone
+    (``warnings.simplefilter("error", CyclicPrefixWarning)``)."""
+
+
+class CyclicPrefixWarning(PhysicsWarning):
+    """Paths delayed beyond the cyclic prefix went through the frequency-domain channel
+    model, which has no inter-symbol interference: their echoes come out too strong and
+    clean.  ``synthesize_time_domain`` models the ISI."""
+
+
+class AliasingWarning(PhysicsWarning):
+    """A path's delay lies beyond the unambiguous range (tau >= 1/delta_f) or its Doppler
+    beyond the unambiguous velocity (|f_D| > 1/(2 T_sym)): it shows in the radar image
+    wrapped to r mod r_max, or v wrapped into [-v_max, v_max)."""
+
+
+class NearFieldWarning(PhysicsWarning):
+    """A path is shorter than a wavelength: the far-field spreading lambda/(4 pi L) that
+    its gain uses grows without bound as L -> 0 and means nothing there."""
+
+
+class SurfaceContactWarning(PhysicsWarning):
+    """A transmitter or receiver lies on a reflecting face: the reflection off that face
+    coincides with the line of sight and is dropped (geometrical optics has no surface
+    wave); lift the antenna off the surface."""

@@ -19,9 +19,11 @@ Two methods (docs/dsp.md §3):
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 
+from ..errors import AliasingWarning, CyclicPrefixWarning
 from .waveform import Waveform, check_symbols
 
 BOLTZMANN = 1.380649e-23
@@ -60,6 +62,51 @@ def check_paths(gains, delays_s, dopplers_hz):
         i = int(np.flatnonzero(tau < 0)[0])
         raise ValueError(f"delays_s[{i}] = {tau[i]!r} is negative; delays must be >= 0")
     return a, tau, fd
+
+
+def warn_unmodelled(delays_s, dopplers_hz, waveform: Waveform, isi_modelled: bool,
+                    stacklevel: int = 3) -> None:
+    """Warn about paths the radar cannot show where they are (docs/stability.md).
+
+    Range and velocity alias whatever the synthesis: a delay tau >= 1/Δf lands at
+    r = (c tau / 2) mod r_max, a Doppler outside [-1/(2 T_sym), 1/(2 T_sym)) wraps by
+    multiples of 1/T_sym (``AliasingWarning``).  Delays beyond the cyclic prefix also
+    break the frequency-domain model, which has no ISI (``CyclicPrefixWarning``, only
+    when ``isi_modelled`` is false).  The time-domain synthesis does model the ISI, so
+    it warns about aliasing alone.
+    """
+    tau = np.asarray(delays_s, dtype=float)
+    fd = np.asarray(dopplers_hz, dtype=float)
+    if tau.size == 0:
+        return
+    t_max = 1.0 / waveform.subcarrier_spacing_hz
+    far = tau >= t_max
+    if far.any():
+        i = int(np.argmax(tau))
+        warnings.warn(
+            f"{int(far.sum())} of {tau.size} paths have delays beyond the unambiguous range "
+            f"(delays_s[{i}] = {float(tau[i])!r} s >= 1/Δf = {t_max!r} s, r_max = "
+            f"{waveform.max_range:.2f} m): they appear at range (c·τ/2) mod r_max",
+            AliasingWarning, stacklevel=stacklevel)
+    f_lim = 0.5 / waveform.symbol_duration
+    fast = (fd >= f_lim) | (fd < -f_lim)
+    if fast.any():
+        i = int(np.argmax(np.abs(fd)))
+        warnings.warn(
+            f"{int(fast.sum())} of {fd.size} paths have Doppler shifts beyond the unambiguous "
+            f"±1/(2·T_sym) = ±{f_lim:.1f} Hz (dopplers_hz[{i}] = {float(fd[i])!r} Hz; v_max = "
+            f"{waveform.max_velocity:.2f} m/s): they wrap into [-v_max, v_max)",
+            AliasingWarning, stacklevel=stacklevel)
+    if not isi_modelled:
+        long = tau > waveform.cp_duration * (1.0 + 1e-12)
+        if long.any():
+            i = int(np.argmax(tau))
+            warnings.warn(
+                f"{int(long.sum())} of {tau.size} paths are delayed beyond the cyclic prefix "
+                f"(delays_s[{i}] = {float(tau[i])!r} s > T_CP = {waveform.cp_duration!r} s, range "
+                f"{waveform.isi_free_range:.2f} m): the frequency-domain model ignores "
+                "their inter-symbol interference; synthesize_time_domain models it",
+                CyclicPrefixWarning, stacklevel=stacklevel)
 
 
 def _wrap_phase(cycles):
@@ -123,12 +170,18 @@ def channel_transfer_function(gains, delays_s, dopplers_hz, waveform: Waveform,
     ``method``: 'nufft' (2-D type-1 NUFFT, finufft, relative accuracy ≈ ``eps``), 'matmul'
     (separable (N×K)@(K×M) product), 'direct' (one outer product per path; reference).
     """
+    return _transfer(gains, delays_s, dopplers_hz, waveform, time_origin_s, method, eps, 4)
+
+
+def _transfer(gains, delays_s, dopplers_hz, waveform, time_origin_s, method, eps, stacklevel):
     a, tau, fd = check_paths(gains, delays_s, dopplers_hz)
     t0 = float(time_origin_s)
     if not math.isfinite(t0):
         raise ValueError(f"time_origin_s must be finite, got {time_origin_s!r}")
     if not (1e-15 < eps < 1e-1):
         raise ValueError(f"eps must lie in (1e-15, 0.1), got {eps!r}")
+    # stacklevel: the warning names the line that called the public function
+    warn_unmodelled(tau, fd, waveform, isi_modelled=False, stacklevel=stacklevel)
     return _channel_grid(a[None, :], tau, fd, waveform.n_subcarriers, waveform.n_symbols,
                          waveform.subcarrier_spacing_hz, waveform.symbol_duration, t0,
                          method, eps)[0]
@@ -140,8 +193,7 @@ def synthesize_frequency_domain(symbols, gains, delays_s, dopplers_hz, waveform:
     """Received symbols D_r = D ⊙ H (paper eq. (3)); shape (N, M).  See
     ``channel_transfer_function`` for the parameters."""
     d = check_symbols(symbols, waveform)
-    return d * channel_transfer_function(gains, delays_s, dopplers_hz, waveform,
-                                         time_origin_s=time_origin_s, method=method, eps=eps)
+    return d * _transfer(gains, delays_s, dopplers_hz, waveform, time_origin_s, method, eps, 4)
 
 
 # ----------------------------------------------------------------------------------------
@@ -211,6 +263,7 @@ def synthesize_time_domain(symbols, gains, delays_s, dopplers_hz, waveform: Wave
     if not (1e-15 < eps < 1e-1):
         raise ValueError(f"eps must lie in (1e-15, 0.1), got {eps!r}")
 
+    warn_unmodelled(tau, fd, waveform, isi_modelled=True)
     n, m, ncp = waveform.n_subcarriers, waveform.n_symbols, waveform.n_cp
     ell_len = waveform.samples_per_symbol
     fs, df, t_sym = waveform.sample_rate, waveform.subcarrier_spacing_hz, waveform.symbol_duration
@@ -235,7 +288,12 @@ def synthesize_time_domain(symbols, gains, delays_s, dopplers_hz, waveform: Wave
     lo, hi = float(eps_d.min()), float(eps_d.max())
     centre, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
     theta_max = 2.0 * np.pi * (ell_len - 1) / n
-    n_nodes = chebyshev_order(theta_max, half, tol)
+    try:
+        n_nodes = chebyshev_order(theta_max, half, tol)
+    except ValueError as exc:
+        raise ValueError(f"{exc} (dopplers_hz span [{float(fd.min())!r}, {float(fd.max())!r}] "
+                         f"Hz, Δf = {df!r} Hz); speeds that high are no radar target: check "
+                         "the velocities, or use synthesize_frequency_domain") from None
     nodes = centre + half * np.cos((2 * np.arange(n_nodes) + 1) * np.pi / (2 * n_nodes))
     if n_nodes == 1:
         nodes = np.array([centre])
