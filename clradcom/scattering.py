@@ -1,28 +1,35 @@
 """Single diffuse (Lambertian) scattering from surface tiles (effective-roughness model).
 
 Each triangle of a material with scattering coefficient S > 0 is cut into small
-tiles; every tile lit from tx and seen from rx gives one path tx -> tile -> rx.
-docs/scattering.md gives the model and sources (Degli-Esposti, "A diffuse
-scattering model for urban propagation prediction", IEEE TAP 49(7) 2001;
-Degli-Esposti et al., "Measurement and modelling of scattering from buildings",
-IEEE TAP 55(1) 2007; Sionna RT's primer, "Scattering").
+tiles; every tile lit from tx and seen from rx gives one path tx -> tile -> rx,
+and with ``max_reflections`` >= 1 also tx -> mirror -> tile -> rx (specular
+prefix), tx -> tile -> mirror -> rx (suffix) and, with 2, both (image method,
+see :func:`scattering_paths`).  docs/scattering.md gives the model and sources
+(Degli-Esposti, "A diffuse scattering model for urban propagation prediction",
+IEEE TAP 49(7) 2001; Degli-Esposti, Fuschini, Vitucci, Falciasecca, "Measurement
+and modelling of scattering from buildings", IEEE TAP 55(1) pp. 143-153, 2007;
+Sionna RT's primer, "Scattering").
 
 Field of a tile of area A at q (incident E_i(q) from tx, scattered towards s)::
 
     E_s = (S Gamma / r_s) sqrt(f_s cos(theta_i) A) X E_i(q),   f_s = cos(theta_s) / pi
 
-with X the unitary cross-polarisation map (share K_x, see :func:`tile_transfer`)
-carrying two random phases per tile, fixed for the whole frame.  Since
-int_hemisphere f_s dOmega = 1, the power scattered into the hemisphere is
-S^2 Gamma^2 |E_i|^2 A cos(theta_i), i.e. S^2 Gamma^2 times the power incident
-on the tile; the monostatic RCS of a tile is sigma = 4 S^2 Gamma^2 A cos^2(theta).
-In the bookkeeping of :mod:`clradcom.em` (tx radiates e_tx e^{-jkd}/d, the field at rx is
-T e_tx e^{-jkL}/L) this is the transfer dyad::
+with X the unitary polarisation map (cross-polarisation share K_x, see
+:func:`tile_transfer`) carrying two random phases per tile, fixed for the whole
+frame.  Since int_hemisphere f_s dOmega = 1, the power scattered into the
+hemisphere is S^2 Gamma^2 |E_i|^2 A cos(theta_i), i.e. S^2 Gamma^2 times the
+power incident on the tile; the monostatic RCS of a tile is
+sigma = 4 S^2 Gamma^2 A cos^2(theta).  In the bookkeeping of :mod:`clradcom.em`
+(tx radiates e_tx e^{-jkd}/d, the field at rx is T e_tx e^{-jkL}/L) this is the
+transfer dyad::
 
     T = (L / (r_i r_s)) S Gamma sqrt(A cos(theta_i) cos(theta_s) / pi) X_world
 
 so that, for isotropic antennas,
 |a|^2 = lambda^2 S^2 Gamma^2 A cos(theta_i) cos(theta_s) / (16 pi^3 r_i^2 r_s^2).
+A planar reflection before (after) the tile replaces tx (rx) by its image, so
+r_i (r_s) becomes the unfolded length of that leg, and multiplies T by the
+reflection dyad (Fresnel x roughness x sqrt(1 - S_mirror^2)) on that side.
 """
 
 from __future__ import annotations
@@ -34,8 +41,10 @@ import numpy as np
 from . import em
 from .raycast import make_rays, spawn_origins
 from .snapshot import InteractionType, Paths
+from .specular import CONFIRM_TOL_M
 
-__all__ = ["make_tiles", "choose_tile_size", "tile_transfer", "scattering_paths"]
+__all__ = ["make_tiles", "choose_tile_size", "tile_transfer", "mirror_faces", "reflection_legs",
+           "scattering_paths"]
 
 #: Default relative power error of the point-source (far-field) tile approximation.
 DEFAULT_ACCURACY = 0.05
@@ -214,8 +223,154 @@ def _estimate_count(triangles, size):
     return int(np.sum(_subdivisions(triangles, size) ** 2))
 
 
+#: Reflecting faces smaller than this (m^2) take no part in scattering paths (see
+#: :func:`mirror_faces`).
+DEFAULT_MIN_FACE_AREA_M2 = 1.0
+
+# a tile closer than this to a mirror's plane lies in it: no reflection there
+_PLANE_EPS_M = 1e-6
+
+
+def mirror_faces(geom, min_area_m2=DEFAULT_MIN_FACE_AREA_M2):
+    """Planar faces that may reflect before or after a tile: ``(ids, lo, hi)``.
+
+    A face qualifies when its material keeps some specular field (S < 1, so
+    sqrt(1 - S^2) > 0) and its area is at least ``min_area_m2``: a facet much
+    smaller than the first Fresnel zone (sqrt(lambda d), 0.35 m at 24 GHz and
+    10 m) is no mirror, and the cost grows with tiles x faces.  The choice is
+    geometric, the same for every tx and rx, so a link and its reverse use the
+    same mirrors (reciprocity) whatever rays the tracer launched.  ``lo``/``hi``
+    (F,3) are the axis-aligned boxes of *all* faces, a cheap pre-test of the
+    image method's reflection point before any ray is cast.
+    """
+    scene, faces = geom.scene, geom.faces
+    tri = scene.triangles
+    F = faces.n_faces
+    lo = np.full((F, 3), np.inf)
+    hi = np.full((F, 3), -np.inf)
+    np.minimum.at(lo, faces.tri_face, tri.min(axis=1))
+    np.maximum.at(hi, faces.tri_face, tri.max(axis=1))
+    area = np.bincount(faces.tri_face, minlength=F, weights=0.5 * np.linalg.norm(
+        np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=-1))
+    S = scene.material_scattering[faces.material_id]
+    ids = np.flatnonzero((S < 1.0) & (area >= float(min_area_m2)))
+    return ids, lo, hi
+
+
+def reflection_legs(geom, end, q, nrm, tri_ids, tiles, face_ids, lo, hi):
+    """Confirmed one-reflection legs ``end -> p (on a face) -> tile`` by the image method.
+
+    For every tile in ``tiles`` (indices into q/nrm/tri_ids) and face in
+    ``face_ids``: ``end`` and the tile on the same side of the face's plane, the
+    tile's front facing the image end' of ``end``, the reflection point p (where
+    tile -> end' crosses the plane) inside the face's box; then two ray casts
+    confirm the leg: ``end -> p`` must first meet that face at p (so p lies
+    inside the face and nothing blocks it; the tolerances of
+    :func:`clradcom.specular.confirm_paths`), and nothing may lie between the
+    tile (origin spawned off it, its own triangle ignored) and p.  The same
+    function serves prefixes (end = tx) and suffixes (end = rx), so a path and
+    its reverse are confirmed by identical rays.
+
+    Returns ``(tile, face, p, image, tri)``: (M,) tile indices, (M,) face ids,
+    (M,3) reflection points, (M,3) images of ``end``, (M,) scene triangle hit at p.
+    """
+    end = np.asarray(end, dtype=np.float64)
+    fn, fd = geom.faces.normal, geom.faces.offset
+    qq, nn = q[tiles], nrm[tiles]
+    cols = ([], [], [], [])
+    for f in face_ids:
+        se = float(fn[f] @ end - fd[f])
+        if abs(se) <= _PLANE_EPS_M:
+            continue
+        sq = qq @ fn[f] - fd[f]
+        img = end - 2.0 * se * fn[f]
+        ok = (sq * se > 0) & (np.abs(sq) > _PLANE_EPS_M)
+        ok &= np.einsum("pi,pi->p", nn, img - qq) > 0
+        t = sq / (sq + se)  # fraction of the way from the tile to the image
+        p = qq + t[:, None] * (img - qq)
+        tol = CONFIRM_TOL_M + 1e-6 * np.abs(p).max(axis=1, initial=0.0)[:, None]
+        ok &= np.all((p >= lo[f] - tol) & (p <= hi[f] + tol), axis=1)
+        sel = np.flatnonzero(ok)
+        cols[0].append(sel)
+        cols[1].append(np.full(len(sel), f, np.int64))
+        cols[2].append(p[sel])
+        cols[3].append(np.broadcast_to(img, (len(sel), 3)))
+    if not cols[0] or sum(len(c) for c in cols[0]) == 0:
+        z = np.zeros(0, np.int64)
+        return z, z.copy(), np.zeros((0, 3)), np.zeros((0, 3)), z.copy()
+    loc = np.concatenate(cols[0])
+    face = np.concatenate(cols[1])
+    p = np.concatenate(cols[2])
+    img = np.concatenate(cols[3])
+    tile = np.asarray(tiles)[loc]
+    # end -> p: the first thing met must be this face, at p
+    seg = p - end
+    length = np.linalg.norm(seg, axis=1)
+    slack = (CONFIRM_TOL_M + 1e-6 * np.abs(p).max(axis=1)) / np.maximum(length, 1e-12)
+    hits = geom.caster.closest_hit(make_rays(np.broadcast_to(end, p.shape), seg, 0.0,
+                                             1.0 + 2.0 * slack))
+    prim = hits["prim"]
+    hit_face = np.where(prim >= 0, geom.faces.tri_face[np.maximum(prim, 0)], -1)
+    good = (hit_face == face) & (np.abs(hits["t"] - 1.0) <= slack)
+    # tile -> p: nothing in between (stop short of the mirror itself)
+    idx = np.flatnonzero(good)
+    if len(idx):
+        org = spawn_origins(q[tile[idx]], nrm[tile[idx]], p[idx] - q[tile[idx]])
+        d = p[idx] - org
+        sl = (CONFIRM_TOL_M + 1e-6 * np.abs(p[idx]).max(axis=1)) / np.linalg.norm(d, axis=1)
+        blocked = geom.caster.occluded(make_rays(org, d, 0.0, 1.0 - sl),
+                                       ignore_prim=tri_ids[tile[idx]].astype(np.int32))
+        good[idx[blocked]] = False
+    return tile[good], face[good], p[good], img[good], prim[good].astype(np.int64)
+
+
+def _visible(geom, q, nrm, tri_ids, idx, end):
+    """Mask over ``idx``: nothing between tile q and ``end`` (tile's triangle ignored)."""
+    if len(idx) == 0:
+        return np.zeros(0, dtype=bool)
+    org = spawn_origins(q[idx], nrm[idx], end[None, :] - q[idx])
+    rays = make_rays(org, end[None, :] - org, 0.0, 1.0 - 1e-7)
+    return ~geom.caster.occluded(rays, ignore_prim=tri_ids[idx].astype(np.int32))
+
+
+def _mirror_dyads(scene, faces, face, k_in):
+    """Reflection dyads at mirror faces (identity where face < 0): Fresnel x roughness
+    x sqrt(1 - S^2), as :func:`clradcom.tracer.path_fields` weighs specular paths."""
+    P = len(face)
+    D = np.broadcast_to(np.eye(3, dtype=np.complex128), (P, 3, 3)).copy()
+    act = np.flatnonzero(face >= 0)
+    if len(act) == 0:
+        return D
+    f = face[act]
+    mat = faces.material_id[f]
+    n = faces.normal[f]
+    cos_t = np.abs(np.einsum("pi,pi->p", k_in[act], n))
+    r_te, r_tm = em.fresnel_coefficients(scene.material_eps_r[mat], cos_t,
+                                         scene.material_pec[mat])
+    k0 = 2.0 * np.pi / scene.wavelength_m
+    rho = em.roughness_factor(scene.material_roughness_m[mat], cos_t, k0,
+                              scene.material_roughness_model[mat])
+    rho = rho * np.sqrt(1.0 - scene.material_scattering[mat] ** 2)
+    D[act] = em.reflection_dyad(k_in[act], n, rho * r_te, rho * r_tm)
+    return D
+
+
+def _join(a_tile, b_tile):
+    """All index pairs (i, j) with a_tile[i] == b_tile[j], in the order of a."""
+    order = np.argsort(b_tile, kind="stable")
+    sb = b_tile[order]
+    lo = np.searchsorted(sb, a_tile, side="left")
+    hi = np.searchsorted(sb, a_tile, side="right")
+    cnt = hi - lo
+    i = np.repeat(np.arange(len(a_tile)), cnt)
+    start = np.repeat(lo - np.cumsum(cnt) + cnt, cnt)
+    j = order[start + np.arange(len(i))] if len(i) else np.zeros(0, np.int64)
+    return i, j
+
+
 def scattering_paths(geom, tx, rx, *, tile_size_m=None, threshold_db=-60.0, seed=0,
-                     reference_gain=None, accuracy=DEFAULT_ACCURACY, max_tiles=200_000):
+                     reference_gain=None, accuracy=DEFAULT_ACCURACY, max_tiles=200_000,
+                     max_reflections=0, min_face_area_m2=DEFAULT_MIN_FACE_AREA_M2):
     """Single diffuse-scattering paths of one tx -> rx link: ``(Paths, n_dropped)``.
 
     Tiles (:func:`make_tiles`) are cut from every scene triangle whose material
@@ -224,29 +379,45 @@ def scattering_paths(geom, tx, rx, *, tile_size_m=None, threshold_db=-60.0, seed
     centroid, then enlarges it if more than ``max_tiles`` tiles would result (an
     explicit size with too many tiles raises ValueError).
 
-    One path per tile that is
+    Paths, in this order (each block by tile, then mirror face):
 
-    * on the front side for both ends: n . (tx - q) > 0 and n . (rx - q) > 0,
-      n the source triangle's winding normal (outward for a closed mesh);
-    * visible: nothing hit on q -> tx and q -> rx (``geom.caster.occluded``,
-      origins spawned off the tile, the source triangle ignored);
-    * inside both antenna patterns;
-    * not more than |threshold_db| below the strongest tile of the link, or
-      below ``reference_gain`` (a complex or |a|, e.g. the strongest specular
-      path) when given.
+    * direct ``tx -> tile -> rx`` for every tile with its front towards both
+      ends (n . (tx - q) > 0 and n . (rx - q) > 0, n the source triangle's
+      winding normal, outward for a closed mesh) and nothing hit on q -> tx and
+      q -> rx (``geom.caster.occluded``, origins spawned off the tile, the
+      source triangle ignored);
+    * ``max_reflections >= 1``: prefix ``tx -> p -> tile -> rx`` and suffix
+      ``tx -> tile -> p -> rx`` with one specular reflection at p on a face of
+      :func:`mirror_faces` (``min_face_area_m2``), found by the image method
+      and confirmed by :func:`reflection_legs`; the other leg as for direct;
+    * ``max_reflections >= 2``: ``tx -> p1 -> tile -> p2 -> rx`` (one reflection
+      on each side; a monostatic radar sees a tile over the ground this way).
+
+    A leg with a reflection is the direct leg with its end replaced by the image
+    (the tile's incidence / scattering angle, r_i or r_s the unfolded length)
+    and the reflection dyad (:func:`_mirror_dyads`) applied on that side.
+
+    Emitted are the paths inside both antenna patterns and not more than
+    |threshold_db| below the strongest scattering path of the link, or below
+    ``reference_gain`` (a complex or |a|, e.g. the strongest specular path) when
+    given.  ``n_dropped`` counts the lit, confirmed paths not emitted (threshold
+    or antenna pattern).
 
     Gamma is the Fresnel reflection magnitude at the tile's angle of incidence
-    for the actual incident polarisation of tx,
-    Gamma^2 = (|r_te E_te|^2 + |r_tm E_tm|^2) / |E|^2
-    (the unpolarised mean (|r_te|^2 + |r_tm|^2)/2 where tx radiates nothing).
+    for the polarisation actually arriving there (tx's, after the prefix's
+    reflection dyad), Gamma^2 = (|r_te E_te|^2 + |r_tm E_tm|^2) / |E|^2 (the
+    unpolarised mean (|r_te|^2 + |r_tm|^2)/2 where no field arrives).
     Each tile gets two random phases (chi1, chi2) from ``seed`` (the same for a
-    given scene, seed and tile size, so fixed across the frame); delay L/c0;
-    Doppler -(1/lambda) dL/dt with the tile moving with its object; interaction
-    SCATTERING; object_id/face_id the source triangle's.
-
-    ``n_dropped`` counts lit, visible tiles not emitted (threshold or antenna
-    pattern).
+    given scene, seed and tile size, so fixed across the frame, and shared by
+    all paths through the tile); delay L/c0 (L unfolded); Doppler
+    -(1/lambda) dL/dt with the tile and mirrors moving with their objects.
+    Interactions SCATTERING, with REFLECTION before/after it; object_id/face_id
+    the object and scene triangle at each interaction.
     """
+    mr = max_reflections
+    if not (isinstance(mr, (int, np.integer)) and not isinstance(mr, bool) and 0 <= mr <= 2):
+        raise ValueError(f"max_reflections must be 0, 1 or 2 (one reflection on each side "
+                         f"of the tile at most), got {max_reflections!r}")
     scene = geom.scene
     if geom.caster is None or len(scene.triangles) == 0:
         return Paths.empty(1), 0
@@ -276,35 +447,81 @@ def scattering_paths(geom, tx, rx, *, tile_size_m=None, threshold_db=-60.0, seed
     tri_ids = tri_sel[local]
     # phases drawn for every tile before any selection: fixed per tile for a seed
     phases = np.random.default_rng(seed).uniform(0.0, 2.0 * np.pi, size=(len(q), 2))
+    N = len(q)
+    monostatic = bool(np.array_equal(tx_pos, rx_pos))
 
-    st = np.einsum("pi,pi->p", nrm, tx_pos - q)
-    sr = np.einsum("pi,pi->p", nrm, rx_pos - q)
-    keep = np.flatnonzero((st > 0) & (sr > 0))
-    vis = np.ones(len(keep), dtype=bool)
-    for end in (tx_pos, rx_pos):
-        if not vis.any():
-            break
-        idx = keep[vis]
-        org = spawn_origins(q[idx], nrm[idx], end[None, :] - q[idx])
-        rays = make_rays(org, end[None, :] - org, 0.0, 1.0 - 1e-7)
-        vis[vis] = ~geom.caster.occluded(rays, ignore_prim=tri_ids[idx].astype(np.int32))
-    keep = keep[vis]
-    if len(keep) == 0:
+    front_t = np.einsum("pi,pi->p", nrm, tx_pos - q) > 0
+    front_r = np.einsum("pi,pi->p", nrm, rx_pos - q) > 0
+    vis_t = np.zeros(N, dtype=bool)
+    vis_r = np.zeros(N, dtype=bool)
+    if mr == 0:  # only direct paths: test the second end only where the first is seen
+        idx = np.flatnonzero(front_t & front_r)
+        vis_t[idx] = _visible(geom, q, nrm, tri_ids, idx, tx_pos)
+        idx = idx[vis_t[idx]]
+        vis_r[idx] = _visible(geom, q, nrm, tri_ids, idx, rx_pos)
+        vis_t &= vis_r
+    else:
+        idx = np.flatnonzero(front_t)
+        vis_t[idx] = _visible(geom, q, nrm, tri_ids, idx, tx_pos)
+        if monostatic:
+            vis_r = vis_t.copy()
+        else:
+            idx = np.flatnonzero(front_r)
+            vis_r[idx] = _visible(geom, q, nrm, tri_ids, idx, rx_pos)
+
+    def block(t, pre=None, suf=None):
+        # rows of paths through tiles t: prefix and suffix legs (face, p, image, triangle),
+        # a missing leg being the direct one (no face, p = q, the end itself as image)
+        n = len(t)
+        none = np.full(n, -1, np.int64)
+        a = pre if pre is not None else (none, q[t], np.broadcast_to(tx_pos, (n, 3)), none)
+        b = suf if suf is not None else (none, q[t], np.broadcast_to(rx_pos, (n, 3)), none)
+        return (t, *a, *b)
+
+    blocks = [block(np.flatnonzero(vis_t & vis_r))]
+    if mr >= 1:
+        mirrors, lo, hi = mirror_faces(geom, min_face_area_m2)
+        everywhere = np.arange(N)
+        # legs from tx matter only for tiles rx sees directly, unless a suffix may follow
+        lt = reflection_legs(geom, tx_pos, q, nrm, tri_ids,
+                             everywhere if mr >= 2 else np.flatnonzero(vis_r), mirrors, lo, hi)
+        lr = lt if monostatic else reflection_legs(
+            geom, rx_pos, q, nrm, tri_ids, everywhere if mr >= 2 else np.flatnonzero(vis_t),
+            mirrors, lo, hi)
+        pre = np.flatnonzero(vis_r[lt[0]])
+        blocks.append(block(lt[0][pre], pre=[c[pre] for c in lt[1:]]))
+        suf = np.flatnonzero(vis_t[lr[0]])
+        blocks.append(block(lr[0][suf], suf=[c[suf] for c in lr[1:]]))
+        if mr >= 2:
+            i, j = _join(lt[0], lr[0])
+            blocks.append(block(lt[0][i], pre=[c[i] for c in lt[1:]],
+                                suf=[c[j] for c in lr[1:]]))
+    cols = (np.concatenate(c) for c in zip(*blocks, strict=True))
+    tile, f1, p1, im1, tr1, f2, p2, im2, tr2 = cols
+    P = len(tile)
+    if P == 0:
         return Paths.empty(1), 0
-    q, area, nrm, tri_ids, phases = q[keep], area[keep], nrm[keep], tri_ids[keep], phases[keep]
-    mat = scene.tri_material[tri_ids]
-    obj = scene.tri_object[tri_ids]
-    P = len(q)
 
-    # Fresnel |Gamma| at the incidence angle for tx's polarisation
-    ki = _unit(q - tx_pos)
-    cos_i = np.abs(np.einsum("pi,pi->p", ki, nrm))
+    qt, nt, tid = q[tile], nrm[tile], tri_ids[tile]
+    mat = scene.tri_material[tid]
+    obj = scene.tri_object[tid]
+    faces = geom.faces
+    # first and last legs as travelled (p1 = q without a prefix, p2 = q without a suffix)
+    k_dep = _unit(p1 - tx_pos)
+    D1 = _mirror_dyads(scene, faces, f1, k_dep)
+    out2 = p2 - qt
+    out2[f2 < 0] = 1.0  # no suffix: a placeholder direction, the dyad stays the identity
+    D2 = _mirror_dyads(scene, faces, f2, _unit(out2))
+
+    # Fresnel |Gamma| at the tile for the polarisation arriving there
+    ki = _unit(qt - im1)
+    cos_i = np.abs(np.einsum("pi,pi->p", ki, nt))
     r_te, r_tm = em.fresnel_coefficients(scene.material_eps_r[mat], cos_i,
                                          scene.material_pec[mat])
-    d_loc, th_w, ph_w = em._antenna_basis_world(ki, tx.orientation)
+    d_loc, th_w, ph_w = em._antenna_basis_world(k_dep, tx.orientation)
     c_tx = np.asarray(tx.pattern.field(d_loc), dtype=np.complex128).reshape(P, 2)
-    e_w = c_tx[:, :1] * th_w + c_tx[:, 1:] * ph_w
-    te, tm = _te_basis(ki, nrm)
+    e_w = np.einsum("pij,pj->pi", D1, c_tx[:, :1] * th_w + c_tx[:, 1:] * ph_w)
+    te, tm = _te_basis(ki, nt)
     e_te = np.einsum("pi,pi->p", e_w, te)
     e_tm = np.einsum("pi,pi->p", e_w, tm)
     p_in = np.abs(e_te) ** 2 + np.abs(e_tm) ** 2
@@ -314,24 +531,52 @@ def scattering_paths(geom, tx, rx, *, tile_size_m=None, threshold_db=-60.0, seed
                   0.5 * (np.abs(r_te) ** 2 + np.abs(r_tm) ** 2))
     gamma = np.sqrt(g2)
 
-    T, L, k_dep, k_arr = tile_transfer(q, area, nrm, tx_pos, rx_pos, S_mat[mat], gamma,
-                                       scene.material_cross_pol_share[mat], phases)
+    T, L, _, _ = tile_transfer(qt, area[tile], nt, im1, im2, S_mat[mat], gamma,
+                               scene.material_cross_pol_share[mat], phases[tile])
+    T = D2 @ T @ D1
+    k_arr = _unit(rx_pos - p2)
     gain, M = em.path_gains(T, L, k_dep, k_arr, tx, rx, scene.carrier_hz)
 
-    pts = np.stack([np.broadcast_to(tx_pos, (P, 3)), q, np.broadcast_to(rx_pos, (P, 3))],
-                   axis=1)
-    vel = np.stack([np.broadcast_to(np.asarray(tx.velocity, float), (P, 3)),
-                    scene.object_velocity[obj],
-                    np.broadcast_to(np.asarray(rx.velocity, float), (P, 3))], axis=1)
-    doppler = em.doppler_hz(pts, vel, lam)
+    # polylines [tx, (p1), q, (p2), rx] packed left, NaN padding
+    has1, has2 = f1 >= 0, f2 >= 0
+    nk = (1 + has1 + has2).astype(np.int16)
+    rows = np.arange(P)
+    pts = np.full((P, 5, 3), np.nan)
+    vel = np.zeros((P, 5, 3))
+    code = np.zeros((P, 3), np.int8)
+    oid = np.full((P, 3), -1, np.int32)
+    fid = np.full((P, 3), -1, np.int32)
+    pts[:, 0] = tx_pos
+    vel[:, 0] = tx.velocity
+    refl = int(InteractionType.REFLECTION)
+    j_q = 1 + has1.astype(np.int64)  # column of the tile among the points
+    pts[has1, 1] = p1[has1]
+    vel[has1, 1] = scene.object_velocity[faces.object_id[f1[has1]]]
+    code[has1, 0] = refl
+    oid[has1, 0] = faces.object_id[f1[has1]]
+    fid[has1, 0] = tr1[has1]
+    pts[rows, j_q] = qt
+    vel[rows, j_q] = scene.object_velocity[obj]
+    code[rows, j_q - 1] = int(InteractionType.SCATTERING)
+    oid[rows, j_q - 1] = obj
+    fid[rows, j_q - 1] = tid
+    r2 = rows[has2]
+    pts[r2, j_q[has2] + 1] = p2[has2]
+    vel[r2, j_q[has2] + 1] = scene.object_velocity[faces.object_id[f2[has2]]]
+    code[r2, j_q[has2]] = refl
+    oid[r2, j_q[has2]] = faces.object_id[f2[has2]]
+    fid[r2, j_q[has2]] = tr2[has2]
+    pts[rows, nk + 1] = rx_pos
+    vel[rows, nk + 1] = rx.velocity
+    doppler = em.doppler_hz(pts, vel, lam, num_interactions=nk)
 
     mag = np.abs(gain)
     top = float(np.abs(reference_gain)) if reference_gain is not None else mag.max()
     sel = (mag > 0) & (mag >= top * 10.0 ** (-abs(float(threshold_db)) / 20.0))
     m = int(sel.sum())
+    K = max(1, int(nk[sel].max())) if m else 1
     paths = Paths(gain=gain[sel], matrix=M[sel], delay_s=em.delay_s(L)[sel],
-                  doppler_hz=doppler[sel], n_interactions=np.ones(m, np.int16),
-                  interaction=np.full((m, 1), int(InteractionType.SCATTERING), np.int8),
-                  points=pts[sel], object_id=obj[sel].astype(np.int32)[:, None],
-                  face_id=tri_ids[sel].astype(np.int32)[:, None])
+                  doppler_hz=doppler[sel], n_interactions=nk[sel],
+                  interaction=code[sel, :K], points=pts[sel, :K + 2],
+                  object_id=oid[sel, :K], face_id=fid[sel, :K])
     return paths, int(P - m)
