@@ -4,7 +4,9 @@ A pure GO / image-method tracer sees a faceted body only where some facet's
 normal points exactly at the specular direction, so a monostatic radar misses
 almost every car facet.  Physical optics integrates the lit-side surface current
 of each facet instead, which gives every lit facet a (usually small) return with
-the facet's own sinc-like lobe.  docs/po.md gives the derivation and sources
+the facet's own sinc-like lobe.  Two and more bounces (corners) are the job of
+:mod:`clradcom.sbr` (shooting and bouncing ray tubes with the same PO radiation
+integral).  docs/po.md gives the derivation and sources
 (Gordon 1975; Knott, Shaeffer & Tuley, *Radar Cross Section*; Balanis,
 *Advanced Engineering Electromagnetics*, ch. 11).
 

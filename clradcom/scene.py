@@ -76,7 +76,9 @@ _MATERIAL_KEYS = ("name", "base", "itu", "eps_r", "conductivity_s_m", "pec", "ro
                   "allow_extrapolation", "description")
 _OBJECT_KEYS = ("name", "material", "mesh", "shape", "extents", "size", "vertices", "faces",
                 "position", "rotation_deg", "scale", "velocity", "drop_degenerate",
-                "description")
+                "optics", "description")
+#: ``objects[].optics``: how the tracer models the object's returns (docs/po.md)
+OPTICS = ("go", "po", "both")
 _RADAR_KEYS = ("name", "position", "rides_on", "orientation_deg", "velocity", "pattern",
                "polarization", "role", "tx_power_w", "noise_figure_db", "description")
 _PATTERN_KEYS = {
@@ -111,6 +113,8 @@ class SceneObject:
     velocity: np.ndarray  #: (3,) float64, m/s
     tri_start: int  #: first triangle of this object in Scene.triangles
     tri_stop: int  #: one past its last triangle
+    #: "go" / "po" / "both", or None to follow TraceSettings.physical_optics
+    optics: str | None = None
 
     @property
     def tri_slice(self) -> slice:
@@ -252,7 +256,9 @@ class Scene:
             "format": "clradcom-scene-hash-1",
             "carrier_hz": f(self.carrier_hz),
             "materials": [m.hash_params() for m in self.materials],
+            # optics only when set, so scenes without it keep their hashes
             "objects": [[o.name, o.material, vec(o.velocity), o.tri_start, o.tri_stop]
+                        + ([o.optics] if o.optics is not None else [])
                         for o in self.objects],
             "radars": [
                 [r.name, vec(r.position), r.rides_on, vec(r.orientation), r.pattern.params(),
@@ -588,6 +594,7 @@ class _Builder:
             if np.any(scale <= 0):
                 raise self.err(k, v, "scale must be > 0 (mirroring is not supported)")
         drop = self.get_bool(tbl, "drop_degenerate", kp, default=False)
+        optics = self.get_str(tbl, "optics", kp, default=None, choices=OPTICS)
 
         verts, faces, label = self.object_geometry(tbl, kp)
         rotation = euler_deg_to_matrix(rot_deg)
@@ -597,7 +604,7 @@ class _Builder:
         obj = SceneObject(
             name=name, mesh=label, material=mat, material_name=mat_name, position=position,
             rotation_deg=rot_deg, rotation=rotation, scale=scale, velocity=velocity,
-            tri_start=start, tri_stop=start + tri.shape[0],
+            tri_start=start, tri_stop=start + tri.shape[0], optics=optics,
         )
         return obj, tri
 
