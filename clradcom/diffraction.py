@@ -1,118 +1,616 @@
-"""First-order UTD edge diffraction paths: tx -> edge point -> rx.
+"""UTD edge-diffraction paths: up to three diffractions, mixed with reflections.
 
-Stages (plain arrays in and out):
+A candidate is an *interaction pattern* (a tuple of REFLECTION / DIFFRACTION codes,
+e.g. ``(R, D)`` or ``(D, D)``) and, per candidate, the planar face or wedge of every
+interaction. Stages (plain arrays in and out):
 
 1. wedges come from :func:`clradcom.wedges.extract_wedges` (once per scene);
-2. :func:`keller_candidates` - the Keller point of every wedge for one tx/rx
-   pair (closed form), kept where it lies on the finite edge and both ends
-   see the wedge from outside (0 < phi, phi' < n pi);
-3. :func:`confirm_diffraction` - both segments unobstructed (any-hit casts);
-4. :func:`diffraction_fields` - Kouyoumjian-Pathak / Luebbers coefficients
-   (:mod:`clradcom.utd`) as a 3x3 dyad in the edge-fixed bases, spherical
-   spreading, antenna patterns -> gain, 2x2 matrix, delay, Doppler.
+2. :func:`diffraction_candidates` proposes patterns and elements: single wedges, the
+   tracer's own ray-found reflection sequences as prefixes (from the transmitter) and
+   suffixes (from the receiver), and chains of 2-3 wedges that see each other;
+3. :func:`unfold_points` places every point exactly in float64: each reflection
+   mirrors everything after it (images), which straightens the path into a chain of
+   diffractions between the transmitter and the receiver's image; the diffraction
+   points on the mirrored edges follow from Keller's law (closed form for one edge,
+   convex minimisation for several, :func:`clradcom.wedges.multi_diffraction_points`),
+   and the reflection points are where the straight unfolded segments cross the
+   mirrored face planes;
+4. :func:`confirm_chains` checks every point with rays: a reflection point must be the
+   first thing its incoming segment meets (inside its face, nothing in between), a
+   segment to a diffraction point or the receiver must be unobstructed, and each
+   diffraction must see both its neighbours from outside its wedge;
+5. :func:`chain_fields` multiplies the reflection dyads (Fresnel x roughness x
+   sqrt(1 - S^2), as for specular paths) and the UTD diffraction dyads
+   (Kouyoumjian-Pathak / Luebbers, :mod:`clradcom.utd`) in order, with the
+   multi-edge spreading of :func:`clradcom.utd.multi_edge_spreading` on the unfolded
+   segment lengths -> gain, 2x2 matrix, delay, Doppler.
 
-Only single diffraction without reflections before or after is modelled
-here; concave creases (n < 1) are left out (UTD is not validated there and
-their faces' reflections dominate).
+Concave creases (n < 1) are left out (UTD is not validated there and their faces'
+reflections dominate). See docs/utd.md "Mixed paths" for the candidate budget.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from . import em, utd
-from .raycast import make_rays
+from .raycast import make_rays, spawn_origins
 from .snapshot import InteractionType, Paths
-from .wedges import Wedges, diffraction_point
+from .wedges import Wedges, diffraction_point, multi_diffraction_points
 
 #: Segments leave the edge point from this far along themselves (m), past the
 #: float32 rounding of the faces that meet at the edge.
 EDGE_CLEARANCE_M = 1e-3
+#: A reflection point found on a segment must land on its face within this (m).
+CONFIRM_TOL_M = 1e-3
+#: A ray this close (rad) to a wedge face grazes it: phi is snapped onto the face.
+GRAZING_RAD = 1e-6
+#: Occlusion tests of segments that touch an edge run this far (m) off the wedge, so a
+#: segment grazing along a face is not blocked by that face's own triangles.
+EDGE_LIFT_M = 1e-4
+
+REFLECTION = int(InteractionType.REFLECTION)
+DIFFRACTION = int(InteractionType.DIFFRACTION)
 
 
-def keller_candidates(wedges: Wedges, tx_pos, rx_pos):
-    """(wedge indices, points (C,3), angles phi' phi beta0) of valid Keller points."""
-    tx = np.asarray(tx_pos, dtype=np.float64)
-    rx = np.asarray(rx_pos, dtype=np.float64)
-    if len(wedges) == 0:
-        empty = np.zeros(0)
-        return np.zeros(0, np.int64), np.zeros((0, 3)), empty, empty, empty
-    dp = diffraction_point(tx, rx, wedges.start, wedges.end)
-    q = dp.point
-    d_in = q - tx
-    d_out = rx - q
-    len_in = np.linalg.norm(d_in, axis=1)
-    len_out = np.linalg.norm(d_out, axis=1)
-    ok = dp.inside & (wedges.n >= 1.0) & (len_in > EDGE_CLEARANCE_M) & (
-        len_out > EDGE_CLEARANCE_M)
-    # strictly inside the edge: the end points are corners, not wedges
-    ok &= (dp.t > EDGE_CLEARANCE_M) & (dp.t < wedges.length - EDGE_CLEARANCE_M)
-    idx = np.flatnonzero(ok)
-    s_in = d_in[idx] / len_in[idx, None]
-    s_out = d_out[idx] / len_out[idx, None]
-    e = wedges.direction[idx]
-    # an end lying on the edge line sees it end-on: no Keller cone
-    ok2 = (np.linalg.norm(np.cross(s_in, e), axis=1) > 1e-9) & (
-        np.linalg.norm(np.cross(s_out, e), axis=1) > 1e-9)
-    idx, s_in, s_out, e = idx[ok2], s_in[ok2], s_out[ok2], e[ok2]
-    phi_p, phi, beta0 = utd.wedge_angles(s_in, s_out, e, wedges.normal0[idx])
-    limit = wedges.n[idx] * np.pi
-    outside = (phi_p > 0) & (phi_p < limit) & (phi > 0) & (phi < limit)
-    idx = idx[outside]
-    return idx, q[idx], phi_p[outside], phi[outside], beta0[outside]
+@dataclass(eq=False)
+class Chains:
+    """Candidates of one interaction pattern: ``elements[:, i]`` is a planar face id
+    where ``pattern[i]`` is REFLECTION and a wedge id where it is DIFFRACTION."""
+
+    pattern: tuple[int, ...]
+    elements: np.ndarray  # (C, K) int64
+
+    def __len__(self) -> int:
+        return len(self.elements)
+
+    @property
+    def n_diffractions(self) -> int:
+        return sum(1 for p in self.pattern if p == DIFFRACTION)
 
 
-def confirm_diffraction(caster, tx_pos, rx_pos, points) -> np.ndarray:
-    """Mask of edge points that see both tx and rx with nothing in between."""
-    keep = np.ones(len(points), dtype=bool)
-    if len(points) == 0 or caster is None:
-        return keep
-    for end in (np.asarray(tx_pos, float), np.asarray(rx_pos, float)):
-        seg = end - points
+def _apply(A, b, x):
+    return np.einsum("cij,cj->ci", A, x) + b
+
+
+def _apply_inverse(A, b, x):
+    return np.einsum("cji,cj->ci", A, x - b)
+
+
+def unfold_points(chains: Chains, tx, rx, face_normal, face_offset, wedges: Wedges):
+    """Exact interaction points of every candidate: (points (C, K+2, 3), ok (C,)).
+
+    ``points[:, 0]`` is tx, ``points[:, -1]`` rx. ``ok`` is false where a diffraction
+    point falls off its finite edge (or within EDGE_CLEARANCE_M of its ends, which are
+    corners, not wedges), the chain minimisation did not converge, or a reflection
+    plane is not crossed between its neighbours in the right order.
+    """
+    pattern, elem = chains.pattern, np.asarray(chains.elements)
+    C, K = elem.shape
+    tx = np.asarray(tx, dtype=np.float64)
+    rx = np.asarray(rx, dtype=np.float64)
+    points = np.full((C, K + 2, 3), np.nan)
+    points[:, 0] = tx
+    points[:, -1] = rx
+    ok = np.ones(C, dtype=bool)
+    if C == 0:
+        return points, ok
+    # T(x) = A x + b maps the real position of everything after the reflections seen so
+    # far into the unfolded (straightened) frame: T <- T o Mirror(face) per reflection
+    A = np.broadcast_to(np.eye(3), (C, 3, 3)).copy()
+    b = np.zeros((C, 3))
+    frames, starts, ends, planes = [], [], [], []
+    for i, kind in enumerate(pattern):
+        frames.append((A, b))
+        if kind == REFLECTION:
+            n = face_normal[elem[:, i]]
+            d = face_offset[elem[:, i]]
+            n_unf = np.einsum("cij,cj->ci", A, n)
+            planes.append((n_unf, d + np.einsum("ci,ci->c", n_unf, b)))
+            mirror = np.eye(3)[None] - 2.0 * n[:, :, None] * n[:, None, :]
+            b = b + np.einsum("cij,cj->ci", A, 2.0 * d[:, None] * n)
+            A = A @ mirror
+        elif kind == DIFFRACTION:
+            w = elem[:, i]
+            starts.append(_apply(A, b, wedges.start[w]))
+            ends.append(_apply(A, b, wedges.end[w]))
+        else:
+            raise ValueError(f"pattern[{i}] = {kind!r} is neither REFLECTION nor DIFFRACTION")
+    rx_unf = _apply(A, b, np.broadcast_to(rx, (C, 3)))
+    nd = len(starts)
+    if nd == 0:
+        raise ValueError(f"pattern {pattern} has no diffraction: specular paths are "
+                         "clradcom.specular's")
+    if nd == 1:
+        dp = diffraction_point(tx, rx_unf, starts[0], ends[0])
+        q_unf, t = dp.point[:, None], dp.t[:, None]
+    else:
+        S_, E_ = np.stack(starts, 1), np.stack(ends, 1)
+        ok &= _keller_plausible(tx, rx_unf, S_, E_)
+        q_unf = np.full((C, nd, 3), np.nan)
+        t = np.full((C, nd), -1.0)
+        sel = np.flatnonzero(ok)
+        if len(sel):
+            md = multi_diffraction_points(tx, rx_unf[sel], S_[sel], E_[sel])
+            q_unf[sel], t[sel] = md.points, md.t
+            ok[sel] &= md.converged
+    lengths = np.stack([wedges.length[elem[:, i]] for i, k in enumerate(pattern)
+                        if k == DIFFRACTION], axis=1)
+    ok &= np.all((t > EDGE_CLEARANCE_M) & (t < lengths - EDGE_CLEARANCE_M), axis=1)
+    nodes = [np.broadcast_to(tx, (C, 3))] + [q_unf[:, j] for j in range(nd)] + [rx_unf]
+    j = r = 0
+    last_t = np.zeros(C)
+    for i, kind in enumerate(pattern):
+        A_i, b_i = frames[i]
+        if kind == DIFFRACTION:
+            points[:, i + 1] = _apply_inverse(A_i, b_i, q_unf[:, j])
+            j += 1
+            last_t = np.zeros(C)
+            continue
+        n_unf, d_unf = planes[r]
+        r += 1
+        prev, nxt = nodes[j], nodes[j + 1]
+        line = nxt - prev
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = (d_unf - np.einsum("ci,ci->c", n_unf, prev)) / np.einsum("ci,ci->c", n_unf,
+                                                                         line)
+        good = np.isfinite(s) & (s > last_t + 1e-12) & (s < 1.0 - 1e-12)
+        ok &= good
+        s = np.where(good, s, 0.5)
+        last_t = s
+        points[:, i + 1] = _apply_inverse(A_i, b_i, prev + s[:, None] * line)
+    ok &= np.all(np.isfinite(points), axis=(1, 2))
+    return points, ok
+
+
+def _keller_plausible(tx, rx, starts, ends) -> np.ndarray:
+    """Cheap necessary-ish test before the chain minimisation: on every edge of a chain
+    (unfolded frame, (C, N, 3)), the closed-form Keller points between its neighbours'
+    end points (the source and target for the outer edges) must reach into the finite
+    edge for at least one choice of neighbour points. The exact point lies between such
+    extremes for all but strongly skewed edges."""
+    C, N, _ = starts.shape
+    ok = np.ones(C, bool)
+    src = np.broadcast_to(np.asarray(tx, np.float64), (C, 3))
+    dst = np.asarray(rx, np.float64)
+    for j in range(N):
+        before = [src] if j == 0 else [starts[:, j - 1], ends[:, j - 1]]
+        after = [dst] if j == N - 1 else [starts[:, j + 1], ends[:, j + 1]]
+        length = np.linalg.norm(ends[:, j] - starts[:, j], axis=1)
+        lo = np.full(C, np.inf)
+        hi = np.full(C, -np.inf)
+        for p in before:
+            for q in after:
+                t = diffraction_point(p, q, starts[:, j], ends[:, j]).t
+                lo, hi = np.minimum(lo, t), np.maximum(hi, t)
+        ok &= (hi > 0.0) & (lo < length)
+    return ok
+
+
+def diffraction_angles(chains: Chains, points, wedges: Wedges, ok=None):
+    """(phi', phi, beta0, grazing) (C, nd) at each diffraction, and a mask of candidates
+    whose every diffraction sees both neighbours from outside its wedge (or along one of
+    its faces: ``grazing`` marks incidence along a face), not end-on."""
+    C = len(chains)
+    nd = chains.n_diffractions
+    keep = np.ones(C, bool) if ok is None else np.asarray(ok, bool).copy()
+    phi_p = np.zeros((C, nd))
+    phi = np.zeros((C, nd))
+    beta0 = np.full((C, nd), np.pi / 2)
+    grazing = np.zeros((C, nd), bool)
+    if C == 0:
+        return phi_p, phi, beta0, grazing, keep
+    j = 0
+    for i, kind in enumerate(chains.pattern):
+        if kind != DIFFRACTION:
+            continue
+        w = chains.elements[:, i]
+        s_in = points[:, i + 1] - points[:, i]
+        s_out = points[:, i + 2] - points[:, i + 1]
+        len_in = np.linalg.norm(s_in, axis=1)
+        len_out = np.linalg.norm(s_out, axis=1)
+        good = keep & (len_in > EDGE_CLEARANCE_M) & (len_out > EDGE_CLEARANCE_M)
+        good &= wedges.n[w] >= 1.0
+        e = wedges.direction[w]
+        safe_in = np.where(good[:, None], s_in, e + 1.0) / np.where(good, len_in, 1.0)[:, None]
+        safe_out = np.where(good[:, None], s_out, e + 1.0) / np.where(good, len_out,
+                                                                     1.0)[:, None]
+        # an end on the edge line sees it end-on: no Keller cone
+        good &= (np.linalg.norm(np.cross(safe_in, e), axis=1) > 1e-9) & (
+            np.linalg.norm(np.cross(safe_out, e), axis=1) > 1e-9)
+        pp, p, b0 = utd.wedge_angles(safe_in, safe_out, e, wedges.normal0[w])
+        limit = wedges.n[w] * np.pi
+        pp, graze_in = _snap_to_faces(pp, limit)
+        p, _ = _snap_to_faces(p, limit)
+        good &= (pp <= limit) & (p <= limit) & ~(graze_in & (np.abs(p - pp) < GRAZING_RAD))
+        phi_p[:, j], phi[:, j], beta0[:, j] = pp, p, b0
+        grazing[:, j] = graze_in
+        keep &= good
+        j += 1
+    return phi_p, phi, beta0, grazing, keep
+
+
+def _snap_to_faces(angle, limit):
+    """Angles within GRAZING_RAD of a face (0 or n pi, or 2 pi as 0) put on it, and a
+    mask of those; the wedge's interior stays beyond ``limit``."""
+    a = np.where(angle > 2 * np.pi - GRAZING_RAD, 0.0, angle)
+    on0 = a < GRAZING_RAD
+    on_n = np.abs(a - limit) < GRAZING_RAD
+    a = np.where(on0, 0.0, np.where(on_n, limit, a))
+    return a, on0 | on_n
+
+
+def lift_direction(wedges: Wedges, w, away) -> np.ndarray:
+    """Unit vectors off wedges w into their exterior: the bisector of the two outward
+    normals, or for a half-plane its normal on the side of ``away``."""
+    n0, n1 = wedges.normal0[w], wedges.normal1[w]
+    bis = n0 + n1
+    size = np.linalg.norm(bis, axis=1)
+    side = np.where(np.einsum("ci,ci->c", n0, away) < 0, -1.0, 1.0)
+    flat = size < 1e-6
+    return np.where(flat[:, None], side[:, None] * n0,
+                    bis / np.where(flat, 1.0, size)[:, None])
+
+
+def confirm_chains(caster, tri_face, face_normal, chains: Chains, points, ok=None,
+                   wedges: Wedges | None = None):
+    """Mask of candidates whose every segment is confirmed by a ray cast, and the scene
+    triangle of each reflection point ((C, K) int32, -1 at diffractions).
+
+    Toward a reflection point the segment must first meet that face at the point (which
+    proves the point lies inside the face and nothing stands in between); toward a
+    diffraction point or the receiver nothing may block it. Segments leave reflection
+    points from just off the face and diffraction points from EDGE_CLEARANCE_M along
+    themselves.
+    """
+    pattern, elem = chains.pattern, chains.elements
+    C, K = elem.shape
+    keep = np.ones(C, bool) if ok is None else np.asarray(ok, bool).copy()
+    triangles = np.full((C, K), -1, dtype=np.int32)
+    idx = np.flatnonzero(keep)
+    for i in range(K + 1):
+        if len(idx) == 0:
+            break
+        start, end = points[idx, i], points[idx, i + 1]
+        seg = end - start
         length = np.linalg.norm(seg, axis=1)
-        clear = EDGE_CLEARANCE_M / length
-        rays = make_rays(points, seg, tmin=clear, tmax=1.0 - clear)
-        keep &= ~caster.occluded(rays)
-    return keep
+        tmin = np.zeros(len(idx))
+        if i > 0 and pattern[i - 1] == REFLECTION:
+            start = spawn_origins(start, face_normal[elem[idx, i - 1]], seg)
+        elif i > 0:
+            start = start + EDGE_LIFT_M * lift_direction(wedges, elem[idx, i - 1], seg)
+            tmin = EDGE_CLEARANCE_M / np.maximum(length, 1e-12)
+        if i < K and pattern[i] == DIFFRACTION:
+            end = end + EDGE_LIFT_M * lift_direction(wedges, elem[idx, i], -seg)
+        seg = end - start
+        slack = (CONFIRM_TOL_M + 1e-6 * np.abs(end).max(axis=1)) / np.maximum(length, 1e-12)
+        if i < K and pattern[i] == REFLECTION:
+            hits = caster.closest_hit(make_rays(start, seg, tmin=tmin, tmax=1.0 + 2 * slack))
+            prim = hits["prim"]
+            hit_face = np.where(prim >= 0, np.asarray(tri_face)[np.maximum(prim, 0)], -1)
+            good = (hit_face == elem[idx, i]) & (np.abs(hits["t"] - 1.0) <= slack)
+            triangles[idx, i] = prim
+        else:
+            stop = EDGE_CLEARANCE_M / np.maximum(length, 1e-12) if i < K else slack
+            good = ~caster.occluded(make_rays(start, seg, tmin=tmin, tmax=1.0 - stop))
+            good &= length > 0
+        keep[idx[~good]] = False
+        idx = idx[good]
+    triangles[~keep] = -1
+    return keep, triangles
 
 
-def diffraction_fields(scene, wedges: Wedges, idx, points, phi_p, phi, beta0, tx, rx) -> Paths:
-    """UTD fields of first-order diffraction paths as :class:`Paths` (K = 1)."""
-    P = len(idx)
-    if P == 0:
-        return Paths.empty(1)
-    tx_pos = np.asarray(tx.position, dtype=np.float64)
-    rx_pos = np.asarray(rx.position, dtype=np.float64)
-    s_in_vec = points - tx_pos
-    s_out_vec = rx_pos - points
-    sp = np.linalg.norm(s_in_vec, axis=1)
-    s = np.linalg.norm(s_out_vec, axis=1)
-    s_in = s_in_vec / sp[:, None]
-    s_out = s_out_vec / s[:, None]
+def chain_fields(scene, faces, wedges: Wedges, chains: Chains, points, triangles, angles,
+                 tx, rx) -> Paths:
+    """UTD fields of confirmed mixed paths as :class:`Paths` (K = len(pattern))."""
+    pattern, elem = chains.pattern, chains.elements
+    C, K = elem.shape
+    if C == 0:
+        return Paths.empty(K)
+    phi_p, phi, beta0, grazing = angles
+    seg = np.diff(points, axis=1)
+    s = np.linalg.norm(seg, axis=2)
+    u = seg / s[..., None]
+    total = s.sum(axis=1)
     k = 2.0 * np.pi / scene.wavelength_m
-    L = utd.distance_parameter(s, sp, beta0)
-    m0, m1 = wedges.material0[idx], wedges.material1[idx]
-    pec = scene.material_pec[m0] & scene.material_pec[m1]
-    d_soft, d_hard = utd.diffraction_coefficients(
-        phi, phi_p, beta0, wedges.n[idx], k, L,
-        eps_r_0=scene.material_eps_r[m0], eps_r_n=scene.material_eps_r[m1], pec=pec)
-    basis = utd.edge_fixed_basis(s_in, s_out, wedges.direction[idx])
-    dyad = utd.diffraction_dyad(d_soft, d_hard, *basis)
-    transverse = np.eye(3)[None] - s_in[:, :, None] * s_in[:, None, :]
-    total = s + sp
-    # em.path_gains scales by exp(-jkL)/L; the diffracted wave instead carries
-    # (1/s') A(s) = 1/sqrt(s' s (s + s')), so T absorbs the ratio
-    ratio = total / np.sqrt(sp * s * total)
-    T = dyad @ transverse * ratio[:, None, None]
-    gain, M = em.path_gains(T, total, s_in, s_out, tx, rx, scene.carrier_hz)
-    pts = np.stack([np.broadcast_to(tx_pos, (P, 3)), points, np.broadcast_to(rx_pos, (P, 3))],
-                   axis=1)
-    obj = wedges.object_id[idx]
-    vel = np.stack([np.broadcast_to(tx.velocity, (P, 3)), scene.object_velocity[obj],
-                    np.broadcast_to(rx.velocity, (P, 3))], axis=1)
-    doppler = em.doppler_hz(pts, vel, scene.wavelength_m)
+    # unfolded lengths between consecutive diffraction nodes (reflections are isometries)
+    group = np.cumsum([0] + [1 if p == DIFFRACTION else 0 for p in pattern])
+    s_unf = np.stack([s[:, group == g].sum(axis=1) for g in range(group[-1] + 1)], axis=1)
+    spread, L = utd.multi_edge_spreading(s_unf, beta0)
+    T = (np.eye(3)[None] - u[:, 0, :, None] * u[:, 0, None, :]).astype(np.complex128)
+    obj = np.empty((C, K), np.int32)
+    face_id = np.empty((C, K), np.int32)
+    j = 0
+    for i, kind in enumerate(pattern):
+        el = elem[:, i]
+        if kind == REFLECTION:
+            mat = faces.material_id[el]
+            n = faces.normal[el]
+            cos_t = np.abs(np.einsum("ci,ci->c", u[:, i], n))
+            r_te, r_tm = em.fresnel_coefficients(scene.material_eps_r[mat], cos_t,
+                                                 scene.material_pec[mat])
+            rho = em.roughness_factor(scene.material_roughness_m[mat], cos_t, k,
+                                      scene.material_roughness_model[mat])
+            # effective roughness: S^2 of the power goes to diffuse scattering
+            rho = rho * np.sqrt(1.0 - scene.material_scattering[mat] ** 2)
+            dyad = em.reflection_dyad(u[:, i], n, rho * r_te, rho * r_tm)
+            obj[:, i] = faces.object_id[el]
+            face_id[:, i] = triangles[:, i]
+        else:
+            m0, m1 = wedges.material0[el], wedges.material1[el]
+            pec = scene.material_pec[m0] & scene.material_pec[m1]
+            d_soft, d_hard = utd.diffraction_coefficients(
+                phi[:, j], phi_p[:, j], beta0[:, j], wedges.n[el], k, L[:, j],
+                eps_r_0=scene.material_eps_r[m0], eps_r_n=scene.material_eps_r[m1], pec=pec)
+            # incidence along a face: the wave arriving there is already the total
+            # (incident + face-reflected) field, so KP's grazing 1/2 applies [KP74]
+            half = np.where(grazing[:, j], 0.5, 1.0)
+            basis = utd.edge_fixed_basis(u[:, i], u[:, i + 1], wedges.direction[el])
+            dyad = utd.diffraction_dyad(half * d_soft, half * d_hard, *basis)
+            obj[:, i] = wedges.object_id[el]
+            face_id[:, i] = wedges.tri0[el]
+            j += 1
+        T = dyad @ T
+    # em.path_gains scales by exp(-jkL)/L with L the total length; the diffracted wave
+    # carries (1/s_0) prod_i A_i instead, so T absorbs the ratio
+    T = T * (total / s_unf[:, 0] * spread)[:, None, None]
+    gain, M = em.path_gains(T, total, u[:, 0], u[:, -1], tx, rx, scene.carrier_hz)
+    vel = np.empty_like(points)
+    vel[:, 0] = tx.velocity
+    vel[:, 1:K + 1] = scene.object_velocity[obj]
+    vel[:, K + 1] = rx.velocity
+    doppler = em.doppler_hz(points, vel, scene.wavelength_m)
     return Paths(gain=gain, matrix=M, delay_s=em.delay_s(total), doppler_hz=doppler,
-                 n_interactions=np.ones(P, np.int16),
-                 interaction=np.full((P, 1), int(InteractionType.DIFFRACTION), np.int8),
-                 points=pts, object_id=obj[:, None].astype(np.int32),
-                 face_id=wedges.tri0[idx][:, None].astype(np.int32))
+                 n_interactions=np.full(C, K, np.int16),
+                 interaction=np.broadcast_to(np.asarray(pattern, np.int8), (C, K)).copy(),
+                 points=points, object_id=obj, face_id=face_id)
+
+
+# ---------------------------------------------------------------------------
+# candidates
+
+def wedges_seeing(caster, wedges: Wedges, point, samples=(0.25, 0.5, 0.75)) -> np.ndarray:
+    """Mask of wedges with at least one sample point on the edge that sees ``point``
+    unobstructed from outside the wedge (a cheap candidate filter; the exact diffraction
+    point is confirmed later)."""
+    W = len(wedges)
+    seen = np.zeros(W, dtype=bool)
+    if W == 0:
+        return seen
+    p = np.asarray(point, dtype=np.float64)
+    for f in samples:
+        q = wedges.start + f * (wedges.end - wedges.start)
+        d = p - q
+        length = np.linalg.norm(d, axis=1)
+        outside = _outside(wedges, np.arange(W), d)
+        idx = np.flatnonzero(outside & (length > 2 * EDGE_CLEARANCE_M) & ~seen)
+        if len(idx) == 0:
+            continue
+        clear = EDGE_CLEARANCE_M / length[idx]
+        origin = q[idx] + EDGE_LIFT_M * lift_direction(wedges, idx, d[idx])
+        rays = make_rays(origin, p - origin, tmin=clear, tmax=1.0 - clear)
+        seen[idx[~caster.occluded(rays)]] = True
+    return seen
+
+
+def _outside(wedges: Wedges, w, direction) -> np.ndarray:
+    """Direction (from the edge) points into the exterior of wedge w (0 < phi < n pi)."""
+    e = wedges.direction[w]
+    n0 = wedges.normal0[w]
+    t0 = np.cross(n0, e)
+    phi = np.mod(np.arctan2(np.einsum("ci,ci->c", direction, n0),
+                            np.einsum("ci,ci->c", direction, t0)), 2 * np.pi)
+    limit = wedges.n[w] * np.pi
+    phi, _ = _snap_to_faces(phi, limit)
+    perp = direction - np.einsum("ci,ci->c", direction, e)[:, None] * e
+    return (phi <= limit) & (np.linalg.norm(perp, axis=1) > 0)
+
+
+def _reaches(point, other_start, other_end, start, end) -> np.ndarray:
+    """Keller points on edges (start, end) between ``point`` and the ends of the other
+    edges reach into the finite edge for at least one end."""
+    length = np.linalg.norm(end - start, axis=1)
+    t0 = diffraction_point(point, other_start, start, end).t
+    t1 = diffraction_point(point, other_end, start, end).t
+    return (np.maximum(t0, t1) > 0.0) & (np.minimum(t0, t1) < length)
+
+
+def wedge_pairs(caster, wedges: Wedges, first, second, max_hop_m: float, source=None,
+                target=None) -> np.ndarray:
+    """(P, 2) wedge pairs (i from ``first``, j from ``second``, i != j) whose midpoints
+    lie within ``max_hop_m`` of each other and see each other from outside both
+    wedges; with ``source`` (``target``) given, the first (second) edge must also be
+    able to hold a Keller point between that point and the other edge."""
+    from scipy.spatial import cKDTree
+
+    first = np.asarray(first, np.int64)
+    second = np.asarray(second, np.int64)
+    empty = np.zeros((0, 2), np.int64)
+    if len(first) == 0 or len(second) == 0:
+        return empty
+    mid = 0.5 * (wedges.start + wedges.end)
+    near = cKDTree(mid[first]).sparse_distance_matrix(cKDTree(mid[second]), max_hop_m,
+                                                      output_type="ndarray")
+    I, J = first[near["i"]], second[near["j"]]
+    d = mid[J] - mid[I]
+    length = np.linalg.norm(d, axis=1)
+    keep = (I != J) & (length > 4 * EDGE_CLEARANCE_M)
+    keep &= _outside(wedges, I, d) & _outside(wedges, J, -d)
+    if source is not None:
+        keep &= _reaches(np.asarray(source, np.float64), wedges.start[J], wedges.end[J],
+                         wedges.start[I], wedges.end[I])
+    if target is not None:
+        keep &= _reaches(np.asarray(target, np.float64), wedges.start[I], wedges.end[I],
+                         wedges.start[J], wedges.end[J])
+    I, J, d, length = I[keep], J[keep], d[keep], length[keep]
+    if len(I) == 0:
+        return empty
+    clear = EDGE_CLEARANCE_M / length
+    a = mid[I] + EDGE_LIFT_M * lift_direction(wedges, I, d)
+    b = mid[J] + EDGE_LIFT_M * lift_direction(wedges, J, -d)
+    free = ~caster.occluded(make_rays(a, b - a, tmin=clear, tmax=1.0 - clear))
+    return np.stack([I[free], J[free]], axis=1)
+
+
+@dataclass
+class DiffractionBudget:
+    """How far the candidate search goes (TraceSettings sets these)."""
+
+    max_diffractions: int = 1
+    #: most reflections in a path that also diffracts (prefix + suffix + between)
+    max_reflections: int = 1
+    #: most distance between consecutive edges of a multi-diffraction chain (m)
+    max_hop_m: float = 20.0
+    #: cap on chains of 2-3 edges per link; beyond it the nearest chains are kept
+    max_chains: int = 20_000
+
+
+def _prefixes(sequences: dict, n: int) -> np.ndarray:
+    if n == 0:
+        return np.zeros((1, 0), np.int64)
+    return np.asarray(sequences.get(n, np.zeros((0, n))), np.int64)
+
+
+def _product(parts, chunk: int):
+    """Rows of the Cartesian product of row sets, concatenated column-wise, in chunks."""
+    sizes = [len(p) for p in parts]
+    total = int(np.prod(sizes))
+    for lo in range(0, total, chunk):
+        flat = np.arange(lo, min(total, lo + chunk))
+        cols = []
+        for p, idx in zip(parts, np.unravel_index(flat, sizes), strict=True):
+            cols.append(p[idx])
+        yield np.concatenate(cols, axis=1)
+
+
+def diffraction_candidates(caster, wedges: Wedges, tx_pos, rx_pos, tx_sequences: dict,
+                           rx_sequences: dict, budget: DiffractionBudget, stats=None,
+                           chunk: int = 1 << 19):
+    """Candidate :class:`Chains` of one link, yielded in chunks of at most ``chunk``.
+
+    * one diffraction: [tx's ray-found face sequence of a reflections] + wedge, or
+      wedge + [rx's ray-found face sequence of b reflections, reversed], a, b <=
+      budget.max_reflections (reflections on one side of the edge); a wedge must see the
+      end it meets directly;
+    * two or three diffractions: chains of wedges where the first sees tx, the last
+      sees rx and neighbours see each other within budget.max_hop_m, with at most one
+      reflection before the first or after the last edge when the budget allows.
+
+    ``stats`` (a dict) receives ``chains_over_cap``: chains the cap left out.
+    """
+    stats = {} if stats is None else stats
+    stats.setdefault("chains_over_cap", 0)
+    if len(wedges) == 0 or budget.max_diffractions < 1:
+        return
+    seen_tx = wedges_seeing(caster, wedges, tx_pos)
+    seen_rx = wedges_seeing(caster, wedges, rx_pos)
+    sides = [(0, 0)] + [(a, 0) for a in range(1, budget.max_reflections + 1)] + [
+        (0, b) for b in range(1, budget.max_reflections + 1)]
+    for a, b in sides:
+        mask = np.ones(len(wedges), bool)
+        if a == 0:
+            mask &= seen_tx
+        if b == 0:
+            mask &= seen_rx
+        pre = _prefixes(tx_sequences, a)
+        suf = _prefixes(rx_sequences, b)[:, ::-1]
+        ws = np.flatnonzero(mask)[:, None]
+        pattern = (REFLECTION,) * a + (DIFFRACTION,) + (REFLECTION,) * b
+        if len(pre) and len(suf) and len(ws):
+            for elem in _product([pre, ws, suf], chunk):
+                yield Chains(pattern, elem)
+    if budget.max_diffractions < 2:
+        return
+    every = np.arange(len(wedges))
+    near_tx, near_rx = np.flatnonzero(seen_tx), np.flatnonzero(seen_rx)
+    for nd in range(2, budget.max_diffractions + 1):
+        if nd == 2:
+            chain = wedge_pairs(caster, wedges, near_tx, near_rx, budget.max_hop_m, tx_pos,
+                                rx_pos)
+        else:
+            chain = _chains_of(
+                wedge_pairs(caster, wedges, near_tx, every, budget.max_hop_m, source=tx_pos),
+                wedge_pairs(caster, wedges, every, near_rx, budget.max_hop_m, target=rx_pos))
+        for a, b in sides:
+            if a + b > 1:
+                continue
+            ok = np.ones(len(chain), bool)
+            if a == 0:
+                ok &= seen_tx[chain[:, 0]]
+            if b == 0:
+                ok &= seen_rx[chain[:, -1]]
+            c = chain[ok]
+            pre = _prefixes(tx_sequences, a)
+            suf = _prefixes(rx_sequences, b)[:, ::-1]
+            n_ends = len(pre) * len(suf)
+            if len(c) * n_ends > budget.max_chains:
+                # keep the shortest chains: the amplitude falls with every hop
+                keep = budget.max_chains // max(n_ends, 1)
+                stats["chains_over_cap"] += (len(c) - keep) * n_ends
+                c = c[np.argsort(_chain_hop(wedges, c), kind="stable")[:keep]]
+            if len(c) == 0 or n_ends == 0:
+                continue
+            pattern = (REFLECTION,) * a + (DIFFRACTION,) * nd + (REFLECTION,) * b
+            for elem in _product([pre, c, suf], chunk):
+                yield Chains(pattern, elem)
+
+
+def _chains_of(first_pairs: np.ndarray, last_pairs: np.ndarray) -> np.ndarray:
+    """Three-wedge chains (i, j, k) with (i, j) in ``first_pairs`` and (j, k) in
+    ``last_pairs``, i != k."""
+    if len(first_pairs) == 0 or len(last_pairs) == 0:
+        return np.zeros((0, 3), np.int64)
+    by_first = last_pairs[np.argsort(last_pairs[:, 0], kind="stable")]
+    starts = np.searchsorted(by_first[:, 0], first_pairs[:, 1], "left")
+    stops = np.searchsorted(by_first[:, 0], first_pairs[:, 1], "right")
+    counts = stops - starts
+    rows = np.repeat(np.arange(len(first_pairs)), counts)
+    offs = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+    nxt = by_first[np.repeat(starts, counts) + offs, 1]
+    chain = np.concatenate([first_pairs[rows], nxt[:, None]], axis=1)
+    return chain[chain[:, 0] != chain[:, 2]]
+
+
+def _chain_hop(wedges: Wedges, chain: np.ndarray) -> np.ndarray:
+    mid = 0.5 * (wedges.start + wedges.end)
+    hop = np.zeros(len(chain))
+    for j in range(chain.shape[1] - 1):
+        hop += np.linalg.norm(mid[chain[:, j + 1]] - mid[chain[:, j]], axis=1)
+    return hop
+
+
+def diffraction_link_paths(scene, faces, caster, wedges: Wedges, tx, rx, tx_sequences,
+                           rx_sequences, budget: DiffractionBudget, keep_fn=None):
+    """All confirmed diffraction paths of one link: (list of Paths per pattern, stats).
+
+    ``keep_fn(k_dep, k_arr)`` (optional) drops paths outside the antennas' patterns
+    before their fields are computed.
+    """
+    stats = {"candidates": 0, "paths": 0}
+    out = []
+    for ch in diffraction_candidates(caster, wedges, tx.position, rx.position, tx_sequences,
+                                     rx_sequences, budget, stats):
+        stats["candidates"] += len(ch)
+        pts, ok = unfold_points(ch, tx.position, rx.position, faces.normal, faces.offset,
+                                wedges)
+        sel = np.flatnonzero(ok)
+        ch = Chains(ch.pattern, ch.elements[sel])
+        pts = pts[sel]
+        pp, p, b0, graze, ok = diffraction_angles(ch, pts, wedges)
+        keep, tris = confirm_chains(caster, faces.tri_face, faces.normal, ch, pts, ok, wedges)
+        if keep_fn is not None and keep.any():
+            k_dep = pts[:, 1] - pts[:, 0]
+            k_arr = pts[:, -1] - pts[:, -2]
+            k_dep /= np.linalg.norm(k_dep, axis=1, keepdims=True)
+            k_arr /= np.linalg.norm(k_arr, axis=1, keepdims=True)
+            keep &= keep_fn(k_dep, k_arr)
+        sel = np.flatnonzero(keep)
+        if len(sel) == 0:
+            continue
+        ch = Chains(ch.pattern, ch.elements[sel])
+        out.append(chain_fields(scene, faces, wedges, ch, pts[sel], tris[sel],
+                                (pp[sel], p[sel], b0[sel], graze[sel]), tx, rx))
+        stats["paths"] += len(sel)
+    return out, stats

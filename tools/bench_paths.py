@@ -8,12 +8,17 @@ the time of each stage (candidate search on the OpenCL device, exact image
 method + confirmation casts, fields) and the number of paths found. The
 number of paths at the densest setting of each order shows convergence.
 
+A second table gives the cost of each diffraction order (0-3 edges per path, with 0 or 1
+reflection beside the edges): paths found per interaction pattern and the time of the
+diffraction stage (candidate search, exact points, confirmation casts, UTD fields).
+
 Context (not measured here): Sionna RT 2.2 on this machine's CPU, reflections
 <= 5 + first-order diffraction on a 16 k-triangle street: 1e6 rays in 1.6 s,
 ~1,100 paths (shared/DESIGN.md).
 
     python tools/bench_paths.py [--scene PATH] [--device SPEC] [--orders 1,2,3,4,5]
                                 [--rays 100000,300000,1000000]
+                                [--diffraction-orders 0,1,2,3] [--diffraction-rays 300000]
 """
 
 from __future__ import annotations
@@ -39,8 +44,13 @@ def main(argv=None):
     ap.add_argument("--device", default=None)
     ap.add_argument("--orders", default="1,2,3,4,5")
     ap.add_argument("--rays", default="100000,300000,1000000")
-    ap.add_argument("--diffractions", type=int, choices=(0, 1), default=1,
-                    help="single UTD diffraction on (1, default) or off (0)")
+    ap.add_argument("--diffractions", type=int, choices=(0, 1, 2, 3), default=1,
+                    help="UTD edge diffractions per path in the first table (default 1)")
+    ap.add_argument("--diffraction-orders", default="0,1,2,3",
+                    help="diffraction orders of the second table ('' skips it)")
+    ap.add_argument("--diffraction-rays", type=int, default=300_000)
+    ap.add_argument("--diffraction-reflections", default="0,1",
+                    help="reflections beside the edges in the second table")
     args = ap.parse_args(argv)
     scene = load_scene(args.scene)
     rt = get_runtime(args.device)
@@ -50,7 +60,7 @@ def main(argv=None):
     print(f"scene  : {scene.name}, {len(scene.triangles)} triangles, links {args.links}")
     # warm up: geometry, kernels compiled
     trace_scene(scene, TraceSettings(max_reflections=1, rays=1000), runtime=rt, links=links)
-    print(f"single diffraction: {'on' if args.diffractions else 'off'}")
+    print(f"diffractions per path: {args.diffractions}")
     print(f"\n{'order':>5} {'rays':>9} {'refl.':>6} {'diffr.':>6} {'geometry':>9} "
           f"{'candid.':>9} {'exact':>9} {'fields':>8} {'wedges':>8} {'UTD':>7} {'total s':>8} "
           f"{'paths/s':>9}")
@@ -64,13 +74,51 @@ def main(argv=None):
             total = time.perf_counter() - t0
             s = times.seconds
             n = snap.total_paths
-            n_diff = sum(int(np.sum(lk.paths.interaction == InteractionType.DIFFRACTION))
-                         for lk in snap)
+            n_diff = sum(int(np.sum(np.any(lk.paths.interaction == InteractionType.DIFFRACTION,
+                                           axis=1))) for lk in snap)
             print(f"{order:>5} {rays:>9} {n - n_diff:>6} {n_diff:>6} "
                   f"{s.get('geometry', 0):>9.3f} {s.get('candidates', 0):>9.3f} "
                   f"{s.get('exact paths', 0):>9.3f} {s.get('fields', 0):>8.3f} "
                   f"{s.get('wedges', 0):>8.3f} {s.get('diffraction', 0):>7.3f} "
                   f"{total:>8.2f} {n / total:>9.1f}")
+    if args.diffraction_orders:
+        diffraction_table(scene, rt, links, args)
+
+
+def pattern_counts(snap) -> dict[str, int]:
+    """Diffracted paths per interaction pattern (D = diffraction, R = reflection)."""
+    code = {int(InteractionType.DIFFRACTION): "D", int(InteractionType.REFLECTION): "R",
+            int(InteractionType.SCATTERING): "S"}
+    counts: dict[str, int] = {}
+    for lk in snap:
+        p = lk.paths
+        for row, k in zip(p.interaction, p.n_interactions, strict=True):
+            pat = "".join(code[int(c)] for c in row[:k])
+            if "D" in pat:
+                counts[pat] = counts.get(pat, 0) + 1
+    return counts
+
+
+def diffraction_table(scene, rt, links, args):
+    print(f"\ncost of each diffraction order (reflection order 2, {args.diffraction_rays} rays)")
+    print(f"{'edges':>5} {'refl.':>5} {'candidates':>11} {'over cap':>10} {'paths':>6} "
+          f"{'UTD s':>7} {'total s':>8}  paths per pattern")
+    for order in (int(x) for x in args.diffraction_orders.split(",")):
+        for refl in (int(x) for x in args.diffraction_reflections.split(",")):
+            if order == 0 and refl:
+                continue
+            times = StageTimes()
+            t0 = time.perf_counter()
+            settings = TraceSettings(max_reflections=2, rays=args.diffraction_rays,
+                                     max_diffractions=order, diffraction_reflections=refl)
+            snap = trace_scene(scene, settings, runtime=rt, links=links, times=times)
+            total = time.perf_counter() - t0
+            meta = snap.metadata
+            counts = pattern_counts(snap)
+            print(f"{order:>5} {refl:>5} {meta.get('diffraction.candidates', 0):>11} "
+                  f"{meta.get('diffraction.chains_over_cap', 0):>10} {sum(counts.values()):>6} "
+                  f"{times.seconds.get('diffraction', 0.0):>7.2f} {total:>8.2f}  "
+                  + " ".join(f"{k}:{v}" for k, v in sorted(counts.items())))
 
 
 if __name__ == "__main__":
