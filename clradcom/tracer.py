@@ -42,23 +42,50 @@ class TraceSettings:
     max_reflections: int = 5
     rays: int = 1_000_000  # launched per transmitter over its pattern's support
     line_of_sight: bool = True
-    max_diffractions: int = 1  # 0 turns UTD edge diffraction off; 1 is what is modelled
+    max_diffractions: int = 1  # UTD edge diffractions per path, 0 (off) to 3
     wedge_angle_deg: float = 20.0  # faces turning less than this meet in no wedge
-    # "pec": PEC objects' single-bounce returns are physical-optics facet integrals
-    # instead of GO image paths (a facet's true RCS, not an infinite mirror's);
-    # "none": pure GO
+    # most reflections in a path that also diffracts (never more than max_reflections),
+    # taken from the rays' own face sequences on one side of the edges
+    diffraction_reflections: int = 0
+    # most distance between consecutive edges of a multi-diffraction chain (m)
+    diffraction_hop_m: float = 20.0
+    # default optics of PEC objects without their own ``optics`` key (docs/po.md):
+    # "none": GO image paths; "pec": PO facet integrals for the first bounce (a facet's
+    # true RCS, not an infinite mirror's), GO for later ones; "sbr": PO facets plus
+    # shooting-and-bouncing ray tubes with PO for bounces 2..max_reflections
     physical_optics: str = "none"
+    # pitch of the SBR ray-tube grid at each target, in wavelengths
+    sbr_spacing_wavelengths: float = 0.5
     # single Lambertian scattering from tiles of materials with S > 0 (trees); their
     # specular reflections then carry sqrt(1 - S^2) of the field (effective roughness)
     scattering: bool = False
+    # specular reflections around a tile (docs/scattering.md): 0 tx-tile-rx only; 1 also
+    # one reflection before or after it; 2 also one on each side
+    scattering_max_reflections: int = 0
+    # tiles more than this far (dB) below the link's strongest tile are dropped
+    scattering_threshold_db: float = -60.0
+    # tile edge (m); 0 picks it from the wavelength and distance (choose_tile_size)
+    scattering_tile_size_m: float = 0.0
+    # faces smaller than this (m^2) reflect into no scattering path
+    scattering_min_face_area_m2: float = 1.0
 
     def __post_init__(self):
-        if self.physical_optics not in ("none", "pec"):
-            raise ValueError(f"physical_optics must be 'none' or 'pec', got "
+        if self.physical_optics not in ("none", "pec", "sbr"):
+            raise ValueError(f"physical_optics must be 'none', 'pec' or 'sbr', got "
                              f"{self.physical_optics!r}")
-        if self.max_diffractions not in (0, 1):
-            raise ValueError(f"max_diffractions must be 0 or 1 (single diffraction is what is "
-                             f"modelled so far), got {self.max_diffractions!r}")
+        if not (isinstance(self.sbr_spacing_wavelengths, (int, float))
+                and 0.01 <= float(self.sbr_spacing_wavelengths) <= 100.0):
+            raise ValueError(f"sbr_spacing_wavelengths must be a number in [0.01, 100], got "
+                             f"{self.sbr_spacing_wavelengths!r}")
+        if self.max_diffractions not in (0, 1, 2, 3):
+            raise ValueError(f"max_diffractions must be 0, 1, 2 or 3, got "
+                             f"{self.max_diffractions!r}")
+        if not (isinstance(self.diffraction_reflections, int)
+                and 0 <= self.diffraction_reflections <= 16):
+            raise ValueError(f"diffraction_reflections must be an integer 0..16, got "
+                             f"{self.diffraction_reflections!r}")
+        if not float(self.diffraction_hop_m) > 0.0:
+            raise ValueError(f"diffraction_hop_m must be > 0, got {self.diffraction_hop_m!r}")
         if not (0.0 < float(self.wedge_angle_deg) < 180.0):
             raise ValueError(f"wedge_angle_deg must lie in (0, 180), got "
                              f"{self.wedge_angle_deg!r}")
@@ -67,6 +94,17 @@ class TraceSettings:
                              f"{self.max_reflections!r}")
         if not (isinstance(self.rays, int) and self.rays >= 1):
             raise ValueError(f"rays must be a positive integer, got {self.rays!r}")
+        smr = self.scattering_max_reflections
+        if isinstance(smr, bool) or not isinstance(smr, int) or smr not in (0, 1, 2):
+            raise ValueError(f"scattering_max_reflections must be 0, 1 or 2, got "
+                             f"{self.scattering_max_reflections!r}")
+        for name in ("scattering_threshold_db", "scattering_tile_size_m",
+                     "scattering_min_face_area_m2"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
+                    np.isfinite(value) and (value <= 0 if name.endswith("_db") else value >= 0)):
+                raise ValueError(f"{name} must be a finite number "
+                                 f"{'<= 0' if name.endswith('_db') else '>= 0'}, got {value!r}")
 
 
 @dataclass
@@ -192,37 +230,67 @@ def select_paths(paths: Paths, mask) -> Paths:
         "object_id", "face_id")})
 
 
-def with_physical_optics(geom: Geometry, paths: Paths, tx: Radar, rx: Radar) -> Paths:
-    """Swap PEC objects' single GO reflections for their PO facet returns.
+def with_physical_optics(geom: Geometry, paths: Paths, tx: Radar, rx: Radar,
+                         settings: TraceSettings | None = None) -> Paths:
+    """Swap GO returns for physical optics on the objects that ask for it.
 
     A GO image path off a flat facet is the return of an infinite mirror; the PO
-    integral over the lit facets gives the facet's own strength and its
-    off-specular lobes. Multi-bounce paths stay GO.
+    integral over the lit facets gives the facet's own strength and its off-specular
+    lobes, and SBR-PO does the same for corners (docs/po.md). Per object
+    (:func:`clradcom.sbr.object_optics`: its ``optics`` key, else the default that
+    ``settings.physical_optics`` gives PEC objects):
+
+    * "both": its single GO reflections make way for PO facet returns; multi-bounce
+      paths stay GO;
+    * "po": every GO reflection path that ends on it makes way for PO facet returns
+      (first bounce) and SBR-PO tube returns (bounces 2..max_reflections);
+    * "go": untouched.
+
+    Without ``settings`` this is ``physical_optics="pec"`` (PO facets on PEC objects).
     """
-    pec_objects = np.flatnonzero(geom.scene.material_pec[
-        [o.material for o in geom.scene.objects]])
-    if geom.caster is None or len(pec_objects) == 0:
+    from .sbr import object_optics, sbr_paths
+
+    settings = settings or TraceSettings(physical_optics="pec")
+    modes = np.array(object_optics(geom.scene, settings.physical_optics))
+    po_objects = np.flatnonzero(modes != "go")
+    if geom.caster is None or len(po_objects) == 0:
         return paths
-    single_on_pec = np.zeros(paths.n_paths, dtype=bool)
-    if paths.k_max:
-        single_on_pec = (paths.n_interactions == 1) & np.isin(paths.object_id[:, 0],
-                                                             pec_objects)
-    return concat_paths([select_paths(paths, ~single_on_pec),
-                         po_paths(geom, tx, rx, objects=pec_objects)])
+    sbr_objects = np.flatnonzero(modes == "po")
+    drop = np.zeros(paths.n_paths, dtype=bool)
+    if paths.k_max and paths.n_paths:
+        nk = paths.n_interactions.astype(np.int64)
+        last = np.maximum(nk - 1, 0)
+        rows = np.arange(paths.n_paths)
+        refl = int(InteractionType.REFLECTION)
+        all_refl = np.all((paths.interaction == refl)
+                          | (np.arange(paths.k_max)[None, :] >= nk[:, None]), axis=1)
+        ends_on = np.where(nk > 0, paths.object_id[rows, last], -1)
+        drop = (nk == 1) & np.isin(ends_on, po_objects)
+        drop |= (nk > 1) & np.isin(ends_on, sbr_objects)
+        drop &= all_refl
+    parts = [select_paths(paths, ~drop), po_paths(geom, tx, rx, objects=po_objects)]
+    if len(sbr_objects) and settings.max_reflections >= 2:
+        parts.append(sbr_paths(geom, tx, rx, objects=sbr_objects,
+                               spacing_wavelengths=settings.sbr_spacing_wavelengths,
+                               max_bounces=settings.max_reflections))
+    return concat_paths(parts)
 
 
-def diffraction_paths(geom: Geometry, wedges, tx: Radar, rx: Radar) -> Paths:
-    """First-order UTD diffraction paths of one link (see clradcom.diffraction)."""
-    idx, q, phi_p, phi, beta0 = diff.keller_candidates(wedges, tx.position, rx.position)
-    keep = diff.confirm_diffraction(geom.caster, tx.position, rx.position, q)
-    idx, q, phi_p, phi, beta0 = idx[keep], q[keep], phi_p[keep], phi[keep], beta0[keep]
-    k_dep = q - tx.position
-    k_arr = rx.position - q
-    k_dep /= np.linalg.norm(k_dep, axis=1, keepdims=True)
-    k_arr /= np.linalg.norm(k_arr, axis=1, keepdims=True)
-    seen = seen_by_antennas(tx, rx, k_dep, k_arr)
-    return diff.diffraction_fields(geom.scene, wedges, idx[seen], q[seen], phi_p[seen],
-                                   phi[seen], beta0[seen], tx, rx)
+def diffraction_paths(geom: Geometry, wedges, tx: Radar, rx: Radar, settings: TraceSettings,
+                      tx_sequences=None, rx_sequences=None, stats=None) -> Paths:
+    """UTD diffraction paths of one link, up to settings.max_diffractions edges mixed
+    with reflections from the rays' face sequences (see clradcom.diffraction)."""
+    budget = diff.DiffractionBudget(max_diffractions=settings.max_diffractions,
+                                    max_reflections=min(settings.diffraction_reflections,
+                                                        settings.max_reflections),
+                                    max_hop_m=settings.diffraction_hop_m)
+    parts, counts = diff.diffraction_link_paths(
+        geom.scene, geom.faces, geom.caster, wedges, tx, rx, tx_sequences or {},
+        rx_sequences or {}, budget, keep_fn=lambda d, a: seen_by_antennas(tx, rx, d, a))
+    if stats is not None:
+        for key, value in counts.items():
+            stats[key] = stats.get(key, 0) + value
+    return concat_paths(parts) if parts else Paths.empty(1)
 
 
 def path_fields(geom: Geometry, pg: PathGeometry, tx: Radar, rx: Radar) -> Paths:
@@ -283,6 +351,7 @@ def trace_scene(scene: Scene, settings: TraceSettings | None = None,
     out = []
     cache = {}
     n_dropped_tiles = 0
+    diffraction_stats: dict[str, int] = {}
     wedges = None
     if settings.max_diffractions and len(scene.triangles):
         t0 = time.perf_counter()
@@ -304,19 +373,29 @@ def trace_scene(scene: Scene, settings: TraceSettings | None = None,
         t0 = time.perf_counter()
         paths = path_fields(geom, pg, tx, rx)
         times.add("fields", time.perf_counter() - t0)
-        if settings.physical_optics == "pec":
+        if settings.physical_optics != "none" or any(o.optics for o in scene.objects):
             t0 = time.perf_counter()
-            paths = with_physical_optics(geom, paths, tx, rx)
+            paths = with_physical_optics(geom, paths, tx, rx, settings)
             times.add("physical optics", time.perf_counter() - t0)
         if settings.scattering and geom.caster is not None:
             t0 = time.perf_counter()
-            diffuse, dropped = scattering_paths(geom, tx, rx)
+            diffuse, dropped = scattering_paths(
+                geom, tx, rx, tile_size_m=settings.scattering_tile_size_m or None,
+                threshold_db=settings.scattering_threshold_db,
+                max_reflections=settings.scattering_max_reflections,
+                min_face_area_m2=settings.scattering_min_face_area_m2)
             paths = concat_paths([paths, diffuse])
             n_dropped_tiles += dropped
             times.add("scattering", time.perf_counter() - t0)
         if wedges is not None:
             t0 = time.perf_counter()
-            paths = concat_paths([paths, diffraction_paths(geom, wedges, tx, rx)])
+            rx_seqs = {}
+            if min(settings.diffraction_reflections, settings.max_reflections):
+                if r_idx not in cache:
+                    cache[r_idx] = candidate_sequences(geom, rx, settings)
+                rx_seqs = cache[r_idx]
+            paths = concat_paths([paths, diffraction_paths(
+                geom, wedges, tx, rx, settings, cache[t_idx], rx_seqs, diffraction_stats)])
             times.add("diffraction", time.perf_counter() - t0)
         out.append(Link(tx_name=tx.name, rx_name=rx.name, tx_index=t_idx, rx_index=r_idx,
                         paths=paths))
@@ -324,6 +403,8 @@ def trace_scene(scene: Scene, settings: TraceSettings | None = None,
     meta["clradcom_version"] = __version__
     if settings.scattering:
         meta["scattering.tiles_dropped"] = int(n_dropped_tiles)
+    for key, value in diffraction_stats.items():
+        meta[f"diffraction.{key}"] = int(value)
     meta["device"] = geom.runtime.info.device_name.strip()
     return Snapshot(scene_name=scene.name, carrier_hz=float(scene.carrier_hz),
                     scene_hash=scene.content_hash(), links=tuple(out), metadata=meta)

@@ -72,7 +72,21 @@ def write_csv(path, rows, header):
         w.writerows(rows)
 
 
-def main(argv=None) -> int:
+#: The paper (Fig. 3): "object images at above 60 m are reflections from buildings along
+#: the road, and they depict the velocity at which the radar is traveling".
+STATIC_RANGE_M = 60.0
+
+
+def static_returns_beyond(detections, radar, range_m: float, tolerance_mps: float):
+    """Ranges of detections beyond range_m that close at the radar's own speed (static
+    objects nearly ahead), within tolerance_mps."""
+    speed = float(np.linalg.norm(radar.velocity))
+    far = (detections["range_m"] > range_m) & (
+        np.abs(detections["velocity_mps"] - speed) <= tolerance_mps)
+    return sorted(float(r) for r in detections["range_m"][far])
+
+
+def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("scene", help="scene file (TOML), e.g. scenes/street/street.toml")
@@ -83,20 +97,43 @@ def main(argv=None) -> int:
                     help="rays launched per transmitter over its pattern (default 1e6)")
     ap.add_argument("--reflections", type=int, default=5,
                     help="maximum specular reflections per path (default 5, the paper's)")
-    ap.add_argument("--diffractions", type=int, choices=(0, 1), default=1,
+    ap.add_argument("--diffractions", type=int, choices=(0, 1, 2, 3), default=1,
                     help="UTD edge diffractions per path (default 1; 0 turns them off)")
-    ap.add_argument("--physical-optics", choices=("none", "pec"), default="pec",
-                    help="pec (default): PEC objects return their physical-optics facet "
-                         "integrals instead of single GO mirror paths; none: pure GO")
+    ap.add_argument("--diffraction-reflections", type=int, default=0,
+                    help="reflections allowed beside the edges of a diffracted path "
+                         "(default 0; each one costs seconds on the street, see "
+                         "tools/bench_paths.py)")
+    ap.add_argument("--physical-optics", choices=("none", "pec", "sbr"), default="sbr",
+                    help="sbr (default): PEC objects return their physical-optics facet "
+                         "integrals instead of single GO mirror paths, and shooting-and-"
+                         "bouncing-ray PO for their multi-bounce returns (what puts car D "
+                         "where the paper has it); pec: facets only; none: pure GO (an "
+                         "object's own `optics` key always wins)")
     ap.add_argument("--no-scattering", action="store_true",
                     help="leave out single Lambertian scattering from tiles of materials with "
                          "a scattering coefficient (the trees)")
+    ap.add_argument("--scattering-reflections", type=int, choices=(0, 1, 2), default=0,
+                    help="specular reflections around a scattering tile: 0 (default) direct "
+                         "only, 1 one before or after it, 2 also one on each side")
     ap.add_argument("--synthesis", choices=SYNTHESIS_METHODS, default="fast",
                     help="fast: frequency-domain model; exact: time-domain with ICI/ISI")
     ap.add_argument("--seed", type=int, default=0, help="seed of the random OFDM data")
     ap.add_argument("--no-noise", action="store_true", help="leave thermal noise out")
-    args = ap.parse_args(argv)
+    return ap
 
+
+def settings_from_args(args) -> TraceSettings:
+    """The tracer settings of a parsed command line (tests reuse the tool's defaults)."""
+    return TraceSettings(max_reflections=args.reflections, rays=args.rays,
+                         max_diffractions=args.diffractions,
+                         diffraction_reflections=args.diffraction_reflections,
+                         physical_optics=args.physical_optics,
+                         scattering=not args.no_scattering,
+                         scattering_max_reflections=args.scattering_reflections)
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
     sw = Stopwatch()
     try:
         with sw.stage("load scene"):
@@ -106,10 +143,7 @@ def main(argv=None) -> int:
         with sw.stage("open OpenCL device"):
             runtime = get_runtime(args.device)
         print(f"  device: {runtime.info.describe()}")
-        settings = TraceSettings(max_reflections=args.reflections, rays=args.rays,
-                                 max_diffractions=args.diffractions,
-                                 physical_optics=args.physical_optics,
-                                 scattering=not args.no_scattering)
+        settings = settings_from_args(args)
         times = StageTimes()
         with sw.stage(f"trace {len(scene.triangles)} triangles, {args.rays} rays per tx"):
             snap = trace_scene(scene, settings, runtime=runtime, times=times,
@@ -163,6 +197,10 @@ def main(argv=None) -> int:
                              f"{t['range_nearest_m']:.2f}", f"{t['v_rel_m_s']:.2f}", rd, vd))
                 print(f"    {t['name']:<10} {t['range_centre_m']:7.2f} {t['v_rel_m_s']:7.2f} "
                       f"{rd or 'missed':>7} {vd:>7}")
+            static = static_returns_beyond(dets, radar, STATIC_RANGE_M, wf.velocity_resolution)
+            print(f"    static returns beyond {STATIC_RANGE_M:.0f} m at the radar's own speed "
+                  f"({np.linalg.norm(radar.velocity):.1f} m/s): {len(static)} detections"
+                  + (f", at {', '.join(f'{r:.1f}' for r in static[:6])} m" if static else ""))
             write_csv(out / f"{radar.name}_truth.csv", rows,
                       ["object", "range_centre_m", "range_nearest_m", "v_rel_mps",
                        "range_detected_m", "velocity_detected_mps"])
