@@ -92,8 +92,6 @@ def test_buildings_beyond_60_m_close_at_the_radars_own_speed(street):
     assert abs(dets["velocity_mps"][strongest] - speed) <= wf.velocity_resolution
 
     _, _, noisy, _ = frame(scene, paths, noise=True)
-    r_idx = np.searchsorted(noisy.range_m, static)
-    v_idx = np.argmin(np.abs(noisy.velocity_mps - speed))
-    floor = np.median(noisy.power_db)
-    peaks = [noisy.power_db[max(i - 1, 0):i + 2, v_idx - 1:v_idx + 2].max() for i in r_idx]
-    assert max(peaks) - floor > 10.0
+    rng, above = tool.strongest_static_cell(noisy, radar, tool.STATIC_RANGE_M, street_end,
+                                            wf.velocity_resolution)
+    assert rng > tool.STATIC_RANGE_M and above > 10.0

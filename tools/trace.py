@@ -132,6 +132,20 @@ def settings_from_args(args) -> TraceSettings:
                          scattering_max_reflections=args.scattering_reflections)
 
 
+def strongest_static_cell(image, radar, range_m: float, reach_m: float, tolerance_mps: float):
+    """(range, dB over the image's median) of the strongest cell between range_m and the
+    scene's reach at the radar's own speed (+- tolerance), or (None, None): static
+    objects show in the image even where clutter around them keeps CFAR quiet."""
+    speed = float(np.linalg.norm(radar.velocity))
+    rows = (image.range_m > range_m) & (image.range_m <= reach_m)
+    cols = np.abs(image.velocity_mps - speed) <= tolerance_mps
+    if not rows.any() or not cols.any():
+        return None, None
+    sub = image.power_db[np.ix_(rows, cols)]
+    i = np.unravel_index(np.argmax(sub), sub.shape)[0]
+    return float(image.range_m[rows][i]), float(sub.max() - np.median(image.power_db))
+
+
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     sw = Stopwatch()
@@ -198,9 +212,15 @@ def main(argv=None) -> int:
                 print(f"    {t['name']:<10} {t['range_centre_m']:7.2f} {t['v_rel_m_s']:7.2f} "
                       f"{rd or 'missed':>7} {vd:>7}")
             static = static_returns_beyond(dets, radar, STATIC_RANGE_M, wf.velocity_resolution)
+            reach = float(np.linalg.norm(scene.triangles.reshape(-1, 3) - radar.position,
+                                         axis=1).max()) if len(scene.triangles) else 0.0
+            rng, above = strongest_static_cell(image, radar, STATIC_RANGE_M, reach,
+                                               wf.velocity_resolution)
             print(f"    static returns beyond {STATIC_RANGE_M:.0f} m at the radar's own speed "
                   f"({np.linalg.norm(radar.velocity):.1f} m/s): {len(static)} detections"
-                  + (f", at {', '.join(f'{r:.1f}' for r in static[:6])} m" if static else ""))
+                  + (f", at {', '.join(f'{r:.1f}' for r in static[:6])} m" if static else "")
+                  + ("" if rng is None else f"; strongest cell {rng:.1f} m, {above:.1f} dB "
+                     f"over the image's median"))
             write_csv(out / f"{radar.name}_truth.csv", rows,
                       ["object", "range_centre_m", "range_nearest_m", "v_rel_mps",
                        "range_detected_m", "velocity_detected_mps"])
