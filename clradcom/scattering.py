@@ -370,7 +370,8 @@ def _join(a_tile, b_tile):
 
 def scattering_paths(geom, tx, rx, *, tile_size_m=None, threshold_db=-60.0, seed=0,
                      reference_gain=None, accuracy=DEFAULT_ACCURACY, max_tiles=200_000,
-                     max_reflections=0, min_face_area_m2=DEFAULT_MIN_FACE_AREA_M2):
+                     max_reflections=0, min_face_area_m2=DEFAULT_MIN_FACE_AREA_M2,
+                     triangle_mask=None):
     """Single diffuse-scattering paths of one tx -> rx link: ``(Paths, n_dropped)``.
 
     Tiles (:func:`make_tiles`) are cut from every scene triangle whose material
@@ -396,6 +397,11 @@ def scattering_paths(geom, tx, rx, *, tile_size_m=None, threshold_db=-60.0, seed
     A leg with a reflection is the direct leg with its end replaced by the image
     (the tile's incidence / scattering angle, r_i or r_s the unfolded length)
     and the reflection dyad (:func:`_mirror_dyads`) applied on that side.
+
+    ``triangle_mask`` (bool per scene triangle, optional): tiles of triangles where it
+    is false are never traced (e.g. those that cannot reach the radar's noise floor,
+    :func:`clradcom.budget.scattering_triangle_bounds`); they are not counted as
+    dropped. Tile sizes and phases do not depend on it.
 
     Emitted are the paths inside both antenna patterns and not more than
     |threshold_db| below the strongest scattering path of the link, or below
@@ -447,6 +453,14 @@ def scattering_paths(geom, tx, rx, *, tile_size_m=None, threshold_db=-60.0, seed
     tri_ids = tri_sel[local]
     # phases drawn for every tile before any selection: fixed per tile for a seed
     phases = np.random.default_rng(seed).uniform(0.0, 2.0 * np.pi, size=(len(q), 2))
+    if triangle_mask is not None:
+        mask = np.asarray(triangle_mask, dtype=bool)
+        if mask.shape != (len(scene.triangles),):
+            raise ValueError(f"triangle_mask must have one entry per scene triangle "
+                             f"({len(scene.triangles)}), got shape {mask.shape}")
+        traced = mask[tri_ids]
+        q, area, nrm, local = q[traced], area[traced], nrm[traced], local[traced]
+        tri_ids, phases = tri_ids[traced], phases[traced]
     N = len(q)
     monostatic = bool(np.array_equal(tx_pos, rx_pos))
 

@@ -22,7 +22,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from . import __version__, em
+from . import __version__, budget, em
 from . import diffraction as diff
 from . import specular as sp
 from .faces import Faces, merge_coplanar
@@ -68,6 +68,10 @@ class TraceSettings:
     scattering_tile_size_m: float = 0.0
     # faces smaller than this (m^2) reflect into no scattering path
     scattering_min_face_area_m2: float = 1.0
+    # |a|^2 below which a scattering triangle's tiles are never traced, from an upper
+    # bound of all its tiles together (clradcom.budget.scattering_triangle_bounds; e.g.
+    # the radar's processed noise floor, budget.noise_floor); 0 traces every triangle
+    scattering_floor: float = 0.0
 
     def __post_init__(self):
         if self.physical_optics not in ("none", "pec", "sbr"):
@@ -99,7 +103,7 @@ class TraceSettings:
             raise ValueError(f"scattering_max_reflections must be 0, 1 or 2, got "
                              f"{self.scattering_max_reflections!r}")
         for name in ("scattering_threshold_db", "scattering_tile_size_m",
-                     "scattering_min_face_area_m2"):
+                     "scattering_min_face_area_m2", "scattering_floor"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
                     np.isfinite(value) and (value <= 0 if name.endswith("_db") else value >= 0)):
@@ -351,6 +355,7 @@ def trace_scene(scene: Scene, settings: TraceSettings | None = None,
     out = []
     cache = {}
     n_dropped_tiles = 0
+    n_below_floor = 0
     diffraction_stats: dict[str, int] = {}
     wedges = None
     if settings.max_diffractions and len(scene.triangles):
@@ -379,11 +384,18 @@ def trace_scene(scene: Scene, settings: TraceSettings | None = None,
             times.add("physical optics", time.perf_counter() - t0)
         if settings.scattering and geom.caster is not None:
             t0 = time.perf_counter()
+            mask = None
+            if settings.scattering_floor > 0:
+                mask = np.ones(len(scene.triangles), dtype=bool)
+                ids, _, above = budget.scattering_triangle_bounds(scene, tx, rx,
+                                                                  settings.scattering_floor)
+                mask[ids[~above]] = False
+                n_below_floor += int(np.count_nonzero(~above))
             diffuse, dropped = scattering_paths(
                 geom, tx, rx, tile_size_m=settings.scattering_tile_size_m or None,
                 threshold_db=settings.scattering_threshold_db,
                 max_reflections=settings.scattering_max_reflections,
-                min_face_area_m2=settings.scattering_min_face_area_m2)
+                min_face_area_m2=settings.scattering_min_face_area_m2, triangle_mask=mask)
             paths = concat_paths([paths, diffuse])
             n_dropped_tiles += dropped
             times.add("scattering", time.perf_counter() - t0)
@@ -403,6 +415,7 @@ def trace_scene(scene: Scene, settings: TraceSettings | None = None,
     meta["clradcom_version"] = __version__
     if settings.scattering:
         meta["scattering.tiles_dropped"] = int(n_dropped_tiles)
+        meta["scattering.triangles_below_floor"] = n_below_floor
     for key, value in diffraction_stats.items():
         meta[f"diffraction.{key}"] = int(value)
     meta["device"] = geom.runtime.info.device_name.strip()

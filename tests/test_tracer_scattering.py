@@ -146,3 +146,42 @@ def test_trace_scene_carries_tree_ground_paths_and_settings(runtime):
 def test_scattering_settings_refuse_bad_values(key, value):
     with pytest.raises(ValueError, match=key):
         TraceSettings(**{key: value})
+
+
+def test_scattering_floor_never_traces_triangles_that_cannot_reach_it(runtime):
+    """Two leafy plates, one near and one far: with the floor between their bounds the
+    far plate's tiles are not traced (counted in the metadata), the near plate's paths
+    are exactly those of the unpruned trace (tile phases do not depend on the mask),
+    and no dropped tile could have reached the floor."""
+    from clradcom.budget import scattering_triangle_bounds
+
+    spec = {"scene": {"name": "two-plates", "carrier_hz": 24e9},
+            "materials": [{"name": "leaves", "eps_r": [10.0, -6.0],
+                           "scattering_coefficient": 0.5}],
+            "objects": [{"name": "near", "material": "leaves", "shape": "plane",
+                         "size": [1.0, 1.0], "position": [4.0, 0.0, 0.0],
+                         "rotation_deg": [0.0, -90.0, 0.0]},
+                        {"name": "far", "material": "leaves", "shape": "plane",
+                         "size": [1.0, 1.0], "position": [40.0, 10.0, 0.0],
+                         "rotation_deg": [0.0, -90.0, 0.0]}],
+            "radars": [{"name": "r", "position": [0.0, 0.0, 0.0]}]}
+    scene = scene_from_dict(spec)
+    radar = scene.radars[0]
+    ids, best, _ = scattering_triangle_bounds(scene, radar, radar, 1.0)
+    far = scene.tri_object[ids] == 1
+    floor = np.sqrt(best[far].max() * best[~far].min())  # between the two plates
+    assert best[far].max() < floor < best[~far].min()
+    base = dict(max_reflections=0, rays=1000, max_diffractions=0, scattering=True,
+                scattering_threshold_db=-300.0)
+    full = trace_scene(scene, TraceSettings(**base), runtime=runtime)
+    pruned = trace_scene(scene, TraceSettings(**base, scattering_floor=float(floor)),
+                         runtime=runtime)
+    p, q = full.links[0].paths, pruned.links[0].paths
+    from_far = p.object_id[:, 0] == 1
+    assert from_far.any() and (~from_far).any()
+    assert np.all(q.object_id[:, 0] == 0)
+    np.testing.assert_array_equal(q.gain, p.gain[~from_far])
+    assert pruned.metadata["scattering.triangles_below_floor"] == int(far.sum())
+    assert np.abs(p.gain[from_far]).max() ** 2 < floor
+    with pytest.raises(ValueError, match="scattering_floor"):
+        TraceSettings(scattering_floor=-1.0)

@@ -200,7 +200,8 @@ def parse_args(argv):
 # ----------------------------------------------------------------------------------------
 # the sweep
 # ----------------------------------------------------------------------------------------
-def settings_kwargs(rays, refl, diffr, optics, scat, extra=(), scattering_threshold_db=None):
+def settings_kwargs(rays, refl, diffr, optics, scat, extra=(), scattering_threshold_db=None,
+                    scattering_floor=None):
     """TraceSettings keyword arguments of one grid point.
 
     Fields that only matter for a mechanism that is off are left at their defaults
@@ -218,6 +219,8 @@ def settings_kwargs(rays, refl, diffr, optics, scat, extra=(), scattering_thresh
     if (scattering_threshold_db is not None and kw["scattering"]
             and "scattering_threshold_db" in names and "scattering_threshold_db" not in kw):
         kw["scattering_threshold_db"] = float(scattering_threshold_db)
+    if scattering_floor and kw["scattering"] and "scattering_floor" in names:
+        kw["scattering_floor"] = float(scattering_floor)
     if "diffraction_reflections" in names:
         kw["diffraction_reflections"] = min(
             kw.get("diffraction_reflections", names["diffraction_reflections"].default),
@@ -225,7 +228,7 @@ def settings_kwargs(rays, refl, diffr, optics, scat, extra=(), scattering_thresh
     return kw
 
 
-def grid(args, order_cap: int, scattering_threshold_db=None):
+def grid(args, order_cap: int, scattering_threshold_db=None, scattering_floor=None):
     """Unique TraceSettings keyword sets of the sweep, cheapest knobs first."""
     extra_names = [n for n, _ in args.vary]
     extra_vals = [v for _, v in args.vary]
@@ -237,7 +240,8 @@ def grid(args, order_cap: int, scattering_threshold_db=None):
         if refl == 0:  # no reflections: the rays find nothing, one ray count is enough
             rays = min(args.rays)
         kw = settings_kwargs(rays, refl, diffr, optics, scat,
-                             zip(extra_names, extra, strict=True), scattering_threshold_db)
+                             zip(extra_names, extra, strict=True), scattering_threshold_db,
+                             scattering_floor)
         key = tuple(sorted(kw.items()))
         if key not in seen:
             seen.add(key)
@@ -565,7 +569,9 @@ def main(argv=None) -> int:
         print(f"scattering tiles more than {-trace_thr:.1f} dB below the link's strongest "
               "are not emitted (floor against the best tile bound; the tracer's default "
               f"is {TraceSettings().scattering_threshold_db:g} dB)")
-    points = grid(args, order_cap, trace_thr)
+    # triangles whose tiles cannot reach the floor are never traced
+    points = grid(args, order_cap, trace_thr,
+                  None if args.no_trace_prune else floor.power)
     n_runs = len(points) * len(args.synthesis)
     print(f"sweep: {len(points)} traces x {len(args.synthesis)} back ends = {n_runs} settings")
     records, t_start, skipped_exact = [], time.perf_counter(), 0
