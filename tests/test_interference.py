@@ -413,14 +413,9 @@ def test_two_radar_scene_traces_all_four_links(runtime):
 # the command-line tool
 # ----------------------------------------------------------------------------------------
 def _tool():
-    import importlib.util
-    from pathlib import Path
+    from tool_helpers import load_tool
 
-    path = Path(__file__).resolve().parent.parent / "tools" / "interference.py"
-    spec = importlib.util.spec_from_file_location("interference_tool", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_tool("interference")
 
 
 def _los_paths(gains, delays, dopplers):

@@ -340,13 +340,10 @@ def test_rcs_aspect_tool_go_mirror_and_outputs(tmp_path, capsys):
     sees an infinite plane mirror at d = R - length/2 (nose) and R - width/2 (side):
     |a| = lambda / (8 pi d), i.e. an apparent sigma(R) = pi R^4 / d^2."""
     import csv
-    import importlib.util
-    from pathlib import Path
 
-    root = Path(__file__).resolve().parents[1]
-    spec = importlib.util.spec_from_file_location("rcs_aspect", root / "tools" / "rcs_aspect.py")
-    tool = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(tool)
+    from tool_helpers import load_tool
+
+    tool = load_tool("rcs_aspect")
     R = 20.0
     rc = tool.main(["--out", str(tmp_path), "--model", "rounded", "--range-m", str(R),
                     "--start-deg", "0", "--stop-deg", "90", "--step-deg", "90",

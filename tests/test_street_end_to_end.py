@@ -2,11 +2,9 @@
 tools/trace.py's settings, synthesise, process, detect, and set the detections against
 the scene's truth."""
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 import pytest
+from tool_helpers import ROOT, load_tool
 
 from clradcom.dsp.waveform import Waveform
 from clradcom.models import detection_truth
@@ -14,7 +12,6 @@ from clradcom.pipeline import process, radar_frame
 from clradcom.scene import load_scene
 from clradcom.tracer import trace_scene
 
-ROOT = Path(__file__).resolve().parents[1]
 STREET = ROOT / "scenes" / "street" / "street.toml"
 #: the paper's tolerance: half the length of a car (Sec. IV, Table III)
 HALF_CAR_M = 1.9
@@ -24,10 +21,7 @@ RAYS = 300_000
 
 
 def trace_tool():
-    spec = importlib.util.spec_from_file_location("trace_tool", ROOT / "tools" / "trace.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_tool("trace")
 
 
 @pytest.fixture(scope="module")

@@ -1,43 +1,17 @@
 """tools/trace.py end to end on a small scene: outputs written, the target found."""
 
 import csv
-import importlib.util
-from pathlib import Path
 
 import numpy as np
 import pytest
-
-ROOT = Path(__file__).resolve().parents[1]
+from tool_helpers import CLOSING_PLATE_SCENE, load_tool
 
 
 def load_trace_tool():
-    spec = importlib.util.spec_from_file_location("trace_tool", ROOT / "tools" / "trace.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_tool("trace")
 
 
-SCENE = """
-[scene]
-name = "closing_plate"
-carrier_hz = 24e9
-
-[[objects]]
-name = "plate"
-material = "metal"
-shape = "plane"
-size = [2.0, 2.0]
-position = [20.0, 0.0, 1.0]
-rotation_deg = [0.0, -90.0, 0.0]
-velocity = [-8.0, 0.0, 0.0]
-
-[[radars]]
-name = "A"
-position = [0.0, 0.0, 1.0]
-pattern = "sector"
-tx_power_w = 0.01
-noise_figure_db = 10.0
-"""
+SCENE = CLOSING_PLATE_SCENE
 
 
 def test_trace_tool_finds_a_closing_plate(tmp_path):

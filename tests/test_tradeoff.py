@@ -10,15 +10,15 @@ from __future__ import annotations
 
 import contextlib
 import csv
-import importlib.util
 import io
 import math
 import re
-from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from tool_helpers import CLOSING_PLATE_SCENE
+from tool_helpers import load_tool as load_named_tool
 
 from clradcom import accuracy as acc
 from clradcom.dsp import (
@@ -31,7 +31,6 @@ from clradcom.dsp import (
 )
 from clradcom.snapshot import InteractionType
 
-ROOT = Path(__file__).resolve().parents[1]
 SMALL = Waveform(carrier_hz=24e9, n_subcarriers=64, n_symbols=32)
 R, D, S = (int(InteractionType.REFLECTION), int(InteractionType.DIFFRACTION),
            int(InteractionType.SCATTERING))
@@ -209,34 +208,11 @@ def test_pareto_front_by_hand():
 
 # ---------------------------------------------------------------------------
 # the tool
-SCENE = """
-[scene]
-name = "closing_plate"
-carrier_hz = 24e9
-
-[[objects]]
-name = "plate"
-material = "metal"
-shape = "plane"
-size = [2.0, 2.0]
-position = [20.0, 0.0, 1.0]
-rotation_deg = [0.0, -90.0, 0.0]
-velocity = [-8.0, 0.0, 0.0]
-
-[[radars]]
-name = "A"
-position = [0.0, 0.0, 1.0]
-pattern = "sector"
-tx_power_w = 0.01
-noise_figure_db = 10.0
-"""
+SCENE = CLOSING_PLATE_SCENE
 
 
 def load_tool():
-    spec = importlib.util.spec_from_file_location("tradeoff_tool", ROOT / "tools" / "tradeoff.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_named_tool("tradeoff")
 
 
 @pytest.fixture(scope="module")
