@@ -31,11 +31,13 @@ reflections dominate). See docs/utd.md "Mixed paths" for the candidate budget.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
 from . import em, utd
+from .errors import BoundaryWarning
 from .raycast import make_rays, spawn_origins
 from .snapshot import InteractionType, Paths
 from .wedges import Wedges, diffraction_point, multi_diffraction_points
@@ -47,6 +49,8 @@ EDGE_CLEARANCE_M = 1e-3
 CONFIRM_TOL_M = 1e-3
 #: A ray this close (rad) to a wedge face grazes it: phi is snapped onto the face.
 GRAZING_RAD = 1e-6
+#: A diffraction this close (rad) to a shadow or reflection boundary is "on" it.
+ON_BOUNDARY_RAD = 1e-9
 #: Occlusion tests of segments that touch an edge run this far (m) off the wedge, so a
 #: segment grazing along a face is not blocked by that face's own triangles.
 EDGE_LIFT_M = 1e-4
@@ -339,6 +343,7 @@ def chain_fields(scene, faces, wedges: Wedges, chains: Chains, points, triangles
             obj[:, i] = faces.object_id[el]
             face_id[:, i] = triangles[:, i]
         else:
+            _warn_on_boundaries(phi[:, j], phi_p[:, j], wedges.n[el], grazing[:, j])
             m0, m1 = wedges.material0[el], wedges.material1[el]
             pec = scene.material_pec[m0] & scene.material_pec[m1]
             d_soft, d_hard = utd.diffraction_coefficients(
@@ -366,6 +371,22 @@ def chain_fields(scene, faces, wedges: Wedges, chains: Chains, points, triangles
                  n_interactions=np.full(C, K, np.int16),
                  interaction=np.broadcast_to(np.asarray(pattern, np.int8), (C, K)).copy(),
                  points=points, object_id=obj, face_id=face_id)
+
+
+def _warn_on_boundaries(phi, phi_p, n, grazing):
+    """BoundaryWarning for diffractions exactly on a shadow boundary (phi - phi' = +-pi)
+    or a reflection boundary (phi + phi' = pi or (2n - 1) pi). Grazing incidence puts
+    every boundary on a face by construction: KP's 1/2 handles it, no warning."""
+    d_inc = np.abs(np.abs(phi - phi_p) - np.pi)
+    d_ref = np.minimum(np.abs(phi + phi_p - np.pi), np.abs(phi + phi_p - (2 * n - 1) * np.pi))
+    on = ~grazing & ((d_inc < ON_BOUNDARY_RAD) | (d_ref < ON_BOUNDARY_RAD))
+    if on.any():
+        i = int(np.flatnonzero(on)[0])
+        kind = "shadow" if d_inc[i] < ON_BOUNDARY_RAD else "reflection"
+        warnings.warn(BoundaryWarning(
+            f"{int(on.sum())} diffracted path(s) lie on a {kind} boundary of their edge "
+            f"(phi = {phi[i]:.12f}, phi' = {phi_p[i]:.12f} rad): the total field there is "
+            "off by half the GO field (docs/stability.md)"), stacklevel=4)
 
 
 # ---------------------------------------------------------------------------

@@ -122,3 +122,11 @@ class SurfaceContactWarning(PhysicsWarning):
     """A transmitter or receiver lies on a reflecting face: the reflection off that face
     coincides with the line of sight and is dropped (geometrical optics has no surface
     wave); lift the antenna off the surface."""
+
+
+class BoundaryWarning(PhysicsWarning):
+    """A diffracted path lies exactly on a shadow or reflection boundary of its edge
+    (within rounding): the UTD term there is the mean of its two one-sided limits, which
+    pairs with a geometrical-optics field of one half, but the tracer keeps or drops the
+    GO path whole, so the total field at this point is off by half the GO field. A
+    fraction of a wavelength either side the total is continuous; move the antenna."""
