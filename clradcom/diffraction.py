@@ -37,7 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import em, utd
-from .errors import BoundaryWarning
+from .errors import BoundaryWarning, CausticWarning
 from .raycast import make_rays, spawn_origins
 from .snapshot import InteractionType, Paths
 from .wedges import Wedges, diffraction_point, multi_diffraction_points
@@ -222,8 +222,16 @@ def diffraction_angles(chains: Chains, points, wedges: Wedges, ok=None):
         safe_out = np.where(good[:, None], s_out, e + 1.0) / np.where(good, len_out,
                                                                      1.0)[:, None]
         # an end on the edge line sees it end-on: no Keller cone
-        good &= (np.linalg.norm(np.cross(safe_in, e), axis=1) > 1e-9) & (
-            np.linalg.norm(np.cross(safe_out, e), axis=1) > 1e-9)
+        end_on = good & ~((np.linalg.norm(np.cross(safe_in, e), axis=1) > 1e-9) & (
+            np.linalg.norm(np.cross(safe_out, e), axis=1) > 1e-9))
+        if end_on.any():
+            warnings.warn(CausticWarning(
+                f"{int(end_on.sum())} edge(s) seen end-on (within 1e-9 rad of the edge "
+                f"line, e.g. wedge {int(w[end_on][0])}): the Keller cone collapses onto "
+                "the edge, a caustic of the diffracted rays, and the path is left out; "
+                "a hair off the line its field is finite (docs/stability.md)"),
+                stacklevel=3)
+        good &= ~end_on
         pp, p, b0 = utd.wedge_angles(safe_in, safe_out, e, wedges.normal0[w])
         limit = wedges.n[w] * np.pi
         pp, graze_in = _snap_to_faces(pp, limit)

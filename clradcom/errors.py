@@ -130,3 +130,9 @@ class BoundaryWarning(PhysicsWarning):
     pairs with a geometrical-optics field of one half, but the tracer keeps or drops the
     GO path whole, so the total field at this point is off by half the GO field. A
     fraction of a wavelength either side the total is continuous; move the antenna."""
+
+
+class CausticWarning(PhysicsWarning):
+    """An antenna lies on an edge's line (the edge seen end-on): the diffracted rays'
+    Keller cone collapses onto the edge, a caustic where UTD has no unique limit (it
+    depends on the direction of approach); the path is left out there."""

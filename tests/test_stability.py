@@ -48,6 +48,7 @@ from clradcom.em import (
 from clradcom.errors import (
     AliasingWarning,
     BoundaryWarning,
+    CausticWarning,
     CyclicPrefixWarning,
     NearFieldWarning,
     PhysicsWarning,
@@ -322,7 +323,8 @@ def test_edge_seen_end_on_through_the_tracer(runtime):
     caustic itself needs more than UTD).  Code: the top edge's diffracted path converges
     as delta goes from 0.1 m to 1e-7 m (successive changes shrink, the gain stays below
     the line of sight's); exactly end-on (and within 1e-9 rad of it) the Keller cone is
-    undefined and the edge contributes no path; every result stays finite.  The utd
+    undefined, the edge contributes no path and a CausticWarning says so; every result
+    stays finite.  The utd
     module's own limits: tests/test_utd.py::test_edge_seen_end_on."""
     free = LAM / (4 * np.pi * 120.0)
     mags = []
@@ -335,7 +337,8 @@ def test_edge_seen_end_on_through_the_tracer(runtime):
     steps = np.abs(np.diff(mags))
     assert np.all(steps[1:] < steps[:-1]) and steps[-1] < 1e-3
     assert max(mags) < 1.0
-    p = link(end_on_scene(0.0), utd_settings(0), runtime=runtime)
+    with pytest.warns(CausticWarning, match="end-on"):
+        p = link(end_on_scene(0.0), utd_settings(0), runtime=runtime)
     assert_finite(p)
     assert top_edge_paths(p) == [] and 0 in p.n_interactions.tolist()
 
