@@ -120,8 +120,11 @@ class NearFieldWarning(PhysicsWarning):
 
 class SurfaceContactWarning(PhysicsWarning):
     """A transmitter or receiver lies on a reflecting face: the reflection off that face
-    coincides with the line of sight and is dropped (geometrical optics has no surface
-    wave); lift the antenna off the surface."""
+    coincides with the line of sight and the image method cannot place it. The tracer
+    adds it as the limit of the two merging rays where the line of sight exists
+    (``tracer.surface_contact_paths``: the total tends to (1 + r) x LOS); with both
+    antennas on the face, or the line of sight blocked, it is left out (geometrical
+    optics has no surface wave)."""
 
 
 class BoundaryWarning(PhysicsWarning):

@@ -202,8 +202,10 @@ def _warn_surface_contact(point, what, normals, offsets, faces, dropped):
     if on.any():
         warnings.warn(f"the {what} at {point.tolist()} lies on the plane of face(s) "
                       f"{np.unique(faces[on]).tolist()}: the reflection off it coincides with "
-                      "the line of sight and is dropped; lift the antenna off the surface",
-                      SurfaceContactWarning, stacklevel=5)
+                      "the line of sight and the image method cannot place it; the tracer "
+                      "adds it as the limit of the merging rays where the line of sight "
+                      "exists (tracer.surface_contact_paths)", SurfaceContactWarning,
+                      stacklevel=5)
 
 
 def _edge_distances(points, tri):

@@ -204,6 +204,75 @@ def specular_paths(geom: Geometry, tx_pos, rx_pos, candidates, line_of_sight=Tru
     return PathGeometry(points=points, n_interactions=n_int, faces=faces, triangles=triangles)
 
 
+def surface_contact_paths(geom: Geometry, tx: Radar, rx: Radar) -> Paths:
+    """The reflection of an antenna lying on a face, as the limit of two merging rays.
+
+    With tx (or rx) on a face and the other end off its plane, the reflected ray and
+    the line of sight coincide: the image method cannot place the reflection (its point
+    is the antenna itself, a zero-length segment). Its field is the limit h -> 0 of the
+    two-ray geometry: the wave leaves tx along the mirror image of the line of sight
+    (into the face), reflects at tx with the face's Fresnel x roughness x sqrt(1 - S^2)
+    dyad and travels the line of sight; so the total tends to (1 + r) x LOS for an
+    isotropic antenna, continuous through h = 0. Call only when the line of sight
+    exists (it is this path's second segment).
+    """
+    scene, faces = geom.scene, geom.faces
+    tx_pos = np.asarray(tx.position, dtype=np.float64)
+    rx_pos = np.asarray(rx.position, dtype=np.float64)
+    los = rx_pos - tx_pos
+    length = float(np.linalg.norm(los))
+    if geom.caster is None or length == 0 or faces.n_faces == 0:
+        return Paths.empty(1)
+    k_los = los / length
+    rows = []
+    for end, other, at_tx in ((tx_pos, rx_pos, True), (rx_pos, tx_pos, False)):
+        tol = sp.CONTACT_TOL_REL * (1.0 + np.abs(end).max())
+        dist = faces.normal @ end - faces.offset
+        off = faces.normal @ other - faces.offset
+        on = np.flatnonzero((np.abs(dist) <= tol) & (np.abs(off) > tol))
+        if len(on) == 0:
+            continue
+        tri = sp.containing_triangles(np.broadcast_to(end, (len(on), 3)), on,
+                                      np.full(len(on), -1), scene.triangles, faces.tri_face)
+        for f, t in zip(on[tri >= 0], tri[tri >= 0], strict=True):
+            rows.append((int(f), int(t), at_tx))
+    if not rows:
+        return Paths.empty(1)
+    f = np.array([r[0] for r in rows])
+    t = np.array([r[1] for r in rows], dtype=np.int32)
+    at_tx = np.array([r[2] for r in rows])
+    n = faces.normal[f]
+    mirrored = k_los - 2.0 * (n @ k_los)[:, None] * n
+    k_dep = np.where(at_tx[:, None], mirrored, k_los)
+    k_arr = np.where(at_tx[:, None], k_los, mirrored)
+    mat = faces.material_id[f]
+    cos_t = np.abs(np.einsum("ij,ij->i", k_dep, n))
+    k0 = 2.0 * np.pi / scene.wavelength_m
+    r_te, r_tm = em.fresnel_coefficients(scene.material_eps_r[mat], cos_t,
+                                         scene.material_pec[mat])
+    rho = em.roughness_factor(scene.material_roughness_m[mat], cos_t, k0,
+                              scene.material_roughness_model[mat])
+    rho = rho * np.sqrt(1.0 - scene.material_scattering[mat] ** 2)
+    T = em.reflection_dyad(k_dep, n, rho * r_te, rho * r_tm) @ (
+        np.eye(3)[None] - k_dep[:, :, None] * k_dep[:, None, :])
+    P = len(rows)
+    gain, M = em.path_gains(T, np.full(P, length), k_dep, k_arr, tx, rx, scene.carrier_hz)
+    contact = np.where(at_tx[:, None], tx_pos, rx_pos)
+    points = np.stack([np.broadcast_to(tx_pos, (P, 3)), contact,
+                       np.broadcast_to(rx_pos, (P, 3))], axis=1)
+    # the merged rays share the line of sight's Doppler
+    los_pts = np.stack([tx_pos, rx_pos])[None]
+    los_vel = np.stack([tx.velocity, rx.velocity])[None]
+    doppler = np.full(P, em.doppler_hz(los_pts, los_vel, scene.wavelength_m)[0])
+    seen = seen_by_antennas(tx, rx, k_dep, k_arr)
+    return select_paths(Paths(
+        gain=gain, matrix=M, delay_s=np.full(P, em.delay_s(np.array([length]))[0]),
+        doppler_hz=doppler, n_interactions=np.ones(P, np.int16),
+        interaction=np.full((P, 1), int(InteractionType.REFLECTION), np.int8),
+        points=points, object_id=faces.object_id[f][:, None].astype(np.int32),
+        face_id=t[:, None]), seen)
+
+
 def seen_by_antennas(tx: Radar, rx: Radar, k_dep, k_arr) -> np.ndarray:
     """Paths that leave inside tx's pattern and arrive inside rx's (non-zero gain)."""
     return (np.asarray(tx.pattern.gain(k_dep @ np.asarray(tx.orientation))) > 0) & (
@@ -377,6 +446,8 @@ def trace_scene(scene: Scene, settings: TraceSettings | None = None,
         times.add("exact paths", time.perf_counter() - t0)
         t0 = time.perf_counter()
         paths = path_fields(geom, pg, tx, rx)
+        if settings.line_of_sight and np.any(pg.n_interactions == 0):
+            paths = concat_paths([paths, surface_contact_paths(geom, tx, rx)])
         times.add("fields", time.perf_counter() - t0)
         if settings.physical_optics != "none" or any(o.optics for o in scene.objects):
             t0 = time.perf_counter()

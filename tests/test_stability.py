@@ -422,14 +422,16 @@ def test_em_refuses_zero_length_segments():
 # 5. a source (or receiver) on a surface
 
 
-def test_source_on_a_surface_warns_and_keeps_line_of_sight(runtime):
+def test_source_on_a_surface_warns_and_folds_the_reflection(runtime):
     """Physics: lowering a transmitter onto a road, the reflected ray merges with the direct
     one and the GO field tends to (1 + r(theta)) times the line of sight, theta the angle
     from the normal towards the receiver.  Code: above the surface (down to 10 um) both
     paths are traced and their sum converges to that limit; exactly on the surface the
-    reflection point would coincide with the transmitter (a zero-length segment), so the
-    reflection is dropped with a SurfaceContactWarning naming the antenna and the face,
-    and the line of sight alone is kept (finite, the free-space value)."""
+    image method cannot place the reflection (its point is the transmitter, a zero-length
+    segment) and says so with a SurfaceContactWarning naming the antenna and the face;
+    the tracer adds the reflection as the limit of the merging rays
+    (tracer.surface_contact_paths): the line of sight and one reflection at the antenna,
+    both finite, the reflection r x the line of sight."""
     d, h_r = 20.0, 0.5
     l0 = math.hypot(d, h_r)
     r_te, r_tm = fresnel(ETA_ROAD, h_r / l0)
@@ -442,19 +444,20 @@ def test_source_on_a_surface_warns_and_keeps_line_of_sight(runtime):
     assert abs(got[-1] - limit) < 1e-3 and abs(got[-1] - limit) < abs(got[0] - limit)
     with pytest.warns(SurfaceContactWarning, match="transmitter at .* lies on the plane"):
         p = link(two_ray_dict(d, "V", h_t=0.0, h_r=h_r), runtime=runtime)
-    assert p.n_interactions.tolist() == [0]
+    assert sorted(p.n_interactions.tolist()) == [0, 1]
     assert_finite(p)
-    assert abs(p.gain[0]) == pytest.approx(abs(spreading(l0)), rel=1e-3)
+    los, refl = p.gain[p.n_interactions == 0][0], p.gain[p.n_interactions == 1][0]
+    assert abs(los) == pytest.approx(abs(spreading(l0)), rel=1e-3)
+    assert refl / los == pytest.approx(r_tm, rel=1e-9)
+    assert p.delay_s[0] == p.delay_s[1]
     with pytest.warns(SurfaceContactWarning, match="receiver at"):
         link(two_ray_dict(d, "V", h_t=h_r, h_r=0.0), runtime=runtime)
 
 
-@pytest.mark.xfail(strict=True, reason="clradcom/tracer.py drops the reflection of an antenna "
-                   "lying on a face instead of folding it into the line of sight as "
-                   "(1 + r) x LOS, so the total field jumps at h = 0")
 def test_source_on_a_surface_is_continuous(runtime):
-    """Physics: the GO limit (1 + r) x LOS holds on the surface too.  Code (today): at h = 0
-    the reflection is dropped (with a warning) and the field jumps to the LOS alone."""
+    """Physics: the GO limit (1 + r) x LOS holds on the surface too.  Code: at h = 0 the
+    folded reflection gives it, so the field does not jump (also with the antennas
+    swapped: a receiver on the road)."""
     d, h_r = 20.0, 0.5
     l0 = math.hypot(d, h_r)
     _, r_tm = fresnel(ETA_ROAD, h_r / l0)
@@ -462,6 +465,10 @@ def test_source_on_a_surface_is_continuous(runtime):
         warnings.simplefilter("ignore", SurfaceContactWarning)
         p = link(two_ray_dict(d, "V", h_t=0.0, h_r=h_r), runtime=runtime)
     assert abs(p.gain.sum()) / abs(spreading(l0)) == pytest.approx(abs(1 + r_tm), abs=1e-3)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SurfaceContactWarning)
+        q = link(two_ray_dict(d, "V", h_t=h_r, h_r=0.0), runtime=runtime)
+    assert abs(q.gain.sum()) / abs(spreading(l0)) == pytest.approx(abs(1 + r_tm), abs=1e-3)
 
 # ---------------------------------------------------------------------------
 # 6. paths longer than the cyclic prefix; 7. beyond r_max and v_max

@@ -154,7 +154,7 @@ def parse_args(argv):
     ap.add_argument("--rays", type=_list(int), default=[10_000, 100_000, 1_000_000])
     ap.add_argument("--reflections", type=_list(int), default=[0, 1, 2, 5])
     ap.add_argument("--diffractions", type=_list(int), default=[0, 1])
-    ap.add_argument("--optics", type=_list(str), default=["none", "pec"],
+    ap.add_argument("--optics", type=_list(str), default=["none", "pec", "sbr"],
                     help="physical_optics values; the last is the reference's")
     ap.add_argument("--scattering", type=_list(_bool), default=[False, True])
     ap.add_argument("--vary", type=_vary, action="append", default=[],
