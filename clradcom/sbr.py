@@ -337,27 +337,13 @@ def _radiate(geom, hits: TubeHits, grid: TubeGrid, tx, rx):
     return T, L, k_dep, s, keep
 
 
-def sbr_paths(geom, tx, rx, *, objects, spacing_m: float | None = None,
+def shoot_sbr(geom, tx, objects, *, spacing_m: float | None = None,
               spacing_wavelengths: float = 0.5, max_bounces: int = 3, first_bounce: int = 2,
-              min_relative_db: float = -80.0, grid: TubeGrid | None = None) -> Paths:
-    """SBR-PO multi-bounce returns of one tx -> rx link as :class:`Paths`.
-
-    Tubes are shot from tx over the bounding sphere of each object in ``objects`` (pitch
-    ``spacing_m``, default ``spacing_wavelengths`` wavelengths, at the sphere's centre),
-    bounce off anything in the scene, and radiate (module docstring) from every bounce
-    >= ``first_bounce`` that lands on one of ``objects`` and sees rx unblocked.
-
-    Tube contributions with the same sequence of planar faces (``geom.faces``) add up
-    coherently to one path: gain and matrix are the sums; points, delay, Doppler,
-    object and triangle ids are those of the tube whose unfolded length is closest to
-    the |gain|-weighted mean length of the group (so the delay is the group's and is
-    consistent with the points).  Groups more than |min_relative_db| below the
-    strongest of the link, and tubes outside either antenna's pattern, are dropped.
-    """
+              grid: TubeGrid | None = None):
+    """(grid, hits) of tx's tubes over ``objects``: what every receiver of tx shares, so a
+    tracer computes it once per transmitter (see :func:`sbr_paths`)."""
     scene = geom.scene
     objects = np.asarray(list(objects), dtype=np.int64)
-    if geom.caster is None or len(objects) == 0 or max_bounces < first_bounce:
-        return Paths.empty(max(first_bounce, 1))
     on = np.isin(scene.tri_object, objects)
     if grid is None:
         spacing = (float(spacing_m) if spacing_m is not None
@@ -371,11 +357,42 @@ def sbr_paths(geom, tx, rx, *, objects, spacing_m: float | None = None,
                 # a radar riding on the object: no tube grid can cover it from inside;
                 # its own multi-bounce echoes are left out, its PO facets stay
                 warnings.warn(f"SBR skips object {scene.objects[o].name!r}: transmitter "
-                              f"{tx.name!r} lies inside its bounding sphere", stacklevel=2)
+                              f"{tx.name!r} lies inside its bounding sphere", stacklevel=3)
                 continue
             spheres.append((c, r))
         grid = launch_tubes(tx.position, spheres, spacing)
-    hits = shoot_tubes(geom, tx.position, grid, max_bounces, first_bounce, on)
+    return grid, shoot_tubes(geom, tx.position, grid, max_bounces, first_bounce, on)
+
+
+def sbr_paths(geom, tx, rx, *, objects, spacing_m: float | None = None,
+              spacing_wavelengths: float = 0.5, max_bounces: int = 3, first_bounce: int = 2,
+              min_relative_db: float = -80.0, grid: TubeGrid | None = None,
+              shot=None) -> Paths:
+    """SBR-PO multi-bounce returns of one tx -> rx link as :class:`Paths`.
+
+    Tubes are shot from tx over the bounding sphere of each object in ``objects`` (pitch
+    ``spacing_m``, default ``spacing_wavelengths`` wavelengths, at the sphere's centre),
+    bounce off anything in the scene, and radiate (module docstring) from every bounce
+    >= ``first_bounce`` that lands on one of ``objects`` and sees rx unblocked.
+
+    Tube contributions with the same sequence of planar faces (``geom.faces``) add up
+    coherently to one path: gain and matrix are the sums; points, delay, Doppler,
+    object and triangle ids are those of the tube whose unfolded length is closest to
+    the |gain|-weighted mean length of the group (so the delay is the group's and is
+    consistent with the points).  Groups more than |min_relative_db| below the
+    strongest of the link, and tubes outside either antenna's pattern, are dropped.
+    ``shot`` is :func:`shoot_sbr`'s (grid, hits) for this tx and these settings, when
+    the caller keeps it across receivers.
+    """
+    scene = geom.scene
+    objects = np.asarray(list(objects), dtype=np.int64)
+    if geom.caster is None or len(objects) == 0 or max_bounces < first_bounce:
+        return Paths.empty(max(first_bounce, 1))
+    if shot is None:
+        shot = shoot_sbr(geom, tx, objects, spacing_m=spacing_m,
+                         spacing_wavelengths=spacing_wavelengths, max_bounces=max_bounces,
+                         first_bounce=first_bounce, grid=grid)
+    grid, hits = shot
     if len(hits.tube) == 0:
         return Paths.empty(max_bounces)
     T, L, k_dep, k_arr, keep = _radiate(geom, hits, grid, tx, rx)

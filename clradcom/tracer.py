@@ -304,7 +304,8 @@ def select_paths(paths: Paths, mask) -> Paths:
 
 
 def with_physical_optics(geom: Geometry, paths: Paths, tx: Radar, rx: Radar,
-                         settings: TraceSettings | None = None) -> Paths:
+                         settings: TraceSettings | None = None,
+                         sbr_cache: dict | None = None) -> Paths:
     """Swap GO returns for physical optics on the objects that ask for it.
 
     A GO image path off a flat facet is the return of an infinite mirror; the PO
@@ -321,7 +322,7 @@ def with_physical_optics(geom: Geometry, paths: Paths, tx: Radar, rx: Radar,
 
     Without ``settings`` this is ``physical_optics="pec"`` (PO facets on PEC objects).
     """
-    from .sbr import object_optics, sbr_paths
+    from .sbr import object_optics, sbr_paths, shoot_sbr
 
     settings = settings or TraceSettings(physical_optics="pec")
     modes = np.array(object_optics(geom.scene, settings.physical_optics))
@@ -343,9 +344,16 @@ def with_physical_optics(geom: Geometry, paths: Paths, tx: Radar, rx: Radar,
         drop &= all_refl
     parts = [select_paths(paths, ~drop), po_paths(geom, tx, rx, objects=po_objects)]
     if len(sbr_objects) and settings.max_reflections >= 2:
+        # the tubes depend on tx only: shot once, radiated to every receiver
+        key = (tx.name, tuple(int(o) for o in sbr_objects))
+        cache = sbr_cache if sbr_cache is not None else {}
+        if key not in cache:
+            cache[key] = shoot_sbr(geom, tx, sbr_objects,
+                                   spacing_wavelengths=settings.sbr_spacing_wavelengths,
+                                   max_bounces=settings.max_reflections)
         parts.append(sbr_paths(geom, tx, rx, objects=sbr_objects,
                                spacing_wavelengths=settings.sbr_spacing_wavelengths,
-                               max_bounces=settings.max_reflections))
+                               max_bounces=settings.max_reflections, shot=cache[key]))
     return concat_paths(parts)
 
 
@@ -425,6 +433,7 @@ def trace_scene(scene: Scene, settings: TraceSettings | None = None,
     cache = {}
     n_dropped_tiles = 0
     n_below_floor = 0
+    sbr_cache: dict = {}  # one SBR tube shot per transmitter, for all its receivers
     diffraction_stats: dict[str, int] = {}
     wedges = None
     if settings.max_diffractions and len(scene.triangles):
@@ -451,7 +460,7 @@ def trace_scene(scene: Scene, settings: TraceSettings | None = None,
         times.add("fields", time.perf_counter() - t0)
         if settings.physical_optics != "none" or any(o.optics for o in scene.objects):
             t0 = time.perf_counter()
-            paths = with_physical_optics(geom, paths, tx, rx, settings)
+            paths = with_physical_optics(geom, paths, tx, rx, settings, sbr_cache)
             times.add("physical optics", time.perf_counter() - t0)
         if settings.scattering and geom.caster is not None:
             t0 = time.perf_counter()
