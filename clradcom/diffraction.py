@@ -338,16 +338,8 @@ def chain_fields(scene, faces, wedges: Wedges, chains: Chains, points, triangles
     for i, kind in enumerate(pattern):
         el = elem[:, i]
         if kind == REFLECTION:
-            mat = faces.material_id[el]
-            n = faces.normal[el]
-            cos_t = np.abs(np.einsum("ci,ci->c", u[:, i], n))
-            r_te, r_tm = em.fresnel_coefficients(scene.material_eps_r[mat], cos_t,
-                                                 scene.material_pec[mat])
-            rho = em.roughness_factor(scene.material_roughness_m[mat], cos_t, k,
-                                      scene.material_roughness_model[mat])
-            # effective roughness: S^2 of the power goes to diffuse scattering
-            rho = rho * np.sqrt(1.0 - scene.material_scattering[mat] ** 2)
-            dyad = em.reflection_dyad(u[:, i], n, rho * r_te, rho * r_tm)
+            dyad = em.material_reflection_dyad(scene, faces.material_id[el], u[:, i],
+                                               faces.normal[el])
             obj[:, i] = faces.object_id[el]
             face_id[:, i] = triangles[:, i]
         else:
@@ -534,7 +526,8 @@ def diffraction_candidates(caster, wedges: Wedges, tx_pos, rx_pos, tx_sequences:
     if len(wedges) == 0 or budget.max_diffractions < 1:
         return
     seen_tx = wedges_seeing(caster, wedges, tx_pos)
-    seen_rx = wedges_seeing(caster, wedges, rx_pos)
+    seen_rx = seen_tx if np.array_equal(tx_pos, rx_pos) else wedges_seeing(caster, wedges,
+                                                                           rx_pos)
     sides = [(0, 0)] + [(a, 0) for a in range(1, budget.max_reflections + 1)] + [
         (0, b) for b in range(1, budget.max_reflections + 1)]
     for a, b in sides:

@@ -240,6 +240,24 @@ def reflection_dyad(k_in, normal, r_te, r_tm):
             + r_tm[:, None, None] * e_par_r[:, :, None] * e_par_i[:, None, :])
 
 
+def material_reflection_dyad(scene, material, k_in, normal):
+    """Specular reflection dyad (P,3,3) off faces of scene materials ``material`` (P,):
+    Fresnel coefficients x roughness factor x sqrt(1 - S^2) (effective roughness: S^2 of
+    the power goes into diffuse scattering), at cos theta = |k_in . n|.  The factor
+    every single reflection off a scene face carries (mixed diffraction paths, mirror legs
+    of scattering, an antenna on a face), as :func:`path_transfer` and the tracer's
+    specular share give it to chains of reflections."""
+    mat = np.asarray(material)
+    k_in = np.asarray(k_in, dtype=np.float64)
+    n = np.asarray(normal, dtype=np.float64)
+    cos_t = np.abs(_dot(k_in, n) / (np.linalg.norm(k_in, axis=-1) * np.linalg.norm(n, axis=-1)))
+    r_te, r_tm = fresnel_coefficients(scene.material_eps_r[mat], cos_t, scene.material_pec[mat])
+    rho = roughness_factor(scene.material_roughness_m[mat], cos_t, 2.0 * np.pi / scene.wavelength_m,
+                           scene.material_roughness_model[mat])
+    rho = rho * np.sqrt(1.0 - scene.material_scattering[mat] ** 2)
+    return reflection_dyad(k_in, n, rho * r_te, rho * r_tm)
+
+
 # ---------------------------------------------------------------------------
 # path transfer
 

@@ -342,16 +342,8 @@ def _mirror_dyads(scene, faces, face, k_in):
     if len(act) == 0:
         return D
     f = face[act]
-    mat = faces.material_id[f]
-    n = faces.normal[f]
-    cos_t = np.abs(np.einsum("pi,pi->p", k_in[act], n))
-    r_te, r_tm = em.fresnel_coefficients(scene.material_eps_r[mat], cos_t,
-                                         scene.material_pec[mat])
-    k0 = 2.0 * np.pi / scene.wavelength_m
-    rho = em.roughness_factor(scene.material_roughness_m[mat], cos_t, k0,
-                              scene.material_roughness_model[mat])
-    rho = rho * np.sqrt(1.0 - scene.material_scattering[mat] ** 2)
-    D[act] = em.reflection_dyad(k_in[act], n, rho * r_te, rho * r_tm)
+    D[act] = em.material_reflection_dyad(scene, faces.material_id[f], k_in[act],
+                                         faces.normal[f])
     return D
 
 

@@ -73,6 +73,11 @@ class TraceSettings:
     # the radar's processed noise floor, budget.noise_floor); 0 traces every triangle
     scattering_floor: float = 0.0
 
+    @property
+    def reflections_beside_edges(self) -> int:
+        """Reflections a diffracted path may have: never more than max_reflections."""
+        return min(self.diffraction_reflections, self.max_reflections)
+
     def __post_init__(self):
         if self.physical_optics not in ("none", "pec", "sbr"):
             raise ValueError(f"physical_optics must be 'none', 'pec' or 'sbr', got "
@@ -245,15 +250,7 @@ def surface_contact_paths(geom: Geometry, tx: Radar, rx: Radar) -> Paths:
     mirrored = k_los - 2.0 * (n @ k_los)[:, None] * n
     k_dep = np.where(at_tx[:, None], mirrored, k_los)
     k_arr = np.where(at_tx[:, None], k_los, mirrored)
-    mat = faces.material_id[f]
-    cos_t = np.abs(np.einsum("ij,ij->i", k_dep, n))
-    k0 = 2.0 * np.pi / scene.wavelength_m
-    r_te, r_tm = em.fresnel_coefficients(scene.material_eps_r[mat], cos_t,
-                                         scene.material_pec[mat])
-    rho = em.roughness_factor(scene.material_roughness_m[mat], cos_t, k0,
-                              scene.material_roughness_model[mat])
-    rho = rho * np.sqrt(1.0 - scene.material_scattering[mat] ** 2)
-    T = em.reflection_dyad(k_dep, n, rho * r_te, rho * r_tm) @ (
+    T = em.material_reflection_dyad(scene, faces.material_id[f], k_dep, n) @ (
         np.eye(3)[None] - k_dep[:, :, None] * k_dep[:, None, :])
     P = len(rows)
     gain, M = em.path_gains(T, np.full(P, length), k_dep, k_arr, tx, rx, scene.carrier_hz)
@@ -362,8 +359,7 @@ def diffraction_paths(geom: Geometry, wedges, tx: Radar, rx: Radar, settings: Tr
     """UTD diffraction paths of one link, up to settings.max_diffractions edges mixed
     with reflections from the rays' face sequences (see clradcom.diffraction)."""
     budget = diff.DiffractionBudget(max_diffractions=settings.max_diffractions,
-                                    max_reflections=min(settings.diffraction_reflections,
-                                                        settings.max_reflections),
+                                    max_reflections=settings.reflections_beside_edges,
                                     max_hop_m=settings.diffraction_hop_m)
     parts, counts = diff.diffraction_link_paths(
         geom.scene, geom.faces, geom.caster, wedges, tx, rx, tx_sequences or {},
@@ -482,7 +478,7 @@ def trace_scene(scene: Scene, settings: TraceSettings | None = None,
         if wedges is not None:
             t0 = time.perf_counter()
             rx_seqs = {}
-            if min(settings.diffraction_reflections, settings.max_reflections):
+            if settings.reflections_beside_edges:
                 if r_idx not in cache:
                     cache[r_idx] = candidate_sequences(geom, rx, settings)
                 rx_seqs = cache[r_idx]
