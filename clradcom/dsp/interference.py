@@ -34,6 +34,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ..errors import AliasingWarning, CyclicPrefixWarning
 from .processing import get_window, radar_image, spectral_estimate
 from .synthesis import (
     channel_transfer_function,
@@ -123,7 +124,8 @@ def stream_signal(symbols, gains, delays_s, dopplers_hz, waveform: Waveform,
     with warnings.catch_warnings():
         # the stream's delay counts whole symbols of the stream: not a radar range, so the
         # range-aliasing warning of the synthesis does not apply here
-        warnings.filterwarnings("ignore", message=r"\d+ of \d+ paths have delays beyond")
+        warnings.filterwarnings("ignore", message=r"\d+ of \d+ paths have delays beyond",
+                                category=AliasingWarning)
         y_hat = synthesize_time_domain(grid, a * np.exp(2j * np.pi * fd * s0 / fs),
                                        np.maximum(tau - s0 / fs, 0.0), fd, wf, tol=tol)
     if s0 >= 0:
@@ -233,7 +235,7 @@ def predicted_interference_power(gains, delays_s, dopplers_hz, waveform: Wavefor
     """
     with warnings.catch_warnings():
         # only the power is used, which ISI beyond the prefix does not change
-        warnings.filterwarnings("ignore", message=r"\d+ of \d+ paths are delayed beyond")
+        warnings.simplefilter("ignore", CyclicPrefixWarning)
         h = channel_transfer_function(gains, delays_s, dopplers_hz, waveform, method="matmul")
     p = np.abs(h) ** 2
     wn = np.ones(p.shape[0]) if window_range is None else \
