@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from .opencl import ENV_DEVICE, OpenCLError, choose_device, list_devices
+from clradcom.device.runtime import ENV_DEVICE, OpenCLError, choose_device, list_devices
 
 
 def _cmd_devices(args) -> int:

@@ -7,10 +7,12 @@ offending value, so a user can find and fix the line without a traceback.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 __all__ = ["SceneError", "SceneWarning", "NOVALUE", "PhysicsWarning", "CyclicPrefixWarning",
-           "AliasingWarning", "NearFieldWarning", "SurfaceContactWarning"]
+           "AliasingWarning", "NearFieldWarning", "SurfaceContactWarning",
+           "BoundaryWarning", "CausticWarning", "SnapshotError"]
 
 
 class _NoValue:
@@ -139,3 +141,29 @@ class CausticWarning(PhysicsWarning):
     """An antenna lies on an edge's line (the edge seen end-on): the diffracted rays'
     Keller cone collapses onto the edge, a caustic where UTD has no unique limit (it
     depends on the direction of approach); the path is left out there."""
+
+
+class SnapshotError(ValueError):
+    """A snapshot (in memory or on disk) was refused.
+
+    ``file`` is the snapshot file (``None`` for an object being built in memory), ``key``
+    the field or npz key (``link2/delay_s[3]``), ``reason`` what is wrong.
+    """
+
+    def __init__(self, reason: str, *, file: str | os.PathLike | None = None,
+                 key: str | None = None) -> None:
+        self.reason = reason
+        self.file = None if file is None else str(file)
+        self.key = key
+        super().__init__(str(self))
+
+    def __str__(self) -> str:
+        parts = [p for p in (self.file, self.key) if p is not None]
+        return ": ".join([*parts, self.reason])
+
+    def __reduce__(self):  # keep pickling (multiprocessing) working
+        return (_rebuild_error, (self.reason, self.file, self.key))
+
+
+def _rebuild_error(reason, file, key):  # pragma: no cover - pickling helper
+    return SnapshotError(reason, file=file, key=key)

@@ -28,10 +28,18 @@ import secrets
 import zipfile
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
-from enum import IntEnum
 from pathlib import Path
 
 import numpy as np
+
+from clradcom.errors import SnapshotError
+from clradcom.paths import (
+    PATH_FIELD_NAMES,
+    PATH_FIELDS,
+    InteractionType,
+    Paths,
+    paths_difference,
+)
 
 __all__ = [
     "FORMAT_NAME",
@@ -58,287 +66,6 @@ _ZIP_EXTERNAL_ATTR = 0o600 << 16
 
 _HEX = re.compile(r"[0-9a-fA-F]*")
 _META_KEY = re.compile(r"[A-Za-z0-9_.\-]+")
-
-
-class InteractionType(IntEnum):
-    """What happens to a path at one interaction point (``Paths.interaction`` codes).
-
-    Codes, not bit flags: every interaction slot holds exactly one of them; ``NONE``
-    pads the slots past a path's ``n_interactions``. The whole project uses these codes
-    (kernels mirror them as ``#define``s).
-    """
-
-    NONE = 0
-    REFLECTION = 1
-    DIFFRACTION = 2
-    SCATTERING = 3
-
-
-_VALID_CODES = np.array([int(t) for t in InteractionType if t != InteractionType.NONE],
-                        dtype=np.int8)
-
-
-class SnapshotError(ValueError):
-    """A snapshot (in memory or on disk) was refused.
-
-    ``file`` is the snapshot file (``None`` for an object being built in memory), ``key``
-    the field or npz key (``link2/delay_s[3]``), ``reason`` what is wrong.
-    """
-
-    def __init__(self, reason: str, *, file: str | os.PathLike | None = None,
-                 key: str | None = None) -> None:
-        self.reason = reason
-        self.file = None if file is None else str(file)
-        self.key = key
-        super().__init__(str(self))
-
-    def __str__(self) -> str:
-        parts = [p for p in (self.file, self.key) if p is not None]
-        return ": ".join([*parts, self.reason])
-
-    def __reduce__(self):  # keep pickling (multiprocessing) working
-        return (_rebuild_error, (self.reason, self.file, self.key))
-
-
-def _rebuild_error(reason, file, key):  # pragma: no cover - pickling helper
-    return SnapshotError(reason, file=file, key=key)
-
-
-# ---------------------------------------------------------------------------
-# Paths
-
-
-#: (field, dtype, shape in terms of P and K) in file order.
-_PATH_FIELDS: tuple[tuple[str, np.dtype, str], ...] = (
-    ("gain", np.dtype(np.complex128), "(P,)"),
-    ("matrix", np.dtype(np.complex128), "(P, 2, 2)"),
-    ("delay_s", np.dtype(np.float64), "(P,)"),
-    ("doppler_hz", np.dtype(np.float64), "(P,)"),
-    ("n_interactions", np.dtype(np.int16), "(P,)"),
-    ("interaction", np.dtype(np.int8), "(P, K)"),
-    ("points", np.dtype(np.float64), "(P, K+2, 3)"),
-    ("object_id", np.dtype(np.int32), "(P, K)"),
-    ("face_id", np.dtype(np.int32), "(P, K)"),
-)
-_PATH_FIELD_NAMES = tuple(name for name, _, _ in _PATH_FIELDS)
-
-
-def _expected_shape(spec: str, p: int, k: int) -> tuple[int, ...]:
-    return {
-        "(P,)": (p,),
-        "(P, 2, 2)": (p, 2, 2),
-        "(P, K)": (p, k),
-        "(P, K+2, 3)": (p, k + 2, 3),
-    }[spec]
-
-
-def _index_str(idx) -> str:
-    return "[" + ", ".join(str(int(i)) for i in idx) + "]"
-
-
-def _first_bad(mask: np.ndarray) -> tuple[int, ...] | None:
-    """Row-major index of the first True in ``mask`` (None if there is none)."""
-    flat = np.flatnonzero(mask)
-    if flat.size == 0:
-        return None
-    return tuple(int(i) for i in np.unravel_index(flat[0], mask.shape))
-
-
-def _coerce(name: str, value, dtype: np.dtype) -> np.ndarray:
-    """A C-contiguous, native-order copy of ``value`` as ``dtype``, refusing lossy casts."""
-    try:
-        arr = np.asarray(value)
-    except Exception as exc:  # ragged lists and the like
-        raise SnapshotError(f"cannot be read as an array: {exc}", key=name) from None
-    if arr.dtype.kind == "O":
-        raise SnapshotError("object arrays are not allowed; give numbers", key=name)
-    kind = arr.dtype.kind
-    if arr.size == 0 and kind in "biufc":
-        pass  # an empty list is float64 to numpy; any numeric empty array will do
-    elif dtype.kind == "c":
-        if kind not in "iufc":
-            raise SnapshotError(f"dtype {arr.dtype} is not numeric (want {dtype})", key=name)
-    elif dtype.kind == "f":
-        if kind not in "iuf":
-            raise SnapshotError(f"dtype {arr.dtype} is not real (want {dtype})", key=name)
-    else:  # integer target
-        if kind not in "iu":
-            raise SnapshotError(f"dtype {arr.dtype} is not an integer type (want {dtype})",
-                                key=name)
-        if arr.size:
-            info = np.iinfo(dtype)
-            bad = _first_bad((arr < info.min) | (arr > info.max))
-            if bad is not None:
-                raise SnapshotError(
-                    f"value {arr[bad]} does not fit in {dtype} at index {_index_str(bad)}",
-                    key=name)
-    out = np.array(arr, dtype=dtype, order="C", copy=True)
-    out.setflags(write=False)
-    return out
-
-
-@dataclass(frozen=True, eq=False)
-class Paths:
-    """The propagation paths of one link: ``P`` paths, at most ``K`` interactions each.
-
-    All arrays are copied on construction, converted to the dtypes below and made
-    read-only; the constructor refuses inconsistent or invalid values with a
-    :class:`SnapshotError` (a ``ValueError``) naming the field and the first bad index.
-
-    Attributes
-    ----------
-    gain : complex128 (P,)
-        Baseband channel coefficient a_k (carrier phase -2 pi f_c tau_k, antenna
-        patterns and polarization inside): the received baseband signal is
-        sum_k a_k x(t - tau_k) exp(j 2 pi f_D,k t). Finite.
-    matrix : complex128 (P, 2, 2)
-        Polarimetric transfer matrix: rx field [E_theta, E_phi] = matrix @ tx field
-        [E_theta, E_phi], in the tx/rx antenna's spherical bases (theta-hat, phi-hat) along
-        the departure/arrival directions, without antenna patterns. Finite.
-    delay_s : float64 (P,)
-        Propagation delay tau_k (s), finite and >= 0.
-    doppler_hz : float64 (P,)
-        Doppler shift f_D,k = -(1/lambda) dL/dt (Hz), finite.
-    n_interactions : int16 (P,)
-        Number n of interactions of each path, 0 <= n <= K.
-    interaction : int8 (P, K)
-        :class:`InteractionType` code of interaction j (j < n: 1, 2 or 3); 0 past n.
-    points : float64 (P, K+2, 3)
-        Polyline of the path (m): row 0 the tx point, rows 1..n the interaction points,
-        row n+1 the rx point; rows past n+1 are NaN. Rows 0..n+1 are finite.
-    object_id : int32 (P, K)
-        Scene object index hit at interaction j (>= 0 for j < n); -1 past n.
-    face_id : int32 (P, K)
-        Scene triangle index hit at interaction j (>= 0 for j < n; for a diffraction, a
-        triangle that owns the edge); -1 past n.
-    """
-
-    gain: np.ndarray
-    matrix: np.ndarray
-    delay_s: np.ndarray
-    doppler_hz: np.ndarray
-    n_interactions: np.ndarray
-    interaction: np.ndarray
-    points: np.ndarray
-    object_id: np.ndarray
-    face_id: np.ndarray
-
-    def __post_init__(self) -> None:
-        for name, dtype, _ in _PATH_FIELDS:
-            object.__setattr__(self, name, _coerce(name, getattr(self, name), dtype))
-        self._check_shapes()
-        self._check_values()
-
-    # -- construction helpers ------------------------------------------------------
-
-    @classmethod
-    def empty(cls, k_max: int = 0) -> Paths:
-        """A link without paths (P = 0) whose arrays are K = ``k_max`` wide."""
-        k = int(k_max)
-        if k < 0:
-            raise SnapshotError(f"must be >= 0, got {k_max}", key="k_max")
-        return cls(
-            gain=np.zeros(0, np.complex128),
-            matrix=np.zeros((0, 2, 2), np.complex128),
-            delay_s=np.zeros(0),
-            doppler_hz=np.zeros(0),
-            n_interactions=np.zeros(0, np.int16),
-            interaction=np.zeros((0, k), np.int8),
-            points=np.zeros((0, k + 2, 3)),
-            object_id=np.zeros((0, k), np.int32),
-            face_id=np.zeros((0, k), np.int32),
-        )
-
-    # -- checks ----------------------------------------------------------------------
-
-    def _check_shapes(self) -> None:
-        if self.gain.ndim != 1:
-            raise SnapshotError(f"shape {self.gain.shape}, want (P,)", key="gain")
-        if self.interaction.ndim != 2:
-            raise SnapshotError(f"shape {self.interaction.shape}, want (P, K)",
-                                key="interaction")
-        p = self.gain.shape[0]
-        k = self.interaction.shape[1]
-        for name, _, spec in _PATH_FIELDS:
-            want = _expected_shape(spec, p, k)
-            got = getattr(self, name).shape
-            if got != want:
-                raise SnapshotError(
-                    f"shape {got}, want {spec} = {want} (P = {p} from gain, "
-                    f"K = {k} from interaction)", key=name)
-
-    def _check_values(self) -> None:
-        def refuse(name, idx, value, reason):
-            raise SnapshotError(f"{reason} (value {value!r})", key=f"{name}{_index_str(idx)}")
-
-        for name in ("gain", "matrix", "delay_s", "doppler_hz"):
-            arr = getattr(self, name)
-            bad = _first_bad(~np.isfinite(arr))
-            if bad is not None:
-                refuse(name, bad, arr[bad].item(), "must be finite")
-        bad = _first_bad(self.delay_s < 0)
-        if bad is not None:
-            refuse("delay_s", bad, self.delay_s[bad].item(), "delays must be >= 0")
-
-        k = self.k_max
-        n = self.n_interactions.astype(np.int64)
-        bad = _first_bad((n < 0) | (n > k))
-        if bad is not None:
-            refuse("n_interactions", bad, int(n[bad]), f"must lie in [0, K = {k}]")
-
-        active = np.arange(k)[None, :] < n[:, None]  # (P, K) real interaction slots
-        code = self.interaction
-        bad = _first_bad(active & ~np.isin(code, _VALID_CODES))
-        if bad is not None:
-            refuse("interaction", bad, int(code[bad]),
-                   "slot below n_interactions needs a code 1 (reflection), 2 (diffraction) "
-                   "or 3 (scattering)")
-        bad = _first_bad(~active & (code != InteractionType.NONE))
-        if bad is not None:
-            refuse("interaction", bad, int(code[bad]),
-                   "padding slot (at or past n_interactions) must be 0")
-        for name in ("object_id", "face_id"):
-            arr = getattr(self, name)
-            bad = _first_bad(active & (arr < 0))
-            if bad is not None:
-                refuse(name, bad, int(arr[bad]), "a real interaction needs an id >= 0")
-            bad = _first_bad(~active & (arr != -1))
-            if bad is not None:
-                refuse(name, bad, int(arr[bad]),
-                       "padding slot (at or past n_interactions) must be -1")
-
-        used = np.arange(k + 2)[None, :] < (n + 2)[:, None]  # (P, K+2) polyline rows
-        finite = np.isfinite(self.points)
-        bad = _first_bad(used[:, :, None] & ~finite)
-        if bad is not None:
-            refuse("points", bad, self.points[bad].item(),
-                   "tx, interaction and rx points must be finite")
-        bad = _first_bad(~used[:, :, None] & ~np.isnan(self.points))
-        if bad is not None:
-            refuse("points", bad, self.points[bad].item(),
-                   "rows past the rx point (row n_interactions + 1) must be NaN")
-
-    # -- conveniences ----------------------------------------------------------------
-
-    @property
-    def n_paths(self) -> int:
-        """P, the number of paths."""
-        return int(self.gain.shape[0])
-
-    @property
-    def k_max(self) -> int:
-        """K, the width of the interaction arrays (0: line of sight only)."""
-        return int(self.interaction.shape[1])
-
-    def __len__(self) -> int:
-        return self.n_paths
-
-    def __eq__(self, other: object) -> bool:
-        if not isinstance(other, Paths):
-            return NotImplemented
-        return _paths_difference(self, other) is None
-
-    __hash__ = None  # mutable-looking arrays inside: not hashable
 
 
 # ---------------------------------------------------------------------------
@@ -582,37 +309,11 @@ def _real_scalar(value, key: str) -> float:
 # exact comparison
 
 
-def _array_difference(a: np.ndarray, b: np.ndarray) -> str | None:
-    if a.dtype != b.dtype:
-        return f"dtype {a.dtype} != {b.dtype}"
-    if a.shape != b.shape:
-        return f"shape {a.shape} != {b.shape}"
-    if a.dtype.kind in "fc":
-        ra, rb = (a.view(np.float64), b.view(np.float64)) if a.dtype.kind == "c" else (a, b)
-        same = (ra == rb) | (np.isnan(ra) & np.isnan(rb))
-        if a.dtype.kind == "c":
-            same = same.reshape(*a.shape, 2).all(axis=-1)
-    else:
-        same = a == b
-    bad = _first_bad(~np.asarray(same))
-    if bad is None:
-        return None
-    return f"at {_index_str(bad)}: {a[bad]!r} != {b[bad]!r}"
-
-
-def _paths_difference(a: Paths, b: Paths) -> str | None:
-    for name in _PATH_FIELD_NAMES:
-        diff = _array_difference(getattr(a, name), getattr(b, name))
-        if diff is not None:
-            return f"{name}: {diff}"
-    return None
-
-
 def _link_difference(a: Link, b: Link) -> str | None:
     for name in ("tx_name", "rx_name", "tx_index", "rx_index"):
         if getattr(a, name) != getattr(b, name):
             return f"{name}: {getattr(a, name)!r} != {getattr(b, name)!r}"
-    return _paths_difference(a.paths, b.paths)
+    return paths_difference(a.paths, b.paths)
 
 
 def _same_scalar(x, y) -> bool:
@@ -691,7 +392,7 @@ def _entries(snapshot: Snapshot) -> list[tuple[str, np.ndarray]]:
         ("links/rx_index", np.array([lk.rx_index for lk in links], dtype=np.int64)),
     ]
     for i, lk in enumerate(links):
-        for name in _PATH_FIELD_NAMES:
+        for name in PATH_FIELD_NAMES:
             out.append((f"link{i}/{name}", getattr(lk.paths, name)))
     return out
 
@@ -876,7 +577,7 @@ def _read(r: _Reader) -> Snapshot:
     links = []
     for i in range(n_links):
         arrays = {}
-        for name, dtype, _ in _PATH_FIELDS:
+        for name, dtype, _ in PATH_FIELDS:
             key = f"link{i}/{name}"
             arrays[name] = r.get(key, dtype.kind, None, dtype.itemsize)
         try:
@@ -887,7 +588,7 @@ def _read(r: _Reader) -> Snapshot:
                         rx_index=int(columns["links/rx_index"][i]), paths=paths)
         except SnapshotError as exc:
             key = exc.key or ""
-            if key.split("[")[0] in _PATH_FIELD_NAMES:
+            if key.split("[")[0] in PATH_FIELD_NAMES:
                 key = f"link{i}/{key}"
             else:  # a Link field: tx_name, rx_index, ...
                 key = f"links/{key}[{i}]"

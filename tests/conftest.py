@@ -1,6 +1,6 @@
 import pytest
 
-from clradcom.opencl import get_runtime
+from clradcom.device.runtime import get_runtime
 
 
 @pytest.fixture(scope="session")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from clradcom.dsp import Waveform
+from clradcom.radar import Waveform
 
 
 def small_waveform(n=64, m=16, **kw) -> Waveform:

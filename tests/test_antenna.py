@@ -6,7 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from clradcom.antenna import (
+from clradcom.errors import SceneError
+from clradcom.scene.antenna import (
     CosinePowerPattern,
     IsotropicPattern,
     SectorPattern,
@@ -18,7 +19,6 @@ from clradcom.antenna import (
     polarization_jones,
     theta_phi_unit_vectors,
 )
-from clradcom.errors import SceneError
 
 FOUR_PI = 4 * math.pi
 

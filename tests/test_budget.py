@@ -15,15 +15,15 @@ import numpy as np
 import pytest
 from geometry_helpers import plate_tris
 
-from clradcom import budget
-from clradcom.accuracy import pareto_front
-from clradcom.dsp import Waveform, radar_image, synthesize_frequency_domain
-from clradcom.dsp.synthesis import BOLTZMANN
-from clradcom.em import C0
-from clradcom.scattering import scattering_paths
-from clradcom.scene import scene_from_dict
-from clradcom.snapshot import InteractionType, Paths
-from clradcom.tracer import TraceSettings, build_geometry, trace_scene
+from clradcom.evaluation import budget
+from clradcom.evaluation.accuracy import pareto_front
+from clradcom.mechanisms.scattering import scattering_paths
+from clradcom.paths import InteractionType, Paths
+from clradcom.physics.em import C0
+from clradcom.radar import Waveform, radar_image, synthesize_frequency_domain
+from clradcom.radar.synthesis import BOLTZMANN
+from clradcom.scene.reader import scene_from_dict
+from clradcom.trace import TraceSettings, build_geometry, trace_scene
 
 F_C = 24e9
 LAM = C0 / F_C

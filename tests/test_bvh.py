@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from clradcom.bvh import BVH_NODE_DTYPE, Bvh, BvhValidationError, build_bvh, validate_bvh
+from clradcom.geometry.bvh import BVH_NODE_DTYPE, Bvh, BvhValidationError, build_bvh, validate_bvh
 
 
 def soup(n: int, seed: int = 0, spread: float = 10.0, size: float = 0.5) -> np.ndarray:

@@ -5,10 +5,10 @@ import pytest
 from scipy.optimize import minimize
 from scipy.special import fresnel
 
-from clradcom.em import C0
-from clradcom.scene import scene_from_dict
-from clradcom.snapshot import InteractionType
-from clradcom.tracer import TraceSettings, trace_scene
+from clradcom.paths import InteractionType
+from clradcom.physics.em import C0
+from clradcom.scene.reader import scene_from_dict
+from clradcom.trace import TraceSettings, trace_scene
 
 LAM = C0 / 24e9
 D = int(InteractionType.DIFFRACTION)

@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from clradcom.em import C0
-from clradcom.scene import scene_from_dict
-from clradcom.snapshot import InteractionType
-from clradcom.tracer import TraceSettings, trace_scene
+from clradcom.paths import InteractionType
+from clradcom.physics.em import C0
+from clradcom.scene.reader import scene_from_dict
+from clradcom.trace import TraceSettings, trace_scene
 
 
 def knife_edge_scene(h, pol, d1=10.0, d2=10.0):

@@ -4,14 +4,14 @@ import numpy as np
 import pytest
 from dsp_helpers import small_waveform
 
-from clradcom.dsp import (
+from clradcom.radar import (
     detect,
     radar_image,
     random_symbols,
     spectral_estimate,
     synthesize_frequency_domain,
 )
-from clradcom.dsp.plots import plot_radar_image, save_radar_image
+from clradcom.radar.plots import plot_radar_image, save_radar_image
 
 
 def _scene():

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from dsp_helpers import small_waveform
 
-from clradcom.dsp import (
+from clradcom.radar import (
     Waveform,
     add_noise,
     detect,

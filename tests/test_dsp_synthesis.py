@@ -6,7 +6,7 @@ from dsp_helpers import brute_force_rx, dirichlet, small_waveform
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from clradcom.dsp import (
+from clradcom.radar import (
     Waveform,
     add_thermal_noise,
     channel_transfer_function,

@@ -6,13 +6,7 @@ from dsp_helpers import brute_force_rx, small_waveform
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from clradcom.dsp import (
-    Waveform,
-    constellation,
-    ofdm_demodulate,
-    ofdm_modulate,
-    random_symbols,
-)
+from clradcom.radar import Waveform, constellation, ofdm_demodulate, ofdm_modulate, random_symbols
 
 C = 299_792_458.0
 

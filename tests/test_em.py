@@ -12,9 +12,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from clradcom.antenna import IsotropicPattern, SectorPattern, euler_deg_to_matrix
-from clradcom.antenna import polarization_jones as jones
-from clradcom.em import (
+from clradcom.physics.em import (
     C0,
     ament,
     boithias,
@@ -28,7 +26,9 @@ from clradcom.em import (
     reflection_dyad,
     roughness_factor,
 )
-from clradcom.scene import Radar
+from clradcom.scene.antenna import IsotropicPattern, SectorPattern, euler_deg_to_matrix
+from clradcom.scene.antenna import polarization_jones as jones
+from clradcom.scene.records import Radar
 
 F_C = 24e9
 LAM = C0 / F_C

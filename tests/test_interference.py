@@ -13,7 +13,7 @@ import math
 import numpy as np
 import pytest
 
-from clradcom.dsp import (
+from clradcom.radar import (
     Waveform,
     detect,
     radar_image,
@@ -21,9 +21,9 @@ from clradcom.dsp import (
     spectral_estimate,
     synthesize_frequency_domain,
 )
-from clradcom.dsp import interference as itf
-from clradcom.dsp.processing import get_window
-from clradcom.dsp.waveform import SPEED_OF_LIGHT
+from clradcom.radar import interference as itf
+from clradcom.radar.processing import get_window
+from clradcom.radar.waveform import SPEED_OF_LIGHT
 from tests.dsp_helpers import dirichlet
 
 N, M = 256, 64
@@ -366,8 +366,8 @@ def test_two_radar_scene_traces_all_four_links(runtime):
     """A and D (the paper's cars' radars, 34.6 m apart in opposite lanes, closing) over a
     smooth road: one snapshot holds A->A, A->D, D->A and D->D; the one-way D->A line of
     sight has delay L/c and Doppler −(1/λ)dL/dt, equal both ways (reciprocity)."""
-    from clradcom.scene import scene_from_dict
-    from clradcom.tracer import TraceSettings, trace_scene
+    from clradcom.scene.reader import scene_from_dict
+    from clradcom.trace import TraceSettings, trace_scene
 
     p_a, v_a = np.array([0.0, -1.75, 0.5]), np.array([12.9, 0.0, 0.0])
     p_d, v_d = np.array([34.6, 1.75, 0.5]), np.array([-14.5, 0.0, 0.0])
@@ -419,7 +419,7 @@ def _tool():
 
 
 def _los_paths(gains, delays, dopplers):
-    from clradcom.snapshot import Paths
+    from clradcom.paths import Paths
 
     p = len(gains)
     return Paths(gain=np.asarray(gains, complex), matrix=np.zeros((p, 2, 2), complex),

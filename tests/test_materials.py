@@ -5,7 +5,7 @@ import math
 import pytest
 
 from clradcom.errors import SceneError, SceneWarning
-from clradcom.materials import (
+from clradcom.scene.materials import (
     EPS0,
     ITU_P2040_TABLE3,
     PAPER_MATERIALS,
@@ -16,7 +16,7 @@ from clradcom.materials import (
     itu_permittivity,
     xpd_db_to_cross_pol_share,
 )
-from clradcom.scene import load_scene
+from clradcom.scene.reader import load_scene
 
 F = 24e9
 

@@ -2,11 +2,17 @@ import numpy as np
 import pyopencl as cl
 import pytest
 
-from clradcom import opencl
-from clradcom.bvh import BVH_NODE_DTYPE
 from clradcom.cli import main as cli_main
-from clradcom.opencl import OpenCLError, Runtime, choose_device, kernel_source, list_devices
-from clradcom.raycast import BVH8_NODE_DTYPE, HIT_DTYPE, RAY_DTYPE
+from clradcom.device import runtime as opencl
+from clradcom.device.raycast import BVH8_NODE_DTYPE, HIT_DTYPE, RAY_DTYPE
+from clradcom.device.runtime import (
+    OpenCLError,
+    Runtime,
+    choose_device,
+    kernel_source,
+    list_devices,
+)
+from clradcom.geometry.bvh import BVH_NODE_DTYPE
 
 
 def test_device_list_and_default_is_gpu_or_pocl():

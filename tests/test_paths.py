@@ -19,11 +19,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from clradcom.antenna import euler_deg_to_matrix
-from clradcom.em import C0
-from clradcom.scene import scene_from_dict
+from clradcom.physics.em import C0
+from clradcom.scene.antenna import euler_deg_to_matrix
+from clradcom.scene.reader import scene_from_dict
 from clradcom.snapshot import assert_snapshot_equal, load_snapshot, save_snapshot
-from clradcom.tracer import TraceSettings, build_geometry, trace_scene
+from clradcom.trace import TraceSettings, build_geometry, trace_scene
 
 F_C = 24e9
 LAM = C0 / F_C

@@ -11,11 +11,12 @@ import numpy as np
 import pytest
 from geometry_helpers import plate_tris
 
-from clradcom.em import C0
-from clradcom.po import po_paths, po_transfer, triangle_po_integral
-from clradcom.scene import scene_from_dict
-from clradcom.snapshot import InteractionType
-from clradcom.tracer import TraceSettings, build_geometry, trace_scene
+from clradcom.mechanisms.physical_optics import po_paths
+from clradcom.paths import InteractionType
+from clradcom.physics.em import C0
+from clradcom.physics.po import po_transfer, triangle_po_integral
+from clradcom.scene.reader import scene_from_dict
+from clradcom.trace import TraceSettings, build_geometry, trace_scene
 
 F_C = 24e9
 LAM = C0 / F_C
@@ -236,7 +237,7 @@ def test_doppler_and_delay_of_a_moving_plate(runtime):
 
 
 def test_car_front_return(runtime):
-    from clradcom.models import car_mesh
+    from clradcom.scene.models import car_mesh
 
     m = car_mesh()
     obj = {"name": "car", "material": "metal", "shape": "triangles",

@@ -25,13 +25,13 @@ import numpy as np
 import pytest
 import trimesh
 
-from clradcom import specular as sp
-from clradcom.em import C0
 from clradcom.errors import SceneError
-from clradcom.po import po_paths
-from clradcom.sbr import launch_tubes, object_optics, sbr_paths
-from clradcom.scene import scene_from_dict
-from clradcom.tracer import TraceSettings, build_geometry, path_fields, specular_paths, trace_scene
+from clradcom.mechanisms import specular as sp
+from clradcom.mechanisms.physical_optics import po_paths
+from clradcom.mechanisms.sbr import launch_tubes, object_optics, sbr_paths
+from clradcom.physics.em import C0
+from clradcom.scene.reader import scene_from_dict
+from clradcom.trace import TraceSettings, build_geometry, path_fields, specular_paths, trace_scene
 
 F_C = 24e9
 LAM = C0 / F_C

@@ -15,9 +15,9 @@ import trimesh
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from clradcom import raycast
-from clradcom.bvh import build_bvh
-from clradcom.raycast import RayCaster, bvh8_nodes, make_rays, spawn_origins, tri4_groups
+from clradcom.device import raycast
+from clradcom.device.raycast import RayCaster, bvh8_nodes, make_rays, spawn_origins, tri4_groups
+from clradcom.geometry.bvh import build_bvh
 
 MARGIN_ULPS = 64  # float32 ulps of the coordinates where rounding may decide either way
 

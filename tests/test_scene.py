@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from clradcom.antenna import SectorPattern
 from clradcom.errors import SceneError, SceneWarning
-from clradcom.scene import load_scene, scene_from_dict
+from clradcom.scene.antenna import SectorPattern
+from clradcom.scene.reader import load_scene, scene_from_dict
 
 CANON = Path(__file__).resolve().parents[1] / "scenes" / "canonical"
 

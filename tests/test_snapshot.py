@@ -12,11 +12,10 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from clradcom import snapshot as snapmod
+from clradcom.paths import PATH_FIELD_NAMES, InteractionType, Paths
 from clradcom.snapshot import (
     FORMAT_VERSION,
-    InteractionType,
     Link,
-    Paths,
     Snapshot,
     SnapshotError,
     assert_snapshot_equal,
@@ -148,7 +147,7 @@ def assert_bitwise_equal(a: Snapshot, b: Snapshot):
     """Stricter than ==: every array has the same bytes (-0.0 vs 0.0, NaN payloads)."""
     assert_snapshot_equal(a, b)
     for la, lb in zip(a.links, b.links, strict=True):
-        for name in snapmod._PATH_FIELD_NAMES:
+        for name in PATH_FIELD_NAMES:
             x, y = getattr(la.paths, name), getattr(lb.paths, name)
             assert x.dtype == y.dtype and x.shape == y.shape
             assert x.tobytes() == y.tobytes(), name
@@ -467,7 +466,7 @@ def test_truncated_and_foreign_files_are_refused(good, tmp_path):
 
 def _paths_kw(**change):
     p = make_paths([0, 1, 2], seed=5)
-    kw = {name: np.array(getattr(p, name)) for name in snapmod._PATH_FIELD_NAMES}
+    kw = {name: np.array(getattr(p, name)) for name in PATH_FIELD_NAMES}
     for key, fn in change.items():
         kw[key] = fn(kw[key])
     return kw
@@ -590,7 +589,7 @@ def test_summary_reports_counts_power_and_delays():
 def test_equality_is_exact_and_names_the_difference():
     a = make_snapshot()
     assert a == make_snapshot() and a != make_snapshot(time_s=None)
-    kw = {n: np.array(getattr(a.links[0].paths, n)) for n in snapmod._PATH_FIELD_NAMES}
+    kw = {n: np.array(getattr(a.links[0].paths, n)) for n in PATH_FIELD_NAMES}
     kw["doppler_hz"][4] = np.nextafter(kw["doppler_hz"][4], np.inf)  # one ulp
     b = make_snapshot(links=[Link("A", "A", 0, 0, Paths(**kw)), *a.links[1:]])
     assert a != b

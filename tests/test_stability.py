@@ -29,22 +29,6 @@ from test_paths import (
     two_ray_dict,
 )
 
-from clradcom.dsp import (
-    channel_transfer_function,
-    ofdm_demodulate,
-    radar_image,
-    random_symbols,
-    spectral_estimate,
-    synthesize_frequency_domain,
-    synthesize_time_domain,
-)
-from clradcom.em import (
-    ament,
-    boithias,
-    fresnel_coefficients,
-    path_transfer,
-    reflection_dyad,
-)
 from clradcom.errors import (
     AliasingWarning,
     BoundaryWarning,
@@ -54,10 +38,26 @@ from clradcom.errors import (
     PhysicsWarning,
     SurfaceContactWarning,
 )
-from clradcom.faces import merge_coplanar
-from clradcom.scene import scene_from_dict
-from clradcom.tracer import TraceSettings, build_geometry, trace_scene
-from clradcom.wedges import extract_wedges
+from clradcom.geometry.faces import merge_coplanar
+from clradcom.geometry.wedges import extract_wedges
+from clradcom.physics.em import (
+    ament,
+    boithias,
+    fresnel_coefficients,
+    path_transfer,
+    reflection_dyad,
+)
+from clradcom.radar import (
+    channel_transfer_function,
+    ofdm_demodulate,
+    radar_image,
+    random_symbols,
+    spectral_estimate,
+    synthesize_frequency_domain,
+    synthesize_time_domain,
+)
+from clradcom.scene.reader import scene_from_dict
+from clradcom.trace import TraceSettings, build_geometry, trace_scene
 
 GO = TraceSettings(max_reflections=1, rays=5_000, max_diffractions=0)
 

@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 from tool_helpers import ROOT, load_tool
 
-from clradcom.dsp.waveform import Waveform
-from clradcom.models import detection_truth
-from clradcom.pipeline import process, radar_frame
-from clradcom.scene import load_scene
-from clradcom.tracer import trace_scene
+from clradcom.radar.pipeline import process, radar_frame
+from clradcom.radar.truth import detection_truth
+from clradcom.radar.waveform import Waveform
+from clradcom.scene.reader import load_scene
+from clradcom.trace import trace_scene
 
 STREET = ROOT / "scenes" / "street" / "street.toml"
 #: the paper's tolerance: half the length of a car (Sec. IV, Table III)

@@ -11,14 +11,10 @@ import numpy as np
 import pytest
 import trimesh
 
-from clradcom.models import (
-    car_mesh,
-    detection_truth,
-    inside_closed_mesh,
-    point_triangle_distance,
-    rounded_car,
-)
-from clradcom.scene import load_scene
+from clradcom.geometry.triangles import inside_closed_mesh, point_triangle_distance
+from clradcom.radar.truth import detection_truth
+from clradcom.scene.models import car_mesh, rounded_car
+from clradcom.scene.reader import load_scene
 
 REPO = Path(__file__).resolve().parent.parent
 STREET = REPO / "scenes" / "street"

@@ -20,8 +20,9 @@ import pytest
 from tool_helpers import CLOSING_PLATE_SCENE
 from tool_helpers import load_tool as load_named_tool
 
-from clradcom import accuracy as acc
-from clradcom.dsp import (
+from clradcom.evaluation import accuracy as acc
+from clradcom.paths import InteractionType
+from clradcom.radar import (
     DETECTION_DTYPE,
     Waveform,
     channel_transfer_function,
@@ -29,7 +30,6 @@ from clradcom.dsp import (
     random_symbols,
     synthesize_frequency_domain,
 )
-from clradcom.snapshot import InteractionType
 
 SMALL = Waveform(carrier_hz=24e9, n_subcarriers=64, n_symbols=32)
 R, D, S = (int(InteractionType.REFLECTION), int(InteractionType.DIFFRACTION),
@@ -94,7 +94,7 @@ def test_error_to_noise_bounds_the_error_in_any_radar_image_cell():
 def test_image_error_of_one_path_is_its_snr_after_processing():
     """An on-grid error path of gain a peaks at |a|² G_p / σ² in the (Hann, zero-padded)
     image: the processing gain of clradcom.budget, an independent closed form."""
-    from clradcom.budget import processing_gain
+    from clradcom.evaluation.budget import processing_gain
 
     a, sigma2 = 2e-7, 1e-12
     dF = synthesize_frequency_domain(np.ones((64, 32)), [a], [6 / SMALL.bandwidth], [0.0],

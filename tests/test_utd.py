@@ -15,8 +15,8 @@ import pytest
 from scipy.integrate import quad
 from scipy.special import fresnel, jv, wofz
 
-from clradcom.em import C0, fresnel_coefficients
-from clradcom.utd import (
+from clradcom.physics.em import C0, fresnel_coefficients
+from clradcom.physics.utd import (
     F_ASYMPTOTIC_MIN,
     F_SERIES_MAX,
     a_plus_minus,

@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 import trimesh
 
-from clradcom.models import car_mesh
-from clradcom.wedges import (
+from clradcom.geometry.wedges import (
     diffraction_point,
     extract_wedges,
     multi_diffraction_points,
     weld_vertices,
 )
+from clradcom.scene.models import car_mesh
 
 
 def _soup(mesh: trimesh.Trimesh) -> np.ndarray:

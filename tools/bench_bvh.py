@@ -15,7 +15,7 @@ import time
 
 import numpy as np
 
-from clradcom.bvh import build_bvh
+from clradcom.geometry.bvh import build_bvh
 
 
 def random_soup(n: int, seed: int = 0) -> np.ndarray:

@@ -21,7 +21,7 @@ import tracemalloc
 
 import numpy as np
 
-from clradcom.dsp import (
+from clradcom.radar import (
     Waveform,
     detect,
     ofdm_demodulate,

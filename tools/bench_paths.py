@@ -28,10 +28,10 @@ import time
 
 import numpy as np
 
-from clradcom.opencl import get_runtime
-from clradcom.scene import load_scene
-from clradcom.snapshot import InteractionType
-from clradcom.tracer import StageTimes, TraceSettings, trace_scene
+from clradcom.device.runtime import get_runtime
+from clradcom.paths import InteractionType
+from clradcom.scene.reader import load_scene
+from clradcom.trace import StageTimes, TraceSettings, trace_scene
 
 
 def main(argv=None):

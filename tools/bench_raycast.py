@@ -30,9 +30,9 @@ from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
-from clradcom.models import street_triangles
-from clradcom.opencl import get_runtime
-from clradcom.raycast import RayCaster, make_rays, spawn_origins
+from clradcom.device.raycast import RayCaster, make_rays, spawn_origins
+from clradcom.device.runtime import get_runtime
+from clradcom.scene.models import street_triangles
 
 
 def sector_directions(n: int, az_half_deg=45.0) -> np.ndarray:

@@ -42,9 +42,9 @@ from pathlib import Path
 
 import numpy as np
 
-from clradcom.dsp import Waveform, detect, random_symbols
-from clradcom.dsp import interference as itf
-from clradcom.dsp.synthesis import thermal_noise_power
+from clradcom.radar import Waveform, detect, random_symbols
+from clradcom.radar import interference as itf
+from clradcom.radar.synthesis import thermal_noise_power
 from clradcom.snapshot import SnapshotError, load_snapshot, save_snapshot
 
 KEYS = ("clean", "interfered", "genie", "realistic")
@@ -97,9 +97,9 @@ def parse_args(argv):
 
 
 def trace(args, out):
-    from clradcom.opencl import get_runtime
-    from clradcom.scene import load_scene
-    from clradcom.tracer import TraceSettings, trace_scene
+    from clradcom.device.runtime import get_runtime
+    from clradcom.scene.reader import load_scene
+    from clradcom.trace import TraceSettings, trace_scene
 
     scene = load_scene(args.scene)
     runtime = get_runtime(args.device)

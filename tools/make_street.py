@@ -28,7 +28,9 @@ import trimesh
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
-from clradcom.models import detection_truth, ray_hit_distances, rounded_car  # noqa: E402
+from clradcom.geometry.triangles import ray_hit_distances
+from clradcom.radar.truth import detection_truth
+from clradcom.scene.models import rounded_car
 
 DEFAULT_OUT = REPO / "scenes" / "street"
 
@@ -407,7 +409,7 @@ def readme(args, p, scene) -> str:
 
 
 def build(args) -> Path:
-    from clradcom.scene import load_scene
+    from clradcom.scene.reader import load_scene
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

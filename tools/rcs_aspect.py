@@ -31,14 +31,14 @@ from pathlib import Path
 
 import numpy as np
 
-from clradcom import specular as sp
-from clradcom.em import C0
-from clradcom.models import car_mesh, rounded_car
-from clradcom.opencl import get_runtime
-from clradcom.po import po_paths
-from clradcom.sbr import bounding_sphere, launch_tubes, sbr_paths
-from clradcom.scene import scene_from_dict
-from clradcom.tracer import build_geometry, path_fields, specular_paths
+from clradcom.device.runtime import get_runtime
+from clradcom.mechanisms import specular as sp
+from clradcom.mechanisms.physical_optics import po_paths
+from clradcom.mechanisms.sbr import bounding_sphere, launch_tubes, sbr_paths
+from clradcom.physics.em import C0
+from clradcom.scene.models import car_mesh, rounded_car
+from clradcom.scene.reader import scene_from_dict
+from clradcom.trace import build_geometry, path_fields, specular_paths
 
 CARRIER_HZ = 24e9
 FLOOR_DBSM = -40.0  # plotted where a method returns nothing

@@ -36,14 +36,14 @@ from pathlib import Path
 
 import numpy as np
 
-from clradcom.dsp import Waveform
+from clradcom.device.runtime import OpenCLError, get_runtime
 from clradcom.errors import SceneError
-from clradcom.models import detection_truth
-from clradcom.opencl import OpenCLError, get_runtime
-from clradcom.pipeline import SYNTHESIS_METHODS, match_truth, process, radar_frame
-from clradcom.scene import load_scene
+from clradcom.radar import Waveform
+from clradcom.radar.pipeline import SYNTHESIS_METHODS, process, radar_frame
+from clradcom.radar.truth import detection_truth, match_truth
+from clradcom.scene.reader import load_scene
 from clradcom.snapshot import save_snapshot
-from clradcom.tracer import StageTimes, TraceSettings, trace_scene
+from clradcom.trace import StageTimes, TraceSettings, trace_scene
 
 
 class Stopwatch:
@@ -183,7 +183,7 @@ def main(argv=None) -> int:
                                 tx_power_w=radar.tx_power_w if nf is not None else None,
                                 noise_figure_db=nf)
             image, dets = process(D, Dr, wf)
-        from clradcom.dsp.plots import save_radar_image
+        from clradcom.radar.plots import save_radar_image
 
         with sw.stage(f"radar {radar.name}: image and tables"):
             # colour down to the noise floor, so weak echoes beside the ground return show

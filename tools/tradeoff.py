@@ -59,22 +59,22 @@ from pathlib import Path
 
 import numpy as np
 
-from clradcom import accuracy as acc
-from clradcom import budget
-from clradcom.dsp import (
+from clradcom.device.runtime import OpenCLError, get_runtime
+from clradcom.errors import SceneError
+from clradcom.evaluation import accuracy as acc
+from clradcom.evaluation import budget
+from clradcom.radar import (
     Waveform,
     add_thermal_noise,
     random_symbols,
     synthesize_frequency_domain,
     synthesize_time_domain,
 )
-from clradcom.dsp.waveform import ofdm_demodulate
-from clradcom.errors import SceneError
-from clradcom.models import detection_truth
-from clradcom.opencl import OpenCLError, get_runtime
-from clradcom.pipeline import process
-from clradcom.scene import load_scene
-from clradcom.tracer import TraceSettings, trace_scene
+from clradcom.radar.pipeline import process
+from clradcom.radar.truth import detection_truth
+from clradcom.radar.waveform import ofdm_demodulate
+from clradcom.scene.reader import load_scene
+from clradcom.trace import TraceSettings, trace_scene
 
 #: synthesis back end -> (method, NUFFT tolerance)
 BACKENDS = {"fast": ("fast", 1e-10), "fast-lp": ("fast", 1e-5), "exact": ("exact", 1e-10)}

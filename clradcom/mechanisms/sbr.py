@@ -34,11 +34,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import em
-from .po import _sinc
-from .raycast import make_rays, spawn_origins
-from .scene import OPTICS
-from .snapshot import InteractionType, Paths
+from clradcom.device.raycast import make_rays, spawn_origins
+from clradcom.paths import InteractionType, Paths
+from clradcom.physics import em
+from clradcom.physics.po import sinc
+from clradcom.scene.reader import OPTICS
 
 __all__ = ["OPTICS_MODES", "TubeGrid", "TubeHits", "bounding_sphere", "launch_tubes",
            "shoot_tubes", "sbr_paths", "object_optics"]
@@ -319,7 +319,7 @@ def _radiate(geom, hits: TubeHits, grid: TubeGrid, tx, rx):
         e = w[:, None] * e
         edges.append(e - k_in * (np.einsum("ij,ij->i", n, e) / kn)[:, None])
     area = w * w / np.abs(kn)
-    i_fp = area * _sinc(0.5 * np.einsum("ij,ij->i", q, edges[0])) * _sinc(
+    i_fp = area * sinc(0.5 * np.einsum("ij,ij->i", q, edges[0])) * sinc(
         0.5 * np.einsum("ij,ij->i", q, edges[1]))
     mat = scene.tri_material[hits.triangle[keep]]
     refl = np.ones(len(keep), dtype=np.complex128)

@@ -4,7 +4,7 @@ See docs/dsp.md for the formulas, conventions and sources.  Plotting lives in
 ``clradcom.dsp.plots`` (imported on demand, it pulls in matplotlib).
 """
 
-from .cfar import (
+from clradcom.radar.cfar import (
     DETECTION_DTYPE,
     ca_cfar_alpha,
     cfar_false_alarms,
@@ -16,7 +16,7 @@ from .cfar import (
     parabolic_offset,
     training_footprint,
 )
-from .processing import (
+from clradcom.radar.processing import (
     RadarImage,
     get_window,
     radar_image,
@@ -24,7 +24,7 @@ from .processing import (
     spectral_estimate,
     velocity_axis,
 )
-from .synthesis import (
+from clradcom.radar.synthesis import (
     add_noise,
     add_thermal_noise,
     channel_transfer_function,
@@ -33,7 +33,7 @@ from .synthesis import (
     synthesize_time_domain,
     thermal_noise_power,
 )
-from .waveform import (
+from clradcom.radar.waveform import (
     SPEED_OF_LIGHT,
     Waveform,
     constellation,

@@ -38,10 +38,10 @@ import math
 
 import numpy as np
 
-from . import em
-from .raycast import make_rays, spawn_origins
-from .snapshot import InteractionType, Paths
-from .specular import CONFIRM_TOL_M
+from clradcom.device.raycast import make_rays, spawn_origins
+from clradcom.mechanisms.specular import CONFIRM_TOL_M
+from clradcom.paths import InteractionType, Paths
+from clradcom.physics import em
 
 __all__ = ["make_tiles", "choose_tile_size", "tile_transfer", "mirror_faces", "reflection_legs",
            "scattering_paths"]

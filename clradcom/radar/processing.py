@@ -20,7 +20,7 @@ import numpy as np
 from scipy import fft as sfft
 from scipy.signal import windows as sw
 
-from .waveform import SPEED_OF_LIGHT, Waveform, check_symbols
+from clradcom.radar.waveform import SPEED_OF_LIGHT, Waveform, check_symbols
 
 WINDOW_ALIASES = {
     "rect": "boxcar", "rectangular": "boxcar", "boxcar": "boxcar", "none": "boxcar",

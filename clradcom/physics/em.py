@@ -40,8 +40,8 @@ import warnings
 import numpy as np
 from scipy.special import i0e
 
-from .antenna import directions_to_angles, theta_phi_unit_vectors
-from .errors import NearFieldWarning
+from clradcom.errors import NearFieldWarning
+from clradcom.scene.antenna import directions_to_angles, theta_phi_unit_vectors
 
 __all__ = [
     "C0",

@@ -30,11 +30,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import em
-from .accuracy import path_kind
-from .dsp.processing import get_window
-from .dsp.synthesis import thermal_noise_power
-from .dsp.waveform import Waveform
+from clradcom.evaluation.accuracy import path_kind
+from clradcom.physics import em
+from clradcom.radar.processing import get_window
+from clradcom.radar.synthesis import thermal_noise_power
+from clradcom.radar.waveform import Waveform
 
 __all__ = [
     "AccuracyTarget",
@@ -207,7 +207,7 @@ def scene_gamma_max(scene, n_angles: int = 181) -> float:
 
 
 def _distance_to_triangles(point, triangles) -> np.ndarray:
-    from .models import point_triangle_distance
+    from clradcom.geometry.triangles import point_triangle_distance
 
     return point_triangle_distance(np.asarray(point, dtype=np.float64), triangles)
 
@@ -371,7 +371,7 @@ def prune_paths(paths, floor_power: float, waveform: Waveform | None = None):
     path is dropped only when all the weak paths of its cell (:func:`radar_cells`)
     together stay below the floor even added in phase: (Σ|a|)² < floor.
     """
-    from .tracer import select_paths
+    from clradcom.paths import select_paths
 
     p = _finite("floor_power", floor_power)
     if p < 0:

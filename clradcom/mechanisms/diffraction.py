@@ -36,11 +36,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import em, utd
-from .errors import BoundaryWarning, CausticWarning
-from .raycast import make_rays, spawn_origins
-from .snapshot import InteractionType, Paths
-from .wedges import Wedges, diffraction_point, multi_diffraction_points
+from clradcom.device.raycast import make_rays, spawn_origins
+from clradcom.errors import BoundaryWarning, CausticWarning
+from clradcom.geometry.wedges import Wedges, diffraction_point, multi_diffraction_points
+from clradcom.paths import InteractionType, Paths
+from clradcom.physics import em, utd
 
 #: Segments leave the edge point from this far along themselves (m), past the
 #: float32 rounding of the faces that meet at the edge.

@@ -22,17 +22,20 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from . import __version__, budget, em
-from . import diffraction as diff
-from . import specular as sp
-from .faces import Faces, merge_coplanar
-from .opencl import Runtime, get_runtime
-from .po import po_paths
-from .raycast import RayCaster
-from .scattering import scattering_paths
-from .scene import Radar, Scene
-from .snapshot import InteractionType, Link, Paths, Snapshot
-from .wedges import extract_wedges
+from clradcom import __version__
+from clradcom.device.raycast import RayCaster
+from clradcom.device.runtime import Runtime, get_runtime
+from clradcom.evaluation import budget
+from clradcom.geometry.faces import Faces, merge_coplanar
+from clradcom.geometry.wedges import extract_wedges
+from clradcom.mechanisms import diffraction as diff
+from clradcom.mechanisms import specular as sp
+from clradcom.mechanisms.physical_optics import po_paths
+from clradcom.mechanisms.scattering import scattering_paths
+from clradcom.paths import InteractionType, Paths, concat_paths, select_paths
+from clradcom.physics import em
+from clradcom.scene.records import Radar, Scene
+from clradcom.snapshot import Link, Snapshot
 
 
 @dataclass(frozen=True)
@@ -276,30 +279,6 @@ def seen_by_antennas(tx: Radar, rx: Radar, k_dep, k_arr) -> np.ndarray:
         np.asarray(rx.pattern.gain(-k_arr @ np.asarray(rx.orientation))) > 0)
 
 
-def concat_paths(parts: list[Paths]) -> Paths:
-    """One Paths from several, padded to the largest number of interactions."""
-    k_max = max((p.k_max for p in parts), default=0)
-    fields = {}
-    for name in ("gain", "matrix", "delay_s", "doppler_hz", "n_interactions"):
-        fields[name] = np.concatenate([getattr(p, name) for p in parts])
-    pads = {"interaction": 0, "object_id": -1, "face_id": -1}
-    for name, fill in pads.items():
-        fields[name] = np.concatenate([
-            np.pad(getattr(p, name), ((0, 0), (0, k_max - p.k_max)), constant_values=fill)
-            for p in parts])
-    fields["points"] = np.concatenate([
-        np.pad(p.points, ((0, 0), (0, k_max - p.k_max), (0, 0)), constant_values=np.nan)
-        for p in parts])
-    return Paths(**fields)
-
-
-def select_paths(paths: Paths, mask) -> Paths:
-    """The paths where mask is true."""
-    return Paths(**{name: getattr(paths, name)[mask] for name in (
-        "gain", "matrix", "delay_s", "doppler_hz", "n_interactions", "interaction", "points",
-        "object_id", "face_id")})
-
-
 def with_physical_optics(geom: Geometry, paths: Paths, tx: Radar, rx: Radar,
                          settings: TraceSettings | None = None,
                          sbr_cache: dict | None = None) -> Paths:
@@ -319,7 +298,7 @@ def with_physical_optics(geom: Geometry, paths: Paths, tx: Radar, rx: Radar,
 
     Without ``settings`` this is ``physical_optics="pec"`` (PO facets on PEC objects).
     """
-    from .sbr import object_optics, sbr_paths, shoot_sbr
+    from clradcom.mechanisms.sbr import object_optics, sbr_paths, shoot_sbr
 
     settings = settings or TraceSettings(physical_optics="pec")
     modes = np.array(object_optics(geom.scene, settings.physical_optics))

@@ -20,7 +20,7 @@ import math
 import warnings
 from dataclasses import dataclass, replace
 
-from .errors import SceneError, SceneWarning
+from clradcom.errors import SceneError, SceneWarning
 
 __all__ = [
     "EPS0",

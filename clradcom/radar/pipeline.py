@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .dsp import (
+from clradcom.radar import (
     Waveform,
     add_thermal_noise,
     detect,
@@ -21,7 +21,7 @@ from .dsp import (
     synthesize_frequency_domain,
     synthesize_time_domain,
 )
-from .dsp.waveform import ofdm_demodulate
+from clradcom.radar.waveform import ofdm_demodulate
 
 SYNTHESIS_METHODS = ("fast", "exact")
 
@@ -69,22 +69,3 @@ def process(D, Dr, waveform: Waveform, *, window="hann", zero_pad=(2, 2), p_fa=1
                                                                     window, 1, 1)
     detections = detect(critical, guard=guard, train=train, p_fa=p_fa, method=cfar)
     return image, detections
-
-
-def match_truth(detections, truth, range_tol_m: float, velocity_tol_mps: float):
-    """For each truth row the best detection within tolerances, or None.
-
-    truth rows need range_nearest_m, range_centre_m and v_rel_m_s; a detection
-    matches when its range lies in [nearest - range_tol, centre + range_tol]
-    and its velocity within velocity_tol of v_rel; the strongest such wins.
-    """
-    out = []
-    for t in truth:
-        lo = t["range_nearest_m"] - range_tol_m
-        hi = t["range_centre_m"] + range_tol_m
-        ok = ((detections["range_m"] >= lo) & (detections["range_m"] <= hi)
-              & (np.abs(detections["velocity_mps"] - t["v_rel_m_s"]) <= velocity_tol_mps))
-        idx = np.flatnonzero(ok)
-        out.append(None if len(idx) == 0 else detections[idx[np.argmax(
-            detections["power_db"][idx])]])
-    return out

@@ -22,7 +22,7 @@ import numpy as np
 from scipy import ndimage
 from scipy.optimize import brentq
 
-from .processing import RadarImage
+from clradcom.radar.processing import RadarImage
 
 DETECTION_DTYPE = np.dtype([
     ("range_m", float), ("velocity_mps", float), ("power_db", float), ("snr_db", float),

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .snapshot import InteractionType
+from clradcom.paths import InteractionType
 
 __all__ = [
     "Completeness",
@@ -112,7 +112,7 @@ def image_error_to_noise_db(H, H_ref, noise_variance: float, waveform, window="h
     than the noise already in it. :func:`error_to_noise_db` is the bound this never
     exceeds; for a diffuse error (many weak paths spread over the image) it is far lower.
     """
-    from .dsp.processing import radar_image
+    from clradcom.radar.processing import radar_image
 
     h, r = _pair(H, H_ref)
     var = float(noise_variance)
@@ -235,7 +235,7 @@ def detection_errors(detections, truth, range_tol_m: float,
     detected range from the interval [range_nearest_m, range_centre_m] (0 inside it);
     the velocity error is |v_detected − v_rel_m_s|.
     """
-    from .pipeline import match_truth
+    from clradcom.radar.truth import match_truth
 
     for name, v in (("range_tol_m", range_tol_m), ("velocity_tol_mps", velocity_tol_mps)):
         if not (isinstance(v, int | float | np.floating) and math.isfinite(v) and v > 0):

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 from scipy.interpolate import RegularGridInterpolator
 
-from .errors import SceneError
+from clradcom.errors import SceneError
 
 __all__ = [
     "Pattern",

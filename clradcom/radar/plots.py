@@ -12,7 +12,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from .processing import RadarImage
+from clradcom.radar.processing import RadarImage
 
 
 def _limits(name, lim):

@@ -34,15 +34,21 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..errors import AliasingWarning, CyclicPrefixWarning
-from .processing import get_window, radar_image, spectral_estimate
-from .synthesis import (
+from clradcom.errors import AliasingWarning, CyclicPrefixWarning
+from clradcom.radar.processing import get_window, radar_image, spectral_estimate
+from clradcom.radar.synthesis import (
     channel_transfer_function,
     check_paths,
     synthesize_frequency_domain,
     synthesize_time_domain,
 )
-from .waveform import Waveform, check_symbols, constellation, ofdm_demodulate, ofdm_modulate
+from clradcom.radar.waveform import (
+    Waveform,
+    check_symbols,
+    constellation,
+    ofdm_demodulate,
+    ofdm_modulate,
+)
 
 #: D's stream symbol that is sent in step with A's symbol 0 (A-frame time 0).
 STREAM_LEAD = 2

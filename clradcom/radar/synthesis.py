@@ -23,8 +23,8 @@ import warnings
 
 import numpy as np
 
-from ..errors import AliasingWarning, CyclicPrefixWarning
-from .waveform import Waveform, check_symbols
+from clradcom.errors import AliasingWarning, CyclicPrefixWarning
+from clradcom.radar.waveform import Waveform, check_symbols
 
 BOLTZMANN = 1.380649e-23
 

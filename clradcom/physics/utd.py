@@ -43,7 +43,7 @@ import math
 import numpy as np
 from scipy.special import fresnel
 
-from .em import fresnel_coefficients
+from clradcom.physics.em import fresnel_coefficients
 
 __all__ = [
     "transition_function",

@@ -24,19 +24,17 @@ the object's velocity.
 from __future__ import annotations
 
 import difflib
-import hashlib
-import json
 import math
 import re
 import tomllib
 import warnings
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from .antenna import (
+from clradcom.errors import NOVALUE, SceneError, SceneWarning
+from clradcom.scene.antenna import (
     CosinePowerPattern,
     IsotropicPattern,
     Pattern,
@@ -45,9 +43,7 @@ from .antenna import (
     load_pattern_file,
     polarization_jones,
 )
-from .errors import NOVALUE, SceneError, SceneWarning
-from .materials import (
-    C0,
+from clradcom.scene.materials import (
     ROUGHNESS_MODELS,
     Material,
     builtin_material,
@@ -58,15 +54,14 @@ from .materials import (
     with_overrides,
     xpd_db_to_cross_pol_share,
 )
+from clradcom.scene.records import OPTICS, ROLES, Radar, Scene, SceneObject
 
-__all__ = ["Scene", "SceneObject", "Radar", "load_scene", "scene_from_dict", "SHAPES",
-           "MESH_SUFFIXES"]
+__all__ = ["load_scene", "scene_from_dict", "SHAPES", "MESH_SUFFIXES"]
 
 #: Mesh file types accepted for ``objects[].mesh`` (read with trimesh).
 MESH_SUFFIXES = (".ply", ".obj", ".stl", ".glb", ".gltf", ".off")
 #: Built-in shapes for ``objects[].shape``.
 SHAPES = ("box", "plane", "triangles")
-ROLES = ("txrx", "tx", "rx")
 PATTERN_TYPES = ("isotropic", "sector", "cosine", "file")
 
 _TOP_KEYS = ("scene", "materials", "objects", "radars")
@@ -77,8 +72,6 @@ _MATERIAL_KEYS = ("name", "base", "itu", "eps_r", "conductivity_s_m", "pec", "ro
 _OBJECT_KEYS = ("name", "material", "mesh", "shape", "extents", "size", "vertices", "faces",
                 "position", "rotation_deg", "scale", "velocity", "drop_degenerate",
                 "optics", "description")
-#: ``objects[].optics``: how the tracer models the object's returns (docs/po.md)
-OPTICS = ("go", "po", "both")
 _RADAR_KEYS = ("name", "position", "rides_on", "orientation_deg", "velocity", "pattern",
                "polarization", "role", "tx_power_w", "noise_figure_db", "description")
 _PATTERN_KEYS = {
@@ -92,189 +85,6 @@ _PATTERN_KEYS = {
 _DEGENERATE_REL = 1e-10
 
 _REQUIRED = object()
-
-
-# ---------------------------------------------------------------------------
-# data model
-
-
-@dataclass(eq=False)
-class SceneObject:
-    """One object: a mesh placed in the world with a material and a velocity."""
-
-    name: str
-    mesh: str  #: mesh file path (as resolved) or ``"shape:<name>"``
-    material: int  #: index into Scene.materials
-    material_name: str
-    position: np.ndarray  #: (3,) float64, m
-    rotation_deg: np.ndarray  #: (3,) float64, [roll, pitch, yaw]
-    rotation: np.ndarray  #: (3,3) float64, world = rotation @ (scale * local) + position
-    scale: np.ndarray  #: (3,) float64
-    velocity: np.ndarray  #: (3,) float64, m/s
-    tri_start: int  #: first triangle of this object in Scene.triangles
-    tri_stop: int  #: one past its last triangle
-    #: "go" / "po" / "both", or None to follow TraceSettings.physical_optics
-    optics: str | None = None
-
-    @property
-    def tri_slice(self) -> slice:
-        return slice(self.tri_start, self.tri_stop)
-
-    @property
-    def n_triangles(self) -> int:
-        return self.tri_stop - self.tri_start
-
-
-@dataclass(eq=False)
-class Radar:
-    """One antenna (transmitter, receiver or both) with its pattern."""
-
-    name: str
-    position: np.ndarray  #: (3,) float64, world m
-    rides_on: int  #: object index or -1
-    orientation: np.ndarray  #: (3,3) float64; columns = local x, y, z axes in world
-    pattern: Pattern
-    polarization: np.ndarray  #: (2,) complex128 unit Jones vector (C_theta, C_phi), local
-    polarization_name: str  #: "V", "H", "RHCP", "LHCP", "jones" or "file"
-    velocity: np.ndarray  #: (3,) float64, m/s (the carrier object's when riding)
-    role: str = "txrx"  #: "txrx", "tx" or "rx"
-    tx_power_w: float = 1.0
-    noise_figure_db: float | None = None
-    position_local: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    orientation_deg: np.ndarray = field(default_factory=lambda: np.zeros(3))
-
-    def world_to_local(self, directions_world) -> np.ndarray:
-        """(K,3) world directions -> antenna-frame directions (R^T d)."""
-        return np.asarray(directions_world, dtype=np.float64) @ self.orientation
-
-    def local_to_world(self, directions_local) -> np.ndarray:
-        return np.asarray(directions_local, dtype=np.float64) @ self.orientation.T
-
-    @property
-    def boresight(self) -> np.ndarray:
-        return self.orientation[:, 0].copy()
-
-
-@dataclass(eq=False)
-class Scene:
-    """A loaded scene.  The flattened arrays are what the BVH builder and the
-    tracer consume; the lists keep the per-item details.
-
-    Arrays
-    ------
-    triangles : (T,3,3) float64, world coordinates [triangle, vertex, xyz], m
-    tri_object : (T,) int32, object index per triangle
-    tri_material : (T,) int32, material index per triangle
-    object_velocity : (O,3) float64, m/s
-    """
-
-    name: str
-    carrier_hz: float
-    source: Path | None
-    materials: list[Material]
-    objects: list[SceneObject]
-    radars: list[Radar]
-    triangles: np.ndarray
-    tri_object: np.ndarray
-    tri_material: np.ndarray
-    object_velocity: np.ndarray
-    description: str = ""
-
-    # -- convenience -------------------------------------------------------
-    @property
-    def wavelength_m(self) -> float:
-        return C0 / self.carrier_hz
-
-    def _index(self, items, name: str, what: str) -> int:
-        for i, it in enumerate(items):
-            if it.name == name:
-                return i
-        raise KeyError(f"no {what} named {name!r}")
-
-    def object_index(self, name: str) -> int:
-        return self._index(self.objects, name, "object")
-
-    def radar_index(self, name: str) -> int:
-        return self._index(self.radars, name, "radar")
-
-    def material_index(self, name: str) -> int:
-        return self._index(self.materials, name, "material")
-
-    # -- material arrays (M,) --------------------------------------------------
-    @property
-    def material_eps_r(self) -> np.ndarray:
-        """(M,) complex128; ``inf`` for PEC rows (branch on material_pec)."""
-        return np.array([m.eps_r for m in self.materials], dtype=np.complex128)
-
-    @property
-    def material_pec(self) -> np.ndarray:
-        return np.array([m.pec for m in self.materials], dtype=bool)
-
-    @property
-    def material_roughness_m(self) -> np.ndarray:
-        return np.array([m.roughness_m for m in self.materials], dtype=np.float64)
-
-    @property
-    def material_roughness_model(self) -> np.ndarray:
-        """(M,) int32: 0 = Ament, 1 = Boithias."""
-        return np.array([ROUGHNESS_MODELS.index(m.roughness_model) for m in self.materials],
-                        dtype=np.int32)
-
-    @property
-    def material_scattering(self) -> np.ndarray:
-        return np.array([m.scattering_coefficient for m in self.materials], dtype=np.float64)
-
-    @property
-    def material_cross_pol_share(self) -> np.ndarray:
-        return np.array([m.cross_pol_share for m in self.materials], dtype=np.float64)
-
-    # -- radar arrays (R,) -------------------------------------------------------
-    @property
-    def radar_position(self) -> np.ndarray:
-        return np.array([r.position for r in self.radars], dtype=np.float64).reshape(-1, 3)
-
-    @property
-    def radar_velocity(self) -> np.ndarray:
-        return np.array([r.velocity for r in self.radars], dtype=np.float64).reshape(-1, 3)
-
-    @property
-    def radar_orientation(self) -> np.ndarray:
-        return np.array([r.orientation for r in self.radars],
-                        dtype=np.float64).reshape(-1, 3, 3)
-
-    def content_hash(self) -> str:
-        """sha256 hex digest over the carrier, materials, object/radar parameters
-        and the flattened arrays; stable across runs and machines (names count,
-        the scene's name, description and file location do not)."""
-        def f(x):
-            return repr(float(x))
-
-        def vec(a):
-            return [f(x) for x in np.asarray(a, dtype=np.float64).reshape(-1)]
-
-        params = {
-            "format": "clradcom-scene-hash-1",
-            "carrier_hz": f(self.carrier_hz),
-            "materials": [m.hash_params() for m in self.materials],
-            # optics only when set, so scenes without it keep their hashes
-            "objects": [[o.name, o.material, vec(o.velocity), o.tri_start, o.tri_stop]
-                        + ([o.optics] if o.optics is not None else [])
-                        for o in self.objects],
-            "radars": [
-                [r.name, vec(r.position), r.rides_on, vec(r.orientation), r.pattern.params(),
-                 [[f(c.real), f(c.imag)] for c in r.polarization], vec(r.velocity), r.role,
-                 f(r.tx_power_w), None if r.noise_figure_db is None else f(r.noise_figure_db)]
-                for r in self.radars
-            ],
-        }
-        h = hashlib.sha256()
-        h.update(json.dumps(params, sort_keys=True, separators=(",", ":")).encode())
-        for arr, dt in ((self.triangles, "<f8"), (self.tri_object, "<i4"),
-                        (self.tri_material, "<i4"), (self.object_velocity, "<f8")):
-            a = np.ascontiguousarray(arr, dtype=dt)
-            h.update(repr(a.shape).encode())
-            h.update(a.tobytes())
-        return h.hexdigest()
 
 
 # ---------------------------------------------------------------------------

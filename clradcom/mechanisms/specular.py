@@ -28,8 +28,8 @@ import warnings
 
 import numpy as np
 
-from .errors import SurfaceContactWarning
-from .raycast import RayCaster, make_rays, spawn_origins
+from clradcom.device.raycast import RayCaster, make_rays, spawn_origins
+from clradcom.errors import SurfaceContactWarning
 
 #: A segment counts as reaching its reflection point when the first thing it
 #: meets is that face within this many metres (plus float32 resolution).
