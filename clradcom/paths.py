@@ -16,21 +16,31 @@ import numpy as np
 
 from clradcom.errors import SnapshotError
 
-__all__ = ["PATH_FIELDS", "PATH_FIELD_NAMES", "InteractionType", "Paths", "concat_paths", "paths_difference", "select_paths"]
+__all__ = ["PATH_FIELDS", "PATH_FIELD_NAMES", "InteractionType", "Paths", "concat_paths",
+           "paths_difference", "select_paths"]
 
 
 class InteractionType(IntEnum):
     """What happens to a path at one interaction point (``Paths.interaction`` codes).
 
     Codes, not bit flags: every interaction slot holds exactly one of them; ``NONE``
-    pads the slots past a path's ``n_interactions``. The whole project uses these codes
-    (kernels mirror them as ``#define``s).
+    pads the slots past a path's ``n_interactions``. Snapshots store them (format
+    version 2; version 1 tagged PO facet and SBR returns as REFLECTION).
     """
 
     NONE = 0
+    #: specular reflection at an exact image-method point (GO)
     REFLECTION = 1
+    #: UTD edge diffraction at a Keller point
     DIFFRACTION = 2
+    #: Lambertian scattering off a tile (the tile's centre)
     SCATTERING = 3
+    #: a physical-optics facet return: the facet (its centroid) radiates the current the
+    #: incident wave induces on it
+    PHYSICAL_OPTICS = 4
+    #: a bounce of a shooting-and-bouncing ray tube (SBR-PO); the path's last one radiates
+    #: its PO footprint
+    SBR = 5
 
 
 _VALID_CODES = np.array([int(t) for t in InteractionType if t != InteractionType.NONE],
@@ -220,8 +230,8 @@ class Paths:
         bad = _first_bad(active & ~np.isin(code, _VALID_CODES))
         if bad is not None:
             refuse("interaction", bad, int(code[bad]),
-                   "slot below n_interactions needs a code 1 (reflection), 2 (diffraction) "
-                   "or 3 (scattering)")
+                   "slot below n_interactions needs a code 1 (reflection), 2 (diffraction), "
+                   "3 (scattering), 4 (physical optics) or 5 (SBR)")
         bad = _first_bad(~active & (code != InteractionType.NONE))
         if bad is not None:
             refuse("interaction", bad, int(code[bad]),

@@ -57,7 +57,10 @@ __all__ = [
 #: Value of the ``meta/format`` key: marks a file as a clradcom snapshot.
 FORMAT_NAME = "clradcom-snapshot"
 #: The format version this module writes (and the newest it reads).
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+#: Older versions load_snapshot still reads, converting them to FORMAT_VERSION: version 1
+#: tagged physical-optics facet and SBR returns as REFLECTION (codes 4 and 5 came with 2).
+READABLE_VERSIONS = (1, 2)
 
 #: Fixed timestamp of every zip member, so identical snapshots give identical bytes.
 _ZIP_DATE_TIME = (1980, 1, 1, 0, 0, 0)
@@ -550,8 +553,9 @@ def _read(r: _Reader) -> Snapshot:
         raise r.err("meta/version",
                     f"snapshot format version {version} is newer than this clradcom reads "
                     f"(up to version {FORMAT_VERSION}); upgrade clradcom to read it")
-    if version < 1:
-        raise r.err("meta/version", f"invalid snapshot format version {version}")
+    if version not in READABLE_VERSIONS:
+        raise r.err("meta/version", f"invalid snapshot format version {version} (this "
+                                    f"clradcom reads versions {READABLE_VERSIONS})")
 
     scene_name = r.scalar("meta/scene_name", "U")
     carrier_hz = r.scalar("meta/carrier_hz", "f", 8)
@@ -563,6 +567,10 @@ def _read(r: _Reader) -> Snapshot:
         if arr.dtype.kind in "if" and arr.dtype.itemsize != 8:
             raise r.err(key, f"dtype {arr.dtype}, want int64, float64, bool or str")
         metadata[key[len("metadata/"):]] = arr.item()
+    if version < FORMAT_VERSION:
+        # the paths' arrays mean the same; record where they came from
+        metadata["snapshot.converted_from_version"] = int(version)
+        metadata = dict(sorted(metadata.items()))
 
     tx_name = r.get("links/tx_name", "U", 1)
     n_links = tx_name.shape[0]
@@ -601,7 +609,7 @@ def _read(r: _Reader) -> Snapshot:
                                 f"({len(unknown)} unknown in all)")
     try:
         return Snapshot(scene_name=scene_name, carrier_hz=carrier_hz, scene_hash=scene_hash,
-                        links=tuple(links), time_s=time_s, metadata=metadata, version=version)
+                        links=tuple(links), time_s=time_s, metadata=metadata)
     except SnapshotError as exc:
         key = {"scene_name": "meta/scene_name", "carrier_hz": "meta/carrier_hz",
                "scene_hash": "meta/scene_hash", "time_s": "meta/time_s",

@@ -14,7 +14,7 @@ docs/tradeoff.md gives the reasoning; in short:
   reflection magnitude of the scene's materials to the k-th power. An order whose best
   case lies below the floor need never be traced.
 * A scattering triangle's tiles together carry at most
-  λ² S² A G_t G_r / (16 π³ r_i² r_s²) (:func:`scattering_triangle_bounds`); a triangle
+  λ² S² A G_t G_r / (16 π³ r_i² r_s²) (:func:`clradcom.mechanisms.scattering.scattering_triangle_bounds`); a triangle
   below the floor need never be tiled.
 * Paths found below the floor are dropped before synthesis (:func:`prune_paths`), unless
   the weak paths of their range-Doppler cell add up above it (the tiles of one tree).
@@ -31,10 +31,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from clradcom.evaluation.accuracy import path_kind
+from clradcom.geometry.triangles import point_triangle_distance
+from clradcom.paths import select_paths
 from clradcom.physics import em
 from clradcom.radar.processing import get_window
 from clradcom.radar.synthesis import thermal_noise_power
 from clradcom.radar.waveform import Waveform
+from clradcom.scene.antenna import pattern_peak_gain
 
 __all__ = [
     "AccuracyTarget",
@@ -47,13 +50,11 @@ __all__ = [
     "min_gamma_product",
     "noise_floor",
     "order_bounds",
-    "pattern_peak_gain",
     "processing_gain",
     "prune_paths",
     "radar_cells",
     "read_records",
     "relative_threshold_db",
-    "scattering_triangle_bounds",
     "scene_gamma_max",
     "shortest_path_length",
 ]
@@ -171,18 +172,6 @@ def min_gamma_product(floor_power: float, wavelength_m: float, length_m: float,
     return math.sqrt(p / fs)
 
 
-def pattern_peak_gain(pattern, n_directions: int = 20_000) -> float:
-    """Largest directivity of an antenna pattern: boresight and a Fibonacci sphere of
-    ``n_directions`` (exact for the sector, isotropic and cosine patterns)."""
-    i = np.arange(n_directions) + 0.5
-    z = 1.0 - 2.0 * i / n_directions
-    r = np.sqrt(np.maximum(0.0, 1.0 - z * z))
-    phi = math.pi * (1.0 + 5.0**0.5) * i
-    dirs = np.concatenate([[[1.0, 0.0, 0.0]],
-                           np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)])
-    return float(np.max(pattern.gain(dirs)))
-
-
 def scene_gamma_max(scene, n_angles: int = 181) -> float:
     """Largest reflection magnitude any material of the scene can give a specular path.
 
@@ -206,12 +195,6 @@ def scene_gamma_max(scene, n_angles: int = 181) -> float:
     return best
 
 
-def _distance_to_triangles(point, triangles) -> np.ndarray:
-    from clradcom.geometry.triangles import point_triangle_distance
-
-    return point_triangle_distance(np.asarray(point, dtype=np.float64), triangles)
-
-
 def shortest_path_length(scene, tx_position, rx_position, order: int) -> float:
     """Lower bound on the unfolded length of a path with ``order`` interactions.
 
@@ -225,8 +208,8 @@ def shortest_path_length(scene, tx_position, rx_position, order: int) -> float:
     direct = float(np.linalg.norm(rx - tx))
     if order == 0 or len(scene.triangles) == 0:
         return direct
-    d = float(_distance_to_triangles(tx, scene.triangles).min()
-              + _distance_to_triangles(rx, scene.triangles).min())
+    d = float(point_triangle_distance(tx, scene.triangles).min()
+              + point_triangle_distance(rx, scene.triangles).min())
     return max(direct, d)
 
 
@@ -288,33 +271,6 @@ def max_useful_order(bounds: list[OrderBound]) -> int:
     return max(above, default=-1)
 
 
-def scattering_triangle_bounds(scene, tx, rx, floor_power: float):
-    """(triangle ids, best |a|², above-floor mask) of the scene's scattering triangles.
-
-    All tiles of a triangle of area A together carry at most
-    |a|² ≤ λ² S² A G_tx G_rx / (16 π³ r_i² r_s²) (clradcom.scattering with Γ ≤ 1 and both
-    cosines ≤ 1), r_i and r_s the distances from tx and rx to the triangle; a tile carries
-    at most its share of A, so a triangle below the floor has no tile above it.
-    """
-    p = _positive("floor_power", floor_power)
-    S_mat = np.asarray(scene.material_scattering)
-    ids = np.flatnonzero(S_mat[scene.tri_material] > 0)
-    if ids.size == 0:
-        return ids, np.zeros(0), np.zeros(0, dtype=bool)
-    tris = scene.triangles[ids]
-    area = 0.5 * np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]),
-                                axis=1)
-    r_i = _distance_to_triangles(tx.position, tris)
-    r_s = _distance_to_triangles(rx.position, tris)
-    S = S_mat[scene.tri_material[ids]]
-    g = pattern_peak_gain(tx.pattern) * pattern_peak_gain(rx.pattern)
-    with np.errstate(divide="ignore"):
-        best = (scene.wavelength_m ** 2 * S**2 * area * g
-                / (16.0 * math.pi**3 * np.maximum(r_i, 1e-300) ** 2
-                   * np.maximum(r_s, 1e-300) ** 2))
-    return ids, best, best >= p
-
-
 def relative_threshold_db(floor_power: float, strongest_power: float) -> float:
     """The relative threshold (dB below the strongest path, as
     :func:`clradcom.scattering.scattering_paths` takes it) that equals an absolute floor.
@@ -371,8 +327,6 @@ def prune_paths(paths, floor_power: float, waveform: Waveform | None = None):
     path is dropped only when all the weak paths of its cell (:func:`radar_cells`)
     together stay below the floor even added in phase: (Σ|a|)² < floor.
     """
-    from clradcom.paths import select_paths
-
     p = _finite("floor_power", floor_power)
     if p < 0:
         raise ValueError(f"floor_power must be >= 0, got {floor_power!r}")

@@ -38,9 +38,16 @@ import numpy as np
 
 from clradcom.device.raycast import make_rays, spawn_origins
 from clradcom.errors import BoundaryWarning, CausticWarning
-from clradcom.geometry.wedges import Wedges, diffraction_point, multi_diffraction_points
-from clradcom.paths import InteractionType, Paths
+from clradcom.geometry.wedges import (
+    Wedges,
+    diffraction_point,
+    extract_wedges,
+    multi_diffraction_points,
+)
+from clradcom.mechanisms.common import Geometry, check_number, seen_by_antennas
+from clradcom.paths import InteractionType, Paths, concat_paths
 from clradcom.physics import em, utd
+from clradcom.scene.records import Radar
 
 #: Segments leave the edge point from this far along themselves (m), past the
 #: float32 rounding of the faces that meet at the edge.
@@ -475,17 +482,36 @@ def wedge_pairs(caster, wedges: Wedges, first, second, max_hop_m: float, source=
     return np.stack([I[free], J[free]], axis=1)
 
 
-@dataclass
-class DiffractionBudget:
-    """How far the candidate search goes (TraceSettings sets these)."""
+@dataclass(frozen=True)
+class DiffractionSettings:
+    """UTD edge diffraction: how many edges per path and how far the candidate search goes."""
 
+    #: UTD edge diffractions per path, 0 (off) to 3
     max_diffractions: int = 1
-    #: most reflections in a path that also diffracts (prefix + suffix + between)
-    max_reflections: int = 1
+    #: faces turning less than this meet in no wedge (deg)
+    wedge_angle_deg: float = 20.0
+    #: most reflections in a path that also diffracts (prefix + suffix + between), taken
+    #: from the rays' own face sequences on one side of the edges; the tracer never lets it
+    #: exceed the specular search's max_reflections
+    max_reflections: int = 0
     #: most distance between consecutive edges of a multi-diffraction chain (m)
     max_hop_m: float = 20.0
     #: cap on chains of 2-3 edges per link; beyond it the nearest chains are kept
     max_chains: int = 20_000
+
+    def __post_init__(self):
+        check_number("DiffractionSettings", "max_diffractions", self.max_diffractions,
+                     low=0, high=3, integer=True)
+        check_number("DiffractionSettings", "wedge_angle_deg", self.wedge_angle_deg, low=0.0,
+                     high=180.0, low_open=True)
+        if self.wedge_angle_deg >= 180.0:
+            raise ValueError(f"DiffractionSettings.wedge_angle_deg must lie in (0, 180), got "
+                             f"{self.wedge_angle_deg!r}")
+        check_number("DiffractionSettings", "max_reflections", self.max_reflections, low=0,
+                     high=16, integer=True)
+        check_number("DiffractionSettings", "max_hop_m", self.max_hop_m, low=0.0,
+                     low_open=True)
+        check_number("DiffractionSettings", "max_chains", self.max_chains, low=1, integer=True)
 
 
 def _prefixes(sequences: dict, n: int) -> np.ndarray:
@@ -507,7 +533,7 @@ def _product(parts, chunk: int):
 
 
 def diffraction_candidates(caster, wedges: Wedges, tx_pos, rx_pos, tx_sequences: dict,
-                           rx_sequences: dict, budget: DiffractionBudget, stats=None,
+                           rx_sequences: dict, budget: DiffractionSettings, stats=None,
                            chunk: int = 1 << 19):
     """Candidate :class:`Chains` of one link, yielded in chunks of at most ``chunk``.
 
@@ -604,7 +630,7 @@ def _chain_hop(wedges: Wedges, chain: np.ndarray) -> np.ndarray:
 
 
 def diffraction_link_paths(scene, faces, caster, wedges: Wedges, tx, rx, tx_sequences,
-                           rx_sequences, budget: DiffractionBudget, keep_fn=None):
+                           rx_sequences, budget: DiffractionSettings, keep_fn=None):
     """All confirmed diffraction paths of one link: (list of Paths per pattern, stats).
 
     ``keep_fn(k_dep, k_arr)`` (optional) drops paths outside the antennas' patterns
@@ -636,3 +662,31 @@ def diffraction_link_paths(scene, faces, caster, wedges: Wedges, tx, rx, tx_sequ
                                 (pp[sel], p[sel], b0[sel], graze[sel]), tx, rx))
         stats["paths"] += len(sel)
     return out, stats
+
+
+# ---------------------------------------------------------------------------
+# the mechanism: wedges once per scene, paths of a link
+
+
+def prepare(geom: Geometry, settings: DiffractionSettings) -> Wedges | None:
+    """The scene's wedges (edges between faces turning by more than wedge_angle_deg); one
+    set serves every transmitter. None when diffraction is off or nothing can diffract."""
+    if not settings.max_diffractions or not len(geom.scene.triangles):
+        return None
+    scene = geom.scene
+    return extract_wedges(scene.triangles, scene.tri_object, scene.tri_material,
+                          settings.wedge_angle_deg)
+
+
+def link_paths(geom: Geometry, wedges: Wedges, tx: Radar, rx: Radar,
+               settings: DiffractionSettings, tx_sequences=None, rx_sequences=None,
+               stats: dict | None = None) -> Paths:
+    """UTD diffraction paths of one link, up to settings.max_diffractions edges mixed with
+    reflections from the rays' face sequences of tx and rx (``stats`` adds up counts)."""
+    parts, counts = diffraction_link_paths(
+        geom.scene, geom.faces, geom.caster, wedges, tx, rx, tx_sequences or {},
+        rx_sequences or {}, settings, keep_fn=lambda d, a: seen_by_antennas(tx, rx, d, a))
+    if stats is not None:
+        for key, value in counts.items():
+            stats[key] = stats.get(key, 0) + value
+    return concat_paths(parts) if parts else Paths.empty(1)

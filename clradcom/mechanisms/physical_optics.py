@@ -140,7 +140,7 @@ def po_paths(geom, tx, rx, *, objects=None, min_relative_db=-80.0, two_sided=Fal
     sel = seen & strong & (mag > 0)
     return Paths(gain=gain[sel], matrix=M[sel], delay_s=em.delay_s(L)[sel],
                  doppler_hz=doppler[sel], n_interactions=np.ones(int(sel.sum()), np.int16),
-                 interaction=np.full((int(sel.sum()), 1), int(InteractionType.REFLECTION),
+                 interaction=np.full((int(sel.sum()), 1), int(InteractionType.PHYSICAL_OPTICS),
                                      np.int8),
                  points=pts[sel], object_id=obj[sel].astype(np.int32)[:, None],
                  face_id=tri_ids[sel].astype(np.int32)[:, None])

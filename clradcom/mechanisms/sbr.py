@@ -38,39 +38,9 @@ from clradcom.device.raycast import make_rays, spawn_origins
 from clradcom.paths import InteractionType, Paths
 from clradcom.physics import em
 from clradcom.physics.po import sinc
-from clradcom.scene.reader import OPTICS
 
-__all__ = ["OPTICS_MODES", "TubeGrid", "TubeHits", "bounding_sphere", "launch_tubes",
-           "shoot_tubes", "sbr_paths", "object_optics"]
-
-#: Per-object choices: "go" image-method paths only; "po" PO facets for the first
-#: bounce and SBR-PO for the later ones (GO paths ending on the object dropped);
-#: "both" PO facets for the first bounce, GO image paths for the later ones.
-OPTICS_MODES = OPTICS
-#: TraceSettings.physical_optics -> mode of PEC objects without their own ``optics``
-_DEFAULT_PEC_MODE = {"none": "go", "pec": "both", "sbr": "po"}
-
-
-def object_optics(scene, physical_optics: str) -> list[str]:
-    """Mode per object: its own ``optics`` key, else the scene-level default for PEC
-    objects (``physical_optics``: "none" -> go, "pec" -> both, "sbr" -> po); non-PEC
-    objects without a key are "go"."""
-    if physical_optics not in _DEFAULT_PEC_MODE:
-        raise ValueError(f"physical_optics must be one of {', '.join(_DEFAULT_PEC_MODE)}, "
-                         f"got {physical_optics!r}")
-    pec = scene.material_pec
-    out = []
-    for o in scene.objects:
-        own = getattr(o, "optics", None)
-        if own is not None:
-            if own not in OPTICS_MODES:
-                raise ValueError(f"object {o.name!r}: optics must be one of "
-                                 f"{', '.join(OPTICS_MODES)}, got {own!r}")
-            out.append(own)
-        else:
-            out.append(_DEFAULT_PEC_MODE[physical_optics] if pec[o.material] else "go")
-    return out
-
+__all__ = ["TubeGrid", "TubeHits", "bounding_sphere", "launch_tubes", "shoot_tubes",
+           "sbr_paths", "shoot_sbr"]
 
 @dataclass
 class TubeGrid:
@@ -446,6 +416,6 @@ def sbr_paths(geom, tx, rx, *, objects, spacing_m: float | None = None,
     active = tri_ids >= 0
     return Paths(gain=g_gain[strong], matrix=g_M[strong], delay_s=em.delay_s(L[rep_s]),
                  doppler_hz=doppler, n_interactions=nk.astype(np.int16),
-                 interaction=np.where(active, int(InteractionType.REFLECTION), 0
+                 interaction=np.where(active, int(InteractionType.SBR), 0
                                       ).astype(np.int8),
                  points=pts, object_id=obj.astype(np.int32), face_id=tri_ids.astype(np.int32))

@@ -35,13 +35,18 @@ reflection dyad (Fresnel x roughness x sqrt(1 - S_mirror^2)) on that side.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
 from clradcom.device.raycast import make_rays, spawn_origins
+from clradcom.geometry.triangles import point_triangle_distance
+from clradcom.mechanisms.common import Geometry, check_number
 from clradcom.mechanisms.specular import CONFIRM_TOL_M
 from clradcom.paths import InteractionType, Paths
 from clradcom.physics import em
+from clradcom.scene.antenna import pattern_peak_gain
+from clradcom.scene.records import Radar
 
 __all__ = ["make_tiles", "choose_tile_size", "tile_transfer", "mirror_faces", "reflection_legs",
            "scattering_paths"]
@@ -392,7 +397,7 @@ def scattering_paths(geom, tx, rx, *, tile_size_m=None, threshold_db=-60.0, seed
 
     ``triangle_mask`` (bool per scene triangle, optional): tiles of triangles where it
     is false are never traced (e.g. those that cannot reach the radar's noise floor,
-    :func:`clradcom.budget.scattering_triangle_bounds`); they are not counted as
+    :func:`scattering_triangle_bounds`); they are not counted as
     dropped. Tile sizes and phases do not depend on it.
 
     Emitted are the paths inside both antenna patterns and not more than
@@ -586,3 +591,99 @@ def scattering_paths(geom, tx, rx, *, tile_size_m=None, threshold_db=-60.0, seed
                   interaction=code[sel, :K], points=pts[sel, :K + 2],
                   object_id=oid[sel, :K], face_id=fid[sel, :K])
     return paths, int(P - m)
+
+
+def scattering_triangle_bounds(scene, tx, rx, floor_power: float):
+    """(triangle ids, best |a|², above-floor mask) of the scene's scattering triangles.
+
+    All tiles of a triangle of area A together carry at most
+    |a|² ≤ λ² S² A G_tx G_rx / (16 π³ r_i² r_s²) (:func:`scattering_paths` with Γ ≤ 1 and both
+    cosines ≤ 1), r_i and r_s the distances from tx and rx to the triangle; a tile carries
+    at most its share of A, so a triangle below the floor has no tile above it.
+    """
+    p = float(floor_power)
+    if not (math.isfinite(p) and p > 0):
+        raise ValueError(f"floor_power must be a finite number > 0, got {floor_power!r}")
+    S_mat = np.asarray(scene.material_scattering)
+    ids = np.flatnonzero(S_mat[scene.tri_material] > 0)
+    if ids.size == 0:
+        return ids, np.zeros(0), np.zeros(0, dtype=bool)
+    tris = scene.triangles[ids]
+    area = 0.5 * np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]),
+                                axis=1)
+    r_i = point_triangle_distance(np.asarray(tx.position, dtype=np.float64), tris)
+    r_s = point_triangle_distance(np.asarray(rx.position, dtype=np.float64), tris)
+    S = S_mat[scene.tri_material[ids]]
+    g = pattern_peak_gain(tx.pattern) * pattern_peak_gain(rx.pattern)
+    with np.errstate(divide="ignore"):
+        best = (scene.wavelength_m ** 2 * S**2 * area * g
+                / (16.0 * math.pi**3 * np.maximum(r_i, 1e-300) ** 2
+                   * np.maximum(r_s, 1e-300) ** 2))
+    return ids, best, best >= p
+
+
+# ---------------------------------------------------------------------------
+# the mechanism: settings and paths of a link
+
+
+@dataclass(frozen=True)
+class ScatteringSettings:
+    """Single Lambertian scattering from tiles of materials with S > 0 (the trees)."""
+
+    #: scatter at all; the specular reflections of such materials then carry sqrt(1 - S^2)
+    #: of the field whether or not this is on (effective roughness)
+    enabled: bool = False
+    #: specular reflections around a tile: 0 tx-tile-rx only; 1 also one reflection before
+    #: or after it; 2 also one on each side
+    max_reflections: int = 0
+    #: tiles more than this far (dB) below the link's strongest tile are dropped
+    threshold_db: float = -60.0
+    #: tile edge (m); 0 picks it from the wavelength and distance (choose_tile_size)
+    tile_size_m: float = 0.0
+    #: faces smaller than this (m^2) reflect into no scattering path
+    min_face_area_m2: float = DEFAULT_MIN_FACE_AREA_M2
+    #: |a|^2 below which a triangle's tiles are never traced, from an upper bound of all
+    #: its tiles together (scattering_triangle_bounds; e.g. the radar's processed noise
+    #: floor, clradcom.evaluation.budget.noise_floor); 0 traces every triangle
+    floor: float = 0.0
+
+    def __post_init__(self):
+        if not isinstance(self.enabled, bool):
+            raise ValueError(f"ScatteringSettings.enabled must be True or False, got "
+                             f"{self.enabled!r}")
+        if isinstance(self.max_reflections, bool) or self.max_reflections not in (0, 1, 2):
+            raise ValueError(f"ScatteringSettings.max_reflections must be 0, 1 or 2, got "
+                             f"{self.max_reflections!r}")
+        check_number("ScatteringSettings", "threshold_db", self.threshold_db, high=0.0)
+        for name in ("tile_size_m", "min_face_area_m2", "floor"):
+            check_number("ScatteringSettings", name, getattr(self, name), low=0.0)
+
+
+def prepare(geom: Geometry, tx: Radar, settings: ScatteringSettings) -> None:
+    """Nothing is shared between a transmitter's links: tiles are cut per link, their
+    size set by the nearer antenna's distance."""
+    return None
+
+
+def link_paths(geom: Geometry, prepared: None, tx: Radar, rx: Radar,
+               settings: ScatteringSettings, stats: dict | None = None) -> Paths:
+    """Diffuse scattering paths of one link; ``stats`` adds up ``tiles_dropped`` and
+    ``triangles_below_floor``."""
+    if not settings.enabled or geom.caster is None:
+        return Paths.empty(1)
+    scene = geom.scene
+    mask = None
+    below = 0
+    if settings.floor > 0:
+        mask = np.ones(len(scene.triangles), dtype=bool)
+        ids, _, above = scattering_triangle_bounds(scene, tx, rx, settings.floor)
+        mask[ids[~above]] = False
+        below = int(np.count_nonzero(~above))
+    paths, dropped = scattering_paths(
+        geom, tx, rx, tile_size_m=settings.tile_size_m or None,
+        threshold_db=settings.threshold_db, max_reflections=settings.max_reflections,
+        min_face_area_m2=settings.min_face_area_m2, triangle_mask=mask)
+    if stats is not None:
+        stats["tiles_dropped"] = stats.get("tiles_dropped", 0) + int(dropped)
+        stats["triangles_below_floor"] = stats.get("triangles_below_floor", 0) + below
+    return paths

@@ -25,11 +25,16 @@ is exact, and the set stops growing once the lattice is dense enough.
 from __future__ import annotations
 
 import warnings
+from dataclasses import dataclass
 
 import numpy as np
 
 from clradcom.device.raycast import RayCaster, make_rays, spawn_origins
 from clradcom.errors import SurfaceContactWarning
+from clradcom.mechanisms.common import Geometry, check_number, seen_by_antennas
+from clradcom.paths import InteractionType, Paths, concat_paths, select_paths
+from clradcom.physics import em
+from clradcom.scene.records import Radar
 
 #: A segment counts as reaching its reflection point when the first thing it
 #: meets is that face within this many metres (plus float32 resolution).
@@ -373,3 +378,204 @@ def confirm_paths(caster: RayCaster, tri_face, face_normals, points: np.ndarray,
         idx = idx[good]
     triangles[~keep] = -1
     return keep, triangles
+
+# ---------------------------------------------------------------------------
+# the mechanism: settings, per-transmitter candidates, paths of a link
+
+
+@dataclass(frozen=True)
+class SpecularSettings:
+    """Line of sight and specular reflections: how deep and how densely to search."""
+
+    max_reflections: int = 5
+    rays: int = 1_000_000  # launched per transmitter over its pattern's support
+    line_of_sight: bool = True
+
+    def __post_init__(self):
+        check_number("SpecularSettings", "max_reflections", self.max_reflections, low=0,
+                     high=16, integer=True)
+        check_number("SpecularSettings", "rays", self.rays, low=1, integer=True)
+        if not isinstance(self.line_of_sight, bool):
+            raise ValueError(f"SpecularSettings.line_of_sight must be True or False, got "
+                             f"{self.line_of_sight!r}")
+
+
+#: Candidate face sequences of one transmitter: reflection order -> (C, order) int32.
+Candidates = dict[int, np.ndarray]
+
+
+def prepare(geom: Geometry, tx: Radar, settings: SpecularSettings) -> Candidates:
+    """Unique face sequences proposed by tx's rays (shared by all of tx's receivers)."""
+    if settings.max_reflections == 0 or geom.caster is None:
+        return {}
+    dirs = launch_directions(settings.rays, tx.pattern.gain, tx.orientation)
+    seqs = reflection_sequences(geom.caster, geom.faces.tri_face, tx.position, dirs,
+                                settings.max_reflections)
+    return unique_candidates(seqs)
+
+
+def link_paths(geom: Geometry, candidates: Candidates, tx: Radar, rx: Radar,
+               settings: SpecularSettings) -> Paths:
+    """Line of sight and specular reflections of one link, with their fields; an antenna
+    lying on a face adds that face's reflection merged with the line of sight."""
+    pg = specular_paths(geom, tx.position, rx.position, candidates, settings.line_of_sight)
+    paths = path_fields(geom, pg, tx, rx)
+    if settings.line_of_sight and np.any(pg.n_interactions == 0):
+        paths = concat_paths([paths, surface_contact_paths(geom, tx, rx)])
+    return paths
+
+
+@dataclass
+class PathGeometry:
+    """Exact paths of one link before fields: padded to k_max interactions."""
+
+    points: np.ndarray  # (P, k_max+2, 3)
+    n_interactions: np.ndarray  # (P,)
+    faces: np.ndarray  # (P, k_max) planar face ids, -1 padding
+    triangles: np.ndarray  # (P, k_max) scene triangle ids, -1 padding
+
+    @property
+    def n_paths(self) -> int:
+        return len(self.n_interactions)
+
+
+def specular_paths(geom: Geometry, tx_pos, rx_pos, candidates, line_of_sight=True
+                   ) -> PathGeometry:
+    """Exact, confirmed specular paths (and line of sight) between two points."""
+    tx_pos = np.asarray(tx_pos, dtype=np.float64)
+    rx_pos = np.asarray(rx_pos, dtype=np.float64)
+    k_max = max(candidates.keys(), default=0)
+    blocks = []
+    if line_of_sight and np.linalg.norm(rx_pos - tx_pos) > 0:
+        pts = np.stack([tx_pos, rx_pos])[None]
+        if geom.caster is None:  # free space: nothing can block it
+            keep = np.ones(1, dtype=bool)
+        else:
+            keep, _ = confirm_paths(geom.caster, geom.faces.tri_face, geom.faces.normal,
+                                       pts, np.zeros((1, 0), dtype=np.int32))
+        if keep[0]:
+            blocks.append((pts, np.zeros((1, 0), np.int32), np.zeros((1, 0), np.int32)))
+    for k in sorted(candidates):
+        seqs = candidates[k]
+        if len(seqs) == 0:
+            continue
+        pts, ok = image_points(tx_pos, rx_pos, geom.faces.normal, geom.faces.offset, seqs)
+        keep, tris = confirm_paths(geom.caster, geom.faces.tri_face, geom.faces.normal,
+                                      pts, seqs, ok)
+        if keep.any():
+            blocks.append((pts[keep], seqs[keep], tris[keep]))
+    P = sum(len(b[0]) for b in blocks)
+    points = np.full((P, k_max + 2, 3), np.nan)
+    n_int = np.zeros(P, dtype=np.int16)
+    faces = np.full((P, k_max), -1, dtype=np.int32)
+    triangles = np.full((P, k_max), -1, dtype=np.int32)
+    row = 0
+    for pts, seqs, tris in blocks:
+        n, k = len(pts), seqs.shape[1]
+        points[row:row + n, :k + 2] = pts
+        n_int[row:row + n] = k
+        faces[row:row + n, :k] = seqs
+        triangles[row:row + n, :k] = tris
+        row += n
+    return PathGeometry(points=points, n_interactions=n_int, faces=faces, triangles=triangles)
+
+
+def surface_contact_paths(geom: Geometry, tx: Radar, rx: Radar) -> Paths:
+    """The reflection of an antenna lying on a face, as the limit of two merging rays.
+
+    With tx (or rx) on a face and the other end off its plane, the reflected ray and
+    the line of sight coincide: the image method cannot place the reflection (its point
+    is the antenna itself, a zero-length segment). Its field is the limit h -> 0 of the
+    two-ray geometry: the wave leaves tx along the mirror image of the line of sight
+    (into the face), reflects at tx with the face's Fresnel x roughness x sqrt(1 - S^2)
+    dyad and travels the line of sight; so the total tends to (1 + r) x LOS for an
+    isotropic antenna, continuous through h = 0. Call only when the line of sight
+    exists (it is this path's second segment).
+    """
+    scene, faces = geom.scene, geom.faces
+    tx_pos = np.asarray(tx.position, dtype=np.float64)
+    rx_pos = np.asarray(rx.position, dtype=np.float64)
+    los = rx_pos - tx_pos
+    length = float(np.linalg.norm(los))
+    if geom.caster is None or length == 0 or faces.n_faces == 0:
+        return Paths.empty(1)
+    k_los = los / length
+    rows = []
+    for end, other, at_tx in ((tx_pos, rx_pos, True), (rx_pos, tx_pos, False)):
+        tol = CONTACT_TOL_REL * (1.0 + np.abs(end).max())
+        dist = faces.normal @ end - faces.offset
+        off = faces.normal @ other - faces.offset
+        on = np.flatnonzero((np.abs(dist) <= tol) & (np.abs(off) > tol))
+        if len(on) == 0:
+            continue
+        tri = containing_triangles(np.broadcast_to(end, (len(on), 3)), on,
+                                      np.full(len(on), -1), scene.triangles, faces.tri_face)
+        for f, t in zip(on[tri >= 0], tri[tri >= 0], strict=True):
+            rows.append((int(f), int(t), at_tx))
+    if not rows:
+        return Paths.empty(1)
+    f = np.array([r[0] for r in rows])
+    t = np.array([r[1] for r in rows], dtype=np.int32)
+    at_tx = np.array([r[2] for r in rows])
+    n = faces.normal[f]
+    mirrored = k_los - 2.0 * (n @ k_los)[:, None] * n
+    k_dep = np.where(at_tx[:, None], mirrored, k_los)
+    k_arr = np.where(at_tx[:, None], k_los, mirrored)
+    T = em.material_reflection_dyad(scene, faces.material_id[f], k_dep, n) @ (
+        np.eye(3)[None] - k_dep[:, :, None] * k_dep[:, None, :])
+    P = len(rows)
+    gain, M = em.path_gains(T, np.full(P, length), k_dep, k_arr, tx, rx, scene.carrier_hz)
+    contact = np.where(at_tx[:, None], tx_pos, rx_pos)
+    points = np.stack([np.broadcast_to(tx_pos, (P, 3)), contact,
+                       np.broadcast_to(rx_pos, (P, 3))], axis=1)
+    # the merged rays share the line of sight's Doppler
+    los_pts = np.stack([tx_pos, rx_pos])[None]
+    los_vel = np.stack([tx.velocity, rx.velocity])[None]
+    doppler = np.full(P, em.doppler_hz(los_pts, los_vel, scene.wavelength_m)[0])
+    seen = seen_by_antennas(tx, rx, k_dep, k_arr)
+    return select_paths(Paths(
+        gain=gain, matrix=M, delay_s=np.full(P, em.delay_s(np.array([length]))[0]),
+        doppler_hz=doppler, n_interactions=np.ones(P, np.int16),
+        interaction=np.full((P, 1), int(InteractionType.REFLECTION), np.int8),
+        points=points, object_id=faces.object_id[f][:, None].astype(np.int32),
+        face_id=t[:, None]), seen)
+
+
+def path_fields(geom: Geometry, pg: PathGeometry, tx: Radar, rx: Radar) -> Paths:
+    """Gains, polarimetric matrices, delays and Doppler of exact paths -> :class:`Paths`."""
+    scene = geom.scene
+    P, k_max = pg.faces.shape
+    if P == 0:
+        return Paths.empty(k_max)
+    nk = pg.n_interactions.astype(np.int64)
+    face = np.maximum(pg.faces, 0)
+    active = pg.faces >= 0
+    mat = geom.faces.material_id[face]
+    obj = np.where(active, geom.faces.object_id[face], -1)
+    pts = pg.points  # NaN padding past each path's rx point is ignored by em (masked by nk)
+    T, L = em.path_transfer(
+        pts, geom.faces.normal[face],
+        scene.material_eps_r[mat], scene.material_pec[mat],
+        scene.material_roughness_m[mat], scene.material_roughness_model[mat],
+        scene.carrier_hz, num_interactions=nk)
+    k_dep, k_arr = em.path_directions(pts, nk)
+    gain, M = em.path_gains(T, L, k_dep, k_arr, tx, rx, scene.carrier_hz)
+    # effective roughness: a share S^2 of the reflected power goes into diffuse scattering
+    s_coef = np.where(active, scene.material_scattering[mat], 0.0)
+    specular_share = np.prod(np.sqrt(1.0 - s_coef**2), axis=1)
+    gain = gain * specular_share
+    M = M * specular_share[:, None, None]
+    vel = np.zeros_like(pts)
+    vel[:, 0] = tx.velocity
+    vel[:, 1:k_max + 1] = np.where(active[..., None], scene.object_velocity[np.maximum(obj, 0)],
+                                   0.0)
+    vel[np.arange(P), nk + 1] = rx.velocity
+    doppler = em.doppler_hz(pts, vel, scene.wavelength_m, num_interactions=nk)
+    interaction = np.where(active, int(InteractionType.REFLECTION), 0).astype(np.int8)
+    # a path leaving or arriving outside an antenna's pattern carries nothing: model no more
+    # than the link can see
+    seen = seen_by_antennas(tx, rx, k_dep, k_arr)
+    return Paths(gain=gain[seen], matrix=M[seen], delay_s=em.delay_s(L)[seen],
+                 doppler_hz=doppler[seen], n_interactions=pg.n_interactions[seen],
+                 interaction=interaction[seen], points=pg.points[seen],
+                 object_id=obj.astype(np.int32)[seen], face_id=pg.triangles[seen])

@@ -477,3 +477,15 @@ def _read_csv(path: Path) -> dict:
         cp[it, ip] = vals[:, 4] + 1j * vals[:, 5]
         out["c_theta"], out["c_phi"] = ct, cp
     return out
+
+
+def pattern_peak_gain(pattern, n_directions: int = 20_000) -> float:
+    """Largest directivity of an antenna pattern: boresight and a Fibonacci sphere of
+    ``n_directions`` (exact for the sector, isotropic and cosine patterns)."""
+    i = np.arange(n_directions) + 0.5
+    z = 1.0 - 2.0 * i / n_directions
+    r = np.sqrt(np.maximum(0.0, 1.0 - z * z))
+    phi = math.pi * (1.0 + 5.0**0.5) * i
+    dirs = np.concatenate([[[1.0, 0.0, 0.0]],
+                           np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)])
+    return float(np.max(pattern.gain(dirs)))

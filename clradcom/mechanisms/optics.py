@@ -1,0 +1,141 @@
+"""Physical optics in place of GO for the objects that ask for it (docs/po.md).
+
+A GO image path off a flat facet is the return of an infinite mirror; the PO integral
+over the lit facets gives the facet's own strength and its off-specular lobes
+(:mod:`~clradcom.mechanisms.physical_optics`), and SBR-PO does the same for corners
+(:mod:`~clradcom.mechanisms.sbr`). Per object (:func:`object_optics`: its ``optics``
+key, else the default that :attr:`OpticsSettings.mode` gives PEC objects):
+
+* ``"both"``: its single GO reflections make way for PO facet returns; multi-bounce
+  paths stay GO;
+* ``"po"``: every GO reflection path that ends on it makes way for PO facet returns
+  (first bounce) and SBR-PO tube returns (bounces 2..max_bounces);
+* ``"go"``: untouched.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from clradcom.mechanisms.common import Geometry, check_number
+from clradcom.mechanisms.physical_optics import po_paths
+from clradcom.mechanisms.sbr import sbr_paths, shoot_sbr
+from clradcom.paths import InteractionType, Paths
+from clradcom.scene.records import OPTICS, Radar, Scene
+
+__all__ = ["MODES", "OpticsSettings", "SbrShot", "link_paths", "object_optics", "prepare",
+           "replaced_paths"]
+
+#: OpticsSettings.mode -> the optics of PEC objects without their own ``optics`` key:
+#: "none" GO image paths; "pec" PO facet integrals for the first bounce (a facet's true
+#: RCS, not an infinite mirror's), GO for later ones; "sbr" PO facets plus shooting-and-
+#: bouncing ray tubes with PO for bounces 2..max_bounces
+MODES = {"none": "go", "pec": "both", "sbr": "po"}
+
+
+@dataclass(frozen=True)
+class OpticsSettings:
+    """Which objects get physical optics, and how densely SBR tubes are shot."""
+
+    mode: str = "none"
+    #: pitch of the SBR ray-tube grid at each target, in wavelengths
+    sbr_spacing_wavelengths: float = 0.5
+    #: most SBR bounces; None follows the specular search's max_reflections
+    max_bounces: int | None = None
+
+    def __post_init__(self):
+        if self.mode not in MODES:
+            raise ValueError(f"OpticsSettings.mode must be one of {', '.join(map(repr, MODES))}, "
+                             f"got {self.mode!r}")
+        check_number("OpticsSettings", "sbr_spacing_wavelengths", self.sbr_spacing_wavelengths,
+                     low=0.01, high=100.0)
+        if self.max_bounces is not None:
+            check_number("OpticsSettings", "max_bounces", self.max_bounces, low=0, high=16,
+                         integer=True)
+
+
+def object_optics(scene: Scene, mode: str) -> list[str]:
+    """Optics per object: its own ``optics`` key, else the scene-level default for PEC
+    objects (``mode``: "none" -> go, "pec" -> both, "sbr" -> po); non-PEC objects without
+    a key are "go"."""
+    if mode not in MODES:
+        raise ValueError(f"physical optics mode must be one of {', '.join(MODES)}, "
+                         f"got {mode!r}")
+    pec = scene.material_pec
+    out = []
+    for o in scene.objects:
+        own = getattr(o, "optics", None)
+        if own is not None:
+            if own not in OPTICS:
+                raise ValueError(f"object {o.name!r}: optics must be one of "
+                                 f"{', '.join(OPTICS)}, got {own!r}")
+            out.append(own)
+        else:
+            out.append(MODES[mode] if pec[o.material] else "go")
+    return out
+
+
+def active(scene: Scene, settings: OpticsSettings) -> bool:
+    """Whether any object of the scene gets physical optics."""
+    return settings.mode != "none" or any(o.optics for o in scene.objects)
+
+
+@dataclass
+class SbrShot:
+    """What one transmitter's links share: the objects by optics, and its SBR tubes."""
+
+    po_objects: np.ndarray  # objects whose first bounce is a PO facet integral
+    sbr_objects: np.ndarray  # objects that also get SBR-PO for later bounces
+    max_bounces: int
+    tubes: tuple | None  # shoot_sbr's (grid, hits), None without SBR objects
+
+
+def prepare(geom: Geometry, tx: Radar, settings: OpticsSettings,
+            max_bounces: int) -> SbrShot:
+    """Sort the objects by optics and shoot tx's SBR tubes once for all its receivers
+    (``max_bounces`` when settings.max_bounces is None)."""
+    if settings.max_bounces is not None:
+        max_bounces = settings.max_bounces
+    modes = np.array(object_optics(geom.scene, settings.mode))
+    po_objects = np.flatnonzero(modes != "go")
+    sbr_objects = np.flatnonzero(modes == "po")
+    tubes = None
+    if geom.caster is not None and len(sbr_objects) and max_bounces >= 2:
+        tubes = shoot_sbr(geom, tx, sbr_objects,
+                          spacing_wavelengths=settings.sbr_spacing_wavelengths,
+                          max_bounces=max_bounces)
+    return SbrShot(po_objects=po_objects, sbr_objects=sbr_objects, max_bounces=max_bounces,
+                   tubes=tubes)
+
+
+def replaced_paths(paths: Paths, shot: SbrShot) -> np.ndarray:
+    """Mask of the GO reflection paths that physical optics replaces: single reflections
+    ending on a PO object, and multi-bounce ones ending on an SBR object."""
+    drop = np.zeros(paths.n_paths, dtype=bool)
+    if not (paths.k_max and paths.n_paths and len(shot.po_objects)):
+        return drop
+    nk = paths.n_interactions.astype(np.int64)
+    last = np.maximum(nk - 1, 0)
+    rows = np.arange(paths.n_paths)
+    refl = int(InteractionType.REFLECTION)
+    all_refl = np.all((paths.interaction == refl)
+                      | (np.arange(paths.k_max)[None, :] >= nk[:, None]), axis=1)
+    ends_on = np.where(nk > 0, paths.object_id[rows, last], -1)
+    drop = (nk == 1) & np.isin(ends_on, shot.po_objects)
+    drop |= (nk > 1) & np.isin(ends_on, shot.sbr_objects)
+    return drop & all_refl
+
+
+def link_paths(geom: Geometry, shot: SbrShot, tx: Radar, rx: Radar,
+               settings: OpticsSettings) -> list[Paths]:
+    """PO facet returns and SBR-PO tube returns of one link (those that exist)."""
+    if geom.caster is None or len(shot.po_objects) == 0:
+        return []
+    parts = [po_paths(geom, tx, rx, objects=shot.po_objects)]
+    if shot.tubes is not None:
+        parts.append(sbr_paths(geom, tx, rx, objects=shot.sbr_objects,
+                               spacing_wavelengths=settings.sbr_spacing_wavelengths,
+                               max_bounces=shot.max_bounces, shot=shot.tubes))
+    return parts
