@@ -20,6 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from clradcom.paths import InteractionType
+from clradcom.radar.processing import radar_image
+from clradcom.radar.truth import match_truth
 
 __all__ = [
     "Completeness",
@@ -112,8 +114,6 @@ def image_error_to_noise_db(H, H_ref, noise_variance: float, waveform, window="h
     than the noise already in it. :func:`error_to_noise_db` is the bound this never
     exceeds; for a diffuse error (many weak paths spread over the image) it is far lower.
     """
-    from clradcom.radar.processing import radar_image
-
     h, r = _pair(H, H_ref)
     var = float(noise_variance)
     if not (math.isfinite(var) and var > 0):
@@ -197,7 +197,8 @@ def path_completeness(reference, paths, power_floor: float = 0.0) -> Completenes
 
 def path_kind(interaction) -> np.ndarray:
     """Per path 'scattering', 'diffraction' or 'reflection' (line of sight counts as
-    reflection of order 0): the most exotic interaction a path holds."""
+    reflection of order 0): the most exotic interaction a path holds. Physical-optics
+    facet and SBR returns count as reflection: they stand in for GO reflections."""
     codes = np.asarray(interaction)
     if codes.ndim != 2:
         raise ValueError(f"interaction must be (P, K), got shape {codes.shape}")
@@ -235,8 +236,6 @@ def detection_errors(detections, truth, range_tol_m: float,
     detected range from the interval [range_nearest_m, range_centre_m] (0 inside it);
     the velocity error is |v_detected − v_rel_m_s|.
     """
-    from clradcom.radar.truth import match_truth
-
     for name, v in (("range_tol_m", range_tol_m), ("velocity_tol_mps", velocity_tol_mps)):
         if not (isinstance(v, int | float | np.floating) and math.isfinite(v) and v > 0):
             raise ValueError(f"{name} must be positive and finite, got {v!r}")
