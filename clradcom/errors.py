@@ -12,7 +12,8 @@ from pathlib import Path
 
 __all__ = ["SceneError", "SceneWarning", "NOVALUE", "PhysicsWarning", "CyclicPrefixWarning",
            "AliasingWarning", "NearFieldWarning", "SurfaceContactWarning",
-           "BoundaryWarning", "CausticWarning", "SnapshotError"]
+           "BoundaryWarning", "CausticWarning", "SnapshotError", "ArgumentError",
+           "ArgumentTypeError", "MemoryBudgetError"]
 
 
 class _NoValue:
@@ -167,3 +168,50 @@ class SnapshotError(ValueError):
 
 def _rebuild_error(reason, file, key):  # pragma: no cover - pickling helper
     return SnapshotError(reason, file=file, key=key)
+
+
+class _ArgumentMixin:
+    """Names the argument (a function parameter, a settings field, a CLI option) and the
+    refused value in the message: ``rays = -1: must be >= 1``."""
+
+    def _setup(self, reason: str, argument: str | None, value: object) -> str:
+        self.reason = reason
+        self.argument = argument
+        self.value = value
+        if argument is None:
+            return reason
+        if value is NOVALUE:
+            return f"{argument}: {reason}"
+        return f"{argument} = {_short(value)}: {reason}"
+
+
+class ArgumentError(_ArgumentMixin, ValueError):
+    """A library call's argument (or a settings field, or a command-line option) has a
+    value that is refused. ``argument`` names it, ``value`` is what was given."""
+
+    def __init__(self, reason: str, *, argument: str | None = None,
+                 value: object = NOVALUE) -> None:
+        super().__init__(self._setup(reason, argument, value))
+
+    def __reduce__(self):
+        return (_rebuild_argument, (type(self), self.reason, self.argument, self.value))
+
+
+class ArgumentTypeError(_ArgumentMixin, TypeError):
+    """A library call's argument has the wrong type (a path where a Scene is expected)."""
+
+    def __init__(self, reason: str, *, argument: str | None = None,
+                 value: object = NOVALUE) -> None:
+        super().__init__(self._setup(reason, argument, value))
+
+    def __reduce__(self):
+        return (_rebuild_argument, (type(self), self.reason, self.argument, self.value))
+
+
+class MemoryBudgetError(ArgumentError):
+    """A computation would allocate more memory than allowed; the message gives the
+    estimate and the argument or option to change."""
+
+
+def _rebuild_argument(cls, reason, argument, value):  # pragma: no cover - pickling helper
+    return cls(reason, argument=argument, value=value)

@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 
 from clradcom import __version__
 from clradcom.device.runtime import Runtime
+from clradcom.errors import ArgumentError, ArgumentTypeError
 from clradcom.mechanisms import diffraction, optics, scattering, specular
 from clradcom.mechanisms.common import build_geometry
 from clradcom.mechanisms.diffraction import DiffractionSettings
@@ -59,8 +60,8 @@ class TraceSettings:
                            ("optics", OpticsSettings), ("scattering", ScatteringSettings)):
             value = getattr(self, name)
             if not isinstance(value, kind):
-                raise TypeError(f"TraceSettings.{name} must be a {kind.__name__}, got "
-                                f"{type(value).__name__} {value!r}")
+                raise ArgumentTypeError(f"must be a {kind.__name__}",
+                                        argument=f"TraceSettings.{name}", value=value)
 
     @property
     def diffraction_search(self) -> DiffractionSettings:
@@ -77,8 +78,9 @@ class TraceSettings:
             mechanism, sep, name = key.partition("__")
             if not sep or mechanism not in ("specular", "diffraction", "optics",
                                             "scattering"):
-                raise TypeError(f"TraceSettings.replace takes mechanism__field names, "
-                                f"got {key!r}")
+                raise ArgumentTypeError("TraceSettings.replace takes mechanism__field names "
+                                        "(specular, diffraction, optics, scattering)",
+                                        argument=key)
             parts.setdefault(mechanism, {})[name] = value
         return dataclasses.replace(self, **{
             m: dataclasses.replace(getattr(self, m), **kw) for m, kw in parts.items()})
@@ -124,13 +126,14 @@ def _check_links(scene: Scene, links) -> list[tuple[int, int]]:
     out = []
     for item in links:
         if not (isinstance(item, tuple | list) and len(item) == 2):
-            raise ValueError(f"links: each link must be a (tx index, rx index) pair, got "
-                             f"{item!r}")
+            raise ArgumentError("each link must be a (tx index, rx index) pair",
+                                argument="links", value=item)
         pair = []
         for what, idx in zip(("tx", "rx"), item, strict=True):
             if isinstance(idx, bool) or not isinstance(idx, int) or not 0 <= idx < n:
-                raise ValueError(f"links: {what} index {idx!r} is not a radar of scene "
-                                 f"{scene.name!r} (0..{n - 1})")
+                raise ArgumentError(f"{what} index {idx!r} is not a radar of scene "
+                                    f"{scene.name!r} (0..{n - 1})", argument="links",
+                                    value=item)
             pair.append(idx)
         out.append((pair[0], pair[1]))
     return out
@@ -141,9 +144,13 @@ def trace_scene(scene: Scene, settings: TraceSettings | None = None,
                 progress: Callable[[str], None] | None = None,
                 times: StageTimes | None = None) -> Snapshot:
     """Trace the links of a scene (default: every transmitter to every receiver)."""
+    if not isinstance(scene, Scene):
+        raise ArgumentTypeError("must be a Scene: load a scene file with "
+                                "clradcom.scene.load_scene(path) first", argument="scene",
+                                value=scene)
     settings = settings or TraceSettings()
     if not isinstance(settings, TraceSettings):
-        raise TypeError(f"settings must be a TraceSettings, got {type(settings).__name__}")
+        raise ArgumentTypeError("must be a TraceSettings", argument="settings", value=settings)
     txs = [i for i, r in enumerate(scene.radars) if r.role in ("txrx", "tx")]
     rxs = [i for i, r in enumerate(scene.radars) if r.role in ("txrx", "rx")]
     links = [(t, r) for t in txs for r in rxs] if links is None else _check_links(scene, links)

@@ -14,8 +14,9 @@ docs/tradeoff.md gives the reasoning; in short:
   reflection magnitude of the scene's materials to the k-th power. An order whose best
   case lies below the floor need never be traced.
 * A scattering triangle's tiles together carry at most
-  λ² S² A G_t G_r / (16 π³ r_i² r_s²) (:func:`clradcom.mechanisms.scattering.scattering_triangle_bounds`); a triangle
-  below the floor need never be tiled.
+  λ² S² A G_t G_r / (16 π³ r_i² r_s²)
+  (:func:`clradcom.mechanisms.scattering.scattering_triangle_bounds`); a triangle below the
+  floor need never be tiled.
 * Paths found below the floor are dropped before synthesis (:func:`prune_paths`), unless
   the weak paths of their range-Doppler cell add up above it (the tiles of one tree).
 * :func:`choose_settings` picks the cheapest record of a sweep (tools/tradeoff.py) that

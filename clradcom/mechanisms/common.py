@@ -21,6 +21,7 @@ import numpy as np
 
 from clradcom.device.raycast import RayCaster
 from clradcom.device.runtime import Runtime, get_runtime
+from clradcom.errors import ArgumentError
 from clradcom.geometry.faces import Faces, merge_coplanar
 from clradcom.scene.records import Radar, Scene
 
@@ -69,4 +70,4 @@ def check_number(owner: str, name: str, value, *, low=None, high=None, integer=F
         rng = "" if low is None and high is None else " in " + (
             f"({low}" if low_open else f"[{low}" if low is not None else "(-inf") + ", " + (
             f"{high}]" if high is not None else "inf)")
-        raise ValueError(f"{owner}.{name} must be {what}{rng}, got {value!r}")
+        raise ArgumentError(f"must be {what}{rng}", argument=f"{owner}.{name}", value=value)

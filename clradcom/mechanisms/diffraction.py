@@ -37,7 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from clradcom.device.raycast import make_rays, spawn_origins
-from clradcom.errors import BoundaryWarning, CausticWarning
+from clradcom.errors import ArgumentError, BoundaryWarning, CausticWarning
 from clradcom.geometry.wedges import (
     Wedges,
     diffraction_point,
@@ -505,8 +505,9 @@ class DiffractionSettings:
         check_number("DiffractionSettings", "wedge_angle_deg", self.wedge_angle_deg, low=0.0,
                      high=180.0, low_open=True)
         if self.wedge_angle_deg >= 180.0:
-            raise ValueError(f"DiffractionSettings.wedge_angle_deg must lie in (0, 180), got "
-                             f"{self.wedge_angle_deg!r}")
+            raise ArgumentError("must lie in (0, 180)",
+                                argument="DiffractionSettings.wedge_angle_deg",
+                                value=self.wedge_angle_deg)
         check_number("DiffractionSettings", "max_reflections", self.max_reflections, low=0,
                      high=16, integer=True)
         check_number("DiffractionSettings", "max_hop_m", self.max_hop_m, low=0.0,

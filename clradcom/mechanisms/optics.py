@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from clradcom.errors import ArgumentError
 from clradcom.mechanisms.common import Geometry, check_number
 from clradcom.mechanisms.physical_optics import po_paths
 from clradcom.mechanisms.sbr import sbr_paths, shoot_sbr
@@ -47,8 +48,8 @@ class OpticsSettings:
 
     def __post_init__(self):
         if self.mode not in MODES:
-            raise ValueError(f"OpticsSettings.mode must be one of {', '.join(map(repr, MODES))}, "
-                             f"got {self.mode!r}")
+            raise ArgumentError(f"must be one of {', '.join(map(repr, MODES))}",
+                                argument="OpticsSettings.mode", value=self.mode)
         check_number("OpticsSettings", "sbr_spacing_wavelengths", self.sbr_spacing_wavelengths,
                      low=0.01, high=100.0)
         if self.max_bounces is not None:
@@ -61,8 +62,8 @@ def object_optics(scene: Scene, mode: str) -> list[str]:
     objects (``mode``: "none" -> go, "pec" -> both, "sbr" -> po); non-PEC objects without
     a key are "go"."""
     if mode not in MODES:
-        raise ValueError(f"physical optics mode must be one of {', '.join(MODES)}, "
-                         f"got {mode!r}")
+        raise ArgumentError(f"must be one of {', '.join(map(repr, MODES))}", argument="mode",
+                            value=mode)
     pec = scene.material_pec
     out = []
     for o in scene.objects:

@@ -40,6 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from clradcom.device.raycast import make_rays, spawn_origins
+from clradcom.errors import ArgumentError
 from clradcom.geometry.triangles import point_triangle_distance
 from clradcom.mechanisms.common import Geometry, check_number
 from clradcom.mechanisms.specular import CONFIRM_TOL_M
@@ -649,11 +650,11 @@ class ScatteringSettings:
 
     def __post_init__(self):
         if not isinstance(self.enabled, bool):
-            raise ValueError(f"ScatteringSettings.enabled must be True or False, got "
-                             f"{self.enabled!r}")
+            raise ArgumentError("must be True or False", argument="ScatteringSettings.enabled",
+                                value=self.enabled)
         if isinstance(self.max_reflections, bool) or self.max_reflections not in (0, 1, 2):
-            raise ValueError(f"ScatteringSettings.max_reflections must be 0, 1 or 2, got "
-                             f"{self.max_reflections!r}")
+            raise ArgumentError("must be 0, 1 or 2", argument="ScatteringSettings.max_reflections",
+                                value=self.max_reflections)
         check_number("ScatteringSettings", "threshold_db", self.threshold_db, high=0.0)
         for name in ("tile_size_m", "min_face_area_m2", "floor"):
             check_number("ScatteringSettings", name, getattr(self, name), low=0.0)

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from clradcom.device.raycast import RayCaster, make_rays, spawn_origins
-from clradcom.errors import SurfaceContactWarning
+from clradcom.errors import ArgumentError, SurfaceContactWarning
 from clradcom.mechanisms.common import Geometry, check_number, seen_by_antennas
 from clradcom.paths import InteractionType, Paths, concat_paths, select_paths
 from clradcom.physics import em
@@ -396,8 +396,8 @@ class SpecularSettings:
                      high=16, integer=True)
         check_number("SpecularSettings", "rays", self.rays, low=1, integer=True)
         if not isinstance(self.line_of_sight, bool):
-            raise ValueError(f"SpecularSettings.line_of_sight must be True or False, got "
-                             f"{self.line_of_sight!r}")
+            raise ArgumentError("must be True or False", argument="SpecularSettings.line_of_sight",
+                                value=self.line_of_sight)
 
 
 #: Candidate face sequences of one transmitter: reflection order -> (C, order) int32.
