@@ -20,6 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from clradcom.errors import ArgumentError
+
 SPEED_OF_LIGHT = 299_792_458.0
 
 #: |T·Δf − 1| above this is a contradiction, not rounding (90.909 kHz vs 11 µs is 1e-6).
@@ -33,18 +35,16 @@ MODULATIONS = ("bpsk", "qpsk", "8psk", "16psk", "16qam", "64qam", "256qam")
 def _positive_finite(name: str, value) -> float:
     try:
         v = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a real number, got {value!r}") from None
+    except (TypeError, ValueError, OverflowError):
+        raise ArgumentError("must be a real number", argument=name, value=value) from None
     if not math.isfinite(v) or v <= 0.0:
-        raise ValueError(f"{name} must be positive and finite, got {value!r}")
+        raise ArgumentError("must be positive and finite", argument=name, value=value)
     return v
 
 
 def _positive_int(name: str, value) -> int:
-    if isinstance(value, bool) or not isinstance(value, int | np.integer):
-        raise ValueError(f"{name} must be a positive integer, got {value!r}")
-    if value <= 0:
-        raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value <= 0:
+        raise ArgumentError("must be a positive integer", argument=name, value=value)
     return int(value)
 
 
@@ -92,6 +92,10 @@ class Waveform:
             raise ValueError(
                 f"carrier_hz={fc!r} must exceed half the bandwidth N·Δf/2 = {n * df / 2!r} Hz"
             )
+        if cp * df >= 1.0:
+            raise ArgumentError(
+                f"the cyclic prefix must be shorter than the symbol it precedes, "
+                f"T = 1/Δf = {1.0 / df!r} s", argument="cp_s", value=self.cp_s)
         n_cp_exact = cp * n * df
         if abs(n_cp_exact - round(n_cp_exact)) > CP_SAMPLE_TOLERANCE:
             raise ValueError(
