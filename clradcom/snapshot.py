@@ -24,7 +24,6 @@ from __future__ import annotations
 import math
 import os
 import re
-import secrets
 import zipfile
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
@@ -33,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from clradcom.errors import SnapshotError
+from clradcom.files import atomic_write
 from clradcom.paths import (
     PATH_FIELD_NAMES,
     PATH_FIELDS,
@@ -418,59 +418,19 @@ def _write_zip(fileobj, snapshot: Snapshot) -> None:
             _write_member(zf, key, array)
 
 
-def _open_temp(directory: Path, name: str) -> tuple[int, Path]:
-    """Create a new temporary file beside the target (mode 0666 minus the umask)."""
-    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0)
-    for _ in range(100):
-        tmp = directory / f".{name}.{secrets.token_hex(6)}.tmp"
-        try:
-            return os.open(tmp, flags, 0o666), tmp
-        except FileExistsError:  # pragma: no cover - 48 random bits collided
-            continue
-    raise FileExistsError(f"could not create a temporary file in {directory}")  # pragma: no cover
-
-
-def _fsync_directory(directory: Path) -> None:
-    try:
-        fd = os.open(directory, os.O_RDONLY)
-    except OSError:  # pragma: no cover - e.g. Windows
-        return
-    try:
-        os.fsync(fd)
-    except OSError:  # pragma: no cover - some filesystems refuse directory fsync
-        pass
-    finally:
-        os.close(fd)
-
-
 def save_snapshot(path: str | os.PathLike, snapshot: Snapshot) -> Path:
     """Write ``snapshot`` to ``path`` (an ``.npz`` zip; the name is used as given).
 
-    Atomic: the data go to a temporary file in the same directory, which is fsynced and
-    then renamed over ``path`` with :func:`os.replace`. On any error or interrupt
-    (including KeyboardInterrupt) the temporary file is removed and an existing file at
-    ``path`` is left as it was. Deterministic: the same snapshot gives the same bytes.
+    Atomic (:func:`clradcom.files.atomic_write`): the data go to an unnamed temporary
+    file in the same directory, which is fsynced, takes the permissions of the file it
+    replaces and is then renamed over ``path``. On any error or interrupt (including
+    KeyboardInterrupt) an existing file at ``path`` is left as it was and no temporary
+    file remains. Deterministic: the same snapshot gives the same bytes.
     Returns ``path`` as a :class:`~pathlib.Path`.
     """
     if not isinstance(snapshot, Snapshot):
         raise TypeError(f"save_snapshot needs a Snapshot, got {type(snapshot).__name__}")
-    target = Path(path)
-    directory = target.parent if str(target.parent) else Path(".")
-    fd, tmp = _open_temp(directory, target.name)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            _write_zip(fh, snapshot)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, target)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
-    _fsync_directory(directory)
-    return target
+    return atomic_write(path, lambda fh: _write_zip(fh, snapshot))
 
 
 # ---------------------------------------------------------------------------

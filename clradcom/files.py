@@ -1,0 +1,205 @@
+"""Writing output files so that nothing is lost and nothing is half-written.
+
+* :func:`atomic_write` - the data go to an unnamed temporary file in the target's folder
+  (Linux ``O_TMPFILE``; elsewhere a hidden named one), are fsynced, take the permissions
+  of the file they replace, and only then appear under the target's name
+  (``os.replace``). An interrupted or failed write leaves the old file as it was and no
+  temporary file behind; a killed one leaves nothing either where ``O_TMPFILE`` exists.
+* Never over an input: ``inputs`` lists the files a run read; a target that is one of
+  them is refused before anything is written.
+* :func:`staged_folder` - a run's whole output folder is built beside the old one and
+  swapped in at the end, so a folder is never half old, half new.
+* :func:`save_figure` - matplotlib figures through :func:`atomic_write`, with the date
+  and the random SVG ids fixed so that identical runs give identical bytes.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import os
+import secrets
+import shutil
+import stat
+from collections.abc import Callable, Iterable, Iterator
+from pathlib import Path
+
+from clradcom.errors import ArgumentError
+
+__all__ = ["OutputError", "atomic_write", "save_figure", "staged_folder"]
+
+#: Salt of matplotlib's SVG ids (clip paths, glyphs): fixed for byte-identical SVGs.
+SVG_HASH_SALT = "clradcom"
+
+
+class OutputError(OSError):
+    """An output could not be written; the message names the file and the cause, and the
+    old file (if any) is left as it was."""
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def refuse_inputs(target: Path, inputs: Iterable[str | os.PathLike] = ()) -> None:
+    """Refuse a target that is one of the run's input files."""
+    for source in inputs:
+        if _same_file(target, Path(source)):
+            raise ArgumentError(f"refusing to overwrite an input file of this run "
+                                f"({source}); choose another output", argument="output",
+                                value=str(target))
+
+
+def _mode_for(target: Path) -> int:
+    """Permissions of the file being replaced, else 0666 less the umask."""
+    try:
+        return stat.S_IMODE(os.stat(target).st_mode)
+    except FileNotFoundError:
+        umask = os.umask(0)
+        os.umask(umask)
+        return 0o666 & ~umask
+
+
+def _fsync_directory(directory: Path) -> None:
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:  # pragma: no cover - e.g. Windows
+        return
+    try:
+        os.fsync(fd)
+    except OSError:  # pragma: no cover - some filesystems refuse directory fsync
+        pass
+    finally:
+        os.close(fd)
+
+
+def _temp_name(directory: Path, name: str) -> Path:
+    return directory / f".{name}.{secrets.token_hex(6)}.tmp"
+
+
+def _open_unnamed(directory: Path) -> int | None:
+    """An unnamed file in ``directory`` (O_TMPFILE), or None where that is not available."""
+    flag = getattr(os, "O_TMPFILE", 0)
+    if not flag:
+        return None
+    try:
+        return os.open(directory, flag | os.O_WRONLY, 0o600)
+    except OSError:  # the file system does not support it
+        return None
+
+
+def _link_unnamed(fd: int, name: Path) -> None:
+    """Give an O_TMPFILE file a name. os.link calls plain link(2), which does not follow
+    /proc's fd link, unless a dir_fd is passed: then it is linkat(2) with
+    AT_SYMLINK_FOLLOW, which does."""
+    dir_fd = os.open(name.parent, os.O_RDONLY)
+    try:
+        os.link(f"/proc/self/fd/{fd}", name.name, dst_dir_fd=dir_fd, follow_symlinks=True)
+    finally:
+        os.close(dir_fd)
+
+
+def atomic_write(path: str | os.PathLike, write: Callable[[io.BufferedWriter], None], *,
+                 inputs: Iterable[str | os.PathLike] = ()) -> Path:
+    """Write ``path`` atomically: ``write(fh)`` fills a binary file handle.
+
+    Raises :class:`OutputError` (an ``OSError``) naming the file when the folder is
+    missing or read-only, the disk is full, or anything else fails; the old file stays.
+    """
+    target = Path(path)
+    refuse_inputs(target, inputs)
+    directory = target.parent if str(target.parent) else Path(".")
+    if target.is_dir():
+        raise OutputError(f"{target}: is a folder, not a file")
+    if not directory.is_dir():
+        raise OutputError(f"{target}: the folder {directory} does not exist")
+    mode = _mode_for(target)
+    named: Path | None = None
+    fd = _open_unnamed(directory)
+    try:
+        if fd is None:
+            named = _temp_name(directory, target.name)
+            fd = os.open(named, os.O_WRONLY | os.O_CREAT | os.O_EXCL
+                         | getattr(os, "O_BINARY", 0), 0o600)
+        with os.fdopen(fd, "wb") as fh:
+            fd = None  # the file object owns it now
+            write(fh)
+            fh.flush()
+            os.fchmod(fh.fileno(), mode)
+            os.fsync(fh.fileno())
+            if named is None:
+                # give the finished file a name only now: a kill before this leaves nothing
+                named = _temp_name(directory, target.name)
+                _link_unnamed(fh.fileno(), named)
+        os.replace(named, target)
+        named = None
+    except OSError as exc:
+        raise OutputError(f"{target}: cannot write ({exc.strerror or exc}); "
+                          f"nothing was changed") from exc
+    finally:
+        if fd is not None:
+            os.close(fd)
+        if named is not None:
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(named)
+    _fsync_directory(directory)
+    return target
+
+
+def save_figure(figure, path: str | os.PathLike, *, inputs=(), **savefig_kw) -> Path:
+    """Save a matplotlib figure atomically; PNG and SVG carry no date and fixed ids, so
+    identical runs give identical bytes."""
+    import matplotlib  # plotting is optional for the rest of the package
+
+    target = Path(path)
+    fmt = target.suffix.lstrip(".").lower() or "png"
+    metadata = {"svg": {"Date": None}, "pdf": {"CreationDate": None}}.get(fmt)
+
+    def write(fh):
+        with matplotlib.rc_context({"svg.hashsalt": SVG_HASH_SALT}):
+            figure.savefig(fh, format=fmt, metadata=metadata, **savefig_kw)
+
+    return atomic_write(target, write, inputs=inputs)
+
+
+@contextlib.contextmanager
+def staged_folder(path: str | os.PathLike, *, inputs=()) -> Iterator[Path]:
+    """Build an output folder beside ``path`` and swap it in when the block ends.
+
+    Yields the staging folder to write into. On success the old folder (if any) is
+    replaced as a whole; on any error or interrupt the staging folder is removed and the
+    old folder stays untouched. Files listed in ``inputs`` must not lie in ``path``: the
+    swap would remove them.
+    """
+    target = Path(path)
+    if target.exists() and not target.is_dir():
+        raise OutputError(f"{target}: exists and is not a folder; choose another output")
+    for source in inputs:
+        src = Path(source).resolve()
+        if target.exists() and target.resolve() in src.parents:
+            raise ArgumentError(f"the output folder holds an input of this run ({source}); "
+                                f"choose another output folder", argument="output",
+                                value=str(target))
+    parent = target.parent if str(target.parent) else Path(".")
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+        staging = parent / f".{target.name}.{secrets.token_hex(6)}.new"
+        staging.mkdir()
+    except OSError as exc:
+        raise OutputError(f"{target}: cannot create the output folder "
+                          f"({exc.strerror or exc})") from exc
+    try:
+        yield staging
+        old = None
+        if target.exists():
+            old = parent / f".{target.name}.{secrets.token_hex(6)}.old"
+            os.replace(target, old)
+        os.replace(staging, target)
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
