@@ -477,12 +477,53 @@ class _Reader:
         return self.get(key, kind, 0, itemsize).item()
 
 
-def load_snapshot(path: str | os.PathLike) -> Snapshot:
+#: Most bytes the arrays of one snapshot may unpack to (load_snapshot's max_bytes).
+MAX_SNAPSHOT_BYTES = 4 * 2**30
+
+
+def _check_member_sizes(path: Path, max_bytes: int) -> None:
+    """Refuse, before anything is unpacked, an archive whose arrays would take more than
+    ``max_bytes`` or whose members claim more data than they hold (a zip bomb: a few MB
+    of deflated zeros that numpy would unpack into gigabytes)."""
+    total = 0
+    try:
+        with zipfile.ZipFile(path) as zf:
+            for info in zf.infolist():
+                with zf.open(info) as member:
+                    try:
+                        version = np.lib.format.read_magic(member)
+                        read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
+                                       else np.lib.format.read_array_header_2_0)
+                        shape, _, dtype = read_header(member, max_header_size=10_000)
+                    except Exception:
+                        continue  # not an array: np.load and the key checks refuse it
+                    if dtype.hasobject:
+                        continue  # refused later (allow_pickle=False)
+                    nbytes = int(np.prod(shape, dtype=object)) * dtype.itemsize
+                    if nbytes > info.file_size:
+                        raise SnapshotError(
+                            f"the array header promises {nbytes} bytes but the member holds "
+                            f"{info.file_size}: the file is corrupt or malicious",
+                            file=path, key=info.filename.removesuffix(".npy"))
+                    total += nbytes
+                    if total > max_bytes:
+                        raise SnapshotError(
+                            f"its arrays unpack to more than {max_bytes} bytes (max_bytes); "
+                            f"pass a larger max_bytes to load_snapshot to read it",
+                            file=path, key=info.filename.removesuffix(".npy"))
+    except (zipfile.BadZipFile, OSError, EOFError, NotImplementedError) as exc:
+        raise SnapshotError(f"cannot read the zip archive ({type(exc).__name__}: {exc})",
+                            file=path) from None
+
+
+def load_snapshot(path: str | os.PathLike, *, max_bytes: int = MAX_SNAPSHOT_BYTES
+                  ) -> Snapshot:
     """Read a snapshot written by :func:`save_snapshot`.
 
     Refuses (with a :class:`SnapshotError` naming the file and key) a file that is not a
     zip/npz, not a clradcom snapshot, of a newer format version, with a missing or unknown
-    key, a wrong dtype or shape, or invalid values. A missing file raises
+    key, a wrong dtype or shape, or invalid values, and, before unpacking anything, one
+    whose arrays would take more than ``max_bytes`` of memory. A missing file raises
     FileNotFoundError.
     """
     p = Path(path)
@@ -491,6 +532,7 @@ def load_snapshot(path: str | os.PathLike) -> Snapshot:
     if not zipfile.is_zipfile(p):
         raise SnapshotError("not a snapshot: not a zip (.npz) file, or the file is "
                             "truncated or corrupt", file=p)
+    _check_member_sizes(p, max_bytes)
     try:
         npz = np.load(p, allow_pickle=False)
     except Exception as exc:
