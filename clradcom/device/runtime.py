@@ -271,16 +271,18 @@ class Runtime:
         return cl.Buffer(self.context, cl.mem_flags.READ_WRITE, size=max(int(nbytes), 1))
 
 
-_default_runtimes: dict[str | None, Runtime] = {}
+_default_runtimes: dict[tuple[str | None, str | None], Runtime] = {}
 _default_lock = threading.Lock()
 
 
 def get_runtime(spec: str | None = None) -> Runtime:
     """Shared runtime for a spec (None: environment variable, then default order)."""
-    key = spec if spec is not None else os.environ.get(ENV_DEVICE) or None
+    # the environment variable is part of the key but not passed on as the spec, so that
+    # an error blames the variable that was set, not a --device flag never given
+    key = (spec, None if spec is not None else os.environ.get(ENV_DEVICE) or None)
     with _default_lock:
         rt = _default_runtimes.get(key)
         if rt is None:
-            rt = Runtime(key)
+            rt = Runtime(spec)
             _default_runtimes[key] = rt
         return rt
