@@ -8,7 +8,6 @@ free-space gain, the scattering bound against the tiles scattering_paths emits.
 from __future__ import annotations
 
 import csv
-import dataclasses
 import math
 
 import numpy as np
@@ -17,26 +16,25 @@ from geometry_helpers import plate_tris
 
 from clradcom.evaluation import budget
 from clradcom.evaluation.accuracy import pareto_front
-from clradcom.mechanisms.scattering import scattering_paths
+from clradcom.mechanisms.common import build_geometry
+from clradcom.mechanisms.scattering import scattering_paths, scattering_triangle_bounds
 from clradcom.paths import InteractionType, Paths
 from clradcom.physics.em import C0
 from clradcom.radar import Waveform, radar_image, synthesize_frequency_domain
 from clradcom.radar.synthesis import BOLTZMANN
 from clradcom.scene.reader import scene_from_dict
-from clradcom.trace import TraceSettings, build_geometry, trace_scene
+from clradcom.trace import DiffractionSettings, SpecularSettings, TraceSettings, trace_scene
 
 F_C = 24e9
 LAM = C0 / F_C
 SMALL = Waveform(carrier_hz=F_C, n_subcarriers=64, n_symbols=32)
 
 
-def settings(**kw) -> TraceSettings:
-    """TraceSettings with the diffraction's reflections clamped to max_reflections."""
-    names = {f.name: f.default for f in dataclasses.fields(TraceSettings)}
-    if "diffraction_reflections" in names and "diffraction_reflections" not in kw:
-        kw["diffraction_reflections"] = min(names["diffraction_reflections"],
-                                            kw.get("max_reflections", 5))
-    return TraceSettings(**kw)
+def go_settings(max_reflections: int, rays: int) -> TraceSettings:
+    """Line of sight and specular reflections only."""
+    return TraceSettings(
+        specular=SpecularSettings(max_reflections=max_reflections, rays=rays),
+        diffraction=DiffractionSettings(max_diffractions=0))
 
 
 def plate_scene(x=10.0, size=1.0, material="metal", materials=None, radars=None, n=1):
@@ -119,7 +117,7 @@ def test_free_space_bound_matches_a_traced_line_of_sight(runtime):
                                          "pattern": "isotropic", "role": "tx"},
                                         {"name": "r", "position": [L, 0, 0],
                                          "pattern": "isotropic", "role": "rx"}]})
-    snap = trace_scene(scene, settings(rays=100, max_reflections=0, max_diffractions=0),
+    snap = trace_scene(scene, go_settings(max_reflections=0, rays=100),
                        runtime=runtime)
     g = snap.links[0].paths.gain
     assert len(g) == 1 and abs(g[0]) ** 2 == pytest.approx(floor, rel=1e-9)
@@ -154,7 +152,7 @@ def test_order_bounds_hold_for_a_traced_path_and_cap_orders(runtime):
     assert bounds[0].best_power == 0.0  # monostatic: no line of sight
     g = 0.19 ** 0.5
     assert bounds[1].best_power == pytest.approx((LAM / (4 * math.pi * 20.0)) ** 2 * g**2)
-    snap = trace_scene(scene, settings(rays=20_000, max_reflections=1, max_diffractions=0),
+    snap = trace_scene(scene, go_settings(max_reflections=1, rays=20_000),
                        runtime=runtime)
     p = snap.links[0].paths
     assert p.n_paths == 1 and abs(p.gain[0]) ** 2 <= bounds[1].best_power * (1 + 1e-9)
@@ -170,14 +168,14 @@ def test_scattering_triangle_bound_exceeds_the_emitted_tiles(runtime):
     scene = plate_scene(x=5.0, size=1.0, n=2, material="rough", materials=[
         {"name": "rough", "eps_r": [5.0, 0.0], "scattering_coefficient": 0.5}])
     r = scene.radars[0]
-    ids, best, above = budget.scattering_triangle_bounds(scene, r, r, 1e-30)
+    ids, best, above = scattering_triangle_bounds(scene, r, r, 1e-30)
     assert list(ids) == list(range(8)) and above.all()
     paths, _ = scattering_paths(build_geometry(scene, runtime), r, r, tile_size_m=0.1,
                                 threshold_db=300.0)
     per_tri = np.bincount(paths.face_id[:, 0], weights=np.abs(paths.gain) ** 2, minlength=8)
     assert np.all(per_tri <= best) and np.all(per_tri > 0.05 * best)
     # a floor above every bound marks every triangle as below it
-    _, _, above = budget.scattering_triangle_bounds(scene, r, r, 2 * best.max())
+    _, _, above = scattering_triangle_bounds(scene, r, r, 2 * best.max())
     assert not above.any()
 
 

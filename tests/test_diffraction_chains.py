@@ -8,7 +8,7 @@ from scipy.special import fresnel
 from clradcom.paths import InteractionType
 from clradcom.physics.em import C0
 from clradcom.scene.reader import scene_from_dict
-from clradcom.trace import TraceSettings, trace_scene
+from clradcom.trace import DiffractionSettings, SpecularSettings, TraceSettings, trace_scene
 
 LAM = C0 / 24e9
 D = int(InteractionType.DIFFRACTION)
@@ -60,7 +60,8 @@ def test_two_edges_match_itu_p526_two_edge_method(runtime, h1, h2):
     l2 = knife_edge_loss_db(nu_of(h2 - h1 * c / (b + c), b, c))
     assert l1 > 15 and l2 > 15
     itu = l1 + l2 + 10 * np.log10((a + b) * (b + c) / (b * (a + b + c)))
-    settings = TraceSettings(max_reflections=0, max_diffractions=2, rays=1000)
+    settings = TraceSettings(specular=SpecularSettings(max_reflections=0, rays=1000),
+                             diffraction=DiffractionSettings(max_diffractions=2))
     losses = {}
     for pol in ("V", "H"):
         scene = scene_from_dict({
@@ -102,8 +103,9 @@ def test_three_skewed_edges_obey_keller_and_match_brute_force(runtime):
         "objects": [screen(f"s{k}", x, z, 40.0)
                     for k, (x, z) in enumerate(zip(xs, tops, strict=True))],
         "radars": radars(tx, rx)})
-    settings = TraceSettings(max_reflections=0, diffraction_reflections=0, max_diffractions=3,
-                             rays=1000, diffraction_hop_m=5.0)
+    settings = TraceSettings(
+        specular=SpecularSettings(max_reflections=0, rays=1000),
+        diffraction=DiffractionSettings(max_diffractions=3, max_reflections=0, max_hop_m=5.0))
     paths = trace_scene(scene, settings, runtime=runtime).links[0].paths
     ddd = on_heights(paths, "DDD", tops)
     assert len(ddd) == 1
@@ -137,8 +139,9 @@ def test_reflection_after_an_edge_equals_the_edge_seen_from_the_image(runtime):
                                    "radars": radars(tx, rx)})
     image = scene_from_dict({**base, "objects": [screen("s", 0.0, 0.3, 60.0)],
                              "radars": radars(tx, rx_image)})
-    settings = TraceSettings(max_reflections=1, diffraction_reflections=1, max_diffractions=1,
-                             rays=50_000)
+    settings = TraceSettings(specular=SpecularSettings(max_reflections=1, rays=50_000),
+                             diffraction=DiffractionSettings(max_diffractions=1,
+                                                             max_reflections=1))
     p = trace_scene(with_ground, settings, runtime=runtime).links[0].paths
     q = trace_scene(image, settings, runtime=runtime).links[0].paths
     dr = on_heights(p, "DR", [0.3, -1.0])
@@ -164,8 +167,9 @@ def test_mixed_paths_are_reciprocal(runtime):
     spec = {"scene": {"name": "box", "carrier_hz": 24e9}, "objects": objects,
             "radars": radars([-6.0, -1.5, 0.2], [5.0, 2.0, 0.1], roles=("txrx", "txrx"))}
     scene = scene_from_dict(spec)
-    settings = TraceSettings(max_reflections=1, diffraction_reflections=1, max_diffractions=2,
-                             rays=100_000)
+    settings = TraceSettings(specular=SpecularSettings(max_reflections=1, rays=100_000),
+                             diffraction=DiffractionSettings(max_diffractions=2,
+                                                             max_reflections=1))
     snap = trace_scene(scene, settings, runtime=runtime)
     ab, ba = snap.link("a", "b").paths, snap.link("b", "a").paths
     diffracted_ab = [i for i, s in enumerate(patterns_of(ab)) if "D" in s]
@@ -186,7 +190,9 @@ def test_mixed_paths_are_reciprocal(runtime):
 
 
 def test_settings_refuse_budgets_out_of_range():
-    with pytest.raises(ValueError, match="diffraction_reflections"):
-        TraceSettings(diffraction_reflections=-1)
-    with pytest.raises(ValueError, match="diffraction_hop_m"):
-        TraceSettings(diffraction_hop_m=0.0)
+    with pytest.raises(ValueError, match=r"DiffractionSettings\.max_reflections .* got -1$"):
+        DiffractionSettings(max_reflections=-1)
+    with pytest.raises(ValueError, match=r"DiffractionSettings\.max_hop_m .* got 0\.0$"):
+        DiffractionSettings(max_hop_m=0.0)
+    with pytest.raises(ValueError, match=r"DiffractionSettings\.max_chains .* got 0$"):
+        DiffractionSettings(max_chains=0)

@@ -6,7 +6,13 @@ import pytest
 from clradcom.paths import InteractionType
 from clradcom.physics.em import C0
 from clradcom.scene.reader import scene_from_dict
-from clradcom.trace import TraceSettings, trace_scene
+from clradcom.trace import (
+    DiffractionSettings,
+    OpticsSettings,
+    SpecularSettings,
+    TraceSettings,
+    trace_scene,
+)
 
 
 def knife_edge_scene(h, pol, d1=10.0, d2=10.0):
@@ -36,7 +42,8 @@ def test_knife_edge_loss_through_the_tracer(runtime, nu, pol):
     d1 = d2 = 10.0
     lam = C0 / 24e9
     h = nu / np.sqrt(2 * (d1 + d2) / (lam * d1 * d2))
-    settings = TraceSettings(max_reflections=1, rays=20000, max_diffractions=1)
+    settings = TraceSettings(specular=SpecularSettings(max_reflections=1, rays=20000),
+                             diffraction=DiffractionSettings(max_diffractions=1))
     paths = trace_scene(knife_edge_scene(h, pol), settings, runtime=runtime).links[0].paths
     assert not np.any(paths.n_interactions == 0), "the screen must block the line of sight"
     diffracted = paths.interaction[:, 0] == InteractionType.DIFFRACTION
@@ -52,11 +59,13 @@ def test_knife_edge_loss_through_the_tracer(runtime, nu, pol):
 
 
 def test_diffraction_order_zero_turns_it_off(runtime):
-    settings = TraceSettings(max_reflections=1, rays=20000, max_diffractions=0)
+    settings = TraceSettings(specular=SpecularSettings(max_reflections=1, rays=20000),
+                             diffraction=DiffractionSettings(max_diffractions=0))
     paths = trace_scene(knife_edge_scene(0.2, "V"), settings, runtime=runtime).links[0].paths
     assert paths.n_paths == 0
-    with pytest.raises(ValueError, match="max_diffractions must be 0, 1, 2 or 3"):
-        TraceSettings(max_diffractions=4)
+    with pytest.raises(ValueError, match=r"DiffractionSettings\.max_diffractions must be an "
+                       r"integer in \[0, 3\], got 4"):
+        DiffractionSettings(max_diffractions=4)
 
 
 def test_moving_edge_doppler_and_shadow_continuity(runtime):
@@ -70,8 +79,8 @@ def test_moving_edge_doppler_and_shadow_continuity(runtime):
         "radars": [{"name": "tx", "role": "tx", "position": [-10.0, 0.0, 0.0]},
                    {"name": "rx", "role": "rx", "position": [10.0, 0.0, 0.0],
                     "orientation_deg": [0.0, 0.0, 180.0]}]})
-    paths = trace_scene(scene, TraceSettings(max_reflections=0, rays=1000),
-                        runtime=runtime).links[0].paths
+    settings = TraceSettings(specular=SpecularSettings(max_reflections=0, rays=1000))
+    paths = trace_scene(scene, settings, runtime=runtime).links[0].paths
     top = np.argmin(paths.delay_s)
     # L(t) = 2 sqrt(10^2 + z(t)^2), dz/dt = 2 m/s
     z = 0.3
@@ -80,7 +89,7 @@ def test_moving_edge_doppler_and_shadow_continuity(runtime):
 
 
 def test_physical_optics_replaces_the_go_mirror_return_of_a_pec_plate(runtime):
-    """With physical_optics='pec' a small far plate returns 4 pi A^2 / lambda^2, not pi R^2."""
+    """With optics mode 'pec' a small far plate returns 4 pi A^2 / lambda^2, not pi R^2."""
     lam = C0 / 24e9
     side, R = 0.2, 40.0  # 6x the far-field distance 2 D^2 / lambda of the plate's side
     scene = scene_from_dict({
@@ -97,13 +106,15 @@ def test_physical_optics_replaces_the_go_mirror_return_of_a_pec_plate(runtime):
         gain = scene.radars[0].pattern.gain(np.array([[1.0, 0.0, 0.0]]))[0]
         return abs(total) ** 2 * (4 * np.pi) ** 3 * R**4 / (lam**2 * gain**2)
 
-    base = dict(max_reflections=1, rays=100_000, max_diffractions=0)
-    go = trace_scene(scene, TraceSettings(**base), runtime=runtime).links[0].paths
-    po = trace_scene(scene, TraceSettings(**base, physical_optics="pec"),
-                     runtime=runtime).links[0].paths
+    base = TraceSettings(specular=SpecularSettings(max_reflections=1, rays=100_000),
+                         diffraction=DiffractionSettings(max_diffractions=0))
+    go = trace_scene(scene, base, runtime=runtime).links[0].paths
+    po = trace_scene(scene, base.replace(optics__mode="pec"), runtime=runtime).links[0].paths
     assert go.n_paths == 1 and rcs(go) == pytest.approx(np.pi * R**2, rel=1e-6)
     assert po.n_paths == 2  # one PO term per triangle, the GO mirror path gone
+    assert np.all(po.interaction[:, 0] == InteractionType.PHYSICAL_OPTICS)
     # residual: the facets' own Fresnel phase k rho^2 / 2R at this finite range
     assert rcs(po) == pytest.approx(4 * np.pi * side**4 / lam**2, rel=1e-2)
-    with pytest.raises(ValueError, match="physical_optics"):
-        TraceSettings(physical_optics="sometimes")
+    with pytest.raises(ValueError, match=r"OpticsSettings\.mode must be one of .*"
+                                         r"got 'sometimes'"):
+        OpticsSettings(mode="sometimes")

@@ -367,7 +367,7 @@ def test_two_radar_scene_traces_all_four_links(runtime):
     smooth road: one snapshot holds A->A, A->D, D->A and D->D; the one-way D->A line of
     sight has delay L/c and Doppler −(1/λ)dL/dt, equal both ways (reciprocity)."""
     from clradcom.scene.reader import scene_from_dict
-    from clradcom.trace import TraceSettings, trace_scene
+    from clradcom.trace import DiffractionSettings, SpecularSettings, TraceSettings, trace_scene
 
     p_a, v_a = np.array([0.0, -1.75, 0.5]), np.array([12.9, 0.0, 0.0])
     p_d, v_d = np.array([34.6, 1.75, 0.5]), np.array([-14.5, 0.0, 0.0])
@@ -383,7 +383,8 @@ def test_two_radar_scene_traces_all_four_links(runtime):
         ],
     }
     snap = trace_scene(scene_from_dict(data, base_dir="."),
-                       TraceSettings(max_reflections=1, rays=20_000, max_diffractions=0),
+                       TraceSettings(specular=SpecularSettings(max_reflections=1, rays=20_000),
+                                     diffraction=DiffractionSettings(max_diffractions=0)),
                        runtime=runtime)
     assert {lk.label for lk in snap.links} == {"A->A", "A->D", "D->A", "D->D"}
     lam = SPEED_OF_LIGHT / 24e9

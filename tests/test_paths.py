@@ -19,11 +19,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from clradcom.mechanisms.common import build_geometry
 from clradcom.physics.em import C0
 from clradcom.scene.antenna import euler_deg_to_matrix
 from clradcom.scene.reader import scene_from_dict
 from clradcom.snapshot import assert_snapshot_equal, load_snapshot, save_snapshot
-from clradcom.trace import TraceSettings, build_geometry, trace_scene
+from clradcom.trace import DiffractionSettings, SpecularSettings, TraceSettings, trace_scene
 
 F_C = 24e9
 LAM = C0 / F_C
@@ -65,8 +66,9 @@ def box(name, material, extents, position, **kw):
 def trace(data, order=1, rays=20_000, los=True, runtime=None, base_dir="."):
     scene = scene_from_dict(data, base_dir=base_dir)
     # specular paths only: these tests check reflections against closed forms
-    settings = TraceSettings(max_reflections=order, rays=rays, line_of_sight=los,
-                             max_diffractions=0)
+    settings = TraceSettings(
+        specular=SpecularSettings(max_reflections=order, rays=rays, line_of_sight=los),
+        diffraction=DiffractionSettings(max_diffractions=0))
     return trace_scene(scene, settings, runtime=runtime)
 
 
@@ -703,7 +705,8 @@ def test_paths_outside_the_antenna_pattern_are_not_emitted(runtime):
                          "rotation_deg": [0.0, -90.0, 0.0]}],
             "radars": [{"name": "r", "position": [0.0, 0.0, 0.0], "pattern": pattern}]})
 
-    settings = TraceSettings(max_reflections=1, rays=20000, max_diffractions=0)
+    settings = TraceSettings(specular=SpecularSettings(max_reflections=1, rays=20000),
+                             diffraction=DiffractionSettings(max_diffractions=0))
     iso = trace_scene(scene("isotropic"), settings, runtime=runtime).links[0].paths
     sector = trace_scene(scene("sector"), settings, runtime=runtime).links[0].paths
     assert sorted(np.round(iso.delay_s * C0, 6)) == [10.0, 12.0]

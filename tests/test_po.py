@@ -11,12 +11,13 @@ import numpy as np
 import pytest
 from geometry_helpers import plate_tris
 
+from clradcom.mechanisms.common import build_geometry
 from clradcom.mechanisms.physical_optics import po_paths
 from clradcom.paths import InteractionType
 from clradcom.physics.em import C0
 from clradcom.physics.po import po_transfer, triangle_po_integral
 from clradcom.scene.reader import scene_from_dict
-from clradcom.trace import TraceSettings, build_geometry, trace_scene
+from clradcom.trace import SpecularSettings, TraceSettings, trace_scene
 
 F_C = 24e9
 LAM = C0 / F_C
@@ -115,7 +116,7 @@ def test_flat_plate_broadside_sigma_and_matrix(runtime):
     scene = scene_of([tri_object("plate", verts, faces)], [iso_radar()])
     p = link(scene, runtime)
     assert len(p) == 2
-    assert np.all(p.interaction[:, 0] == int(InteractionType.REFLECTION))
+    assert np.all(p.interaction[:, 0] == int(InteractionType.PHYSICAL_OPTICS))
     a = p.gain.sum()
     want = 4 * np.pi * D**4 / LAM**2
     # the two centroids lie D sqrt(2)/6 off the plate centre: the facets' spherical
@@ -182,7 +183,9 @@ def test_go_and_po_agree_at_two_d2_over_lambda(runtime):
     scene = scene_from_dict(data)
     p = link(scene, runtime)
     a_po = p.gain.sum()
-    go = trace_scene(scene, TraceSettings(max_reflections=1, rays=20_000), runtime=runtime)
+    go = trace_scene(scene, TraceSettings(specular=SpecularSettings(max_reflections=1,
+                                                                     rays=20_000)),
+                     runtime=runtime)
     gp = go.links[0].paths
     a_go = gp.gain[(gp.n_interactions == 1)
                    & (gp.interaction[:, 0] == int(InteractionType.REFLECTION))]

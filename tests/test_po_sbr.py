@@ -27,11 +27,21 @@ import trimesh
 
 from clradcom.errors import SceneError
 from clradcom.mechanisms import specular as sp
+from clradcom.mechanisms.common import build_geometry
+from clradcom.mechanisms.optics import object_optics
 from clradcom.mechanisms.physical_optics import po_paths
-from clradcom.mechanisms.sbr import launch_tubes, object_optics, sbr_paths
+from clradcom.mechanisms.sbr import launch_tubes, sbr_paths
+from clradcom.mechanisms.specular import path_fields, specular_paths
+from clradcom.paths import InteractionType
 from clradcom.physics.em import C0
 from clradcom.scene.reader import scene_from_dict
-from clradcom.trace import TraceSettings, build_geometry, path_fields, specular_paths, trace_scene
+from clradcom.trace import (
+    DiffractionSettings,
+    OpticsSettings,
+    SpecularSettings,
+    TraceSettings,
+    trace_scene,
+)
 
 F_C = 24e9
 LAM = C0 / F_C
@@ -268,9 +278,10 @@ def go_po_trace(runtime, obj_optics, physical_optics, R=3.0):
         "scene": {"name": "sbr", "carrier_hz": F_C}, "objects": [obj],
         "radars": [{"name": "tx", "position": [R, 0.0, 0.0], "role": "tx"},
                    {"name": "rx", "position": [R, 0.1, 0.0], "role": "rx"}]})
-    st = TraceSettings(max_reflections=2, rays=200_000, max_diffractions=0,
-                       line_of_sight=False, physical_optics=physical_optics,
-                       sbr_spacing_wavelengths=0.25)
+    st = TraceSettings(
+        specular=SpecularSettings(max_reflections=2, rays=200_000, line_of_sight=False),
+        diffraction=DiffractionSettings(max_diffractions=0),
+        optics=OpticsSettings(mode=physical_optics, sbr_spacing_wavelengths=0.25))
     return trace_scene(scene, st, runtime=runtime).links[0].paths
 
 
@@ -292,6 +303,11 @@ def test_optics_switch_per_object(runtime):
     np.testing.assert_allclose(np.sort_complex(both.gain[both.n_interactions == 2]),
                                np.sort_complex(go.gain), rtol=1e-12)
     assert np.sum(both.n_interactions == 1) == 16
+    # "both": PO facets for the first bounce, the GO double bounce kept as REFLECTION
+    one = both.n_interactions == 1
+    assert np.all(both.interaction[one, 0] == InteractionType.PHYSICAL_OPTICS)
+    assert np.all(both.interaction[~one] == InteractionType.REFLECTION)
+    assert np.all(go.interaction == InteractionType.REFLECTION)
     # 3 m is far inside the corner's Fraunhofer distance: GO's image path (an infinite
     # corner) is stronger than the aperture sum; both model the same double bounce: the
     # same order of magnitude and the same delay to 1e-3
@@ -299,6 +315,31 @@ def test_optics_switch_per_object(runtime):
     print(f"SBR / GO double bounce at 3 m: {ratio:.3f}")
     assert 0.1 < ratio < 1.0, ratio
     np.testing.assert_allclose(po.delay_s[po.n_interactions == 2], go.delay_s[0], rtol=1e-3)
+
+
+def test_po_and_sbr_returns_carry_their_own_codes(runtime):
+    """Format 2 tells the mechanisms apart: a PEC plate whose optics is "po" returns PO
+    facet paths coded PHYSICAL_OPTICS in place of its GO mirror path (REFLECTION); a
+    dihedral's two-bounce SBR returns are coded SBR at both bounces."""
+    plate = tri_object("plate", [quad(np.array([2.0, -0.1, -0.1]), np.array([0.0, 0.2, 0.0]),
+                                      np.array([0.0, 0.0, 0.2]), 1, 1,
+                                      np.array([-1.0, 0.0, 0.0]))])
+    settings = TraceSettings(specular=SpecularSettings(max_reflections=1, rays=20_000),
+                             diffraction=DiffractionSettings(max_diffractions=0))
+    go = trace_scene(scene_of([plate], [(0.0, 0.0, 0.0)]), settings,
+                     runtime=runtime).links[0].paths
+    assert go.n_paths == 1 and go.interaction.tolist() == [[InteractionType.REFLECTION]]
+    po = trace_scene(scene_of([{**plate, "optics": "po"}], [(0.0, 0.0, 0.0)]), settings,
+                     runtime=runtime).links[0].paths
+    assert po.n_paths == 2 and np.all(po.n_interactions == 1)  # one per triangle
+    assert np.all(po.interaction[:, 0] == InteractionType.PHYSICAL_OPTICS)
+    assert sorted(po.face_id[:, 0].tolist()) == [0, 1] and np.all(po.object_id[:, 0] == 0)
+
+    corner = go_po_trace(runtime, "po", "none")
+    two = corner.n_interactions == 2
+    assert two.any() and np.all(corner.interaction[two] == InteractionType.SBR)
+    assert np.all(corner.interaction[~two, 0] == InteractionType.PHYSICAL_OPTICS)
+    assert not np.any(corner.interaction == InteractionType.REFLECTION)
 
 
 def test_optics_key_in_the_scene_file():
@@ -314,10 +355,12 @@ def test_optics_key_in_the_scene_file():
     assert object_optics(concrete, "sbr") == ["go"]  # defaults apply to PEC objects only
     with pytest.raises(SceneError, match=r"objects\[0\]\.optics.*mirror"):
         scene_of([dihedral(0.1, 0.1, optics="mirror")], [(3.0, 0.0, 0.0)])
-    with pytest.raises(ValueError, match="physical_optics"):
-        TraceSettings(physical_optics="po")
-    with pytest.raises(ValueError, match="sbr_spacing_wavelengths"):
-        TraceSettings(sbr_spacing_wavelengths=0.0)
+    # "po" is an object's optics, not a scene-level mode
+    with pytest.raises(ValueError, match=r"OpticsSettings\.mode must be one of .* got 'po'"):
+        OpticsSettings(mode="po")
+    with pytest.raises(ValueError,
+                       match=r"OpticsSettings\.sbr_spacing_wavelengths .* got 0\.0$"):
+        OpticsSettings(sbr_spacing_wavelengths=0.0)
 
 
 def test_radar_inside_an_sbr_object_is_skipped_with_a_warning(runtime):

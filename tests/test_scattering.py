@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from geometry_helpers import plate_tris
 
+from clradcom.mechanisms.common import build_geometry
 from clradcom.mechanisms.scattering import (
     choose_tile_size,
     make_tiles,
@@ -22,7 +23,6 @@ from clradcom.paths import InteractionType
 from clradcom.physics import em
 from clradcom.physics.em import C0
 from clradcom.scene.reader import scene_from_dict
-from clradcom.trace import build_geometry
 
 F_C = 24e9
 LAM = C0 / F_C

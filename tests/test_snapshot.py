@@ -4,6 +4,7 @@ import io
 import os
 import time
 import zipfile
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -176,7 +177,7 @@ def test_round_trip_fixed_snapshot_keeps_types_and_edge_cases(tmp_path):
     assert back.metadata == {"clradcom_version": "0.1.0", "diffraction": True,
                              "max_reflections": 3, "rays": 1e6}
     assert [type(v) for v in back.metadata.values()] == [str, bool, int, float]
-    assert back.time_s == 0.125 and back.version == FORMAT_VERSION == 1
+    assert back.time_s == 0.125 and back.version == FORMAT_VERSION == 2
     empty = back.link("D", "D").paths
     assert empty.n_paths == 0 and empty.k_max == 3 and empty.points.shape == (0, 5, 3)
     los = back.link("D", "A").paths
@@ -250,7 +251,7 @@ def test_bare_numpy_reads_the_file(tmp_path):
     path = save_snapshot(tmp_path / "s.npz", snap)
     with np.load(path, allow_pickle=False) as f:
         assert str(f["meta/format"]) == "clradcom-snapshot"
-        assert int(f["meta/version"]) == 1
+        assert int(f["meta/version"]) == 2
         assert float(f["meta/carrier_hz"]) == 24e9
         assert list(f["links/tx_name"]) == ["A", "A", "D", "D"]
         assert list(f["links/rx_name"]) == ["A", "D", "D", "A"]
@@ -332,12 +333,58 @@ def good(tmp_path):
 
 
 def test_future_version_is_refused_naming_file_and_version(good, tmp_path):
-    bad = rewrite(good, tmp_path / "future.npz", {"meta/version": np.array(2)})
+    bad = rewrite(good, tmp_path / "future.npz", {"meta/version": np.array(3)})
     with pytest.raises(SnapshotError) as ei:
         load_snapshot(bad)
     msg = str(ei.value)
-    assert str(bad) in msg and "version 2" in msg and "upgrade clradcom" in msg
+    assert str(bad) in msg and "version 3" in msg and "upgrade clradcom" in msg
+    assert "up to version 2" in msg
     assert ei.value.file == str(bad) and ei.value.key == "meta/version"
+
+
+#: traced by commit 2a77dfd (the flat layout, format 1) from data/all_mechanisms.toml with
+#: max_reflections=3, rays=20_000, max_diffractions=2, diffraction_reflections=1,
+#: physical_optics="sbr", scattering=True, scattering_max_reflections=1,
+#: scattering_floor=1e-11 on PoCL's CPU device (tests/test_golden_snapshot.py uses it too)
+V1_FILE = Path(__file__).parent / "data" / "all_mechanisms_v1.npz"
+
+
+def test_format_1_file_of_the_old_tracer_loads_as_format_2(tmp_path):
+    """A file the format-1 tracer wrote reads as a format-2 snapshot that says where it
+    came from; every array is the file's own (format 1 differs only in tagging PO facet
+    and SBR returns REFLECTION), and it saves back as format 2."""
+    with np.load(V1_FILE, allow_pickle=False) as f:
+        assert int(f["meta/version"]) == 1
+        raw = {k: f[k] for k in f.files if k.startswith("link")}
+    snap = load_snapshot(V1_FILE)
+    assert snap.version == FORMAT_VERSION == 2
+    assert snap.metadata["snapshot.converted_from_version"] == 1
+    # the old flat settings keys are kept as written
+    assert snap.metadata["settings.physical_optics"] == "sbr"
+    assert snap.metadata["settings.diffraction_reflections"] == 1
+    assert list(snap.metadata) == sorted(snap.metadata)
+    assert [lk.label for lk in snap] == ["A->A", "A->B"]
+    codes = set()
+    for i, lk in enumerate(snap.links):
+        assert lk.paths.n_paths > 100
+        for name in PATH_FIELD_NAMES:
+            np.testing.assert_array_equal(getattr(lk.paths, name), raw[f"link{i}/{name}"],
+                                          err_msg=f"{lk.label} {name}")
+        codes |= set(np.unique(lk.paths.interaction).tolist())
+    assert codes == {0, 1, 2, 3}  # no PO or SBR codes in format 1
+    again = load_snapshot(save_snapshot(tmp_path / "v2.npz", snap))
+    assert_snapshot_equal(again, snap)
+    assert again.metadata["snapshot.converted_from_version"] == 1
+    with np.load(tmp_path / "v2.npz", allow_pickle=False) as f:
+        assert int(f["meta/version"]) == 2
+
+
+def test_format_1_rewritten_file_is_converted(good, tmp_path):
+    old = rewrite(good, tmp_path / "v1.npz", {"meta/version": np.array(1)})
+    snap = load_snapshot(old)
+    assert snap.version == 2 and snap.metadata["snapshot.converted_from_version"] == 1
+    assert "snapshot.converted_from_version" not in load_snapshot(good).metadata
+    assert snap.links == load_snapshot(good).links
 
 
 def test_invalid_version_is_refused(good, tmp_path):
@@ -488,7 +535,7 @@ def _set(index, value):
     ({"doppler_hz": _set(0, np.nan)}, r"doppler_hz\[0\].*finite"),
     ({"n_interactions": _set(2, 3)}, r"n_interactions\[2\].*\[0, K = 2\]"),
     ({"n_interactions": _set(0, -1)}, r"n_interactions\[0\]"),
-    ({"interaction": _set((2, 1), 4)}, r"interaction\[2, 1\].*code 1"),
+    ({"interaction": _set((2, 1), 6)}, r"interaction\[2, 1\].*code 1"),
     ({"interaction": _set((1, 0), 0)}, r"interaction\[1, 0\].*code 1"),
     ({"interaction": _set((1, 1), 2)}, r"interaction\[1, 1\].*padding.*0"),
     ({"object_id": _set((2, 0), -1)}, r"object_id\[2, 0\].*>= 0"),
@@ -519,8 +566,9 @@ def test_paths_accept_lists_and_real_gains():
 
 
 def test_interaction_type_codes():
-    assert [int(t) for t in InteractionType] == [0, 1, 2, 3]
+    assert [int(t) for t in InteractionType] == [0, 1, 2, 3, 4, 5]
     assert InteractionType.REFLECTION == 1 and InteractionType(3).name == "SCATTERING"
+    assert InteractionType(4).name == "PHYSICAL_OPTICS" and InteractionType(5).name == "SBR"
     p = make_snapshot().link("A", "A").paths
     assert set(np.unique(p.interaction)) <= {int(t) for t in InteractionType}
 
@@ -535,7 +583,8 @@ def test_interaction_type_codes():
     ({"metadata": {"rays": [1, 2]}}, "metadata.rays.*only bool, int, float and str"),
     ({"metadata": {"bad key": 1}}, "metadata.*'bad key'"),
     ({"metadata": {"big": 2**64}}, "metadata.big.*int64"),
-    ({"version": 2}, "version"),
+    ({"version": 1}, "only format version 2 can be built, got 1"),
+    ({"version": 3}, "only format version 2 can be built, got 3"),
     ({"links": [Link("A", "A", 0, 0, Paths.empty()), Link("A", "A", 0, 0, Paths.empty())]},
      r"links\[1\].*A->A appears twice"),
     ({"links": [Link("A", "A", 0, 0, Paths.empty()), Link("A", "D", 1, 1, Paths.empty())]},

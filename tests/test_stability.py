@@ -9,7 +9,6 @@ docs/stability.md is the table of cases, with the tests elsewhere that cover par
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import math
 import warnings
 
@@ -40,6 +39,7 @@ from clradcom.errors import (
 )
 from clradcom.geometry.faces import merge_coplanar
 from clradcom.geometry.wedges import extract_wedges
+from clradcom.mechanisms.common import build_geometry
 from clradcom.physics.em import (
     ament,
     boithias,
@@ -57,9 +57,10 @@ from clradcom.radar import (
     synthesize_time_domain,
 )
 from clradcom.scene.reader import scene_from_dict
-from clradcom.trace import TraceSettings, build_geometry, trace_scene
+from clradcom.trace import DiffractionSettings, SpecularSettings, TraceSettings, trace_scene
 
-GO = TraceSettings(max_reflections=1, rays=5_000, max_diffractions=0)
+GO = TraceSettings(specular=SpecularSettings(max_reflections=1, rays=5_000),
+                   diffraction=DiffractionSettings(max_diffractions=0))
 
 
 def link(data, settings=GO, runtime=None):
@@ -182,10 +183,9 @@ def test_two_ray_through_the_tracer_down_to_grazing(runtime, pol):
 
 def utd_settings(max_reflections=1):
     """Single diffraction without reflections around it (when the tracer can do those)."""
-    kw = dict(max_reflections=max_reflections, rays=2_000, max_diffractions=1)
-    if "diffraction_reflections" in {f.name for f in dataclasses.fields(TraceSettings)}:
-        kw["diffraction_reflections"] = 0
-    return TraceSettings(**kw)
+    return TraceSettings(
+        specular=SpecularSettings(max_reflections=max_reflections, rays=2_000),
+        diffraction=DiffractionSettings(max_diffractions=1, max_reflections=0))
 
 
 def knife_edge(h, pol, offset=(0.0, 0.0, 0.0)):
@@ -430,7 +430,7 @@ def test_source_on_a_surface_warns_and_folds_the_reflection(runtime):
     image method cannot place the reflection (its point is the transmitter, a zero-length
     segment) and says so with a SurfaceContactWarning naming the antenna and the face;
     the tracer adds the reflection as the limit of the merging rays
-    (tracer.surface_contact_paths): the line of sight and one reflection at the antenna,
+    (specular.surface_contact_paths): the line of sight and one reflection at the antenna,
     both finite, the reflection r x the line of sight."""
     d, h_r = 20.0, 0.5
     l0 = math.hypot(d, h_r)
@@ -595,7 +595,7 @@ def test_messy_meshes_give_the_clean_plate_return(runtime, extra):
     scene = scene_from_dict(data)
     faces = build_geometry(scene, runtime).faces
     assert faces.n_faces == (2 if FIN in extra else 1)
-    p = link(data, TraceSettings(max_reflections=2, rays=20_000, max_diffractions=0),
+    p = link(data, GO.replace(specular__max_reflections=2, specular__rays=20_000),
              runtime=runtime)
     plate_paths = [i for i in range(p.n_paths) if p.n_interactions[i] == 1
                    and abs(p.points[i, 1, 0] - 6.0) < 1e-9]

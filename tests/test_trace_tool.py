@@ -6,6 +6,8 @@ import numpy as np
 import pytest
 from tool_helpers import CLOSING_PLATE_SCENE, load_tool
 
+from clradcom.trace import SpecularSettings
+
 
 def load_trace_tool():
     return load_tool("trace")
@@ -43,3 +45,23 @@ def test_trace_tool_refuses_a_bad_scene_with_a_message(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "bad.toml" in err and "unobtainium" in err
     assert not (tmp_path / "o" / "snapshot.npz").exists()
+
+
+def test_settings_from_args_maps_every_flag_to_its_mechanism():
+    tool = load_trace_tool()
+    default = tool.settings_from_args(tool.build_parser().parse_args(["s.toml"]))
+    assert (default.specular.max_reflections, default.specular.rays) == (5, 1_000_000)
+    assert default.diffraction.max_diffractions == 1
+    assert default.diffraction.max_reflections == 0
+    assert default.optics.mode == "sbr"
+    assert default.scattering.enabled and default.scattering.max_reflections == 0
+    s = tool.settings_from_args(tool.build_parser().parse_args([
+        "s.toml", "--rays", "1000", "--reflections", "2", "--diffractions", "3",
+        "--diffraction-reflections", "1", "--physical-optics", "none", "--no-scattering",
+        "--scattering-reflections", "2"]))
+    assert s.specular == SpecularSettings(max_reflections=2, rays=1000)
+    assert (s.diffraction.max_diffractions, s.diffraction.max_reflections) == (3, 1)
+    assert s.optics.mode == "none"
+    assert not s.scattering.enabled and s.scattering.max_reflections == 2
+    with pytest.raises(ValueError, match=r"SpecularSettings\.rays"):
+        tool.settings_from_args(tool.build_parser().parse_args(["s.toml", "--rays", "0"]))

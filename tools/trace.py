@@ -43,7 +43,15 @@ from clradcom.radar.pipeline import SYNTHESIS_METHODS, process, radar_frame
 from clradcom.radar.truth import detection_truth, match_truth
 from clradcom.scene.reader import load_scene
 from clradcom.snapshot import save_snapshot
-from clradcom.trace import StageTimes, TraceSettings, trace_scene
+from clradcom.trace import (
+    DiffractionSettings,
+    OpticsSettings,
+    ScatteringSettings,
+    SpecularSettings,
+    StageTimes,
+    TraceSettings,
+    trace_scene,
+)
 
 
 class Stopwatch:
@@ -124,12 +132,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 def settings_from_args(args) -> TraceSettings:
     """The tracer settings of a parsed command line (tests reuse the tool's defaults)."""
-    return TraceSettings(max_reflections=args.reflections, rays=args.rays,
-                         max_diffractions=args.diffractions,
-                         diffraction_reflections=args.diffraction_reflections,
-                         physical_optics=args.physical_optics,
-                         scattering=not args.no_scattering,
-                         scattering_max_reflections=args.scattering_reflections)
+    return TraceSettings(
+        specular=SpecularSettings(max_reflections=args.reflections, rays=args.rays),
+        diffraction=DiffractionSettings(max_diffractions=args.diffractions,
+                                        max_reflections=args.diffraction_reflections),
+        optics=OpticsSettings(mode=args.physical_optics),
+        scattering=ScatteringSettings(enabled=not args.no_scattering,
+                                      max_reflections=args.scattering_reflections))
 
 
 def strongest_static_cell(image, radar, range_m: float, reach_m: float, tolerance_mps: float):
