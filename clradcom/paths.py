@@ -141,7 +141,7 @@ class Paths:
     n_interactions : int16 (P,)
         Number n of interactions of each path, 0 <= n <= K.
     interaction : int8 (P, K)
-        :class:`InteractionType` code of interaction j (j < n: 1, 2 or 3); 0 past n.
+        :class:`InteractionType` code of interaction j (j < n: 1 to 5); 0 past n.
     points : float64 (P, K+2, 3)
         Polyline of the path (m): row 0 the tx point, rows 1..n the interaction points,
         row n+1 the rx point; rows past n+1 are NaN. Rows 0..n+1 are finite.

@@ -592,6 +592,12 @@ def _read(r: _Reader) -> Snapshot:
             arrays[name] = r.get(key, dtype.kind, None, dtype.itemsize)
         try:
             paths = Paths(**arrays)
+            if version == 1 and np.any(paths.interaction > InteractionType.SCATTERING):
+                bad = np.argwhere(paths.interaction > InteractionType.SCATTERING)[0]
+                raise SnapshotError(
+                    f"code {int(paths.interaction[tuple(bad)])} at "
+                    f"[{bad[0]}, {bad[1]}]: format version 1 knows codes 0 to 3 only",
+                    key="interaction")
             link = Link(tx_name=str(columns["links/tx_name"][i]),
                         rx_name=str(columns["links/rx_name"][i]),
                         tx_index=int(columns["links/tx_index"][i]),

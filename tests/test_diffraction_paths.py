@@ -63,8 +63,8 @@ def test_diffraction_order_zero_turns_it_off(runtime):
                              diffraction=DiffractionSettings(max_diffractions=0))
     paths = trace_scene(knife_edge_scene(0.2, "V"), settings, runtime=runtime).links[0].paths
     assert paths.n_paths == 0
-    with pytest.raises(ValueError, match=r"DiffractionSettings\.max_diffractions must be an "
-                       r"integer in \[0, 3\], got 4"):
+    with pytest.raises(ValueError, match=r"DiffractionSettings\.max_diffractions = 4: must be "
+                       r"an integer in \[0, 3\]"):
         DiffractionSettings(max_diffractions=4)
 
 
@@ -115,6 +115,5 @@ def test_physical_optics_replaces_the_go_mirror_return_of_a_pec_plate(runtime):
     assert np.all(po.interaction[:, 0] == InteractionType.PHYSICAL_OPTICS)
     # residual: the facets' own Fresnel phase k rho^2 / 2R at this finite range
     assert rcs(po) == pytest.approx(4 * np.pi * side**4 / lam**2, rel=1e-2)
-    with pytest.raises(ValueError, match=r"OpticsSettings\.mode must be one of .*"
-                                         r"got 'sometimes'"):
+    with pytest.raises(ValueError, match=r"OpticsSettings\.mode = 'sometimes': must be one of"):
         OpticsSettings(mode="sometimes")

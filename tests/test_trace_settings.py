@@ -2,6 +2,7 @@
 value by its own name, TraceSettings.replace and the snapshot metadata they give."""
 
 import dataclasses
+import re
 
 import pytest
 
@@ -37,7 +38,8 @@ def test_replace_changes_one_field_and_keeps_the_rest():
 
 @pytest.mark.parametrize("key", ["rays", "physics__rays", "specular_rays", "__rays"])
 def test_replace_refuses_an_unknown_mechanism_naming_the_key(key):
-    with pytest.raises(TypeError, match=rf"mechanism__field names, got '{key}'"):
+    with pytest.raises(TypeError,
+                       match=rf"^{key}: TraceSettings.replace takes mechanism__field names"):
         BASE.replace(**{key: 1})
 
 
@@ -49,14 +51,15 @@ def test_replace_refuses_an_unknown_field_naming_it():
 
 
 def test_replace_checks_the_new_value():
-    with pytest.raises(ValueError, match=r"DiffractionSettings\.max_hop_m .*got -1\.0"):
+    with pytest.raises(ValueError, match=r"DiffractionSettings\.max_hop_m = -1\.0: must be"):
         BASE.replace(diffraction__max_hop_m=-1.0)
 
 
 def test_trace_settings_takes_only_the_settings_classes():
-    with pytest.raises(TypeError, match=r"TraceSettings\.optics must be .*OpticsSettings.*'sbr'"):
+    with pytest.raises(TypeError, match=r"TraceSettings\.optics = 'sbr': must be a OpticsSettings"):
         TraceSettings(optics="sbr")
-    with pytest.raises(TypeError, match=r"TraceSettings\.specular must be .*SpecularSettings"):
+    with pytest.raises(TypeError,
+                       match=r"TraceSettings\.specular = .*: must be a SpecularSettings"):
         TraceSettings(specular=DiffractionSettings())
     with pytest.raises(TypeError, match="max_reflections"):  # no flat names
         TraceSettings(max_reflections=1)
@@ -90,7 +93,8 @@ def test_trace_settings_takes_only_the_settings_classes():
     (ScatteringSettings, "floor", -1e-12),
 ])
 def test_each_settings_class_refuses_a_bad_value_naming_the_field(cls, field, value):
-    with pytest.raises(ValueError, match=rf"^{cls.__name__}\.{field} .*got {value!r}$"):
+    with pytest.raises(ValueError,
+                       match=rf"^{cls.__name__}\.{field} = {re.escape(repr(value))}: must "):
         cls(**{field: value})
     cls(**{field: getattr(cls(), field)})  # the default is fine
 

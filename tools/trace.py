@@ -172,7 +172,7 @@ def main(argv=None) -> int:
             snap = trace_scene(scene, settings, runtime=runtime, times=times,
                                progress=lambda m: print(f"    {m}", flush=True))
         for k, v in times.seconds.items():
-            print(f"    {k:<12} {v:7.2f} s")
+            print(f"    {k:<20} {v:7.2f} s")
         with sw.stage("write snapshot"):
             save_snapshot(out / "snapshot.npz", snap)
         print(snap.summary())

@@ -47,7 +47,7 @@ class OpticsSettings:
     max_bounces: int | None = None
 
     def __post_init__(self):
-        if self.mode not in MODES:
+        if not isinstance(self.mode, str) or self.mode not in MODES:
             raise ArgumentError(f"must be one of {', '.join(map(repr, MODES))}",
                                 argument="OpticsSettings.mode", value=self.mode)
         check_number("OpticsSettings", "sbr_spacing_wavelengths", self.sbr_spacing_wavelengths,
@@ -61,7 +61,7 @@ def object_optics(scene: Scene, mode: str) -> list[str]:
     """Optics per object: its own ``optics`` key, else the scene-level default for PEC
     objects (``mode``: "none" -> go, "pec" -> both, "sbr" -> po); non-PEC objects without
     a key are "go"."""
-    if mode not in MODES:
+    if not isinstance(mode, str) or mode not in MODES:
         raise ArgumentError(f"must be one of {', '.join(map(repr, MODES))}", argument="mode",
                             value=mode)
     pec = scene.material_pec

@@ -652,7 +652,8 @@ class ScatteringSettings:
         if not isinstance(self.enabled, bool):
             raise ArgumentError("must be True or False", argument="ScatteringSettings.enabled",
                                 value=self.enabled)
-        if isinstance(self.max_reflections, bool) or self.max_reflections not in (0, 1, 2):
+        if (isinstance(self.max_reflections, bool) or not isinstance(self.max_reflections, int)
+                or self.max_reflections not in (0, 1, 2)):
             raise ArgumentError("must be 0, 1 or 2", argument="ScatteringSettings.max_reflections",
                                 value=self.max_reflections)
         check_number("ScatteringSettings", "threshold_db", self.threshold_db, high=0.0)
