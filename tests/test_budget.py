@@ -17,7 +17,7 @@ from geometry_helpers import plate_tris
 
 from clradcom.evaluation import budget
 from clradcom.evaluation.accuracy import pareto_front
-from clradcom.mechanisms.scattering import scattering_paths
+from clradcom.mechanisms.scattering import scattering_paths, scattering_triangle_bounds
 from clradcom.paths import InteractionType, Paths
 from clradcom.physics.em import C0
 from clradcom.radar import Waveform, radar_image, synthesize_frequency_domain
@@ -170,14 +170,14 @@ def test_scattering_triangle_bound_exceeds_the_emitted_tiles(runtime):
     scene = plate_scene(x=5.0, size=1.0, n=2, material="rough", materials=[
         {"name": "rough", "eps_r": [5.0, 0.0], "scattering_coefficient": 0.5}])
     r = scene.radars[0]
-    ids, best, above = budget.scattering_triangle_bounds(scene, r, r, 1e-30)
+    ids, best, above = scattering_triangle_bounds(scene, r, r, 1e-30)
     assert list(ids) == list(range(8)) and above.all()
     paths, _ = scattering_paths(build_geometry(scene, runtime), r, r, tile_size_m=0.1,
                                 threshold_db=300.0)
     per_tri = np.bincount(paths.face_id[:, 0], weights=np.abs(paths.gain) ** 2, minlength=8)
     assert np.all(per_tri <= best) and np.all(per_tri > 0.05 * best)
     # a floor above every bound marks every triangle as below it
-    _, _, above = budget.scattering_triangle_bounds(scene, r, r, 2 * best.max())
+    _, _, above = scattering_triangle_bounds(scene, r, r, 2 * best.max())
     assert not above.any()
 
 
