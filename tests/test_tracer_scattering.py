@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from clradcom.mechanisms.scattering import make_tiles, scattering_paths
+from clradcom.mechanisms.scattering import make_tiles, scattering_paths, scattering_triangle_bounds
 from clradcom.paths import InteractionType
 from clradcom.scene.reader import scene_from_dict
 from clradcom.trace import TraceSettings, build_geometry, trace_scene
@@ -153,8 +153,6 @@ def test_scattering_floor_never_traces_triangles_that_cannot_reach_it(runtime):
     far plate's tiles are not traced (counted in the metadata), the near plate's paths
     are exactly those of the unpruned trace (tile phases do not depend on the mask),
     and no dropped tile could have reached the floor."""
-    from clradcom.evaluation.budget import scattering_triangle_bounds
-
     spec = {"scene": {"name": "two-plates", "carrier_hz": 24e9},
             "materials": [{"name": "leaves", "eps_r": [10.0, -6.0],
                            "scattering_coefficient": 0.5}],
