@@ -16,8 +16,9 @@ import numpy as np
 
 from clradcom.errors import SnapshotError
 
-__all__ = ["PATH_FIELDS", "PATH_FIELD_NAMES", "InteractionType", "Paths", "concat_paths",
-           "paths_difference", "select_paths"]
+__all__ = ["INTERACTION_LETTERS", "PATH_FIELDS", "PATH_FIELD_NAMES", "InteractionType", "Paths",
+           "concat_paths", "interaction_patterns", "paths_difference", "pattern_counts",
+           "select_paths"]
 
 
 class InteractionType(IntEnum):
@@ -42,6 +43,12 @@ class InteractionType(IntEnum):
     #: its PO footprint
     SBR = 5
 
+
+#: one letter per interaction code, for patterns such as "RDR" (reflection, diffraction,
+#: reflection)
+INTERACTION_LETTERS = {InteractionType.REFLECTION: "R", InteractionType.DIFFRACTION: "D",
+                       InteractionType.SCATTERING: "S", InteractionType.PHYSICAL_OPTICS: "P",
+                       InteractionType.SBR: "B"}
 
 _VALID_CODES = np.array([int(t) for t in InteractionType if t != InteractionType.NONE],
                         dtype=np.int8)
@@ -328,3 +335,23 @@ def select_paths(paths: Paths, mask) -> Paths:
     return Paths(**{name: getattr(paths, name)[mask] for name in (
         "gain", "matrix", "delay_s", "doppler_hz", "n_interactions", "interaction", "points",
         "object_id", "face_id")})
+
+
+def interaction_patterns(paths: Paths) -> list[str]:
+    """Each path's interactions in order as letters (:data:`INTERACTION_LETTERS`); ""
+    for a line-of-sight path."""
+    letters = {int(code): letter for code, letter in INTERACTION_LETTERS.items()}
+    return ["".join(letters[int(c)] for c in row[:k])
+            for row, k in zip(paths.interaction, paths.n_interactions, strict=True)]
+
+
+def pattern_counts(paths_list, containing: str = "") -> dict[str, int]:
+    """How many paths of every :class:`Paths` in ``paths_list`` have each interaction
+    pattern, counting only patterns with every letter of ``containing`` (e.g. "D": the
+    diffracted paths)."""
+    counts: dict[str, int] = {}
+    for paths in paths_list:
+        for pattern in interaction_patterns(paths):
+            if all(letter in pattern for letter in containing):
+                counts[pattern] = counts.get(pattern, 0) + 1
+    return counts

@@ -7,6 +7,7 @@ import pytest
 from tool_helpers import ROOT, load_tool
 
 from clradcom.radar.pipeline import process, radar_frame
+from clradcom.radar.report import STATIC_RANGE_M, static_returns_beyond, strongest_static_cell
 from clradcom.radar.truth import detection_truth
 from clradcom.radar.waveform import Waveform
 from clradcom.scene.reader import load_scene
@@ -72,20 +73,19 @@ def test_buildings_beyond_60_m_close_at_the_radars_own_speed(street):
     """The paper's Fig. 3: beyond 60 m the images are the buildings (and here trees) along
     the road, at the radar's own speed. The paper's simulation has no thermal noise, so
     CFAR runs on the noise-free image; with noise they stand above the noise floor."""
-    tool, scene, paths = street
+    _, scene, paths = street
     wf, radar, image, dets = frame(scene, paths, noise=False)
     speed = float(np.linalg.norm(radar.velocity))
     # beyond the far end of the street there is nothing to see: cells there are sidelobes
     street_end = float(scene.triangles[..., 0].max() - radar.position[0]) + 10.0
-    static = tool.static_returns_beyond(dets, radar, tool.STATIC_RANGE_M,
-                                        wf.velocity_resolution)
+    static = static_returns_beyond(dets, radar, STATIC_RANGE_M, wf.velocity_resolution)
     static = [r for r in static if r < street_end]
     assert len(static) >= 3
-    far = (dets["range_m"] > tool.STATIC_RANGE_M) & (dets["range_m"] < street_end)
+    far = (dets["range_m"] > STATIC_RANGE_M) & (dets["range_m"] < street_end)
     strongest = np.flatnonzero(far)[np.argmax(dets["power_db"][far])]
     assert abs(dets["velocity_mps"][strongest] - speed) <= wf.velocity_resolution
 
     _, _, noisy, _ = frame(scene, paths, noise=True)
-    rng, above = tool.strongest_static_cell(noisy, radar, tool.STATIC_RANGE_M, street_end,
-                                            wf.velocity_resolution)
-    assert rng > tool.STATIC_RANGE_M and above > 10.0
+    rng, above = strongest_static_cell(noisy, radar, STATIC_RANGE_M, street_end,
+                                       wf.velocity_resolution)
+    assert rng > STATIC_RANGE_M and above > 10.0

@@ -15,6 +15,7 @@ from clradcom.geometry.triangles import inside_closed_mesh, point_triangle_dista
 from clradcom.radar.truth import detection_truth
 from clradcom.scene.models import car_mesh, rounded_car
 from clradcom.scene.reader import load_scene
+from clradcom.scene.street import StreetOptions, plan_street, street_meshes, street_toml
 
 REPO = Path(__file__).resolve().parent.parent
 STREET = REPO / "scenes" / "street"
@@ -224,3 +225,13 @@ def test_variants(tmp_path):
         assert abs(np.linalg.norm(c - ca) - r) < 2e-3
     r = s.radars[s.radar_index("A")]
     assert point_triangle_distance(r.position, s.triangles).min() > 0.05
+
+
+def test_package_builds_the_committed_files_from_default_options():
+    options = StreetOptions()
+    plan = plan_street(options)
+    assert street_toml(options, plan) == (STREET / "street.toml").read_text(encoding="utf-8")
+    meshes = street_meshes(plan)
+    assert sorted(meshes) == sorted(p.name for p in (STREET / "meshes").glob("*.ply"))
+    for name, data in meshes.items():
+        assert data == (STREET / "meshes" / name).read_bytes(), name

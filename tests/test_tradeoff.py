@@ -1,4 +1,5 @@
-"""Accuracy measures (clradcom.accuracy) and tools/tradeoff.py end to end on a small scene.
+"""Accuracy measures (clradcom.evaluation.accuracy), the sweep's points
+(clradcom.evaluation.tradeoff) and tools/tradeoff.py end to end on a small scene.
 
 Independent checks: the frame channel against the closed-form H(n, μ), NMSE against a
 known relative error, the error-to-noise bound against the project's radar image, path
@@ -21,6 +22,7 @@ from tool_helpers import CLOSING_PLATE_SCENE
 from tool_helpers import load_tool as load_named_tool
 
 from clradcom.evaluation import accuracy as acc
+from clradcom.evaluation import tradeoff as tr
 from clradcom.paths import InteractionType
 from clradcom.radar import (
     DETECTION_DTYPE,
@@ -207,6 +209,60 @@ def test_pareto_front_by_hand():
 
 
 # ---------------------------------------------------------------------------
+# sweep points (clradcom.evaluation.tradeoff)
+def test_settings_fields_by_flat_and_nested_names():
+    assert tr.settings_field("rays") == "specular__rays"
+    assert tr.settings_field("physical_optics") == "optics__mode"
+    assert tr.settings_field("scattering_tile_size_m") == "scattering__tile_size_m"
+    assert tr.settings_field("diffraction_reflections") == "diffraction__max_reflections"
+    assert tr.settings_field("scattering.tile_size_m") == "scattering__tile_size_m"
+    assert tr.settings_field("diffraction__max_hop_m") == "diffraction__max_hop_m"
+    assert tr.settings_field("warp") is None and tr.settings_field("specular.warp") is None
+    names = tr.vary_field_names()
+    assert "scattering_tile_size_m" in names and "scattering.tile_size_m" in names
+    assert "specular.rays" not in names  # a knob of its own
+    s = tr.trace_settings({"rays": 1000, "max_reflections": 2, "max_diffractions": 0,
+                           "physical_optics": "pec", "scattering": True,
+                           "scattering.tile_size_m": 0.5, "diffraction_reflections": 1})
+    assert (s.specular.rays, s.specular.max_reflections, s.optics.mode) == (1000, 2, "pec")
+    assert s.scattering.enabled and s.scattering.tile_size_m == 0.5
+    assert (s.diffraction.max_diffractions, s.diffraction.max_reflections) == (0, 1)
+    with pytest.raises(ValueError, match="warp"):
+        tr.trace_settings({"warp": 1})
+
+
+def test_sweep_points_skip_what_cannot_differ():
+    vary = [("scattering_tile_size_m", [0.25, 0.5]), ("diffraction_reflections", [0, 3])]
+    points = tr.sweep_points([10_000, 1000], [0, 2], [0, 1], ["none"], [False, True], vary,
+                             order_cap=5, scattering_threshold_db=-40.0,
+                             scattering_floor=1e-15)
+    keys = [tuple(sorted(p.items())) for p in points]
+    assert len(keys) == len(set(keys))
+    # no reflections: one ray count, the smallest
+    assert {p["rays"] for p in points if p["max_reflections"] == 0} == {1000}
+    assert {p["rays"] for p in points if p["max_reflections"] == 2} == {1000, 10_000}
+    for p in points:
+        # scattering's fields only where it is on; the tracer's threshold and floor there
+        assert ("scattering_tile_size_m" in p) == p["scattering"]
+        assert ("scattering_threshold_db" in p) == p["scattering"]
+        if p["scattering"]:
+            assert (p["scattering_threshold_db"], p["scattering_floor"]) == (-40.0, 1e-15)
+        # reflections beside the edges: never more than the specular search, 0 without edges
+        assert p["diffraction_reflections"] <= p["max_reflections"]
+        if not p["max_diffractions"]:
+            assert p["diffraction_reflections"] == 0
+    # 3 scattering configurations (off, two tile sizes) each: r0 one ray count, d0 and d1
+    # (reflections beside the edges clamped to 0); r2 two ray counts, d0 and d1 with
+    # 0 or 2 reflections beside the edges
+    assert len(points) == 2 * 3 + 2 * (3 + 2 * 3)
+    ref = tr.reference_point([10_000, 1000], [0, 2, 5], [0, 1], ["none", "sbr"], [False, True],
+                             vary, order_cap=3)
+    assert ref == {"rays": 40_000, "max_reflections": 3, "max_diffractions": 1,
+                   "physical_optics": "sbr", "scattering": True,
+                   "scattering_tile_size_m": 0.5, "diffraction_reflections": 3}
+
+
+# ---------------------------------------------------------------------------
 # the tool
 SCENE = CLOSING_PLATE_SCENE
 
@@ -277,7 +333,7 @@ def test_tradeoff_tool_writes_a_consistent_sweep(sweep):
     assert np.all(f["power_share"][go] < 0.999)
     assert np.all(f["targets_found"] == 1)
     # the Pareto flags are the fronts of the CSV's own numbers
-    tol = tool.PARETO_TOLERANCES
+    tol = tr.PARETO_TOLERANCES
     front = acc.pareto_front(f["seconds"], f["channel_nmse_db"], tolerances=tol[:1])
     assert list(front) == [r["pareto_channel"] == "True" for r in rows]
     assert front[ref[0]]

@@ -4,9 +4,9 @@
 For reflection orders 1..5 and several ray densities, traces radar A's
 monostatic link and its bistatic link to radar D in scenes/street/street.toml
 (>= 15 k triangles; candidates from A's rays serve both links) and prints
-the time of each stage (candidate search on the OpenCL device, exact image
-method + confirmation casts, fields) and the number of paths found. The
-number of paths at the densest setting of each order shows convergence.
+the time of each stage (candidate search on the OpenCL device, specular paths:
+exact image method + confirmation casts + fields) and the number of paths found.
+The number of paths at the densest setting of each order shows convergence.
 
 A second table gives the cost of each diffraction order (0-3 edges per path, with 0 or 1
 reflection beside the edges): paths found per interaction pattern and the time of the
@@ -26,12 +26,16 @@ from __future__ import annotations
 import argparse
 import time
 
-import numpy as np
-
 from clradcom.device.runtime import get_runtime
-from clradcom.paths import InteractionType
+from clradcom.paths import pattern_counts
 from clradcom.scene.reader import load_scene
-from clradcom.trace import StageTimes, TraceSettings, trace_scene
+from clradcom.trace import (
+    DiffractionSettings,
+    SpecularSettings,
+    StageTimes,
+    TraceSettings,
+    trace_scene,
+)
 
 
 def main(argv=None):
@@ -59,44 +63,31 @@ def main(argv=None):
     print(f"device : {rt.info.describe()}")
     print(f"scene  : {scene.name}, {len(scene.triangles)} triangles, links {args.links}")
     # warm up: geometry, kernels compiled
-    trace_scene(scene, TraceSettings(max_reflections=1, rays=1000), runtime=rt, links=links)
+    trace_scene(scene, TraceSettings(specular=SpecularSettings(max_reflections=1, rays=1000)),
+                runtime=rt, links=links)
     print(f"diffractions per path: {args.diffractions}")
     print(f"\n{'order':>5} {'rays':>9} {'refl.':>6} {'diffr.':>6} {'geometry':>9} "
-          f"{'candid.':>9} {'exact':>9} {'fields':>8} {'wedges':>8} {'UTD':>7} {'total s':>8} "
+          f"{'candid.':>9} {'specular':>9} {'wedges':>8} {'UTD':>7} {'total s':>8} "
           f"{'paths/s':>9}")
     for order in (int(x) for x in args.orders.split(",")):
         for rays in (int(x) for x in args.rays.split(",")):
             times = StageTimes()
             t0 = time.perf_counter()
-            settings = TraceSettings(max_reflections=order, rays=rays,
-                                     max_diffractions=args.diffractions)
+            settings = TraceSettings(
+                specular=SpecularSettings(max_reflections=order, rays=rays),
+                diffraction=DiffractionSettings(max_diffractions=args.diffractions))
             snap = trace_scene(scene, settings, runtime=rt, links=links, times=times)
             total = time.perf_counter() - t0
             s = times.seconds
             n = snap.total_paths
-            n_diff = sum(int(np.sum(np.any(lk.paths.interaction == InteractionType.DIFFRACTION,
-                                           axis=1))) for lk in snap)
+            n_diff = sum(pattern_counts([lk.paths for lk in snap], containing="D").values())
             print(f"{order:>5} {rays:>9} {n - n_diff:>6} {n_diff:>6} "
-                  f"{s.get('geometry', 0):>9.3f} {s.get('candidates', 0):>9.3f} "
-                  f"{s.get('exact paths', 0):>9.3f} {s.get('fields', 0):>8.3f} "
+                  f"{s.get('geometry', 0):>9.3f} {s.get('specular candidates', 0):>9.3f} "
+                  f"{s.get('specular', 0):>9.3f} "
                   f"{s.get('wedges', 0):>8.3f} {s.get('diffraction', 0):>7.3f} "
                   f"{total:>8.2f} {n / total:>9.1f}")
     if args.diffraction_orders:
         diffraction_table(scene, rt, links, args)
-
-
-def pattern_counts(snap) -> dict[str, int]:
-    """Diffracted paths per interaction pattern (D = diffraction, R = reflection)."""
-    code = {int(InteractionType.DIFFRACTION): "D", int(InteractionType.REFLECTION): "R",
-            int(InteractionType.SCATTERING): "S"}
-    counts: dict[str, int] = {}
-    for lk in snap:
-        p = lk.paths
-        for row, k in zip(p.interaction, p.n_interactions, strict=True):
-            pat = "".join(code[int(c)] for c in row[:k])
-            if "D" in pat:
-                counts[pat] = counts.get(pat, 0) + 1
-    return counts
 
 
 def diffraction_table(scene, rt, links, args):
@@ -109,12 +100,13 @@ def diffraction_table(scene, rt, links, args):
                 continue
             times = StageTimes()
             t0 = time.perf_counter()
-            settings = TraceSettings(max_reflections=2, rays=args.diffraction_rays,
-                                     max_diffractions=order, diffraction_reflections=refl)
+            settings = TraceSettings(
+                specular=SpecularSettings(max_reflections=2, rays=args.diffraction_rays),
+                diffraction=DiffractionSettings(max_diffractions=order, max_reflections=refl))
             snap = trace_scene(scene, settings, runtime=rt, links=links, times=times)
             total = time.perf_counter() - t0
             meta = snap.metadata
-            counts = pattern_counts(snap)
+            counts = pattern_counts([lk.paths for lk in snap], containing="D")
             print(f"{order:>5} {refl:>5} {meta.get('diffraction.candidates', 0):>11} "
                   f"{meta.get('diffraction.chains_over_cap', 0):>10} {sum(counts.values()):>6} "
                   f"{times.seconds.get('diffraction', 0.0):>7.2f} {total:>8.2f}  "

@@ -34,22 +34,32 @@ With a scene the links are traced first (about as long as tools/trace.py); with
 from __future__ import annotations
 
 import argparse
-import csv
 import math
 import sys
 import time
 from pathlib import Path
 
-import numpy as np
-
-from clradcom.radar import Waveform, detect, random_symbols
-from clradcom.radar import interference as itf
-from clradcom.radar.synthesis import thermal_noise_power
+from clradcom.device.runtime import get_runtime
+from clradcom.radar import Waveform
+from clradcom.radar.interference import two_radar_run
+from clradcom.radar.plots import save_interference_images
+from clradcom.radar.report import (
+    INTERFERENCE_IMAGES,
+    interference_detections,
+    interference_summary,
+    recovered_detections,
+    write_table,
+)
+from clradcom.scene.reader import load_scene
 from clradcom.snapshot import SnapshotError, load_snapshot, save_snapshot
-
-KEYS = ("clean", "interfered", "genie", "realistic")
-TITLES = {"clean": "A without D", "interfered": "A with D interfering",
-          "genie": "after cancelling D (genie)", "realistic": "after cancelling D (realistic)"}
+from clradcom.trace import (
+    DiffractionSettings,
+    OpticsSettings,
+    ScatteringSettings,
+    SpecularSettings,
+    TraceSettings,
+    trace_scene,
+)
 
 
 def parse_args(argv):
@@ -97,16 +107,14 @@ def parse_args(argv):
 
 
 def trace(args, out):
-    from clradcom.device.runtime import get_runtime
-    from clradcom.scene.reader import load_scene
-    from clradcom.trace import TraceSettings, trace_scene
-
     scene = load_scene(args.scene)
     runtime = get_runtime(args.device)
     print(f"tracing {args.scene} on {runtime.info.describe()} ...", flush=True)
-    snap = trace_scene(scene, TraceSettings(max_reflections=5, rays=args.rays,
-                                            max_diffractions=1, physical_optics="pec",
-                                            scattering=True), runtime=runtime)
+    settings = TraceSettings(specular=SpecularSettings(max_reflections=5, rays=args.rays),
+                             diffraction=DiffractionSettings(max_diffractions=1),
+                             optics=OpticsSettings(mode="pec"),
+                             scattering=ScatteringSettings(enabled=True))
+    snap = trace_scene(scene, settings, runtime=runtime)
     save_snapshot(out / "snapshot.npz", snap)
     radars = {r.name: r for r in scene.radars}
     for name in (args.victim, args.interferer):
@@ -116,50 +124,6 @@ def trace(args, out):
     va, vd = radars[args.victim], radars[args.interferer]
     nf = va.noise_figure_db if va.noise_figure_db is not None else args.noise_figure_db
     return snap, scene.carrier_hz, va.tx_power_w, vd.tx_power_w, nf
-
-
-def plot(images, path_stem, range_max, detections, floor_clean):
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    ref = images["clean"]
-    r, v = ref.range_m, ref.velocity_mps
-    ri = np.flatnonzero(r <= range_max)
-    vi = np.flatnonzero(np.abs(v) <= 40.0)
-    top = float(ref.power_db[np.ix_(ri, vi)].max())  # one colour scale: A's strongest echo
-    # down to 3 dB under the interference-free floor, so the rise of the floor shows
-    dyn_db = max(30.0, top - 10 * math.log10(floor_clean) + 3.0)
-    fig = Figure(figsize=(17.0, 4.4), layout="constrained")
-    FigureCanvasAgg(fig)
-    axes = fig.subplots(1, len(KEYS), sharey=True)
-    ext = (r[ri[0]], r[ri[-1]], v[vi[0]], v[vi[-1]])
-    for ax, key in zip(axes, KEYS, strict=True):
-        crop = images[key].power_db[np.ix_(ri, vi)] - top
-        im = ax.imshow(crop.T, origin="lower", aspect="auto", cmap="jet", vmin=-dyn_db,
-                       vmax=0.0, extent=ext, interpolation="nearest")
-        det = detections[key]
-        if len(det):
-            ax.plot(det["range_m"], det["velocity_mps"], "o", mfc="none", mec="white",
-                    ms=8, mew=1.2)
-        ax.set_xlim(ext[0], ext[1])
-        ax.set_ylim(ext[2], ext[3])
-        ax.set_title(TITLES[key])
-        ax.set_xlabel("range [m]")
-    axes[0].set_ylabel("relative velocity [m/s]")
-    fig.colorbar(im, ax=list(axes), label="power re A's strongest echo [dB]")
-    fig.savefig(path_stem.with_suffix(".png"), dpi=120)
-    fig.savefig(path_stem.with_suffix(".svg"))
-
-
-def recovered(reference, found, waveform):
-    """For each reference detection, whether one lies within one range and one velocity
-    resolution cell in ``found``."""
-    out = []
-    for d in reference:
-        ok = (np.abs(found["range_m"] - d["range_m"]) <= waveform.range_resolution) & \
-             (np.abs(found["velocity_mps"] - d["velocity_mps"]) <= waveform.velocity_resolution)
-        out.append(bool(ok.any()))
-    return out
 
 
 def main(argv=None) -> int:
@@ -182,62 +146,20 @@ def main(argv=None) -> int:
                 raise ValueError(f"{name} must be finite, got {val!r}")
         if p_a <= 0 or p_d <= 0:
             raise ValueError(f"transmit powers must be positive, got A {p_a!r} W, D {p_d!r} W")
-        noise_var = thermal_noise_power(wf.bandwidth, nf) / p_a
-        rng = np.random.default_rng(args.seed)
-        d_a = random_symbols(wf, rng)
-        wf_stream = Waveform(carrier_hz=fc, n_subcarriers=args.subcarriers,
-                             n_symbols=itf.stream_symbols(wf))
-        d_d = random_symbols(wf_stream, rng)
-        print(f"[{time.perf_counter() - t0:6.1f} s] synthesising {len(own.gain)} own paths "
-              f"({args.own_synthesis}) ...", flush=True)
-        y_own = itf.own_echo_signal(d_a, own.gain, own.delay_s, own.doppler_hz, wf,
-                                    method=args.own_synthesis)
-        print(f"[{time.perf_counter() - t0:6.1f} s] {len(dl.gain)} interferer paths (time "
-              "domain), estimation, cancellation ...", flush=True)
-        res = itf.run_interference(
-            y_own, d_a, d_d, dl.gain, dl.delay_s, dl.doppler_hz, wf,
+        res = two_radar_run(
+            own, dl, wf, tx_power_w=p_a, interferer_tx_power_w=p_d, noise_figure_db=nf,
             timing_offset_s=args.timing_offset_us * 1e-6, cfo_hz=args.cfo_hz,
-            phase_rad=math.radians(args.phase_deg), power_ratio=p_d / p_a,
-            noise_variance=noise_var, rng=rng)
+            phase_rad=math.radians(args.phase_deg), seed=args.seed,
+            own_synthesis=args.own_synthesis,
+            progress=lambda msg: print(f"[{time.perf_counter() - t0:6.1f} s] {msg} ...",
+                                       flush=True))
     except (SnapshotError, ValueError, KeyError, OSError) as exc:
         print(f"interference.py: {exc}", file=sys.stderr)
         return 2
-    dets = {k: detect(res.images[k], guard=(3, 2), train=(8, 4)) for k in KEYS}
-    plot(res.images, out / "interference", args.range_max, dets, res.floors["clean"])
-
-    def db(x):
-        return 10 * math.log10(x) if x > 0 else -math.inf
-
-    nv = res.noise_variance
-    e = res.estimate
-    rows = [
-        ("noise per cell re P_tx,A [dB]", db(nv)),
-        ("interference power per sample, measured [dB]", db(res.interference_power)),
-        ("interference power predicted from D->A paths [dB]",
-         db(res.predicted_interference_power)),
-        ("floor rise predicted (1 + INR) [dB]", res.predicted_floor_rise_db),
-        ("floor rise measured [dB]", res.measured_floor_rise_db),
-        ("floor after genie cancellation re without D [dB]",
-         db(res.floors["genie"] / res.floors["clean"])),
-        ("floor after realistic cancellation re without D [dB]",
-         db(res.floors["realistic"] / res.floors["clean"])),
-        ("residual interference re interference [dB]",
-         db(res.residual_power / res.interference_power)),
-        ("channel NMSE (true data, estimated channel) [dB]", db(res.channel_nmse)),
-        ("symbol-error rate of D's decisions", res.symbol_error_rate),
-        ("D symbols decided (inside A's frame)", int(res.symbols_decided)),
-        ("predicted residual P_I(NMSE + SER E|d-d^|^2) re interference [dB]",
-         db(res.predicted_residual_power / res.interference_power)),
-        ("predicted residual, errors weighted by |H^|^2 where they fall [dB]",
-         db(res.predicted_residual_weighted / res.interference_power)),
-        ("D's decision SINR as the receiver judges it [dB]", e.sinr_db),
-        ("cancelled (1) or judged unreliable and left alone (0)", int(e.cancel)),
-        ("D timing found (CP start mod L) [samples]", e.theta),
-        ("D frequency offset found (CFO + Doppler) [Hz]",
-         e.eps * wf.subcarrier_spacing_hz),
-        ("D channel components fitted", int(e.components.amplitude.size)),
-        ("own echoes removed before decoding D", int(e.own.amplitude.size)),
-    ]
+    dets = interference_detections(res.images)
+    save_interference_images(res.images, out / "interference", dets, res.floors["clean"],
+                             args.range_max)
+    rows = interference_summary(res, wf)
     print()
     for name, val in rows:
         if isinstance(val, int):
@@ -246,19 +168,16 @@ def main(argv=None) -> int:
             print(f"  {name:<68} {val:10.2e}")
         else:
             print(f"  {name:<68} {val:10.3f}")
-    with open(out / "interference_summary.csv", "w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(["quantity", "value"])
-        w.writerows(rows)
+    write_table(out / "interference_summary.csv", rows, ["quantity", "value"])
     ref = dets["clean"]
     print(f"\n  detections without D: {len(ref)}; with D: {len(dets['interfered'])}; "
           f"genie: {len(dets['genie'])}; realistic: {len(dets['realistic'])}")
-    found = {k: recovered(ref, dets[k], wf) for k in KEYS[1:]}
+    found = {k: recovered_detections(ref, dets[k], wf) for k in INTERFERENCE_IMAGES[1:]}
     print(f"  {'range m':>8} {'v m/s':>7} {'SNR dB':>7}   with D  genie  realistic")
     for i, d in enumerate(ref):
-        marks = "  ".join(f"{'yes' if found[k][i] else 'NO':>6}" for k in KEYS[1:])
+        marks = "  ".join(f"{'yes' if found[k][i] else 'NO':>6}" for k in INTERFERENCE_IMAGES[1:])
         print(f"  {d['range_m']:8.2f} {d['velocity_mps']:7.2f} {d['snr_db']:7.1f}   {marks}")
-    for k in KEYS[1:]:
+    for k in INTERFERENCE_IMAGES[1:]:
         print(f"  {k}: {sum(found[k])} of {len(ref)} interference-free detections found")
     print(f"\n[{time.perf_counter() - t0:6.1f} s] wrote {out}/interference.png, .svg, "
           "interference_summary.csv")

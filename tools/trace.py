@@ -29,7 +29,6 @@ CPU device); choose another with --device or CLRADCOM_DEVICE (list them with
 from __future__ import annotations
 
 import argparse
-import csv
 import sys
 import time
 from pathlib import Path
@@ -38,8 +37,24 @@ import numpy as np
 
 from clradcom.device.runtime import OpenCLError, get_runtime
 from clradcom.errors import SceneError
+from clradcom.plots import plot_top_view
 from clradcom.radar import Waveform
 from clradcom.radar.pipeline import SYNTHESIS_METHODS, process, radar_frame
+from clradcom.radar.plots import save_radar_image
+from clradcom.radar.report import (
+    DETECTION_COLUMNS,
+    STATIC_RANGE_M,
+    TRUTH_COLUMNS,
+    detection_rows,
+    display_range_db,
+    match_tolerances,
+    moving_objects,
+    scene_reach_m,
+    static_returns_beyond,
+    strongest_static_cell,
+    truth_rows,
+    write_table,
+)
 from clradcom.radar.truth import detection_truth, match_truth
 from clradcom.scene.reader import load_scene
 from clradcom.snapshot import save_snapshot
@@ -71,27 +86,6 @@ class Stopwatch:
                 sw.rows.append((name, time.perf_counter() - self.start))
 
         return _Ctx()
-
-
-def write_csv(path, rows, header):
-    with open(path, "w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(header)
-        w.writerows(rows)
-
-
-#: The paper (Fig. 3): "object images at above 60 m are reflections from buildings along
-#: the road, and they depict the velocity at which the radar is traveling".
-STATIC_RANGE_M = 60.0
-
-
-def static_returns_beyond(detections, radar, range_m: float, tolerance_mps: float):
-    """Ranges of detections beyond range_m that close at the radar's own speed (static
-    objects nearly ahead), within tolerance_mps."""
-    speed = float(np.linalg.norm(radar.velocity))
-    far = (detections["range_m"] > range_m) & (
-        np.abs(detections["velocity_mps"] - speed) <= tolerance_mps)
-    return sorted(float(r) for r in detections["range_m"][far])
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -141,20 +135,6 @@ def settings_from_args(args) -> TraceSettings:
                                       max_reflections=args.scattering_reflections))
 
 
-def strongest_static_cell(image, radar, range_m: float, reach_m: float, tolerance_mps: float):
-    """(range, dB over the image's median) of the strongest cell between range_m and the
-    scene's reach at the radar's own speed (+- tolerance), or (None, None): static
-    objects show in the image even where clutter around them keeps CFAR quiet."""
-    speed = float(np.linalg.norm(radar.velocity))
-    rows = (image.range_m > range_m) & (image.range_m <= reach_m)
-    cols = np.abs(image.velocity_mps - speed) <= tolerance_mps
-    if not rows.any() or not cols.any():
-        return None, None
-    sub = image.power_db[np.ix_(rows, cols)]
-    i = np.unravel_index(np.argmax(sub), sub.shape)[0]
-    return float(image.range_m[rows][i]), float(sub.max() - np.median(image.power_db))
-
-
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     sw = Stopwatch()
@@ -192,50 +172,31 @@ def main(argv=None) -> int:
                                 tx_power_w=radar.tx_power_w if nf is not None else None,
                                 noise_figure_db=nf)
             image, dets = process(D, Dr, wf)
-        from clradcom.radar.plots import save_radar_image
-
         with sw.stage(f"radar {radar.name}: image and tables"):
             # colour down to the noise floor, so weak echoes beside the ground return show
-            finite = image.power_db[np.isfinite(image.power_db)]
-            span = float(finite.max() - np.median(finite)) if finite.size else 50.0
             save_radar_image(image, out / f"{radar.name}_image", dets,
-                             dynamic_range_db=max(span, 20.0))
-            write_csv(out / f"{radar.name}_detections.csv",
-                      [(f"{d['range_m']:.3f}", f"{d['velocity_mps']:.3f}",
-                        f"{d['power_db']:.2f}", f"{d['snr_db']:.2f}") for d in dets],
-                      ["range_m", "velocity_mps", "power_db", "snr_db"])
-            own = radar.rides_on
-            movers = [o.name for i, o in enumerate(scene.objects)
-                      if i != own and np.any(np.asarray(o.velocity) != 0)]
-            truth = detection_truth(scene, radar.name, movers)
-            matches = match_truth(dets, truth, wf.range_resolution + 0.3,
-                                  wf.velocity_resolution)
-            rows = []
+                             dynamic_range_db=display_range_db(image))
+            write_table(out / f"{radar.name}_detections.csv", detection_rows(dets),
+                        DETECTION_COLUMNS)
+            truth = detection_truth(scene, radar.name, moving_objects(scene, radar))
+            matches = match_truth(dets, truth, *match_tolerances(wf))
+            rows = truth_rows(truth, matches)
             print(f"  {radar.name}: {len(dets)} detections; moving objects:")
             print(f"    {'object':<10} {'R set':>7} {'v set':>7} {'R det':>7} {'v det':>7}")
-            for t, m in zip(truth, matches, strict=True):
-                rd = "" if m is None else f"{m['range_m']:.2f}"
-                vd = "" if m is None else f"{m['velocity_mps']:.2f}"
-                rows.append((t["name"], f"{t['range_centre_m']:.2f}",
-                             f"{t['range_nearest_m']:.2f}", f"{t['v_rel_m_s']:.2f}", rd, vd))
+            for t, (*_, rd, vd) in zip(truth, rows, strict=True):
                 print(f"    {t['name']:<10} {t['range_centre_m']:7.2f} {t['v_rel_m_s']:7.2f} "
                       f"{rd or 'missed':>7} {vd:>7}")
             static = static_returns_beyond(dets, radar, STATIC_RANGE_M, wf.velocity_resolution)
-            reach = float(np.linalg.norm(scene.triangles.reshape(-1, 3) - radar.position,
-                                         axis=1).max()) if len(scene.triangles) else 0.0
-            rng, above = strongest_static_cell(image, radar, STATIC_RANGE_M, reach,
+            rng, above = strongest_static_cell(image, radar, STATIC_RANGE_M,
+                                               scene_reach_m(scene, radar.position),
                                                wf.velocity_resolution)
             print(f"    static returns beyond {STATIC_RANGE_M:.0f} m at the radar's own speed "
                   f"({np.linalg.norm(radar.velocity):.1f} m/s): {len(static)} detections"
                   + (f", at {', '.join(f'{r:.1f}' for r in static[:6])} m" if static else "")
                   + ("" if rng is None else f"; strongest cell {rng:.1f} m, {above:.1f} dB "
                      f"over the image's median"))
-            write_csv(out / f"{radar.name}_truth.csv", rows,
-                      ["object", "range_centre_m", "range_nearest_m", "v_rel_mps",
-                       "range_detected_m", "velocity_detected_mps"])
+            write_table(out / f"{radar.name}_truth.csv", rows, TRUTH_COLUMNS)
     with sw.stage("top view"):
-        from clradcom.plots import plot_top_view
-
         mono = [lk for lk in snap if lk.tx_index == lk.rx_index]
         plot_top_view(scene, snap, mono[0] if mono else None, path=out / "scene_top.png")
     print("\nstage timings:")

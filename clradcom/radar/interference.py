@@ -41,6 +41,7 @@ from clradcom.radar.synthesis import (
     check_paths,
     synthesize_frequency_domain,
     synthesize_time_domain,
+    thermal_noise_power,
 )
 from clradcom.radar.waveform import (
     Waveform,
@@ -48,6 +49,7 @@ from clradcom.radar.waveform import (
     constellation,
     ofdm_demodulate,
     ofdm_modulate,
+    random_symbols,
 )
 
 #: D's stream symbol that is sent in step with A's symbol 0 (A-frame time 0).
@@ -722,6 +724,45 @@ def run_interference(own_signal, own_symbols, d_stream, gains, delays_s, doppler
         else (p_i, p_i)
     return InterferenceResult(images, floors, nv, p_i, p_pred, p_floor, rise_pred, rise_meas, res,
                               nmse, ser, int(wrong.size), err_e, pred, pred_w, est)
+
+
+def two_radar_run(own_paths, interferer_paths, waveform: Waveform, *, tx_power_w: float,
+                  interferer_tx_power_w: float, noise_figure_db: float,
+                  timing_offset_s: float, cfo_hz: float, phase_rad: float = 0.0,
+                  seed: int = 0, own_synthesis: str = "fast",
+                  progress=None) -> InterferenceResult:
+    """The whole two-radar experiment from traced paths: radar A's own echoes
+    (``own_paths``, the A->A link) and radar D's signal through the D->A link
+    (``interferer_paths``), each radar with its own random data, plus A's thermal noise
+    (from ``tx_power_w`` and ``noise_figure_db``); D's power relative to A's is
+    ``interferer_tx_power_w / tx_power_w``.
+
+    One seed drives A's data, then D's data, then the noise. ``own_synthesis`` is
+    ``own_echo_signal``'s method; ``progress`` (optional) is called with a line before
+    each of the two long stages.
+    """
+    for name, val in (("tx_power_w", tx_power_w), ("interferer_tx_power_w",
+                                                   interferer_tx_power_w),
+                      ("noise_figure_db", noise_figure_db)):
+        _finite(name, val)
+    if not (tx_power_w > 0 and interferer_tx_power_w > 0):
+        raise ValueError(f"transmit powers must be positive, got A {tx_power_w!r} W, "
+                         f"D {interferer_tx_power_w!r} W")
+    say = progress or (lambda msg: None)
+    noise_var = thermal_noise_power(waveform.bandwidth, noise_figure_db) / tx_power_w
+    rng = np.random.default_rng(seed)
+    d_a = random_symbols(waveform, rng)
+    d_d = random_symbols(replace(waveform, n_symbols=stream_symbols(waveform)), rng)
+    say(f"synthesising {len(own_paths.gain)} own paths ({own_synthesis})")
+    y_own = own_echo_signal(d_a, own_paths.gain, own_paths.delay_s, own_paths.doppler_hz,
+                            waveform, method=own_synthesis)
+    say(f"{len(interferer_paths.gain)} interferer paths (time domain), estimation, "
+        "cancellation")
+    return run_interference(
+        y_own, d_a, d_d, interferer_paths.gain, interferer_paths.delay_s,
+        interferer_paths.doppler_hz, waveform, timing_offset_s=timing_offset_s, cfo_hz=cfo_hz,
+        phase_rad=phase_rad, power_ratio=interferer_tx_power_w / tx_power_w,
+        noise_variance=noise_var, rng=rng)
 
 
 def _stream_from_capture(d_stream, est, waveform):

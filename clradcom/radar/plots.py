@@ -1,4 +1,5 @@
-"""Radar image plot in the style of the paper's Fig. 3 (range–velocity map, dB colour).
+"""Radar image plot in the style of the paper's Fig. 3 (range–velocity map, dB colour), and
+the images of a two-radar run side by side (the paper's Figs. 4 and 5).
 
 Uses matplotlib's object API with the Agg canvas directly, so importing this module never
 changes pyplot's global backend or state.
@@ -6,6 +7,7 @@ changes pyplot's global backend or state.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +15,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from clradcom.radar.processing import RadarImage
+from clradcom.radar.report import INTERFERENCE_TITLES
 
 
 def _limits(name, lim):
@@ -77,5 +80,57 @@ def save_radar_image(image: RadarImage, path_stem, detections=None, **kwargs):
     fig = plot_radar_image(image, detections, **kwargs)
     paths = (stem.with_suffix(".png"), stem.with_suffix(".svg"))
     fig.savefig(paths[0], dpi=150)
+    fig.savefig(paths[1])
+    return paths
+
+
+def plot_interference_images(images: dict, detections: dict, floor_clean: float,
+                             range_max_m: float = 60.0, titles=None) -> Figure:
+    """A two-radar run's images side by side on one colour scale (A's strongest echo at
+    0 dB, down to 3 dB under the interference-free floor ``floor_clean`` so the rise of
+    the floor shows), velocities within +-40 m/s, detections as circles.
+
+    ``images``/``detections``: image key -> RadarImage / detections; ``titles``: key ->
+    title in the order shown (default the four of
+    :data:`clradcom.radar.report.INTERFERENCE_TITLES`; "clean" sets the scale).
+    """
+    titles = INTERFERENCE_TITLES if titles is None else titles
+    keys = list(titles)
+    ref = images["clean"]
+    r, v = ref.range_m, ref.velocity_mps
+    ri = np.flatnonzero(r <= range_max_m)
+    vi = np.flatnonzero(np.abs(v) <= 40.0)
+    top = float(ref.power_db[np.ix_(ri, vi)].max())  # one colour scale: A's strongest echo
+    # down to 3 dB under the interference-free floor, so the rise of the floor shows
+    dyn_db = max(30.0, top - 10 * math.log10(floor_clean) + 3.0)
+    fig = Figure(figsize=(17.0, 4.4), layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = np.atleast_1d(fig.subplots(1, len(keys), sharey=True))
+    ext = (r[ri[0]], r[ri[-1]], v[vi[0]], v[vi[-1]])
+    for ax, key in zip(axes, keys, strict=True):
+        crop = images[key].power_db[np.ix_(ri, vi)] - top
+        im = ax.imshow(crop.T, origin="lower", aspect="auto", cmap="jet", vmin=-dyn_db,
+                       vmax=0.0, extent=ext, interpolation="nearest")
+        det = detections[key]
+        if len(det):
+            ax.plot(det["range_m"], det["velocity_mps"], "o", mfc="none", mec="white",
+                    ms=8, mew=1.2)
+        ax.set_xlim(ext[0], ext[1])
+        ax.set_ylim(ext[2], ext[3])
+        ax.set_title(titles[key])
+        ax.set_xlabel("range [m]")
+    axes[0].set_ylabel("relative velocity [m/s]")
+    fig.colorbar(im, ax=list(axes), label="power re A's strongest echo [dB]")
+    return fig
+
+
+def save_interference_images(images: dict, path_stem, detections: dict, floor_clean: float,
+                             range_max_m: float = 60.0, titles=None):
+    """Plot (see ``plot_interference_images``) and write ``<stem>.png`` and ``<stem>.svg``.
+    Returns the two paths."""
+    stem = Path(path_stem)
+    fig = plot_interference_images(images, detections, floor_clean, range_max_m, titles)
+    paths = (stem.with_suffix(".png"), stem.with_suffix(".svg"))
+    fig.savefig(paths[0], dpi=120)
     fig.savefig(paths[1])
     return paths

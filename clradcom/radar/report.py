@@ -1,0 +1,190 @@
+"""What the tools report about a radar's image: detection and truth tables, the static
+returns at the radar's own speed, and the numbers of a two-radar interference run.
+
+Plain functions of detections (``cfar.DETECTION_DTYPE``), radar images, the ground truth
+of :mod:`clradcom.radar.truth` and the scene's records; tools/trace.py and
+tools/interference.py print and write what they return.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+
+import numpy as np
+
+from clradcom.radar.cfar import detect
+from clradcom.radar.interference import InterferenceResult
+from clradcom.radar.processing import RadarImage
+from clradcom.radar.waveform import Waveform
+
+__all__ = ["DETECTION_COLUMNS", "INTERFERENCE_IMAGES", "INTERFERENCE_TITLES", "STATIC_RANGE_M",
+           "TRUTH_COLUMNS", "detection_rows", "display_range_db", "interference_detections",
+           "interference_summary", "match_tolerances", "moving_objects", "recovered_detections",
+           "scene_reach_m", "static_returns_beyond", "strongest_static_cell", "truth_rows",
+           "write_table"]
+
+#: The paper (Fig. 3): "object images at above 60 m are reflections from buildings along
+#: the road, and they depict the velocity at which the radar is traveling".
+STATIC_RANGE_M = 60.0
+
+#: header of a detection table (:func:`detection_rows`)
+DETECTION_COLUMNS = ("range_m", "velocity_mps", "power_db", "snr_db")
+#: header of a truth table (:func:`truth_rows`)
+TRUTH_COLUMNS = ("object", "range_centre_m", "range_nearest_m", "v_rel_mps",
+                 "range_detected_m", "velocity_detected_mps")
+
+#: the four images of a two-radar run, in the order they are shown
+INTERFERENCE_IMAGES = ("clean", "interfered", "genie", "realistic")
+INTERFERENCE_TITLES = {"clean": "A without D", "interfered": "A with D interfering",
+                       "genie": "after cancelling D (genie)",
+                       "realistic": "after cancelling D (realistic)"}
+
+
+# ----------------------------------------------------------------------------------------
+# tables
+# ----------------------------------------------------------------------------------------
+def write_table(path, rows, header) -> None:
+    """A CSV file: one header row, then the rows as they are."""
+    with open(path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(header)
+        w.writerows(rows)
+
+
+def detection_rows(detections) -> list[tuple[str, str, str, str]]:
+    """CFAR detections as text rows of :data:`DETECTION_COLUMNS` (mm, mm/s, 0.01 dB)."""
+    return [(f"{d['range_m']:.3f}", f"{d['velocity_mps']:.3f}", f"{d['power_db']:.2f}",
+             f"{d['snr_db']:.2f}") for d in detections]
+
+
+def moving_objects(scene, radar) -> list[str]:
+    """Names of the scene's moving objects other than the one the radar rides on: the
+    targets whose ground truth the radar is checked against."""
+    own = radar.rides_on
+    return [o.name for i, o in enumerate(scene.objects)
+            if i != own and np.any(np.asarray(o.velocity) != 0)]
+
+
+def match_tolerances(waveform: Waveform) -> tuple[float, float]:
+    """(range, velocity) tolerance of a detection matching a target: one range
+    resolution cell plus 0.3 m (the echo starts before the target's centre), one velocity
+    resolution cell."""
+    return waveform.range_resolution + 0.3, waveform.velocity_resolution
+
+
+def truth_rows(truth, matches) -> list[tuple[str, ...]]:
+    """Text rows of :data:`TRUTH_COLUMNS`: each target's set range and relative velocity
+    beside the detection that matches it (empty strings where none does)."""
+    rows = []
+    for t, m in zip(truth, matches, strict=True):
+        rd = "" if m is None else f"{m['range_m']:.2f}"
+        vd = "" if m is None else f"{m['velocity_mps']:.2f}"
+        rows.append((t["name"], f"{t['range_centre_m']:.2f}", f"{t['range_nearest_m']:.2f}",
+                     f"{t['v_rel_m_s']:.2f}", rd, vd))
+    return rows
+
+
+# ----------------------------------------------------------------------------------------
+# static returns
+# ----------------------------------------------------------------------------------------
+def static_returns_beyond(detections, radar, range_m: float, tolerance_mps: float):
+    """Ranges of detections beyond range_m that close at the radar's own speed (static
+    objects nearly ahead), within tolerance_mps."""
+    speed = float(np.linalg.norm(radar.velocity))
+    far = (detections["range_m"] > range_m) & (
+        np.abs(detections["velocity_mps"] - speed) <= tolerance_mps)
+    return sorted(float(r) for r in detections["range_m"][far])
+
+
+def strongest_static_cell(image: RadarImage, radar, range_m: float, reach_m: float,
+                          tolerance_mps: float):
+    """(range, dB over the image's median) of the strongest cell between range_m and the
+    scene's reach at the radar's own speed (+- tolerance), or (None, None): static
+    objects show in the image even where clutter around them keeps CFAR quiet."""
+    speed = float(np.linalg.norm(radar.velocity))
+    rows = (image.range_m > range_m) & (image.range_m <= reach_m)
+    cols = np.abs(image.velocity_mps - speed) <= tolerance_mps
+    if not rows.any() or not cols.any():
+        return None, None
+    sub = image.power_db[np.ix_(rows, cols)]
+    i = np.unravel_index(np.argmax(sub), sub.shape)[0]
+    return float(image.range_m[rows][i]), float(sub.max() - np.median(image.power_db))
+
+
+def scene_reach_m(scene, position) -> float:
+    """Distance from a point to the farthest triangle vertex of the scene (0 without
+    triangles): no echo comes from farther away."""
+    if not len(scene.triangles):
+        return 0.0
+    return float(np.linalg.norm(scene.triangles.reshape(-1, 3) - np.asarray(position),
+                                axis=1).max())
+
+
+def display_range_db(image: RadarImage, minimum_db: float = 20.0) -> float:
+    """Colour range of an image picture that reaches down to its noise floor (the
+    strongest cell over the median), so weak echoes beside the ground return show; at
+    least ``minimum_db``, 50 dB for an image with no finite cell."""
+    finite = image.power_db[np.isfinite(image.power_db)]
+    span = float(finite.max() - np.median(finite)) if finite.size else 50.0
+    return max(span, minimum_db)
+
+
+# ----------------------------------------------------------------------------------------
+# two radars
+# ----------------------------------------------------------------------------------------
+def interference_detections(images: dict) -> dict:
+    """CFAR detections of each image of a two-radar run (guard 3 x 2, training 8 x 4
+    cells)."""
+    return {k: detect(images[k], guard=(3, 2), train=(8, 4)) for k in INTERFERENCE_IMAGES}
+
+
+def recovered_detections(reference, found, waveform: Waveform) -> list[bool]:
+    """For each reference detection, whether one lies within one range and one velocity
+    resolution cell in ``found``."""
+    out = []
+    for d in reference:
+        ok = (np.abs(found["range_m"] - d["range_m"]) <= waveform.range_resolution) & \
+             (np.abs(found["velocity_mps"] - d["velocity_mps"]) <= waveform.velocity_resolution)
+        out.append(bool(ok.any()))
+    return out
+
+
+def _db(x: float) -> float:
+    return 10 * math.log10(x) if x > 0 else -math.inf
+
+
+def interference_summary(result: InterferenceResult, waveform: Waveform) -> list[tuple]:
+    """(quantity, value) rows of a two-radar run: the floor rise measured against its
+    prediction, the floors after cancellation, the realistic receiver's channel error and
+    symbol-error rate and the residual they predict, and what the receiver estimated.
+    Integers stay integers (counts and flags)."""
+    res, e = result, result.estimate
+    return [
+        ("noise per cell re P_tx,A [dB]", _db(res.noise_variance)),
+        ("interference power per sample, measured [dB]", _db(res.interference_power)),
+        ("interference power predicted from D->A paths [dB]",
+         _db(res.predicted_interference_power)),
+        ("floor rise predicted (1 + INR) [dB]", res.predicted_floor_rise_db),
+        ("floor rise measured [dB]", res.measured_floor_rise_db),
+        ("floor after genie cancellation re without D [dB]",
+         _db(res.floors["genie"] / res.floors["clean"])),
+        ("floor after realistic cancellation re without D [dB]",
+         _db(res.floors["realistic"] / res.floors["clean"])),
+        ("residual interference re interference [dB]",
+         _db(res.residual_power / res.interference_power)),
+        ("channel NMSE (true data, estimated channel) [dB]", _db(res.channel_nmse)),
+        ("symbol-error rate of D's decisions", res.symbol_error_rate),
+        ("D symbols decided (inside A's frame)", int(res.symbols_decided)),
+        ("predicted residual P_I(NMSE + SER E|d-d^|^2) re interference [dB]",
+         _db(res.predicted_residual_power / res.interference_power)),
+        ("predicted residual, errors weighted by |H^|^2 where they fall [dB]",
+         _db(res.predicted_residual_weighted / res.interference_power)),
+        ("D's decision SINR as the receiver judges it [dB]", e.sinr_db),
+        ("cancelled (1) or judged unreliable and left alone (0)", int(e.cancel)),
+        ("D timing found (CP start mod L) [samples]", e.theta),
+        ("D frequency offset found (CFO + Doppler) [Hz]",
+         e.eps * waveform.subcarrier_spacing_hz),
+        ("D channel components fitted", int(e.components.amplitude.size)),
+        ("own echoes removed before decoding D", int(e.own.amplitude.size)),
+    ]
