@@ -4,7 +4,7 @@ import pytest
 
 from clradcom.cli import main as cli_main
 from clradcom.device import runtime as opencl
-from clradcom.device.raycast import BVH8_NODE_DTYPE, HIT_DTYPE, RAY_DTYPE
+from clradcom.device.raycast import HIT_DTYPE, RAY_DTYPE
 from clradcom.device.runtime import (
     OpenCLError,
     Runtime,
@@ -13,6 +13,7 @@ from clradcom.device.runtime import (
     list_devices,
 )
 from clradcom.geometry.bvh import BVH_NODE_DTYPE
+from clradcom.geometry.layout import BVH8_NODE_DTYPE
 
 
 def test_device_list_and_default_is_gpu_or_pocl():
