@@ -11,6 +11,7 @@ import threading
 import numpy as np
 
 from clradcom.device.runtime import Runtime, get_runtime
+from clradcom.geometry import layout
 from clradcom.geometry.bvh import build_bvh
 from clradcom.geometry.layout import bvh8_nodes, tri4_groups
 
@@ -24,6 +25,19 @@ HIT_DTYPE = np.dtype(
 
 # float32 unit roundoff; spawn offsets are a few multiples of it times |p|
 _F32_EPS = float(np.finfo(np.float32).eps) * 0.5
+#: Rays leave a surface this many float32 roundoffs times (1 + max |p|) off it, on the
+#: host (spawn_origins) and on the device (kernels/reflect.cl) alike.
+SPAWN_OFFSET_ROUNDOFFS = 8
+
+#: Every kernel build gets these as -D options: the host is the kernels' only source of
+#: them, and kernels/layout.cl reports them back for a test.
+KERNEL_DEFINES = {
+    "BVH_WIDTH": layout.BVH_WIDTH,
+    "BVH_STACK_SIZE": layout.BVH_STACK_SIZE,
+    "TRI4_ROWS": layout.TRI4_ROWS,
+    "LEAF_GROUP_BITS": layout.LEAF_GROUP_BITS,
+    "SPAWN_OFFSET_ROUNDOFFS": SPAWN_OFFSET_ROUNDOFFS,
+}
 
 
 def make_rays(origins, directions, tmin=0.0, tmax=np.inf) -> np.ndarray:
@@ -66,7 +80,7 @@ def spawn_origins(points, normals, directions) -> np.ndarray:
     points = np.asarray(points, dtype=np.float64)
     normals = np.asarray(normals, dtype=np.float64)
     directions = np.asarray(directions, dtype=np.float64)
-    bound = 8.0 * _F32_EPS * (np.abs(points).max(axis=1) + 1.0)
+    bound = SPAWN_OFFSET_ROUNDOFFS * _F32_EPS * (np.abs(points).max(axis=1) + 1.0)
     side = np.sign(np.einsum("ij,ij->i", normals, directions))
     side[side == 0] = 1.0
     n_len = np.linalg.norm(normals, axis=1)
@@ -148,7 +162,7 @@ class RayCaster:
             ignore = np.ascontiguousarray(np.broadcast_to(ignore_prim, (n,)), dtype=np.int32)
         rt = self.runtime
         mf = cl.mem_flags
-        kernel = rt.kernel("raycast.cl", kernel_name)
+        kernel = rt.kernel("raycast.cl", kernel_name, defines=KERNEL_DEFINES)
         local = self.LOCAL_SIZE
         with self._lock:
             if self._zero_copy:

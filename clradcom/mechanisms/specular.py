@@ -28,7 +28,7 @@ import warnings
 
 import numpy as np
 
-from clradcom.device.raycast import RayCaster, make_rays, spawn_origins
+from clradcom.device.raycast import KERNEL_DEFINES, RayCaster, make_rays, spawn_origins
 from clradcom.errors import SurfaceContactWarning
 
 #: A segment counts as reaching its reflection point when the first thing it
@@ -96,7 +96,7 @@ def reflection_sequences(caster: RayCaster, tri_face, origin, directions, max_or
     if max_order < 1:
         return np.zeros((len(directions), 0), dtype=np.int32)
     rt = caster.runtime
-    kernel = rt.kernel("reflect.cl", "trace_reflections")
+    kernel = rt.kernel("reflect.cl", "trace_reflections", defines=KERNEL_DEFINES)
     face_buf = rt.to_device(np.asarray(tri_face, dtype=np.int32))
     o = np.asarray(origin, dtype=np.float64)
     out = np.empty((len(directions), max_order), dtype=np.int32)
