@@ -89,7 +89,8 @@ def spawn_origins(points, normals, directions) -> np.ndarray:
 
 
 class RayCaster:
-    """Closest-hit and any-hit queries for one triangle set on one OpenCL device.
+    """Closest-hit, any-hit and specular-bounce queries for one triangle set on one
+    OpenCL device: the only driver of the kernels.
 
     Device data: the 8-wide BVH (:func:`bvh8_nodes`), the leaf triangles in
     Tri4 groups and the scene id of every leaf slot (:func:`tri4_groups`). On a
@@ -122,21 +123,6 @@ class RayCaster:
         # PoCL's CPU device uses USE_HOST_PTR memory in place (5% of the end-to-end
         # time saved on 500k rays); other devices get reused buffers and copies.
         self._zero_copy = rt.info.device_type == "CPU"
-
-    @property
-    def device_nodes(self):
-        """Device buffer of the traversal layout (Bvh8Node records, see bvh8_nodes)."""
-        return self._nodes
-
-    @property
-    def device_verts(self):
-        """Device buffer of the leaf triangles as Tri4 groups (see tri4_groups)."""
-        return self._tri4
-
-    @property
-    def device_tri_index(self):
-        """Device buffer mapping leaf slots to scene triangle ids (int32)."""
-        return self._slot_prim
 
     def _buffer(self, name, nbytes, flags):
         """A device buffer of at least nbytes kept under name, grown by doubling."""
@@ -203,3 +189,37 @@ class RayCaster:
     def occluded(self, rays: np.ndarray, ignore_prim=None) -> np.ndarray:
         """True where any triangle is hit in (tmin, tmax)."""
         return self._launch("any_hit", rays, ignore_prim, np.uint8).astype(bool)
+
+    def specular_sequences(self, origin, directions, tri_face, max_order: int,
+                           batch: int = 1 << 20) -> np.ndarray:
+        """(R, max_order) int32: the ``tri_face`` ids that each ray from ``origin`` along
+        ``directions`` (R,3) reflects off, in order, -1 after it escapes.
+
+        Geometry is float32 (kernels/reflect.cl): the sequences only propose
+        candidates, which the host confirms in float64.
+        """
+        import pyopencl as cl
+
+        directions = np.asarray(directions)
+        if max_order < 1:
+            return np.zeros((len(directions), 0), dtype=np.int32)
+        rt = self.runtime
+        kernel = rt.kernel("reflect.cl", "trace_reflections", defines=KERNEL_DEFINES)
+        o = np.asarray(origin, dtype=np.float64)
+        out = np.empty((len(directions), max_order), dtype=np.int32)
+        with self._lock:
+            face_buf = rt.to_device(np.asarray(tri_face, dtype=np.int32))
+            for start in range(0, len(directions), batch):
+                # float4 rows: the kernel loads each direction as one aligned vector
+                d = np.zeros((min(batch, len(directions) - start), 4), dtype=np.float32)
+                d[:, :3] = directions[start:start + len(d)]
+                n = len(d)
+                d_buf = rt.to_device(d)
+                o_buf = rt.empty(n * max_order * 4)
+                kernel(rt.queue, (n,), None, self._nodes, self._tri4, self._slot_prim,
+                       face_buf, np.float32(o[0]), np.float32(o[1]), np.float32(o[2]), d_buf,
+                       np.int32(max_order), o_buf, np.int32(n))
+                chunk = np.empty((n, max_order), dtype=np.int32)
+                cl.enqueue_copy(rt.queue, chunk, o_buf)
+                out[start:start + n] = chunk
+        return out

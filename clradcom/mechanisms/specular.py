@@ -4,9 +4,10 @@ Stages (each plain arrays in and out):
 
 1. :func:`launch_directions` - a Fibonacci lattice over the transmit
    pattern's support (directions where its gain is non-zero).
-2. :func:`reflection_sequences` - the OpenCL kernel ``trace_reflections``
-   follows every ray through up to ``max_order`` specular bounces and
-   returns the faces it reflects off, in order.
+2. :func:`reflection_sequences` - the device
+   (:meth:`clradcom.device.raycast.RayCaster.specular_sequences`) follows every
+   ray through up to ``max_order`` specular bounces and returns the faces it
+   reflects off, in order.
 3. :func:`unique_candidates` - every prefix of every sequence is a
    candidate for a path to any receiver (the approach of Sionna RT's
    shooting-and-bouncing candidate stage); duplicates go.
@@ -28,7 +29,7 @@ import warnings
 
 import numpy as np
 
-from clradcom.device.raycast import KERNEL_DEFINES, RayCaster, make_rays, spawn_origins
+from clradcom.device.raycast import RayCaster, make_rays, spawn_origins
 from clradcom.errors import SurfaceContactWarning
 
 #: A segment counts as reaching its reflection point when the first thing it
@@ -91,28 +92,7 @@ def launch_directions(n_rays: int, gain_fn=None, orientation=None) -> np.ndarray
 def reflection_sequences(caster: RayCaster, tri_face, origin, directions, max_order: int,
                          batch: int = 1 << 20) -> np.ndarray:
     """(R, max_order) int32 face ids of each ray's specular bounces, -1 after it escapes."""
-    import pyopencl as cl
-
-    if max_order < 1:
-        return np.zeros((len(directions), 0), dtype=np.int32)
-    rt = caster.runtime
-    kernel = rt.kernel("reflect.cl", "trace_reflections", defines=KERNEL_DEFINES)
-    face_buf = rt.to_device(np.asarray(tri_face, dtype=np.int32))
-    o = np.asarray(origin, dtype=np.float64)
-    out = np.empty((len(directions), max_order), dtype=np.int32)
-    for start in range(0, len(directions), batch):
-        d = np.zeros((min(batch, len(directions) - start), 4), dtype=np.float32)
-        d[:, :3] = directions[start:start + len(d)]
-        n = len(d)
-        d_buf = rt.to_device(d)
-        o_buf = rt.empty(n * max_order * 4)
-        kernel(rt.queue, (n,), None, caster.device_nodes, caster.device_verts,
-               caster.device_tri_index, face_buf, np.float32(o[0]), np.float32(o[1]),
-               np.float32(o[2]), d_buf, np.int32(max_order), o_buf, np.int32(n))
-        chunk = np.empty((n, max_order), dtype=np.int32)
-        cl.enqueue_copy(rt.queue, chunk, o_buf)
-        out[start:start + n] = chunk
-    return out
+    return caster.specular_sequences(origin, directions, tri_face, max_order, batch)
 
 
 def unique_candidates(face_seq: np.ndarray) -> dict[int, np.ndarray]:
