@@ -25,6 +25,7 @@ import numpy as np
 from clradcom import __version__
 from clradcom.device.raycast import RayCaster
 from clradcom.device.runtime import Runtime, get_runtime
+from clradcom.device.visibility import confirm_paths, containing_triangles
 from clradcom.evaluation import budget
 from clradcom.geometry.faces import Faces, merge_coplanar
 from clradcom.geometry.wedges import extract_wedges
@@ -183,8 +184,8 @@ def specular_paths(geom: Geometry, tx_pos, rx_pos, candidates, line_of_sight=Tru
         if geom.caster is None:  # free space: nothing can block it
             keep = np.ones(1, dtype=bool)
         else:
-            keep, _ = sp.confirm_paths(geom.caster, geom.faces.tri_face, geom.faces.normal,
-                                       pts, np.zeros((1, 0), dtype=np.int32))
+            keep, _ = confirm_paths(geom.caster, geom.faces.tri_face, geom.faces.normal,
+                                    pts, np.zeros((1, 0), dtype=np.int32))
         if keep[0]:
             blocks.append((pts, np.zeros((1, 0), np.int32), np.zeros((1, 0), np.int32)))
     for k in sorted(candidates):
@@ -192,8 +193,8 @@ def specular_paths(geom: Geometry, tx_pos, rx_pos, candidates, line_of_sight=Tru
         if len(seqs) == 0:
             continue
         pts, ok = sp.image_points(tx_pos, rx_pos, geom.faces.normal, geom.faces.offset, seqs)
-        keep, tris = sp.confirm_paths(geom.caster, geom.faces.tri_face, geom.faces.normal,
-                                      pts, seqs, ok)
+        keep, tris = confirm_paths(geom.caster, geom.faces.tri_face, geom.faces.normal,
+                                   pts, seqs, ok)
         if keep.any():
             blocks.append((pts[keep], seqs[keep], tris[keep]))
     P = sum(len(b[0]) for b in blocks)
@@ -240,8 +241,8 @@ def surface_contact_paths(geom: Geometry, tx: Radar, rx: Radar) -> Paths:
         on = np.flatnonzero((np.abs(dist) <= tol) & (np.abs(off) > tol))
         if len(on) == 0:
             continue
-        tri = sp.containing_triangles(np.broadcast_to(end, (len(on), 3)), on,
-                                      np.full(len(on), -1), scene.triangles, faces.tri_face)
+        tri = containing_triangles(np.broadcast_to(end, (len(on), 3)), on,
+                                   np.full(len(on), -1), scene.triangles, faces.tri_face)
         for f, t in zip(on[tri >= 0], tri[tri >= 0], strict=True):
             rows.append((int(f), int(t), at_tx))
     if not rows:
