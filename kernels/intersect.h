@@ -22,6 +22,20 @@
 
 #include "types.h"
 
+/* From the host (clradcom/geometry/layout.py), like BVH_WIDTH in types.h. */
+#ifndef BVH_STACK_SIZE
+#error "BVH_STACK_SIZE must be passed as -D by the host"
+#endif
+#ifndef TRI4_ROWS
+#error "TRI4_ROWS must be passed as -D by the host"
+#endif
+#if TRI4_ROWS != 9
+#error "ray_tri4 reads three vertices of three coordinates: TRI4_ROWS must be 9"
+#endif
+#ifndef LEAF_GROUP_BITS
+#error "LEAF_GROUP_BITS must be passed as -D by the host"
+#endif
+
 #ifdef cl_khr_fp64
 #pragma OPENCL EXTENSION cl_khr_fp64 : enable
 #define CLRADCOM_HAS_FP64 1
@@ -100,13 +114,12 @@ CLR_INLINE PreparedRay prepare_ray(float3 org, float3 dir)
     return r;
 }
 
-/* A Tri4 group is 9 float4 rows (144 bytes): row 3*j + k holds coordinate k
- * (x, y, z) of vertex j of four triangles, one per lane, so the shear frame
- * picks its rows by index, without shuffles. Leaf slot s is lane s % 4 of
- * group s / 4; lanes past a leaf's last triangle repeat that triangle (an
- * equal t never replaces a hit, and a repeat has the same scene id, so
- * ignore_prim treats it alike). See clradcom/raycast.py: tri4_groups. */
-#define TRI4_ROWS 9
+/* A Tri4 group is TRI4_ROWS = 9 float4 rows (144 bytes): row 3*j + k holds
+ * coordinate k (x, y, z) of vertex j of four triangles, one per lane, so the
+ * shear frame picks its rows by index, without shuffles. Leaf slot s is lane
+ * s % 4 of group s / 4; lanes past a leaf's last triangle repeat that triangle
+ * (an equal t never replaces a hit, and a repeat has the same scene id, so
+ * ignore_prim treats it alike). See clradcom/geometry/layout.py: tri4_groups. */
 
 #define ANY4(m) (((m).s0 | (m).s1 | (m).s2 | (m).s3) != 0)
 
@@ -169,15 +182,16 @@ CLR_INLINE float3 tri4_normal(__global const float4 *tri4, int slot)
 
 /* A child code (and a traversal stack entry) is one int: an inner child's
  * record index (> 0; record 0 is the root), or a leaf as
- * -(first_group * 32 + groups) - 1 (at most 31 Tri4 groups); empty slots hold
- * 0 and have +inf/-inf bounds, which no ray can hit. */
-#define LEAF_CODE(first, count) (-((first) * 32 + (count)) - 1)
+ * -(first_group << LEAF_GROUP_BITS | groups) - 1 (at most LEAF_GROUP_MASK Tri4
+ * groups); empty slots hold 0 and have +inf/-inf bounds, which no ray can hit. */
+#define LEAF_GROUP_MASK ((1 << LEAF_GROUP_BITS) - 1)
+#define LEAF_CODE(first, count) (-(((first) << LEAF_GROUP_BITS) + (count)) - 1)
 
-/* Every Bvh8Node on a root-to-leaf path stands for at least one level of the
- * binary tree (depth <= 64, clradcom.bvh.build_bvh max_depth) and pushes at
- * most 7 entries; clradcom/raycast.py: bvh8_nodes computes the tree's exact
- * need and refuses a tree that needs more than this. */
-#define BVH_STACK_SIZE 192
+/* BVH_STACK_SIZE: every Bvh8Node on a root-to-leaf path stands for at least
+ * one level of the binary tree (depth <= 64, clradcom.geometry.bvh.build_bvh
+ * max_depth) and pushes at most 7 entries; clradcom/geometry/layout.py:
+ * bvh8_nodes computes the tree's exact need and refuses a tree that needs more
+ * than the host's BVH_STACK_SIZE. */
 
 /* Entry distances of the ray into the eight child boxes of a record, and
  * the mask of boxes hit in [tmin, tmax]. Empty slots never hit: their +inf
@@ -231,7 +245,7 @@ CLR_INLINE int bvh_closest(__global const Bvh8Node *nodes, __global const float4
     for (;;) {
         if (code < 0) {
             int packed = -code - 1;
-            int first = packed >> 5, last = first + (packed & 31);
+            int first = packed >> LEAF_GROUP_BITS, last = first + (packed & LEAF_GROUP_MASK);
             for (int gi = first; gi < last; ++gi) {
                 float4 T, det, V, W;
                 int4 ok = ray_tri4(r, tri4 + gi * TRI4_ROWS, tmin, tmax, &T, &det, &V, &W);
@@ -323,7 +337,7 @@ CLR_INLINE bool bvh_any(__global const Bvh8Node *nodes, __global const float4 *t
     for (;;) {
         if (code < 0) {
             int packed = -code - 1;
-            int first = packed >> 5, last = first + (packed & 31);
+            int first = packed >> LEAF_GROUP_BITS, last = first + (packed & LEAF_GROUP_MASK);
             for (int gi = first; gi < last; ++gi) {
                 float4 T, det, V, W;
                 int4 ok = ray_tri4(r, tri4 + gi * TRI4_ROWS, tmin, tmax, &T, &det, &V, &W);

@@ -1,7 +1,8 @@
-/* Reports the device's sizes and member offsets of the shared structs so the
- * host can prove its numpy dtypes match (tests/test_opencl.py). OpenCL C has
+/* Reports the device's sizes and member offsets of the shared structs, and the
+ * numbers the host passed as -D options as the kernels' headers see them, so
+ * the host can prove both match its own (tests/test_opencl.py). OpenCL C has
  * no offsetof, so offsets are pointer differences within a local instance. */
-#include "types.h"
+#include "intersect.h"
 
 #define MEMBER_OFFSET(s, m) ((int)((const char *)&(s).m - (const char *)&(s)))
 
@@ -29,4 +30,15 @@ __kernel void struct_layout(__global int *out)
     out[14] = MEMBER_OFFSET(b8, maxx);
     out[15] = MEMBER_OFFSET(b8, child);
     out[16] = MEMBER_OFFSET(b8, pad);
+}
+
+/* In the order of clradcom.device.raycast.KERNEL_DEFINES. */
+__kernel void build_constants(__global int *out)
+{
+    if (get_global_id(0) != 0) return;
+    out[0] = BVH_WIDTH;
+    out[1] = BVH_STACK_SIZE;
+    out[2] = TRI4_ROWS;
+    out[3] = LEAF_GROUP_BITS;
+    out[4] = SPAWN_OFFSET_ROUNDOFFS;
 }

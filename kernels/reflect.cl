@@ -5,13 +5,20 @@
  * nothing here needs to be exact: float32 geometry is enough. */
 #include "intersect.h"
 
+/* The host's spawn_origins offset (clradcom/device/raycast.py), so a bounce on
+ * the device leaves a surface exactly as far as one on the host. */
+#ifndef SPAWN_OFFSET_ROUNDOFFS
+#error "SPAWN_OFFSET_ROUNDOFFS must be passed as -D by the host"
+#endif
+
 /* Push a point off the surface it lies on, toward the side the ray leaves
  * into, by a float32 error bound that grows with |p| (as spawn_origins does
  * on the host). */
 inline float3 spawn_point(float3 p, float3 n, float3 dir)
 {
     float3 ap = fabs(p);
-    float bound = 8.0f * 0.5f * FLT_EPSILON * (fmax(fmax(ap.x, ap.y), ap.z) + 1.0f);
+    float bound = SPAWN_OFFSET_ROUNDOFFS * 0.5f * FLT_EPSILON
+                  * (fmax(fmax(ap.x, ap.y), ap.z) + 1.0f);
     return p + ((dot(n, dir) >= 0.0f) ? bound : -bound) * n;
 }
 

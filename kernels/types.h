@@ -1,10 +1,20 @@
 /* Structs shared between host and kernels. The host mirrors each one with a
- * numpy dtype in clradcom/raycast.py (and clradcom/bvh.py for BVHNode); a test
- * checks the sizes agree. No float3 in shared structs: its 16-byte alignment
- * differs between host and device, so every member is a scalar or array and
- * padding is explicit. */
+ * numpy dtype in clradcom/device/raycast.py (clradcom/geometry/bvh.py for
+ * BVHNode, clradcom/geometry/layout.py for Bvh8Node); a test checks the sizes
+ * agree. No float3 in shared structs: its 16-byte alignment differs between
+ * host and device, so every member is a scalar or array and padding is
+ * explicit. */
 #ifndef CLRADCOM_TYPES_H
 #define CLRADCOM_TYPES_H
+
+/* Shared numbers come from the host (clradcom/geometry/layout.py) as -D options,
+ * never from a copy here that could drift from it. */
+#ifndef BVH_WIDTH
+#error "BVH_WIDTH must be passed as -D by the host"
+#endif
+#if BVH_WIDTH != 8
+#error "the traversal tests a record's child boxes as one float8: BVH_WIDTH must be 8"
+#endif
 
 /* 32 bytes. Inner node: count == 0, children at left_first and left_first+1.
  * Leaf: count > 0 triangles at tri_index[left_first .. left_first+count). */
@@ -15,7 +25,7 @@ typedef struct {
     int count;
 } BVHNode;
 
-/* 256 bytes: the 8-wide traversal layout (clradcom/raycast.py: bvh8_nodes),
+/* 256 bytes: the 8-wide traversal layout (clradcom/geometry/layout.py: bvh8_nodes),
  * collapsed on the host from the binary BVHNode tree. Bounds are stored per
  * axis for the eight child slots (structure of arrays, 32-byte rows) so one
  * float8 op tests all eight. child[i] > 0: an inner child, its record index;
@@ -23,14 +33,14 @@ typedef struct {
  * (kernels/intersect.h); child[i] == 0: an empty slot (record 0 is the root,
  * never a child), whose bounds are +inf / -inf so that no ray hits it. */
 typedef struct {
-    float minx[8];
-    float miny[8];
-    float minz[8];
-    float maxx[8];
-    float maxy[8];
-    float maxz[8];
-    int child[8];
-    int pad[8];
+    float minx[BVH_WIDTH];
+    float miny[BVH_WIDTH];
+    float minz[BVH_WIDTH];
+    float maxx[BVH_WIDTH];
+    float maxy[BVH_WIDTH];
+    float maxz[BVH_WIDTH];
+    int child[BVH_WIDTH];
+    int pad[BVH_WIDTH];
 } Bvh8Node;
 
 /* 32 bytes. A hit is accepted for tmin < t < tmax. */

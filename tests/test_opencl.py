@@ -4,15 +4,18 @@ import pytest
 
 from clradcom.cli import main as cli_main
 from clradcom.device import runtime as opencl
-from clradcom.device.raycast import BVH8_NODE_DTYPE, HIT_DTYPE, RAY_DTYPE
+from clradcom.device.raycast import HIT_DTYPE, KERNEL_DEFINES, RAY_DTYPE, SPAWN_OFFSET_ROUNDOFFS
 from clradcom.device.runtime import (
     OpenCLError,
     Runtime,
     choose_device,
+    define_options,
     kernel_source,
     list_devices,
 )
+from clradcom.geometry import layout
 from clradcom.geometry.bvh import BVH_NODE_DTYPE
+from clradcom.geometry.layout import BVH8_NODE_DTYPE
 
 
 def test_device_list_and_default_is_gpu_or_pocl():
@@ -84,13 +87,43 @@ def test_build_error_names_file_line_and_log(runtime):
 
 
 def test_programs_are_cached_per_runtime(runtime):
-    assert runtime.program("raycast.cl") is runtime.program("raycast.cl")
+    prog = runtime.program("raycast.cl", defines=KERNEL_DEFINES)
+    assert runtime.program("raycast.cl", defines=dict(reversed(KERNEL_DEFINES.items()))) is prog
     other = Runtime(runtime.info.spec)
-    assert other.program("raycast.cl") is not runtime.program("raycast.cl")
+    assert other.program("raycast.cl", defines=KERNEL_DEFINES) is not prog
+
+
+def test_define_options_are_integer_macros():
+    assert define_options({"B": 2, "A": np.int32(1)}) == ("-DA=1", "-DB=2")
+    assert define_options(None) == ()
+    with pytest.raises(ValueError, match="not a C macro name"):
+        define_options({"A B": 1})
+    with pytest.raises(ValueError, match="must be an integer"):
+        define_options({"A": 1.5})
+
+
+@pytest.mark.parametrize("missing", list(KERNEL_DEFINES))
+def test_a_build_without_a_host_number_fails_naming_it(runtime, missing):
+    defines = {k: v for k, v in KERNEL_DEFINES.items() if k != missing}
+    with pytest.raises(OpenCLError, match=f"{missing} must be passed as -D by the host"):
+        runtime.build(kernel_source("reflect.cl"), "reflect.cl", defines=defines)
+
+
+def test_kernels_see_the_hosts_numbers(runtime):
+    prog = runtime.program("layout.cl", defines=KERNEL_DEFINES)
+    out = np.zeros(len(KERNEL_DEFINES), dtype=np.int32)
+    buf = runtime.empty(out.nbytes)
+    prog.build_constants(runtime.queue, (1,), None, buf)
+    cl.enqueue_copy(runtime.queue, out, buf)
+    expected = {"BVH_WIDTH": layout.BVH_WIDTH, "BVH_STACK_SIZE": layout.BVH_STACK_SIZE,
+                "TRI4_ROWS": layout.TRI4_ROWS, "LEAF_GROUP_BITS": layout.LEAF_GROUP_BITS,
+                "SPAWN_OFFSET_ROUNDOFFS": SPAWN_OFFSET_ROUNDOFFS}
+    assert KERNEL_DEFINES == expected
+    assert dict(zip(KERNEL_DEFINES, out.tolist(), strict=True)) == expected
 
 
 def test_host_dtypes_match_kernel_structs(runtime):
-    prog = runtime.program("layout.cl")
+    prog = runtime.program("layout.cl", defines=KERNEL_DEFINES)
     out = np.zeros(17, dtype=np.int32)
     buf = runtime.empty(out.nbytes)
     prog.struct_layout(runtime.queue, (1,), None, buf)

@@ -15,9 +15,10 @@ import trimesh
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from clradcom.device import raycast
-from clradcom.device.raycast import RayCaster, bvh8_nodes, make_rays, spawn_origins, tri4_groups
+from clradcom.device.raycast import RayCaster, make_rays, spawn_origins
+from clradcom.geometry import layout
 from clradcom.geometry.bvh import build_bvh
+from clradcom.geometry.layout import LEAF_GROUP_BITS, MAX_LEAF_GROUPS, bvh8_nodes, tri4_groups
 
 MARGIN_ULPS = 64  # float32 ulps of the coordinates where rounding may decide either way
 
@@ -326,7 +327,7 @@ def test_bvh8_records_reach_every_group_once_inside_their_boxes():
                 todo.append((c, lo[r, k], hi[r, k]))
                 continue
             packed = -c - 1
-            g0, ng = packed >> 5, packed & 31
+            g0, ng = packed >> LEAF_GROUP_BITS, packed & MAX_LEAF_GROUPS
             seen_groups[g0:g0 + ng] += 1
             v = tri4[g0:g0 + ng].reshape(ng, 3, 3, 4)   # group, vertex, xyz, lane
             assert (v.min(axis=(1, 3)) >= lo[r, k]).all() and (v.max(axis=(1, 3)) <= hi[r, k]).all()
@@ -341,7 +342,7 @@ def test_bvh8_refuses_a_tree_deeper_than_the_kernel_stack(monkeypatch):
     tris = rng.uniform(-1, 1, (3000, 3, 3)) * 0.05 + rng.uniform(-1, 1, (3000, 1, 3))
     bvh = build_bvh(tris)
     bvh8_nodes(bvh.nodes)
-    monkeypatch.setattr(raycast, "BVH_STACK_SIZE", 8)
+    monkeypatch.setattr(layout, "BVH_STACK_SIZE", 8)
     with pytest.raises(ValueError, match="traversal stack"):
         bvh8_nodes(bvh.nodes)
 

@@ -212,7 +212,7 @@ def test_shadow_boundary_is_continuous(runtime, offset):
     the diffracted field jumps by the same amount: the total (Fresnel's knife edge,
     |E/E0| = 1/2 on the boundary) is continuous.  Code: the line of sight is confirmed by a
     float32 any-hit cast that is re-decided in float64 against the face it hit
-    (specular.blocked_in_float64), so it switches off where the float64 UTD coefficient
+    (visibility.blocked_in_float64), so it switches off where the float64 UTD coefficient
     changes side, down to 1e-6 m of the edge even 1 km from the origin; the complex total
     is continuous across the boundary within 0.01 of the free-space field.  (Without the
     float64 re-check a 30 um band under the edge at 1 km lost the line of sight while the
@@ -257,7 +257,7 @@ def test_reflection_boundary_is_continuous(runtime, pol, offset):
     """Physics: as the specular point crosses the rim of a plate the reflected ray vanishes
     and the rim's diffracted field takes over continuously.  Code: whether the exact
     (float64) reflection point lies inside the plate is decided in float64
-    (specular.containing_triangles), not by the float32 hit, so the reflection appears
+    (visibility.containing_triangles), not by the float32 hit, so the reflection appears
     exactly where the rim's UTD coefficient changes side; the complex sum of reflection
     and diffraction is continuous within 1e-3 of the line of sight across +-1e-7 m (at
     1 km: +-2e-5 m, inside the float32 resolution there) and smooth to +-1e-4 m.
@@ -662,7 +662,7 @@ def top_edge_index(p, o):
 def test_seams_of_a_tessellated_wall_stay_closed(runtime, offset):
     """Physics: a wall tessellated into 32 triangles blocks every ray through it, seams and
     vertices included.  Code: the float64 re-check of a blocked line of sight
-    (specular.blocked_in_float64) tests the crossing point against every triangle of the
+    (visibility.blocked_in_float64) tests the crossing point against every triangle of the
     hit face with a 1e-9 relative tolerance, so oblique lines of sight through shared
     vertices, along-grid seams and diagonal seams of a tilted wall (where rounding puts
     the crossing a hair outside the triangle the float32 cast hit) stay blocked, 1 km

@@ -16,7 +16,9 @@ Kernel sources live in ``kernels/`` (installed as ``clradcom.kernels``) and
 are read through :mod:`importlib.resources`, so an installed copy finds them.
 ``#include "x.h"`` lines are expanded on the host with ``#line`` markers:
 compiler messages still name the original file and line, and no vendor
-binary cache can serve a program built against a stale header.
+binary cache can serve a program built against a stale header. Numbers the
+host and the kernels share reach a build as ``defines`` (``-D NAME=value``),
+so the host is their only source.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ import importlib.resources
 import os
 import re
 import threading
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -201,6 +204,22 @@ def kernel_source(name: str) -> str:
     return expand(name, ())
 
 
+_MACRO_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+
+
+def define_options(defines: Mapping[str, int] | None) -> tuple[str, ...]:
+    """``-D NAME=value`` build options for integer macros, sorted so that equal
+    mappings give one program cache key."""
+    options = []
+    for name, value in sorted((defines or {}).items()):
+        if not _MACRO_NAME.fullmatch(name):
+            raise ValueError(f"{name!r} is not a C macro name")
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+            raise ValueError(f"macro {name} must be an integer, got {value!r}")
+        options.append(f"-D{name}={int(value)}")
+    return tuple(options)
+
+
 def _format_build_log(name: str, log: str) -> str:
     lines = [ln for ln in log.splitlines() if ln.strip()]
     located = [ln for ln in lines if re.search(r"[\w.]+\.(cl|h):\d+", ln)]
@@ -226,9 +245,12 @@ class Runtime:
     def has_double(self) -> bool:
         return self.info.has_double
 
-    def program(self, name: str, options: tuple[str, ...] = ()):
-        """Built program for ``kernels/<name>``, compiled once per runtime and options."""
-        key = (name, tuple(options))
+    def program(self, name: str, options: tuple[str, ...] = (),
+                defines: Mapping[str, int] | None = None):
+        """Built program for ``kernels/<name>``, compiled once per runtime, options and
+        defines."""
+        options = tuple(options) + define_options(defines)
+        key = (name, options)
         with self._lock:
             prog = self._programs.get(key)
             if prog is None:
@@ -236,9 +258,11 @@ class Runtime:
                 self._programs[key] = prog
             return prog
 
-    def kernel(self, name: str, kernel_name: str, options: tuple[str, ...] = ()):
+    def kernel(self, name: str, kernel_name: str, options: tuple[str, ...] = (),
+               defines: Mapping[str, int] | None = None):
         """One cached Kernel object per (program, kernel): pyopencl makes a new one per lookup."""
-        key = (name, tuple(options), kernel_name)
+        options = tuple(options) + define_options(defines)
+        key = (name, options, kernel_name)
         with self._lock:
             k = self._kernels.get(key)
         if k is None:
@@ -247,9 +271,11 @@ class Runtime:
                 self._kernels.setdefault(key, k)
         return k
 
-    def build(self, source: str, name: str, options: tuple[str, ...] = ()):
+    def build(self, source: str, name: str, options: tuple[str, ...] = (),
+              defines: Mapping[str, int] | None = None):
         """Compile ``source``; a failure raises OpenCLError naming file, line and log."""
         cl = _cl()
+        options = tuple(options) + define_options(defines)
         try:
             return cl.Program(self.context, source).build(options=list(options))
         except cl.RuntimeError as exc:

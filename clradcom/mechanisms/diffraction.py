@@ -37,6 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from clradcom.device.raycast import make_rays, spawn_origins
+from clradcom.device.visibility import confirm_slack, reaches_face, segments_clear
 from clradcom.errors import ArgumentError, BoundaryWarning, CausticWarning
 from clradcom.geometry.wedges import (
     Wedges,
@@ -52,8 +53,6 @@ from clradcom.scene.records import Radar
 #: Segments leave the edge point from this far along themselves (m), past the
 #: float32 rounding of the faces that meet at the edge.
 EDGE_CLEARANCE_M = 1e-3
-#: A reflection point found on a segment must land on its face within this (m).
-CONFIRM_TOL_M = 1e-3
 #: A ray this close (rad) to a wedge face grazes it: phi is snapped onto the face.
 GRAZING_RAD = 1e-6
 #: A diffraction this close (rad) to a shadow or reflection boundary is "on" it.
@@ -280,9 +279,11 @@ def confirm_chains(caster, tri_face, face_normal, chains: Chains, points, ok=Non
 
     Toward a reflection point the segment must first meet that face at the point (which
     proves the point lies inside the face and nothing stands in between); toward a
-    diffraction point or the receiver nothing may block it. Segments leave reflection
-    points from just off the face and diffraction points from EDGE_CLEARANCE_M along
-    themselves.
+    diffraction point or the receiver nothing may block it. Both are decided as for
+    specular paths, in float64 where float32 rounding could flip them
+    (:func:`clradcom.device.visibility.reaches_face`,
+    :func:`clradcom.device.visibility.segments_clear`). Segments leave reflection points
+    from just off the face and diffraction points from EDGE_CLEARANCE_M along themselves.
     """
     pattern, elem = chains.pattern, chains.elements
     C, K = elem.shape
@@ -303,18 +304,14 @@ def confirm_chains(caster, tri_face, face_normal, chains: Chains, points, ok=Non
             tmin = EDGE_CLEARANCE_M / np.maximum(length, 1e-12)
         if i < K and pattern[i] == DIFFRACTION:
             end = end + EDGE_LIFT_M * lift_direction(wedges, elem[idx, i], -seg)
-        seg = end - start
-        slack = (CONFIRM_TOL_M + 1e-6 * np.abs(end).max(axis=1)) / np.maximum(length, 1e-12)
+        slack = confirm_slack(end, length)
         if i < K and pattern[i] == REFLECTION:
-            hits = caster.closest_hit(make_rays(start, seg, tmin=tmin, tmax=1.0 + 2 * slack))
-            prim = hits["prim"]
-            hit_face = np.where(prim >= 0, np.asarray(tri_face)[np.maximum(prim, 0)], -1)
-            good = (hit_face == elem[idx, i]) & (np.abs(hits["t"] - 1.0) <= slack)
-            triangles[idx, i] = prim
+            tri = reaches_face(caster, tri_face, start, end, elem[idx, i], slack, tmin)
+            good = tri >= 0
+            triangles[idx, i] = tri
         else:
             stop = EDGE_CLEARANCE_M / np.maximum(length, 1e-12) if i < K else slack
-            good = ~caster.occluded(make_rays(start, seg, tmin=tmin, tmax=1.0 - stop))
-            good &= length > 0
+            good = segments_clear(caster, tri_face, start, end, tmin, 1.0 - stop) & (length > 0)
         keep[idx[~good]] = False
         idx = idx[good]
     triangles[~keep] = -1

@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from clradcom.device.raycast import make_rays, spawn_origins
+from clradcom.device.visibility import surface_sees
 from clradcom.paths import InteractionType, Paths
 from clradcom.physics import em
 from clradcom.physics.po import po_transfer
@@ -55,8 +55,9 @@ def po_paths(geom, tx, rx, *, objects=None, min_relative_db=-80.0, two_sided=Fal
       ``two_sided=True`` also accepts both on the back side (open sheets with
       arbitrary winding), using -n there;
     * visibility: no triangle (other than the facet itself) hit on the segments
-      centroid -> tx and centroid -> rx (``geom.caster.occluded``, origins spawned
-      off the facet).
+      centroid -> tx and centroid -> rx
+      (:func:`clradcom.device.visibility.surface_sees`, origins spawned off the
+      facet).
 
     Each path: points [tx, centroid, rx], n_interactions 1, interaction
     REFLECTION (a PO facet term, not a specular point), object_id, face_id = the
@@ -104,10 +105,7 @@ def po_paths(geom, tx, rx, *, objects=None, min_relative_db=-80.0, two_sided=Fal
     # visibility of the centroid from tx and rx
     vis = np.ones(len(tri_ids), dtype=bool)
     for end in (tx_pos, rx_pos):
-        dirs = end[None, :] - c
-        org = spawn_origins(c, nrm, dirs)
-        rays = make_rays(org, end[None, :] - org, 0.0, 1.0 - 1e-7)
-        vis &= ~geom.caster.occluded(rays, ignore_prim=tri_ids.astype(np.int32))
+        vis &= surface_sees(geom.caster, c, nrm, end, tri_ids)
     if not vis.any():
         return Paths.empty(1)
     tri_ids, v, nrm, c = tri_ids[vis], v[vis], nrm[vis], c[vis]

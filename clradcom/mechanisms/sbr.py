@@ -35,6 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from clradcom.device.raycast import make_rays, spawn_origins
+from clradcom.device.visibility import surface_sees
 from clradcom.paths import InteractionType, Paths
 from clradcom.physics import em
 from clradcom.physics.po import sinc
@@ -274,10 +275,8 @@ def _radiate(geom, hits: TubeHits, grid: TubeGrid, tx, rx):
     ok &= np.einsum("ij,ij->i", s, n) > 0
     keep = np.flatnonzero(ok)
     if len(keep):
-        org = spawn_origins(p[keep], n[keep], s[keep])
-        rays = make_rays(org, rx_pos[None, :] - org, 0.0, 1.0 - 1e-7)
-        blocked = geom.caster.occluded(rays, ignore_prim=hits.triangle[keep].astype(np.int32))
-        keep = keep[~blocked]
+        keep = keep[surface_sees(geom.caster, p[keep], n[keep], rx_pos, hits.triangle[keep],
+                                 leave_direction=s[keep])]
     p, n, s, R_r = p[keep], n[keep], s[keep], R_r[keep]
     k_in, L_in = hits.k_in[keep], hits.length[keep]
     dom = grid.solid_angle[hits.tube[keep]]

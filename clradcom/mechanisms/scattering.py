@@ -39,11 +39,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from clradcom.device.raycast import make_rays, spawn_origins
+from clradcom.device.visibility import confirm_margin_m, confirm_slack, reaches_face, surface_sees
 from clradcom.errors import ArgumentError
 from clradcom.geometry.triangles import point_triangle_distance
 from clradcom.mechanisms.common import Geometry, check_number
-from clradcom.mechanisms.specular import CONFIRM_TOL_M
 from clradcom.paths import InteractionType, Paths
 from clradcom.physics import em
 from clradcom.scene.antenna import pattern_peak_gain
@@ -271,9 +270,10 @@ def reflection_legs(geom, end, q, nrm, tri_ids, tiles, face_ids, lo, hi):
     tile's front facing the image end' of ``end``, the reflection point p (where
     tile -> end' crosses the plane) inside the face's box; then two ray casts
     confirm the leg: ``end -> p`` must first meet that face at p (so p lies
-    inside the face and nothing blocks it; the tolerances of
-    :func:`clradcom.specular.confirm_paths`), and nothing may lie between the
-    tile (origin spawned off it, its own triangle ignored) and p.  The same
+    inside the face and nothing blocks it;
+    :func:`clradcom.device.visibility.reaches_face`, as for specular paths), and
+    nothing may lie between the tile (origin spawned off it, its own triangle
+    ignored) and p.  The same
     function serves prefixes (end = tx) and suffixes (end = rx), so a path and
     its reverse are confirmed by identical rays.
 
@@ -294,7 +294,7 @@ def reflection_legs(geom, end, q, nrm, tri_ids, tiles, face_ids, lo, hi):
         ok &= np.einsum("pi,pi->p", nn, img - qq) > 0
         t = sq / (sq + se)  # fraction of the way from the tile to the image
         p = qq + t[:, None] * (img - qq)
-        tol = CONFIRM_TOL_M + 1e-6 * np.abs(p).max(axis=1, initial=0.0)[:, None]
+        tol = confirm_margin_m(p)[:, None]
         ok &= np.all((p >= lo[f] - tol) & (p <= hi[f] + tol), axis=1)
         sel = np.flatnonzero(ok)
         cols[0].append(sel)
@@ -310,33 +310,21 @@ def reflection_legs(geom, end, q, nrm, tri_ids, tiles, face_ids, lo, hi):
     img = np.concatenate(cols[3])
     tile = np.asarray(tiles)[loc]
     # end -> p: the first thing met must be this face, at p
-    seg = p - end
-    length = np.linalg.norm(seg, axis=1)
-    slack = (CONFIRM_TOL_M + 1e-6 * np.abs(p).max(axis=1)) / np.maximum(length, 1e-12)
-    hits = geom.caster.closest_hit(make_rays(np.broadcast_to(end, p.shape), seg, 0.0,
-                                             1.0 + 2.0 * slack))
-    prim = hits["prim"]
-    hit_face = np.where(prim >= 0, geom.faces.tri_face[np.maximum(prim, 0)], -1)
-    good = (hit_face == face) & (np.abs(hits["t"] - 1.0) <= slack)
+    start = np.broadcast_to(end, p.shape)
+    slack = confirm_slack(p, np.linalg.norm(p - start, axis=1))
+    prim = reaches_face(geom.caster, geom.faces.tri_face, start, p, face, slack)
+    good = prim >= 0
     # tile -> p: nothing in between (stop short of the mirror itself)
     idx = np.flatnonzero(good)
     if len(idx):
-        org = spawn_origins(q[tile[idx]], nrm[tile[idx]], p[idx] - q[tile[idx]])
-        d = p[idx] - org
-        sl = (CONFIRM_TOL_M + 1e-6 * np.abs(p[idx]).max(axis=1)) / np.linalg.norm(d, axis=1)
-        blocked = geom.caster.occluded(make_rays(org, d, 0.0, 1.0 - sl),
-                                       ignore_prim=tri_ids[tile[idx]].astype(np.int32))
-        good[idx[blocked]] = False
+        good[idx] = surface_sees(geom.caster, q[tile[idx]], nrm[tile[idx]], p[idx],
+                                 tri_ids[tile[idx]], stop_short_m=confirm_margin_m(p[idx]))
     return tile[good], face[good], p[good], img[good], prim[good].astype(np.int64)
 
 
 def _visible(geom, q, nrm, tri_ids, idx, end):
     """Mask over ``idx``: nothing between tile q and ``end`` (tile's triangle ignored)."""
-    if len(idx) == 0:
-        return np.zeros(0, dtype=bool)
-    org = spawn_origins(q[idx], nrm[idx], end[None, :] - q[idx])
-    rays = make_rays(org, end[None, :] - org, 0.0, 1.0 - 1e-7)
-    return ~geom.caster.occluded(rays, ignore_prim=tri_ids[idx].astype(np.int32))
+    return surface_sees(geom.caster, q[idx], nrm[idx], end, tri_ids[idx])
 
 
 def _mirror_dyads(scene, faces, face, k_in):
@@ -383,8 +371,8 @@ def scattering_paths(geom, tx, rx, *, tile_size_m=None, threshold_db=-60.0, seed
     * direct ``tx -> tile -> rx`` for every tile with its front towards both
       ends (n . (tx - q) > 0 and n . (rx - q) > 0, n the source triangle's
       winding normal, outward for a closed mesh) and nothing hit on q -> tx and
-      q -> rx (``geom.caster.occluded``, origins spawned off the tile, the
-      source triangle ignored);
+      q -> rx (:func:`clradcom.device.visibility.surface_sees`, origins spawned
+      off the tile, the source triangle ignored);
     * ``max_reflections >= 1``: prefix ``tx -> p -> tile -> rx`` and suffix
       ``tx -> tile -> p -> rx`` with one specular reflection at p on a face of
       :func:`mirror_faces` (``min_face_area_m2``), found by the image method

@@ -1,0 +1,257 @@
+"""Visibility for every mechanism: float32 casts on the device, re-decided in float64
+where their rounding could flip a path on or off.
+
+The caster answers in float32, whose resolution is tens of micrometres 1 km from the
+origin. Where a segment ends on a face's rim or passes an edge closer than that, the
+float32 answer may disagree with the float64 geometry the fields are computed from
+(the UTD terms of that rim or edge): the total field would then jump. So:
+
+* :func:`reaches_face` - a segment toward a reflection point must first meet that
+  face there; whether the point lies inside the face is decided in float64
+  (:func:`containing_triangles`);
+* :func:`segments_clear` - nothing may block a segment; a float32 "blocked" is
+  re-decided in float64 (:func:`blocked_in_float64`);
+* :func:`confirm_paths` - both along a chain of reflection points;
+* :func:`surface_sees` - a point on a surface (a facet, a tile, a ray-tube hit) sees
+  a target, the surface's own triangle ignored.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from clradcom.device.raycast import RayCaster, make_rays, spawn_origins
+
+#: A segment counts as reaching its reflection point when the first thing it
+#: meets is that face within this many metres (plus float32 resolution).
+CONFIRM_TOL_M = 1e-3
+#: A reflection point counts as inside a triangle when it lies at most this far
+#: outside an edge, relative to 1 + its largest coordinate (float64 rounding).
+INSIDE_TOL_REL = 1e-9
+#: A sight line from a surface point stops this fraction of its length short of its
+#: target, so the target's own surface (an antenna on a wall) does not block it.
+SIGHT_STOP = 1e-7
+
+
+def confirm_margin_m(end) -> np.ndarray:
+    """(S,) metres within which a segment counts as reaching ``end`` (S,3):
+    CONFIRM_TOL_M plus the float32 resolution at ``end``."""
+    return CONFIRM_TOL_M + 1e-6 * np.abs(end).max(axis=1)
+
+
+def confirm_slack(end, length) -> np.ndarray:
+    """:func:`confirm_margin_m` as a fraction of segments of ``length`` (m)."""
+    return confirm_margin_m(end) / np.maximum(length, 1e-12)
+
+
+def _edge_distances(points, tri):
+    """(C, 3) signed in-plane distances (m) of points inside the three edges of their
+    triangles (C, 3, 3): all >= 0 inside, negative outside."""
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    out = np.empty((len(points), 3))
+    for j in range(3):
+        a, b = tri[:, j], tri[:, (j + 1) % 3]
+        e = b - a
+        out[:, j] = np.einsum("ij,ij->i", np.cross(e, points - a), n) / np.linalg.norm(e, axis=1)
+    return out
+
+
+def containing_triangles(points, faces, prims, triangles, tri_face):
+    """The triangle of face ``faces[c]`` that holds ``points[c]`` in float64, or -1.
+
+    ``prims`` is a first guess per point (the float32 hit, -1 for none).  The float32
+    cast alone lets a reflection point up to its rounding (tens of um at 1 km) outside a
+    face's rim count as inside, and one inside count as outside; the UTD field of the
+    rim assumes the exact side, so the total field jumps there.  Decided here in
+    float64, the reflection appears and disappears where the edge diffraction
+    expects it.
+    """
+    points = np.asarray(points, dtype=np.float64)
+    faces = np.asarray(faces)
+    out = np.full(len(points), -1, dtype=np.int32)
+    if len(points) == 0:
+        return out
+    min_dist = -INSIDE_TOL_REL * (1.0 + np.abs(points).max(axis=1))
+    prims = np.asarray(prims)
+    guess = (prims >= 0) & (tri_face[np.maximum(prims, 0)] == faces)
+    g = np.flatnonzero(guess)
+    inside = np.all(_edge_distances(points[g], triangles[prims[g]]) >= min_dist[g, None], axis=1)
+    out[g[inside]] = prims[g[inside]]
+    rest = np.flatnonzero(out < 0)
+    if len(rest) == 0:
+        return out
+    # points whose first guess failed: the other triangles of their face, face by face,
+    # after a bounding-box cut (most such points lie well outside the face)
+    order = np.argsort(tri_face, kind="stable")
+    bounds = np.searchsorted(tri_face[order], [faces[rest], faces[rest] + 1])
+    for f in np.unique(faces[rest]):
+        pts_idx = rest[faces[rest] == f]
+        a, b = bounds[:, np.flatnonzero(faces[rest] == f)[0]]
+        cand = order[a:b]
+        tri = triangles[cand]
+        lo = tri.min(axis=(0, 1)) + min_dist[pts_idx, None]
+        hi = tri.max(axis=(0, 1)) - min_dist[pts_idx, None]
+        near = np.all((points[pts_idx] >= lo) & (points[pts_idx] <= hi), axis=1)
+        step = max(1, (1 << 18) // max(len(cand), 1))
+        for c0 in range(0, int(near.sum()), step):
+            sel = pts_idx[near][c0:c0 + step]
+            p = np.repeat(points[sel], len(cand), axis=0)
+            t = np.tile(tri, (len(sel), 1, 1))
+            dist = _edge_distances(p, t).reshape(len(sel), len(cand), 3)
+            inside = np.all(dist >= min_dist[sel, None, None], axis=2)
+            hit = inside.any(axis=1)
+            out[sel[hit]] = cand[np.argmax(inside[hit], axis=1)]
+    return out
+
+
+def blocked_in_float64(caster: RayCaster, tri_face, start, seg, tmax, max_rounds: int = 4,
+                       tmin=0.0):
+    """Re-decide segments a float32 any-hit cast called blocked: (S,) bool.
+
+    A segment that passes an edge closer than float32 resolution (tens of um at 1 km) may be
+    "blocked" by a triangle it misses.  On a shadow boundary that flips the line of
+    sight off while the UTD field of the edge, computed in float64, is still on its lit
+    side: the total field jumps.  Each round takes the closest float32 hit, crosses the
+    segment with that triangle's plane in float64 and keeps the segment blocked if the
+    crossing lies inside the triangle's face (:func:`containing_triangles`, so a ray
+    through a seam of a tessellated wall stays blocked); otherwise it looks past that
+    triangle.  Segments still undecided after ``max_rounds`` stay blocked.
+    """
+    start = np.asarray(start, dtype=np.float64)
+    seg = np.asarray(seg, dtype=np.float64)
+    tmax = np.broadcast_to(np.asarray(tmax, dtype=np.float64), (len(start),))
+    blocked = np.ones(len(start), dtype=bool)
+    todo = np.arange(len(start))
+    tmin = np.broadcast_to(np.asarray(tmin, dtype=np.float64), (len(start),)).copy()
+    ignore = np.full(len(start), -1, dtype=np.int32)
+    for _ in range(max_rounds):
+        if len(todo) == 0:
+            break
+        hits = caster.closest_hit(make_rays(start[todo], seg[todo], tmin[todo], tmax[todo]),
+                                  ignore_prim=ignore[todo])
+        prim = hits["prim"]
+        blocked[todo[prim < 0]] = False
+        todo, prim, t_hit = todo[prim >= 0], prim[prim >= 0], hits["t"][prim >= 0]
+        tri = caster.triangles[prim]
+        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        denom = np.einsum("ij,ij->i", n, seg[todo])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = np.einsum("ij,ij->i", n, tri[:, 0] - start[todo]) / denom
+        ok = np.isfinite(t) & (t >= tmin[todo]) & (t <= tmax[todo])
+        point = start[todo] + np.where(ok, t, 0.0)[:, None] * seg[todo]
+        inside = np.zeros(len(todo), dtype=bool)
+        inside[ok] = containing_triangles(point[ok], tri_face[prim[ok]], prim[ok],
+                                          caster.triangles, tri_face) >= 0
+        # inside: really blocked, decided; outside: look past this triangle
+        todo, prim, t_hit = todo[~inside], prim[~inside], t_hit[~inside]
+        tmin[todo] = np.maximum(tmin[todo], t_hit.astype(np.float64) * (1.0 - 1e-6))
+        ignore[todo] = prim
+    return blocked
+
+
+def reaches_face(caster: RayCaster, tri_face, start, end, faces, slack,
+                 tmin=0.0) -> np.ndarray:
+    """(S,) int32: the scene triangle of face ``faces[s]`` holding ``end[s]``, where the
+    segment start -> end first meets that face at ``end`` (within ``slack``, a fraction
+    of the segment, and past ``tmin``); -1 where it does not.
+
+    A float32 cast that slips past the face's rim and meets nothing also counts (that
+    proves nothing stands in between); whether ``end`` lies inside the face is then
+    decided in float64 (:func:`containing_triangles`), never by the float32 hit.
+    """
+    tri_face = np.asarray(tri_face)
+    start = np.asarray(start, dtype=np.float64)
+    end = np.asarray(end, dtype=np.float64)
+    faces = np.asarray(faces)
+    hits = caster.closest_hit(make_rays(start, end - start, tmin=tmin, tmax=1.0 + 2.0 * slack))
+    prim = hits["prim"]
+    hit_face = np.where(prim >= 0, tri_face[np.maximum(prim, 0)], -1)
+    reached = ((hit_face == faces) & (np.abs(hits["t"] - 1.0) <= slack)) | (prim < 0)
+    tri = np.full(len(start), -1, dtype=np.int32)
+    tri[reached] = containing_triangles(end[reached], faces[reached], prim[reached],
+                                        caster.triangles, tri_face)
+    return tri
+
+
+def segments_clear(caster: RayCaster, tri_face, start, end, tmin, tmax) -> np.ndarray:
+    """(S,) bool: nothing blocks the segments start -> end between the fractions
+    ``tmin`` and ``tmax`` of their length (scalars or (S,)).
+
+    A float32 "blocked" stands only if the blocker's face holds the crossing in
+    float64 (:func:`blocked_in_float64`).
+    """
+    start = np.asarray(start, dtype=np.float64)
+    seg = np.asarray(end, dtype=np.float64) - start
+    blocked = caster.occluded(make_rays(start, seg, tmin=tmin, tmax=tmax))
+    if blocked.any():
+        tmin = np.broadcast_to(np.asarray(tmin, dtype=np.float64), (len(start),))
+        tmax = np.broadcast_to(np.asarray(tmax, dtype=np.float64), (len(start),))
+        blocked[blocked] = blocked_in_float64(caster, np.asarray(tri_face), start[blocked],
+                                              seg[blocked], tmax[blocked],
+                                              tmin=tmin[blocked])
+    return ~blocked
+
+
+def confirm_paths(caster: RayCaster, tri_face, face_normals, points: np.ndarray,
+                  seqs: np.ndarray, ok: np.ndarray | None = None):
+    """Mask of candidate paths whose every segment is confirmed by a ray cast.
+
+    Returns (keep (C,) bool, triangles (C, k) int32): the scene triangle each
+    kept path's reflection points lie in (-1 where not confirmed).
+
+    Segment i runs from points[:, i] to points[:, i+1]. Toward a reflection
+    point it must reach that point's face there (:func:`reaches_face`); the
+    last segment must reach the receiver with nothing in between
+    (:func:`segments_clear`). Segments leave reflection points from just off
+    the face, on the side they leave into.
+    """
+    tri_face = np.asarray(tri_face)
+    C, k2, _ = points.shape
+    k = k2 - 2
+    keep = np.ones(C, dtype=bool) if ok is None else ok.copy()
+    triangles = np.full((C, k), -1, dtype=np.int32)
+    if C == 0:
+        return keep, triangles
+    idx = np.flatnonzero(keep)
+    for i in range(k + 1):
+        if len(idx) == 0:
+            break
+        start = points[idx, i]
+        end = points[idx, i + 1]
+        length = np.linalg.norm(end - start, axis=1)
+        if i > 0:
+            start = spawn_origins(start, face_normals[seqs[idx, i - 1]], end - start)
+        slack = confirm_slack(end, length)
+        if i < k:
+            tri = reaches_face(caster, tri_face, start, end, seqs[idx, i], slack)
+            good = tri >= 0
+            triangles[idx, i] = tri
+        else:
+            good = segments_clear(caster, tri_face, start, end, 0.0, 1.0 - slack) & (length > 0)
+        keep[idx[~good]] = False
+        idx = idx[good]
+    triangles[~keep] = -1
+    return keep, triangles
+
+
+def surface_sees(caster: RayCaster, points, normals, targets, ignore_prim, *,
+                 leave_direction=None, stop_short_m=None) -> np.ndarray:
+    """(S,) bool: nothing but the surface's own triangle ``ignore_prim`` lies between
+    the surface points (S,3) and their targets ((3,) or (S,3)).
+
+    The sight line starts just off the surface (:func:`spawn_origins`) on the side of
+    ``leave_direction`` (default: toward the target) and stops SIGHT_STOP of its
+    length short of the target, or ``stop_short_m`` metres short where given (a
+    target on a face that is not to block it).
+    """
+    points = np.asarray(points, dtype=np.float64)
+    targets = np.asarray(targets, dtype=np.float64)
+    if len(points) == 0:
+        return np.zeros(0, dtype=bool)
+    leave = targets - points if leave_direction is None else leave_direction
+    org = spawn_origins(points, normals, leave)
+    sight = targets - org
+    stop = SIGHT_STOP if stop_short_m is None else stop_short_m / np.linalg.norm(sight, axis=1)
+    rays = make_rays(org, sight, 0.0, 1.0 - stop)
+    return ~caster.occluded(rays, ignore_prim=np.asarray(ignore_prim).astype(np.int32))
