@@ -1,4 +1,4 @@
-"""Benchmark the numpy BVH builder (clradcom.bvh) against Embree's builder.
+"""Benchmark the numpy BVH builder (clradcom.geometry.bvh) against Embree's builder.
 
 Prints, for random and street-like triangle soups of 16 k, 100 k and 1 M triangles: build time
 (best of ``--repeat`` runs and the first, cold run), SAH cost, depth and mean leaf size, the SAH

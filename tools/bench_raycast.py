@@ -2,7 +2,7 @@
 """Ray-casting throughput of clradcom's OpenCL kernels beside Intel Embree.
 
 Both casters get exactly the same rays in the same run, on a synthetic street
-of ~22 k triangles (clradcom.models.street_triangles):
+of ~22 k triangles (clradcom.scene.models.street_triangles):
 
   primary  rays from a radar on a car's front bumper over the paper's
            90 deg azimuth x 180 deg elevation sector (Fibonacci lattice)
@@ -32,7 +32,7 @@ import numpy as np
 
 from clradcom.device.raycast import RayCaster, make_rays, spawn_origins
 from clradcom.device.runtime import get_runtime
-from clradcom.scene.models import street_triangles
+from clradcom.scene.reader.models import street_triangles
 
 
 def sector_directions(n: int, az_half_deg=45.0) -> np.ndarray:

@@ -63,7 +63,7 @@ from clradcom.evaluation import tradeoff as tr
 from clradcom.evaluation.tradeoff import BACKENDS, DEFAULT_SYNTHESIS, SETTING_COLUMNS
 from clradcom.mechanisms.scattering import scattering_triangle_bounds
 from clradcom.radar import Waveform
-from clradcom.scene.reader import load_scene
+from clradcom.scene.reader.reader import load_scene
 from clradcom.trace import TraceSettings
 
 
@@ -345,7 +345,7 @@ def finish(records, extra, args, wf, out) -> int:
     if n_pruned:
         print(f"\npruned below the floor over the {n_pruned} '+prune' runs: "
               + ", ".join(f"{v} {k}" for k, v in tr.pruned_totals(records).items()))
-    print("\ncheapest setting per accuracy target (clradcom.budget.choose_settings):")
+    print("\ncheapest setting per accuracy target (clradcom.evaluation.budget.choose_settings):")
     targets = tr.accuracy_targets(records, wf, args.target_nmse_db, args.target_enr_db,
                                   args.target_range_m, args.target_velocity_mps)
     for tg in targets:
