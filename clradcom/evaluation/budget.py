@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from clradcom.evaluation.accuracy import path_kind
+from clradcom.geometry.triangles import triangle_areas
 from clradcom.physics import em
 from clradcom.radar.processing import get_window
 from clradcom.radar.synthesis import thermal_noise_power
@@ -302,8 +303,7 @@ def scattering_triangle_bounds(scene, tx, rx, floor_power: float):
     if ids.size == 0:
         return ids, np.zeros(0), np.zeros(0, dtype=bool)
     tris = scene.triangles[ids]
-    area = 0.5 * np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]),
-                                axis=1)
+    area = triangle_areas(tris)
     r_i = _distance_to_triangles(tx.position, tris)
     r_s = _distance_to_triangles(rx.position, tris)
     S = S_mat[scene.tri_material[ids]]

@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from clradcom.errors import NOVALUE, SceneError, SceneWarning
+from clradcom.geometry.triangles import triangle_double_areas
 from clradcom.scene.antenna import (
     CosinePowerPattern,
     IsotropicPattern,
@@ -521,7 +522,7 @@ class _Builder:
         e1 = tri[:, 1] - tri[:, 0]
         e2 = tri[:, 2] - tri[:, 0]
         e3 = tri[:, 2] - tri[:, 1]
-        cross = np.linalg.norm(np.cross(e1, e2), axis=1)  # 2 * area
+        cross = triangle_double_areas(tri)  # 2 * area
         longest = np.max(np.stack([np.einsum("ij,ij->i", e, e) for e in (e1, e2, e3)]), axis=0)
         bad = cross <= _DEGENERATE_REL * longest
         if not bad.any():
