@@ -39,7 +39,7 @@ from clradcom.geometry.triangles import triangle_normals
 from clradcom.paths import InteractionType, Paths
 from clradcom.physics import em
 from clradcom.physics.po import sinc
-from clradcom.scene.reader import OPTICS
+from clradcom.scene.records import OPTICS
 
 __all__ = ["OPTICS_MODES", "TubeGrid", "TubeHits", "bounding_sphere", "launch_tubes",
            "shoot_tubes", "sbr_paths", "object_optics"]
