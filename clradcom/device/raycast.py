@@ -11,6 +11,7 @@ import threading
 import numpy as np
 
 from clradcom.device.runtime import Runtime, get_runtime
+from clradcom.geometry.bvh import build_bvh
 
 RAY_DTYPE = np.dtype(
     [("org", "<f4", (3,)), ("tmin", "<f4"), ("dir", "<f4", (3,)), ("tmax", "<f4")]
@@ -266,8 +267,6 @@ class RayCaster:
         self.runtime = runtime or get_runtime()
         self.triangles = triangles
         if bvh is None:
-            from clradcom.geometry.bvh import build_bvh
-
             # all three axes binned: ~10% faster casting for twice the (small) build time
             bvh = build_bvh(triangles, axes="all")
         self.bvh = bvh

@@ -31,7 +31,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from clradcom.evaluation.accuracy import path_kind
-from clradcom.geometry.triangles import triangle_areas
+from clradcom.geometry.triangles import point_triangle_distance, triangle_areas
+from clradcom.paths import select_paths
 from clradcom.physics import em
 from clradcom.radar.processing import get_window
 from clradcom.radar.synthesis import thermal_noise_power
@@ -208,8 +209,6 @@ def scene_gamma_max(scene, n_angles: int = 181) -> float:
 
 
 def _distance_to_triangles(point, triangles) -> np.ndarray:
-    from clradcom.geometry.triangles import point_triangle_distance
-
     return point_triangle_distance(np.asarray(point, dtype=np.float64), triangles)
 
 
@@ -371,8 +370,6 @@ def prune_paths(paths, floor_power: float, waveform: Waveform | None = None):
     path is dropped only when all the weak paths of its cell (:func:`radar_cells`)
     together stay below the floor even added in phase: (Σ|a|)² < floor.
     """
-    from clradcom.paths import select_paths
-
     p = _finite("floor_power", floor_power)
     if p < 0:
         raise ValueError(f"floor_power must be >= 0, got {floor_power!r}")
