@@ -21,6 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from clradcom.device.raycast import RayCaster, make_rays, spawn_origins
+from clradcom.geometry.triangles import triangle_cross_products, triangle_normals
 
 #: A segment counts as reaching its reflection point when the first thing it
 #: meets is that face within this many metres (plus float32 resolution).
@@ -47,8 +48,7 @@ def confirm_slack(end, length) -> np.ndarray:
 def _edge_distances(points, tri):
     """(C, 3) signed in-plane distances (m) of points inside the three edges of their
     triangles (C, 3, 3): all >= 0 inside, negative outside."""
-    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    n = triangle_normals(tri)
     out = np.empty((len(points), 3))
     for j in range(3):
         a, b = tri[:, j], tri[:, (j + 1) % 3]
@@ -134,7 +134,7 @@ def blocked_in_float64(caster: RayCaster, tri_face, start, seg, tmax, max_rounds
         blocked[todo[prim < 0]] = False
         todo, prim, t_hit = todo[prim >= 0], prim[prim >= 0], hits["t"][prim >= 0]
         tri = caster.triangles[prim]
-        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        n = triangle_cross_products(tri)
         denom = np.einsum("ij,ij->i", n, seg[todo])
         with np.errstate(divide="ignore", invalid="ignore"):
             t = np.einsum("ij,ij->i", n, tri[:, 0] - start[todo]) / denom

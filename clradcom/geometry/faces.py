@@ -18,6 +18,8 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from clradcom.geometry.triangles import triangle_normals_and_double_areas
+
 
 @dataclass(frozen=True)
 class Faces:
@@ -42,10 +44,8 @@ def triangle_planes(triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.n
     sign must compare equal.
     """
     tri = np.asarray(triangles, dtype=np.float64)
-    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    area2 = np.linalg.norm(n, axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
-        n = n / area2[:, None]
+        n, area2 = triangle_normals_and_double_areas(tri)
     big = np.argmax(np.abs(n), axis=1)
     sign = np.sign(n[np.arange(len(n)), big])
     sign[sign == 0] = 1.0

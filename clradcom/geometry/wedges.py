@@ -23,6 +23,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from clradcom.geometry.triangles import triangle_normals_and_double_areas
+
 __all__ = ["Wedges", "extract_wedges", "weld_vertices", "DiffractionPoint",
            "diffraction_point", "MultiDiffraction", "multi_diffraction_points"]
 
@@ -168,14 +170,12 @@ def extract_wedges(triangles, tri_object, tri_material, angle_threshold_deg: flo
     stats["weld_tol_m"] = tol
     vid = weld_vertices(pts, tol).reshape(T, 3)
 
-    normal_raw = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    area2 = np.linalg.norm(normal_raw, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        tri_normal, area2 = triangle_normals_and_double_areas(tri)
     longest = np.max(np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2), axis=1)
     good = (area2 > 1e-12 * longest**2) & (vid[:, 0] != vid[:, 1]) & (vid[:, 1] != vid[:, 2])
     good &= vid[:, 2] != vid[:, 0]
     stats["degenerate"] = int(T - np.count_nonzero(good))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        tri_normal = normal_raw / area2[:, None]
 
     # one row per (good triangle, local edge), triangle-major so ties keep triangle order
     li, lj, lk = np.array([0, 1, 2]), np.array([1, 2, 0]), np.array([2, 0, 1])

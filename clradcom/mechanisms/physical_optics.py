@@ -33,6 +33,7 @@ from __future__ import annotations
 import numpy as np
 
 from clradcom.device.visibility import surface_sees
+from clradcom.geometry.triangles import triangle_normals
 from clradcom.paths import InteractionType, Paths
 from clradcom.physics import em
 from clradcom.physics.po import po_transfer
@@ -87,8 +88,7 @@ def po_paths(geom, tx, rx, *, objects=None, min_relative_db=-80.0, two_sided=Fal
     tx_pos = np.asarray(tx.position, dtype=np.float64)
     rx_pos = np.asarray(rx.position, dtype=np.float64)
     v = scene.triangles[tri_ids]
-    nrm = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
-    nrm = nrm / np.linalg.norm(nrm, axis=-1, keepdims=True)
+    nrm = triangle_normals(v)
     c = v.mean(axis=1)
     st = np.einsum("fi,fi->f", nrm, tx_pos - c)
     sr = np.einsum("fi,fi->f", nrm, rx_pos - c)

@@ -36,6 +36,7 @@ import numpy as np
 
 from clradcom.device.raycast import make_rays, spawn_origins
 from clradcom.device.visibility import surface_sees
+from clradcom.geometry.triangles import triangle_normals
 from clradcom.paths import InteractionType, Paths
 from clradcom.physics import em
 from clradcom.physics.po import sinc
@@ -164,9 +165,7 @@ def _chains(scene, tri_history, k0_dir, m):
     k = 2.0 * np.pi * scene.carrier_hz / em.C0
     for j in range(m - 1):
         tri = tri_history[:, j]
-        v = scene.triangles[tri]
-        n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
-        n /= np.linalg.norm(n, axis=1, keepdims=True)
+        n = triangle_normals(scene.triangles[tri])
         mat = scene.tri_material[tri]
         dn = np.einsum("ij,ij->i", d, n)
         r_te, r_tm = em.fresnel_coefficients(scene.material_eps_r[mat], np.abs(dn),
@@ -194,8 +193,7 @@ def shoot_tubes(geom, tx_pos, grid: TubeGrid, max_bounces: int, first_bounce: in
     tx = np.asarray(tx_pos, dtype=np.float64)
     R = len(grid)
     tris_all = scene.triangles
-    nrm_all = np.cross(tris_all[:, 1] - tris_all[:, 0], tris_all[:, 2] - tris_all[:, 0])
-    nrm_all /= np.linalg.norm(nrm_all, axis=1, keepdims=True)
+    nrm_all = triangle_normals(tris_all)
     if record_triangles is None:
         record_triangles = np.ones(len(tris_all), dtype=bool)
     idx = np.arange(R)

@@ -41,7 +41,11 @@ import numpy as np
 
 from clradcom.device.visibility import confirm_margin_m, confirm_slack, reaches_face, surface_sees
 from clradcom.errors import ArgumentError
-from clradcom.geometry.triangles import point_triangle_distance
+from clradcom.geometry.triangles import (
+    point_triangle_distance,
+    triangle_areas,
+    triangle_normals_and_double_areas,
+)
 from clradcom.mechanisms.common import Geometry, check_number
 from clradcom.paths import InteractionType, Paths
 from clradcom.physics import em
@@ -87,11 +91,10 @@ def make_tiles(triangles, tile_size_m):
     if len(v) == 0:
         z = np.zeros((0, 3))
         return z, np.zeros(0), z.copy(), np.zeros(0, np.int64)
-    cr = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
-    two_a = np.linalg.norm(cr, axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):  # such triangles are refused below
+        nrm, two_a = triangle_normals_and_double_areas(v)
     if np.any(two_a == 0) or not np.all(np.isfinite(two_a)):
         raise ValueError("degenerate or non-finite triangle")
-    nrm = cr / two_a[:, None]
     ns = _subdivisions(v, tile_size_m)
     centres, areas, normals, ids = [], [], [], []
     cache = {}
@@ -255,8 +258,7 @@ def mirror_faces(geom, min_area_m2=DEFAULT_MIN_FACE_AREA_M2):
     hi = np.full((F, 3), -np.inf)
     np.minimum.at(lo, faces.tri_face, tri.min(axis=1))
     np.maximum.at(hi, faces.tri_face, tri.max(axis=1))
-    area = np.bincount(faces.tri_face, minlength=F, weights=0.5 * np.linalg.norm(
-        np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=-1))
+    area = np.bincount(faces.tri_face, minlength=F, weights=triangle_areas(tri))
     S = scene.material_scattering[faces.material_id]
     ids = np.flatnonzero((S < 1.0) & (area >= float(min_area_m2)))
     return ids, lo, hi
@@ -598,8 +600,7 @@ def scattering_triangle_bounds(scene, tx, rx, floor_power: float):
     if ids.size == 0:
         return ids, np.zeros(0), np.zeros(0, dtype=bool)
     tris = scene.triangles[ids]
-    area = 0.5 * np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]),
-                                axis=1)
+    area = triangle_areas(tris)
     r_i = point_triangle_distance(np.asarray(tx.position, dtype=np.float64), tris)
     r_s = point_triangle_distance(np.asarray(rx.position, dtype=np.float64), tris)
     S = S_mat[scene.tri_material[ids]]

@@ -34,6 +34,7 @@ import math
 
 import numpy as np
 
+from clradcom.geometry.triangles import triangle_normals_and_double_areas
 from clradcom.physics import em
 
 __all__ = ["po_facet_field", "po_transfer", "sinc", "triangle_po_integral"]
@@ -86,11 +87,10 @@ def triangle_po_integral(vertices, q):
     if v.ndim != 3 or v.shape[1:] != (3, 3):
         raise ValueError(f"vertices must have shape (F,3,3), got {v.shape}")
     q = np.broadcast_to(np.asarray(q, dtype=np.float64), (len(v), 3))
-    nrm = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
-    two_area = np.linalg.norm(nrm, axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):  # such triangles are refused below
+        n, two_area = triangle_normals_and_double_areas(v)
     if np.any(two_area == 0) or not np.all(np.isfinite(two_area)):
         raise ValueError("degenerate or non-finite triangle")
-    n = nrm / two_area[:, None]
     c = v.mean(axis=1)
     qc = np.einsum("fi,fi->f", q, c)
     d = np.einsum("fi,fvi->fv", q, v - c[:, None, :])  # (F,3) phase deviations

@@ -1,0 +1,113 @@
+"""The ``[[objects]]`` entries of a scene file -> :class:`SceneObject` records and their
+world triangles: material, pose (scale, then rotate, then translate), velocity, optics,
+and the refusal (or dropping) of degenerate triangles."""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from clradcom.errors import SceneWarning
+from clradcom.geometry.triangles import triangle_double_areas
+from clradcom.scene.antenna import euler_deg_to_matrix
+from clradcom.scene.fields import FieldReader
+from clradcom.scene.read_geometry import MeshCache, read_object_geometry
+from clradcom.scene.read_materials import MaterialTable, material_index
+from clradcom.scene.records import OPTICS, SceneObject
+
+__all__ = ["DEGENERATE_REL", "OBJECT_KEYS", "drop_or_refuse_degenerate", "read_objects"]
+
+OBJECT_KEYS = ("name", "material", "mesh", "shape", "extents", "size", "vertices", "faces",
+               "position", "rotation_deg", "scale", "velocity", "drop_degenerate",
+               "optics", "description")
+
+#: Relative area threshold for "degenerate": 2*area <= DEGENERATE_REL * longest_edge^2.
+DEGENERATE_REL = 1e-10
+
+
+def read_objects(fields: FieldReader, entries: list, materials: MaterialTable,
+                 carrier: float, base_dir: Path) -> tuple[list[SceneObject], list[np.ndarray]]:
+    """Objects in file order and each one's world triangles (F, 3, 3); built-in materials
+    they name join ``materials``."""
+    objects: list[SceneObject] = []
+    triangles: list[np.ndarray] = []
+    seen: dict = {}
+    mesh_cache: MeshCache = {}
+    start = 0
+    for i, tbl in enumerate(entries):
+        obj, tri = _read_object(fields, f"objects[{i}]", tbl, seen, materials, carrier,
+                                base_dir, mesh_cache, start)
+        objects.append(obj)
+        triangles.append(tri)
+        start += tri.shape[0]
+    return objects, triangles
+
+
+def _read_object(fields, kp, tbl, seen, materials, carrier, base_dir, mesh_cache, start):
+    fields.check_keys(tbl, OBJECT_KEYS, kp)
+    name = fields.unique_name(tbl, kp, seen, "object")
+    mat_name = fields.get_str(tbl, "material", kp)
+    mat = material_index(fields, materials, mat_name, f"{kp}.material", carrier)
+    position = fields.get_vec3(tbl, "position", kp, default=(0.0, 0.0, 0.0), unit="m")
+    rot_deg = fields.get_vec3(tbl, "rotation_deg", kp, default=(0.0, 0.0, 0.0), unit="deg")
+    velocity = fields.get_vec3(tbl, "velocity", kp, default=(0.0, 0.0, 0.0), unit="m/s")
+    scale = _read_scale(fields, tbl, kp)
+    drop = fields.get_bool(tbl, "drop_degenerate", kp, default=False)
+    optics = fields.get_str(tbl, "optics", kp, default=None, choices=OPTICS)
+
+    verts, faces, label = read_object_geometry(fields, tbl, kp, base_dir, mesh_cache)
+    rotation = euler_deg_to_matrix(rot_deg)
+    world = (verts * scale) @ rotation.T + position
+    tri = world[faces]  # (F,3,3)
+    tri = drop_or_refuse_degenerate(fields, tri, kp, label, drop, tbl.get("mesh"))
+    obj = SceneObject(
+        name=name, mesh=label, material=mat, material_name=mat_name, position=position,
+        rotation_deg=rot_deg, rotation=rotation, scale=scale, velocity=velocity,
+        tri_start=start, tri_stop=start + tri.shape[0], optics=optics,
+    )
+    return obj, tri
+
+
+def _read_scale(fields, tbl, kp) -> np.ndarray:
+    """``scale``: one number or [sx, sy, sz], all > 0 (default 1)."""
+    scale = np.ones(3)
+    if "scale" in tbl:
+        v = tbl["scale"]
+        k = f"{kp}.scale"
+        if isinstance(v, list):
+            scale = fields.vector(v, k, 3)
+        else:
+            scale = np.full(3, fields.number(v, k, "a number or an array of 3 numbers"))
+        if np.any(scale <= 0):
+            raise fields.err(k, v, "scale must be > 0 (mirroring is not supported)")
+    return scale
+
+
+def drop_or_refuse_degenerate(fields: FieldReader, tri, kp, label, drop, written=None):
+    """``tri`` without its degenerate (zero or sliver area) triangles when ``drop`` (with a
+    SceneWarning); otherwise the first one is refused, naming the mesh file (``written``,
+    as the scene file gives it) or the inline faces."""
+    e1 = tri[:, 1] - tri[:, 0]
+    e2 = tri[:, 2] - tri[:, 0]
+    e3 = tri[:, 2] - tri[:, 1]
+    cross = triangle_double_areas(tri)  # 2 * area
+    longest = np.max(np.stack([np.einsum("ij,ij->i", e, e) for e in (e1, e2, e3)]), axis=0)
+    bad = cross <= DEGENERATE_REL * longest
+    if not bad.any():
+        return tri
+    idx = np.flatnonzero(bad)
+    what = label if not label.startswith("shape:") else f"{kp} ({label})"
+    if not drop:
+        j = int(idx[0])
+        key = f"{kp}.mesh" if not label.startswith("shape:") else f"{kp}.faces"
+        value = written if not label.startswith("shape:") else j
+        raise fields.err(key, value,
+                         f"triangle {j} of {what} is degenerate (zero area; vertices "
+                         f"{np.round(tri[j], 9).tolist()}); {len(idx)} such triangle(s) in "
+                         "all; fix the mesh or set drop_degenerate = true")
+    warnings.warn(f"{fields.file}: {kp}: dropped {len(idx)} degenerate (zero-area) "
+                  f"triangle(s) of {what}, first indices {idx[:10].tolist()}",
+                  SceneWarning, stacklevel=2)
+    return tri[~bad]

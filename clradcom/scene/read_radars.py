@@ -1,0 +1,75 @@
+"""The ``[[radars]]`` entries of a scene file -> :class:`Radar` records: pose (in the
+world, or in the frame of the object it ``rides_on``), velocity, role, power, noise
+figure, pattern and polarisation."""
+
+from __future__ import annotations
+
+import difflib
+from pathlib import Path
+
+import numpy as np
+
+from clradcom.scene.antenna import euler_deg_to_matrix
+from clradcom.scene.fields import FieldReader
+from clradcom.scene.read_patterns import read_pattern
+from clradcom.scene.records import ROLES, Radar, SceneObject
+
+__all__ = ["RADAR_KEYS", "read_radars"]
+
+RADAR_KEYS = ("name", "position", "rides_on", "orientation_deg", "velocity", "pattern",
+              "polarization", "role", "tx_power_w", "noise_figure_db", "description")
+
+
+def read_radars(fields: FieldReader, entries: list, objects: list[SceneObject],
+                base_dir: Path) -> list[Radar]:
+    """Radars in file order; ``objects`` are the ones they may ride on."""
+    seen: dict = {}
+    return [_read_radar(fields, f"radars[{i}]", tbl, seen, objects, base_dir)
+            for i, tbl in enumerate(entries)]
+
+
+def _read_radar(fields, kp, tbl, seen, objects, base_dir) -> Radar:
+    fields.check_keys(tbl, RADAR_KEYS, kp)
+    name = fields.unique_name(tbl, kp, seen, "radar")
+    pos_local = fields.get_vec3(tbl, "position", kp, unit="m")
+    ori_deg = fields.get_vec3(tbl, "orientation_deg", kp, default=(0.0, 0.0, 0.0),
+                              unit="deg")
+    r_local = euler_deg_to_matrix(ori_deg)
+    if "rides_on" in tbl:
+        rides = _mount_object(fields, tbl, kp, objects)
+        obj = objects[rides]
+        position = obj.position + obj.rotation @ pos_local
+        orientation = obj.rotation @ r_local
+        velocity = obj.velocity.copy()
+    else:
+        rides = -1
+        position = pos_local
+        orientation = r_local
+        velocity = fields.get_vec3(tbl, "velocity", kp, default=(0.0, 0.0, 0.0), unit="m/s")
+    role = fields.get_str(tbl, "role", kp, default="txrx", choices=ROLES)
+    power = fields.get_float(tbl, "tx_power_w", kp, default=1.0, lo=0.0, unit="W")
+    nf = fields.get_float(tbl, "noise_figure_db", kp, default=None, unit="dB")
+    pattern, pol, pol_name = read_pattern(fields, tbl, kp, base_dir)
+    return Radar(
+        name=name, position=np.asarray(position, dtype=np.float64), rides_on=rides,
+        orientation=orientation, pattern=pattern, polarization=pol,
+        polarization_name=pol_name, velocity=velocity, role=role, tx_power_w=power,
+        noise_figure_db=nf, position_local=pos_local, orientation_deg=ori_deg,
+    )
+
+
+def _mount_object(fields, tbl, kp, objects) -> int:
+    """Index of the object named by ``rides_on``; a riding radar must not give velocity."""
+    names = [o.name for o in objects]
+    obj_name = fields.get_str(tbl, "rides_on", kp)
+    if obj_name not in names:
+        close = difflib.get_close_matches(obj_name, names, n=1)
+        hint = f" (did you mean '{close[0]}'?)" if close else ""
+        raise fields.err(f"{kp}.rides_on", obj_name,
+                         f"no object with this name{hint}; objects: "
+                         f"{', '.join(names) if names else '(none)'}")
+    if "velocity" in tbl:
+        raise fields.err(f"{kp}.velocity", tbl["velocity"],
+                         "a radar that rides_on an object moves with it; remove "
+                         "velocity (set it on the object)")
+    return names.index(obj_name)
