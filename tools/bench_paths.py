@@ -28,7 +28,7 @@ import time
 
 from clradcom.device.runtime import get_runtime
 from clradcom.paths import pattern_counts
-from clradcom.scene.reader.reader import load_scene
+from clradcom.scene.reader import load_scene
 from clradcom.trace import (
     DiffractionSettings,
     SpecularSettings,

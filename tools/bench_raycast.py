@@ -32,7 +32,7 @@ import numpy as np
 
 from clradcom.device.raycast import RayCaster, make_rays, spawn_origins
 from clradcom.device.runtime import get_runtime
-from clradcom.scene.reader.models import street_triangles
+from clradcom.scene.models import street_triangles
 
 
 def sector_directions(n: int, az_half_deg=45.0) -> np.ndarray:

@@ -50,7 +50,7 @@ from clradcom.radar.report import (
     recovered_detections,
     write_table,
 )
-from clradcom.scene.reader.reader import load_scene
+from clradcom.scene.reader import load_scene
 from clradcom.snapshot import SnapshotError, load_snapshot, save_snapshot
 from clradcom.trace import (
     DiffractionSettings,

@@ -6,7 +6,7 @@ range and Doppler estimation algorithm with ray-tracing"): a two-lane street alo
 concrete road, concrete buildings and trees on both sides, and four PEC cars A-D; radar A on
 car A's front bumper (90 deg x 180 deg sector) and a second radar on car D for the
 multi-user case. Everything is deterministic: running it twice writes the same bytes.
-The scene's numbers, text and mesh bytes come from clradcom.scene.reader.street; this tool
+The scene's numbers, text and mesh bytes come from clradcom.scene.street; this tool
 writes them.
 
     python tools/make_street.py                 # writes scenes/street/
@@ -23,8 +23,8 @@ import argparse
 from pathlib import Path
 
 from clradcom.radar.truth import detection_truth
-from clradcom.scene.reader.reader import load_scene
-from clradcom.scene.reader.street import (
+from clradcom.scene.reader import load_scene
+from clradcom.scene.street import (
     StreetOptions,
     plan_street,
     street_meshes,

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Monostatic RCS of the car model against aspect angle: pure GO versus PO + SBR.
 
-A radar circles the PEC car (``clradcom.scene.reader.models.car_mesh`` or ``rounded_car``) at
+A radar circles the PEC car (``clradcom.scene.models.car_mesh`` or ``rounded_car``) at
 range --range-m and height --height-m; aspect 0° looks at the nose (+x), 90° at the
 left side, 180° at the rear.  No ground: the car's own returns only.
 

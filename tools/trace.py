@@ -56,7 +56,7 @@ from clradcom.radar.report import (
     write_table,
 )
 from clradcom.radar.truth import detection_truth, match_truth
-from clradcom.scene.reader.reader import load_scene
+from clradcom.scene.reader import load_scene
 from clradcom.snapshot import save_snapshot
 from clradcom.trace import (
     DiffractionSettings,

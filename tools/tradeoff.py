@@ -63,7 +63,7 @@ from clradcom.evaluation import tradeoff as tr
 from clradcom.evaluation.tradeoff import BACKENDS, DEFAULT_SYNTHESIS, SETTING_COLUMNS
 from clradcom.mechanisms.scattering import scattering_triangle_bounds
 from clradcom.radar import Waveform
-from clradcom.scene.reader.reader import load_scene
+from clradcom.scene.reader import load_scene
 from clradcom.trace import TraceSettings
 
 
