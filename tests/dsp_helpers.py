@@ -23,7 +23,10 @@ def brute_force_rx(symbols, gains, delays_s, dopplers_hz, wf: Waveform) -> np.nd
     sub = np.arange(n)
     for a, tau, fd in zip(np.atleast_1d(gains), np.atleast_1d(delays_s),
                           np.atleast_1d(dopplers_hz), strict=True):
-        s = i - tau * fs  # source position in samples, continuous
+        delay = tau * fs
+        if abs(delay - round(delay)) < 1e-9:  # the synthesis's documented snap to a sample
+            delay = float(round(delay))
+        s = i - delay  # source position in samples, continuous
         nu = np.floor(s / ell).astype(int)
         local = s - nu * ell - ncp  # time since the useful part started, in samples
         valid = (nu >= 0) & (nu < m)
