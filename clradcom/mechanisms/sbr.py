@@ -40,6 +40,7 @@ from clradcom.geometry.triangles import triangle_normals
 from clradcom.paths import InteractionType, Paths
 from clradcom.physics import em
 from clradcom.physics.po import sinc
+from clradcom.physics.vectors import orthonormal_frame
 
 __all__ = ["TubeGrid", "TubeHits", "bounding_sphere", "launch_tubes", "shoot_tubes",
            "sbr_paths", "shoot_sbr"]
@@ -56,15 +57,6 @@ class TubeGrid:
 
     def __len__(self) -> int:
         return len(self.directions)
-
-
-def _basis(w):
-    """Two unit vectors completing unit w to a right-handed orthonormal frame."""
-    a = np.zeros(3)
-    a[int(np.argmin(np.abs(w)))] = 1.0
-    e1 = np.cross(w, a)
-    e1 /= np.linalg.norm(e1)
-    return e1, np.cross(w, e1)
 
 
 def launch_tubes(tx_pos, spheres, spacing_m: float, max_rays: int = 4_000_000) -> TubeGrid:
@@ -94,7 +86,7 @@ def launch_tubes(tx_pos, spheres, spacing_m: float, max_rays: int = 4_000_000) -
                              f"sphere (centre {c.tolist()}, radius {r:.3g} m) of an SBR "
                              f"object; give that object optics = \"both\"")
         w = d_vec / D
-        a, b = _basis(w)
+        a, b = orthonormal_frame(w)
         rho = r * D / np.sqrt(D * D - r * r) + spacing
         n = int(np.ceil(rho / spacing))
         total += (2 * n + 1) ** 2

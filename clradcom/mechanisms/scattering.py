@@ -49,6 +49,7 @@ from clradcom.geometry.triangles import (
 from clradcom.mechanisms.common import Geometry, check_number
 from clradcom.paths import InteractionType, Paths
 from clradcom.physics import em
+from clradcom.physics.vectors import unit
 from clradcom.scene.antenna import pattern_peak_gain
 from clradcom.scene.records import Radar
 
@@ -155,10 +156,6 @@ def choose_tile_size(wavelength, distance, accuracy=DEFAULT_ACCURACY):
     return math.sqrt(2.0 * lam * R * dphi / math.pi)
 
 
-def _unit(x):
-    return x / np.linalg.norm(x, axis=-1, keepdims=True)
-
-
 def _te_basis(k, n):
     """TE (perpendicular to the plane of incidence) and TM unit vectors for
     propagation directions k (P,3) at a surface with normal n (P,3)."""
@@ -193,7 +190,7 @@ def tile_transfer(centres, areas, normals, tx_pos, rx_pos, scattering, gamma,
     ``gamma`` (N,) is |Gamma| (see :func:`scattering_paths`).
     """
     c = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
-    n = _unit(np.asarray(normals, dtype=np.float64).reshape(-1, 3))
+    n = unit(np.asarray(normals, dtype=np.float64).reshape(-1, 3))
     dt = c - np.asarray(tx_pos, dtype=np.float64).reshape(-1, 3)
     dr = np.asarray(rx_pos, dtype=np.float64).reshape(-1, 3) - c
     r_i = np.linalg.norm(dt, axis=-1)
@@ -509,14 +506,14 @@ def scattering_paths(geom, tx, rx, *, tile_size_m=None, threshold_db=-60.0, seed
     obj = scene.tri_object[tid]
     faces = geom.faces
     # first and last legs as travelled (p1 = q without a prefix, p2 = q without a suffix)
-    k_dep = _unit(p1 - tx_pos)
+    k_dep = unit(p1 - tx_pos)
     D1 = _mirror_dyads(scene, faces, f1, k_dep)
     out2 = p2 - qt
     out2[f2 < 0] = 1.0  # no suffix: a placeholder direction, the dyad stays the identity
-    D2 = _mirror_dyads(scene, faces, f2, _unit(out2))
+    D2 = _mirror_dyads(scene, faces, f2, unit(out2))
 
     # Fresnel |Gamma| at the tile for the polarisation arriving there
-    ki = _unit(qt - im1)
+    ki = unit(qt - im1)
     cos_i = np.abs(np.einsum("pi,pi->p", ki, nt))
     r_te, r_tm = em.fresnel_coefficients(scene.material_eps_r[mat], cos_i,
                                          scene.material_pec[mat])
@@ -536,7 +533,7 @@ def scattering_paths(geom, tx, rx, *, tile_size_m=None, threshold_db=-60.0, seed
     T, L, _, _ = tile_transfer(qt, area[tile], nt, im1, im2, S_mat[mat], gamma,
                                scene.material_cross_pol_share[mat], phases[tile])
     T = D2 @ T @ D1
-    k_arr = _unit(rx_pos - p2)
+    k_arr = unit(rx_pos - p2)
     gain, M = em.path_gains(T, L, k_dep, k_arr, tx, rx, scene.carrier_hz)
 
     # polylines [tx, (p1), q, (p2), rx] packed left, NaN padding

@@ -41,6 +41,7 @@ import numpy as np
 from scipy.special import i0e
 
 from clradcom.errors import NearFieldWarning
+from clradcom.physics.vectors import checked_unit, cross, dot, perpendicular
 from clradcom.scene.antenna import directions_to_angles, theta_phi_unit_vectors
 
 __all__ = [
@@ -166,31 +167,6 @@ def roughness_factor(roughness_m, cos_theta, k, model=ROUGHNESS_AMENT):
 # ---------------------------------------------------------------------------
 # geometry helpers
 
-def _unit(v, what):
-    n = np.linalg.norm(v, axis=-1, keepdims=True)
-    if not np.all(np.isfinite(n)) or np.any(n == 0):
-        raise ValueError(f"{what}: zero-length or non-finite vector")
-    return v / n
-
-
-def _cross(a, b):
-    return np.cross(a, b, axis=-1)
-
-
-def _dot(a, b):
-    return np.sum(a * b, axis=-1)
-
-
-def _perp_any(n):
-    """A unit vector perpendicular to each unit n (cross with the world axis
-    least aligned with n): deterministic, well conditioned."""
-    axis = np.zeros_like(n)
-    idx = np.argmin(np.abs(n), axis=-1)
-    np.put_along_axis(axis, idx[..., None], 1.0, axis=-1)
-    p = _cross(n, axis)
-    return p / np.linalg.norm(p, axis=-1, keepdims=True)
-
-
 # ---------------------------------------------------------------------------
 # reflection dyad
 
@@ -219,23 +195,23 @@ def reflection_dyad(k_in, normal, r_te, r_tm):
     -------
     D : (P,3,3) complex128.
     """
-    k = _unit(np.asarray(k_in, dtype=np.float64).reshape(-1, 3), "k_in")
-    n = _unit(np.asarray(normal, dtype=np.float64).reshape(-1, 3), "normal")
+    k = checked_unit(np.asarray(k_in, dtype=np.float64).reshape(-1, 3), "k_in")
+    n = checked_unit(np.asarray(normal, dtype=np.float64).reshape(-1, 3), "normal")
     if k.shape != n.shape:
         raise ValueError(f"k_in {k.shape} and normal {n.shape} differ in shape")
     r_te = np.broadcast_to(np.asarray(r_te, dtype=np.complex128), k.shape[:1])
     r_tm = np.broadcast_to(np.asarray(r_tm, dtype=np.complex128), k.shape[:1])
-    kn = _dot(k, n)
+    kn = dot(k, n)
     n = np.where(kn[:, None] > 0, -n, n)  # face the incoming ray
     kn = -np.abs(kn)
     k_r = k - 2.0 * kn[:, None] * n
-    x = _cross(k, n)
+    x = cross(k, n)
     sx = np.linalg.norm(x, axis=-1)
     normal_inc = sx < _NORMAL_INCIDENCE_TOL
-    e_perp = np.where(normal_inc[:, None], _perp_any(n),
+    e_perp = np.where(normal_inc[:, None], perpendicular(n),
                       x / np.where(normal_inc, 1.0, sx)[:, None])
-    e_par_i = _cross(e_perp, k)
-    e_par_r = _cross(e_perp, k_r)
+    e_par_i = cross(e_perp, k)
+    e_par_r = cross(e_perp, k_r)
     return (r_te[:, None, None] * e_perp[:, :, None] * e_perp[:, None, :]
             + r_tm[:, None, None] * e_par_r[:, :, None] * e_par_i[:, None, :])
 
@@ -250,7 +226,7 @@ def material_reflection_dyad(scene, material, k_in, normal):
     mat = np.asarray(material)
     k_in = np.asarray(k_in, dtype=np.float64)
     n = np.asarray(normal, dtype=np.float64)
-    cos_t = np.abs(_dot(k_in, n) / (np.linalg.norm(k_in, axis=-1) * np.linalg.norm(n, axis=-1)))
+    cos_t = np.abs(dot(k_in, n) / (np.linalg.norm(k_in, axis=-1) * np.linalg.norm(n, axis=-1)))
     r_te, r_tm = fresnel_coefficients(scene.material_eps_r[mat], cos_t, scene.material_pec[mat])
     rho = roughness_factor(scene.material_roughness_m[mat], cos_t, 2.0 * np.pi / scene.wavelength_m,
                            scene.material_roughness_model[mat])
@@ -390,8 +366,8 @@ def path_transfer(points, face_normals, eps_r, pec, roughness_m, roughness_model
         idx = np.nonzero(act)[0]
         k_in = u[idx, i]
         n_i = nrm[idx, i]
-        n_i = _unit(n_i, f"face_normals[:, {i}]")
-        cos_t = np.abs(_dot(k_in, n_i))
+        n_i = checked_unit(n_i, f"face_normals[:, {i}]")
+        cos_t = np.abs(dot(k_in, n_i))
         r_te, r_tm = fresnel_coefficients(eps[idx, i], cos_t, pec_a[idx, i])
         rho = roughness_factor(rough[idx, i], cos_t, k0, model[idx, i])
         D = reflection_dyad(k_in, n_i, rho * r_te, rho * r_tm)

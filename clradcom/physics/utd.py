@@ -44,6 +44,7 @@ import numpy as np
 from scipy.special import fresnel
 
 from clradcom.physics.em import fresnel_coefficients
+from clradcom.physics.vectors import checked_unit, dot
 
 __all__ = [
     "transition_function",
@@ -389,20 +390,6 @@ def multi_edge_spreading(segment_lengths, beta0=np.pi / 2):
 # ---------------------------------------------------------------------------
 # edge-fixed geometry
 
-def _unit(v, what):
-    v = np.asarray(v, dtype=np.float64)
-    if v.shape[-1:] != (3,):
-        raise ValueError(f"{what}: last axis must have length 3, got shape {v.shape}")
-    nrm = np.linalg.norm(v, axis=-1, keepdims=True)
-    if not np.all(np.isfinite(nrm)) or np.any(nrm == 0):
-        raise ValueError(f"{what}: zero-length or non-finite vector")
-    return v / nrm
-
-
-def _dot(a, b):
-    return np.sum(a * b, axis=-1)
-
-
 def wedge_angles(s_hat_in, s_hat_out, edge_dir, face0_normal):
     """(phi', phi, beta0) of a diffraction in KP's face-0 convention (eq. U9).
 
@@ -419,16 +406,16 @@ def wedge_angles(s_hat_in, s_hat_out, edge_dir, face0_normal):
 
     Returns ndarrays (...,) float64.  For an exact Keller path s . e = s' . e.
     """
-    si = _unit(s_hat_in, "s_hat_in")
-    so = _unit(s_hat_out, "s_hat_out")
-    e = _unit(edge_dir, "edge_dir")
+    si = checked_unit(s_hat_in, "s_hat_in")
+    so = checked_unit(s_hat_out, "s_hat_out")
+    e = checked_unit(edge_dir, "edge_dir")
     n0 = np.asarray(face0_normal, dtype=np.float64)
-    n0 = _unit(n0 - _dot(n0, e)[..., None] * e, "face0_normal (orthogonal to edge_dir)")
+    n0 = checked_unit(n0 - dot(n0, e)[..., None] * e, "face0_normal (orthogonal to edge_dir)")
     t0 = np.cross(n0, e)
     two_pi = 2.0 * np.pi
-    phi = np.mod(np.arctan2(_dot(so, n0), _dot(so, t0)), two_pi)
-    phi_p = np.mod(np.arctan2(-_dot(si, n0), -_dot(si, t0)), two_pi)
-    beta0 = np.arccos(np.clip(_dot(si, e), -1.0, 1.0))
+    phi = np.mod(np.arctan2(dot(so, n0), dot(so, t0)), two_pi)
+    phi_p = np.mod(np.arctan2(-dot(si, n0), -dot(si, t0)), two_pi)
+    beta0 = np.arccos(np.clip(dot(si, e), -1.0, 1.0))
     return phi_p, phi, beta0
 
 
@@ -460,12 +447,12 @@ def edge_fixed_basis(s_hat_in, s_hat_out, edge_dir, face0_normal=None):
     -------
     beta0_hat_p, phi_hat_p, beta0_hat, phi_hat : ndarrays (..., 3) float64.
     """
-    si = _unit(s_hat_in, "s_hat_in")
-    so = _unit(s_hat_out, "s_hat_out")
-    e = _unit(edge_dir, "edge_dir")
+    si = checked_unit(s_hat_in, "s_hat_in")
+    so = checked_unit(s_hat_out, "s_hat_out")
+    e = checked_unit(edge_dir, "edge_dir")
     if face0_normal is not None:
-        n0 = _unit(face0_normal, "face0_normal")
-        if np.any(np.abs(_dot(n0, e)) > 1e-6):
+        n0 = checked_unit(face0_normal, "face0_normal")
+        if np.any(np.abs(dot(n0, e)) > 1e-6):
             raise ValueError("edge_fixed_basis: face0_normal must be orthogonal to edge_dir")
     xi = np.cross(e, si)
     xo = np.cross(e, so)
