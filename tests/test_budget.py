@@ -1,4 +1,4 @@
-"""Noise-floor power bounds, pruning and the cheapest-setting choice (clradcom.budget).
+"""Noise-floor power bounds, pruning and the cheapest-setting choice (clradcom.evaluation.budget).
 
 Independent checks: the floor against the real radar chain (a path |a|² = floor · 10^x
 stands x dB above the image noise), the GO bounds against traced paths and the Friis

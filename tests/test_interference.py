@@ -1,4 +1,4 @@
-"""Two radars: D's interference in A's image and its cancellation (clradcom.dsp.interference).
+"""Two radars: D's interference in A's image and its cancellation (clradcom.radar.interference).
 
 References: docs/interference.md; shared/reference/ofdm-radar-dsp.md §2 (peak-to-floor =
 NM·SIR_in, coherent ghost when D sends A's symbols, residual P_I(NMSE + SER·E|d−d̂|²)).

@@ -1,4 +1,4 @@
-"""SBR-PO multi-bounce returns (clradcom.sbr) and the per-object optics switch.
+"""SBR-PO multi-bounce returns (clradcom.mechanisms.sbr) and the per-object optics switch.
 
 Closed forms (Knott, Shaeffer & Tuley, *Radar Cross Section*, 2nd ed., table 6.1;
 /work/shared/reference/propagation-physics.md §6), monostatic, PEC:

@@ -1,4 +1,4 @@
-"""Diffuse (Lambertian, effective-roughness) tile scattering (clradcom.scattering).
+"""Diffuse (Lambertian, effective-roughness) tile scattering (clradcom.mechanisms.scattering).
 
 Reference: /work/shared/reference/propagation-physics.md §3 (hemisphere power
 S^2 Gamma^2 P_inc; tile RCS sigma = 4 S^2 Gamma^2 A cos^2 theta, -25.0 dBsm for

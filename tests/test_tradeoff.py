@@ -95,7 +95,7 @@ def test_error_to_noise_bounds_the_error_in_any_radar_image_cell():
 
 def test_image_error_of_one_path_is_its_snr_after_processing():
     """An on-grid error path of gain a peaks at |a|² G_p / σ² in the (Hann, zero-padded)
-    image: the processing gain of clradcom.budget, an independent closed form."""
+    image: the processing gain of clradcom.evaluation.budget, an independent closed form."""
     from clradcom.evaluation.budget import processing_gain
 
     a, sigma2 = 2e-7, 1e-12

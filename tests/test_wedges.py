@@ -1,4 +1,4 @@
-"""Wedge extraction and diffraction points (clradcom.wedges, docs/wedges.md)."""
+"""Wedge extraction and diffraction points (clradcom.geometry.wedges, docs/wedges.md)."""
 
 from __future__ import annotations
 

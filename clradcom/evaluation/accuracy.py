@@ -90,7 +90,7 @@ def error_to_noise_db(H, H_ref, noise_variance: float) -> float:
     """10 log10( Σ|H − H_ref|² / σ² ): a bound of the channel error against the noise, dB.
 
     σ² is the thermal noise variance per cell of F in the units of the path gains
-    (:func:`clradcom.budget.noise_floor`). After the range/Doppler transforms the noise
+    (:func:`clradcom.evaluation.budget.noise_floor`). After the range/Doppler transforms the noise
     in one image cell is NM·σ² (window normalised), while an error ΔF can put at most
     NM·Σ|ΔF|² into one cell (Cauchy–Schwarz). So below 0 dB no cell of the radar image
     can move by more than the thermal noise already in it: the error is invisible to
@@ -108,8 +108,8 @@ def image_error_to_noise_db(H, H_ref, noise_variance: float, waveform, window="h
                             zero_pad=(2, 2)) -> float:
     """Largest change of any radar-image cell that H makes against H_ref, re the noise, dB.
 
-    The radar image of ΔF = H − H_ref (``clradcom.dsp.radar_image`` with the windows and
-    zero padding of ``clradcom.pipeline.process``; the image is normalised so that thermal
+    The radar image of ΔF = H − H_ref (``clradcom.radar.radar_image`` with the windows and
+    zero padding of ``clradcom.radar.pipeline.process``; the image is normalised so that thermal
     noise has power σ² in every cell) divided by σ². Below 0 dB no cell moves by more
     than the noise already in it. :func:`error_to_noise_db` is the bound this never
     exceeds; for a diffuse error (many weak paths spread over the image) it is far lower.
@@ -230,7 +230,7 @@ def detection_errors(detections, truth, range_tol_m: float,
                      velocity_tol_mps: float) -> DetectionErrors:
     """Range and velocity error of the detections that match each truth row.
 
-    Matching is :func:`clradcom.pipeline.match_truth` (the strongest detection within the
+    Matching is :func:`clradcom.radar.pipeline.match_truth` (the strongest detection within the
     tolerances). A target's echo comes from its visible surface, which lies between the
     nearest point of its mesh and its centre, so the range error is the distance of the
     detected range from the interval [range_nearest_m, range_centre_m] (0 inside it);

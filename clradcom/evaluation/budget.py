@@ -3,7 +3,7 @@
 docs/tradeoff.md gives the reasoning; in short:
 
 * The radar frame measures F = D_r/D on N·M cells with thermal noise σ² = kTBF/P_tx per
-  cell (the project's convention, :func:`clradcom.dsp.add_thermal_noise`). The range and
+  cell (the project's convention, :func:`clradcom.radar.add_thermal_noise`). The range and
   Doppler transforms add a path's NM cells coherently and the noise incoherently, so a
   path of gain a stands |a|²·G_p/σ² above the noise of its image cell, G_p the
   processing gain (NM for rectangular windows, less for tapered ones). A path with
@@ -87,7 +87,7 @@ def processing_gain(n_subcarriers: int, n_symbols: int, window_range="hann",
     """SNR gain of the range/Doppler transforms for one point target.
 
     G_p = (Σw_n)²/Σw_n² · (Σw_μ)²/Σw_μ²: N·M for rectangular windows, about
-    (2/3)²·N·M (−3.5 dB) for Hann. Windows as :func:`clradcom.dsp.get_window`.
+    (2/3)²·N·M (−3.5 dB) for Hann. Windows as :func:`clradcom.radar.get_window`.
     """
     out = 1.0
     for name, length, win in (("n_subcarriers", n_subcarriers, window_range),
@@ -127,11 +127,11 @@ def noise_floor(waveform: Waveform, tx_power_w: float, noise_figure_db: float, *
     """Noise floor of a radar frame in path-gain units (|a|²).
 
     σ² = k·T·B·F / P_tx per cell (B the waveform's bandwidth), exactly what
-    :func:`clradcom.dsp.add_thermal_noise` adds; the floor is σ²/G_p shifted by
+    :func:`clradcom.radar.add_thermal_noise` adds; the floor is σ²/G_p shifted by
     ``margin_db`` (negative: keep paths that far below the noise too).
     """
     if not isinstance(waveform, Waveform):
-        raise ValueError(f"waveform must be a clradcom.dsp.Waveform, got {type(waveform)!r}")
+        raise ValueError(f"waveform must be a clradcom.radar.Waveform, got {type(waveform)!r}")
     p_tx = _positive("tx_power_w", tx_power_w)
     nf = _finite("noise_figure_db", noise_figure_db)
     margin = _finite("margin_db", margin_db)
@@ -274,7 +274,7 @@ def max_useful_order(bounds: list[OrderBound]) -> int:
 
 def relative_threshold_db(floor_power: float, strongest_power: float) -> float:
     """The relative threshold (dB below the strongest path, as
-    :func:`clradcom.scattering.scattering_paths` takes it) that equals an absolute floor.
+    :func:`clradcom.mechanisms.scattering.scattering_paths` takes it) that equals an absolute floor.
 
     Use an upper bound of the strongest path (e.g. the largest of
     :func:`scattering_triangle_bounds`) before tracing: the threshold then keeps every
@@ -332,7 +332,7 @@ def prune_paths(paths, floor_power: float, waveform: Waveform | None = None):
     if p < 0:
         raise ValueError(f"floor_power must be >= 0, got {floor_power!r}")
     if waveform is not None and not isinstance(waveform, Waveform):
-        raise ValueError(f"waveform must be a clradcom.dsp.Waveform, got {type(waveform)!r}")
+        raise ValueError(f"waveform must be a clradcom.radar.Waveform, got {type(waveform)!r}")
     gain = np.asarray(paths.gain)
     power = np.abs(gain) ** 2
     weak = power < p
@@ -364,8 +364,9 @@ class AccuracyTarget:
     """What a setting must achieve; None leaves a criterion free.
 
     channel_nmse_db / error_to_noise_db / image_error_db: upper bounds (dB) on
-    :func:`clradcom.accuracy.channel_nmse_db`, :func:`~clradcom.accuracy.error_to_noise_db`,
-    :func:`~clradcom.accuracy.image_error_to_noise_db`;
+    :func:`~clradcom.evaluation.accuracy.channel_nmse_db`,
+    :func:`~clradcom.evaluation.accuracy.error_to_noise_db`,
+    :func:`~clradcom.evaluation.accuracy.image_error_to_noise_db`;
     range_error_m / velocity_error_mps: at least ``min_targets_found`` moving targets
     detected (default: all of them) and every detected one within these;
     power_share / count_share: lower bounds on the path-set completeness (0..1).

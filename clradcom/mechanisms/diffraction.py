@@ -4,7 +4,7 @@ A candidate is an *interaction pattern* (a tuple of REFLECTION / DIFFRACTION cod
 e.g. ``(R, D)`` or ``(D, D)``) and, per candidate, the planar face or wedge of every
 interaction. Stages (plain arrays in and out):
 
-1. wedges come from :func:`clradcom.wedges.extract_wedges` (once per scene);
+1. wedges come from :func:`clradcom.geometry.wedges.extract_wedges` (once per scene);
 2. :func:`diffraction_candidates` proposes patterns and elements: single wedges, the
    tracer's own ray-found reflection sequences as prefixes (from the transmitter) and
    suffixes (from the receiver), and chains of 2-3 wedges that see each other;
@@ -12,7 +12,7 @@ interaction. Stages (plain arrays in and out):
    mirrors everything after it (images), which straightens the path into a chain of
    diffractions between the transmitter and the receiver's image; the diffraction
    points on the mirrored edges follow from Keller's law (closed form for one edge,
-   convex minimisation for several, :func:`clradcom.wedges.multi_diffraction_points`),
+   convex minimisation for several, :func:`clradcom.geometry.wedges.multi_diffraction_points`),
    and the reflection points are where the straight unfolded segments cross the
    mirrored face planes;
 4. :func:`confirm_chains` checks every point with rays: a reflection point must be the
@@ -21,8 +21,8 @@ interaction. Stages (plain arrays in and out):
    diffraction must see both its neighbours from outside its wedge;
 5. :func:`chain_fields` multiplies the reflection dyads (Fresnel x roughness x
    sqrt(1 - S^2), as for specular paths) and the UTD diffraction dyads
-   (Kouyoumjian-Pathak / Luebbers, :mod:`clradcom.utd`) in order, with the
-   multi-edge spreading of :func:`clradcom.utd.multi_edge_spreading` on the unfolded
+   (Kouyoumjian-Pathak / Luebbers, :mod:`clradcom.physics.utd`) in order, with the
+   multi-edge spreading of :func:`clradcom.physics.utd.multi_edge_spreading` on the unfolded
    segment lengths -> gain, 2x2 matrix, delay, Doppler.
 
 Concave creases (n < 1) are left out (UTD is not validated there and their faces'

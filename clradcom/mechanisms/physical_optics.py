@@ -5,27 +5,15 @@ normal points exactly at the specular direction, so a monostatic radar misses
 almost every car facet.  Physical optics integrates the lit-side surface current
 of each facet instead, which gives every lit facet a (usually small) return with
 the facet's own sinc-like lobe.  Two and more bounces (corners) are the job of
-:mod:`clradcom.sbr` (shooting and bouncing ray tubes with the same PO radiation
+:mod:`clradcom.mechanisms.sbr` (shooting and bouncing ray tubes with the same PO radiation
 integral).  docs/po.md gives the derivation and sources
 (Gordon 1975; Knott, Shaeffer & Tuley, *Radar Cross Section*; Balanis,
 *Advanced Engineering Electromagnetics*, ch. 11).
 
-Conventions are those of :mod:`clradcom.em` (time factor e^{+jwt}, field
-bookkeeping with a 3x3 transfer dyad T and the unfolded length L):
-
-    a = (lambda / 4 pi) e^{-jkL} / L  *  E_rx . T . E_tx
-
-For a PO facet with centroid c, tx at distance R_t = |c - t| (incident direction
-k_i = (c - t)/R_t) and rx at R_r = |r - c| (scattered direction s = (r - c)/R_r)::
-
-    T = -(j k / 2 pi) * L / (R_t R_r) * (I - s s^T) [n x (k_i x .)] * I_c(q)
-    I_c(q) = int_facet e^{j q . (r' - c)} dA',   q = k (s - k_i),   L = R_t + R_r
-
-(PEC, J = 2 n x H_inc on the lit side, far field of the facet but not of the
-scene).  A flat plate at normal incidence in its far field gives
-T = -j (2A / (lambda R)) (I - k k^T) monostatic, i.e. sigma = 4 pi A^2 / lambda^2,
-and the polarimetric matrix is j (2A/(lambda R)) times the GO plate's (-I in the
-backscatter-alignment basis).
+The facet's transfer dyad and its closed-form radiation integral are
+:func:`clradcom.physics.po.po_transfer` (conventions and formulas in that module's
+docstring); this module picks the lit, visible facets of a link and turns them into
+paths tagged :attr:`~clradcom.paths.InteractionType.PHYSICAL_OPTICS`.
 """
 
 from __future__ import annotations
@@ -64,7 +52,7 @@ def po_paths(geom, tx, rx, *, objects=None, min_relative_db=-80.0, two_sided=Fal
     REFLECTION (a PO facet term, not a specular point), object_id, face_id = the
     triangle id, delay L/c0, Doppler -(1/lambda) dL/dt with the centroid moving
     with its object, gain and matrix from :func:`po_transfer` through
-    :func:`clradcom.em.path_gains` (antenna patterns and polarisations of tx/rx).
+    :func:`clradcom.physics.em.path_gains` (antenna patterns and polarisations of tx/rx).
     Facets of one flat face are coherent pieces of one plate: the sum of their
     gains is that plate's PO return.
 

@@ -1,18 +1,19 @@
 """Shooting and bouncing rays with physical optics (SBR-PO): multi-bounce target returns.
 
-The single-bounce PO facet term (:mod:`clradcom.po`) gives each lit facet its true
-strength, but a dihedral or trihedral corner returns through two or three
+The single-bounce PO facet term (:mod:`clradcom.mechanisms.physical_optics`) gives each
+lit facet its true strength, but a dihedral or trihedral corner returns through two or three
 reflections.  SBR (Ling, Chou & Lee, IEEE TAP 37(2) 1989, "Shooting and bouncing
 rays: calculating the RCS of an arbitrarily shaped cavity") shoots a dense grid of
 ray tubes at the target and follows each tube with GO (the Fresnel reflection dyads
-of :mod:`clradcom.em`, spreading of the spherical wave of the image source).  At
+of :mod:`clradcom.physics.em`, spreading of the spherical wave of the image source).  At
 every bounce it radiates the PO current of the tube's footprint toward the
 receiver, rather than over one exit aperture, since an open target such as a car has
 none.  docs/po.md gives the formulas and the measured accuracy.
 
 Here the tubes radiate from their 2nd bounce on (``first_bounce=2``): the first
-bounce is the exact facet integral of :func:`clradcom.po.po_paths`, so a hybrid of
-the two counts every bounce exactly once.
+bounce is the exact facet integral of
+:func:`clradcom.mechanisms.physical_optics.po_paths`, so a hybrid of the two counts every
+bounce exactly once.
 
 Tube contribution at bounce m, hit point p on a facet with lit-side normal n, incident
 direction k_i, unfolded length L_in = |tx -> ... -> p|, transfer chain C of the m-1
@@ -23,7 +24,7 @@ earlier reflection dyads (C = I - k0 k0^T for m = 1), receiver at R_r along s::
 
 with e1', e2' the tube's square cross-section (side sqrt(dOmega) L_in, edges carried
 through the mirrors) projected along k_i onto the facet: the exact radiation integral
-of a parallelogram footprint with a linear phase.  This is :func:`clradcom.po.po_transfer`
+of a parallelogram footprint with a linear phase.  This is :func:`clradcom.physics.po.po_transfer`
 with the facet replaced by the footprint and 1/R_t by the image source's 1/L_in.
 """
 
@@ -178,7 +179,7 @@ def shoot_tubes(geom, tx_pos, grid: TubeGrid, max_bounces: int, first_bounce: in
     ``first_bounce`` on triangles in ``record_triangles`` (bool mask over the scene's
     triangles; default all) are recorded for radiation, with the transfer chain of their
     earlier reflections: the material's Fresnel coefficients and roughness factor
-    (:func:`clradcom.em.reflection_dyad`), so tubes may pass over GO objects (the road)
+    (:func:`clradcom.physics.em.reflection_dyad`), so tubes may pass over GO objects (the road)
     on the way.  Chains are built for the recorded tubes only, from their bounce points.
     """
     scene = geom.scene

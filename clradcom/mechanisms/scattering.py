@@ -19,7 +19,7 @@ with X the unitary polarisation map (cross-polarisation share K_x, see
 frame.  Since int_hemisphere f_s dOmega = 1, the power scattered into the
 hemisphere is S^2 Gamma^2 |E_i|^2 A cos(theta_i), i.e. S^2 Gamma^2 times the
 power incident on the tile; the monostatic RCS of a tile is
-sigma = 4 S^2 Gamma^2 A cos^2(theta).  In the bookkeeping of :mod:`clradcom.em`
+sigma = 4 S^2 Gamma^2 A cos^2(theta).  In the bookkeeping of :mod:`clradcom.physics.em`
 (tx radiates e_tx e^{-jkd}/d, the field at rx is T e_tx e^{-jkL}/L) this is the
 transfer dyad::
 
@@ -328,7 +328,7 @@ def _visible(geom, q, nrm, tri_ids, idx, end):
 
 def _mirror_dyads(scene, faces, face, k_in):
     """Reflection dyads at mirror faces (identity where face < 0): Fresnel x roughness
-    x sqrt(1 - S^2), as :func:`clradcom.tracer.path_fields` weighs specular paths."""
+    x sqrt(1 - S^2), as :func:`clradcom.mechanisms.specular.path_fields` weighs specular paths."""
     P = len(face)
     D = np.broadcast_to(np.eye(3, dtype=np.complex128), (P, 3, 3)).copy()
     act = np.flatnonzero(face >= 0)

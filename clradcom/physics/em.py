@@ -447,7 +447,7 @@ def path_gains(T, L, k_dep, k_arr, tx, rx, carrier_hz):
     module docstring).
 
     ``tx`` and ``rx`` are :class:`clradcom.scene.Radar` objects or anything with
-    ``orientation`` (3,3) and ``pattern`` (a :class:`clradcom.antenna.Pattern`).
+    ``orientation`` (3,3) and ``pattern`` (a :class:`clradcom.scene.antenna.Pattern`).
     """
     M = polarimetric_matrix(T, L, k_dep, k_arr, tx.orientation, rx.orientation, carrier_hz)
     d_tx = np.asarray(k_dep, dtype=np.float64).reshape(-1, 3) @ np.asarray(tx.orientation)

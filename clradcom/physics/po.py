@@ -5,12 +5,12 @@ normal points exactly at the specular direction, so a monostatic radar misses
 almost every car facet.  Physical optics integrates the lit-side surface current
 of each facet instead, which gives every lit facet a (usually small) return with
 the facet's own sinc-like lobe.  Two and more bounces (corners) are the job of
-:mod:`clradcom.sbr` (shooting and bouncing ray tubes with the same PO radiation
+:mod:`clradcom.mechanisms.sbr` (shooting and bouncing ray tubes with the same PO radiation
 integral).  docs/po.md gives the derivation and sources
 (Gordon 1975; Knott, Shaeffer & Tuley, *Radar Cross Section*; Balanis,
 *Advanced Engineering Electromagnetics*, ch. 11).
 
-Conventions are those of :mod:`clradcom.em` (time factor e^{+jwt}, field
+Conventions are those of :mod:`clradcom.physics.em` (time factor e^{+jwt}, field
 bookkeeping with a 3x3 transfer dyad T and the unfolded length L):
 
     a = (lambda / 4 pi) e^{-jkL} / L  *  E_rx . T . E_tx
@@ -169,7 +169,7 @@ def po_transfer(vertices, normal, tx_pos, rx_pos, carrier_hz, reflection=None):
 
 
 def po_facet_field(vertices, normal, tx_pos, rx_pos, e_tx, carrier_hz, reflection=None):
-    """Bistatic PO scattered field of PEC facets, normalised like :mod:`clradcom.em`.
+    """Bistatic PO scattered field of PEC facets, normalised like :mod:`clradcom.physics.em`.
 
     The transmitter radiates ``e_tx e^{-jkd}/d`` (e_tx (F,3) complex, world,
     transverse to k_dep: C_theta theta_hat + C_phi phi_hat); the returned field at

@@ -6,9 +6,9 @@ Luebbers' heuristic for lossy (finite-conductivity) faces.  Every function takes
 and returns plain arrays and broadcasts.  docs/utd.md gives the formulas with their
 sources; the equation labels below (U1 ...) refer to it.
 
-Conventions (as :mod:`clradcom.em`): time factor e^{+jwt}, lossy permittivity
+Conventions (as :mod:`clradcom.physics.em`): time factor e^{+jwt}, lossy permittivity
 ``eps_r = eps' - j eps''``, wave number ``k = 2 pi f / c0``.  Angles follow the
-face-0 convention of :mod:`clradcom.wedges`: ``e`` is the unit edge vector, ``n0``
+face-0 convention of :mod:`clradcom.geometry.wedges`: ``e`` is the unit edge vector, ``n0``
 the outward normal of face 0, ``t0 = n0 x e`` the unit vector in face 0 pointing
 away from the edge; ``phi'`` (source) and ``phi`` (observer) are measured from
 face 0 (``phi = 0``) about ``e`` through the exterior to face n (``phi = n pi``);
@@ -210,7 +210,7 @@ def diffraction_coefficients(phi, phi_p, beta0, n, k, L, eps_r_0=None, eps_r_n=N
     for D_hard, KP's D_s / D_h.  Lossy faces (Luebbers' heuristic): R_0 = r(eps_r_0)
     at the incidence angle on face 0 and R_n = r(eps_r_n) at the reflection angle on
     face n, with ``r = r_te`` (r_perp) for D_soft and ``r = r_tm`` (r_par, PEC -> +1)
-    for D_hard from :func:`clradcom.em.fresnel_coefficients` at::
+    for D_hard from :func:`clradcom.physics.em.fresnel_coefficients` at::
 
         cos theta_0 = sin(beta0) |sin phi'|,   cos theta_n = sin(beta0) |sin(n pi - phi)|
 
@@ -397,7 +397,7 @@ def wedge_angles(s_hat_in, s_hat_out, edge_dir, face0_normal):
     the diffracted one (Q -> observer), ``edge_dir`` the unit edge vector e and
     ``face0_normal`` the outward normal n0 of face 0, with e oriented so that
     ``t0 = n0 x e`` lies in face 0 pointing away from the edge (``e = t0 x n0``,
-    :class:`clradcom.wedges.Wedges`' ``direction``).  n0 is made orthogonal to e.
+    :class:`clradcom.geometry.wedges.Wedges`' ``direction``).  n0 is made orthogonal to e.
     With v_t the part of v perpendicular to e::
 
         phi  = atan2(s_t . n0,  s_t . t0)  mod 2 pi

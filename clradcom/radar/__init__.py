@@ -1,7 +1,7 @@
 """OFDM RadCom radar signal chain: waveform, received-signal synthesis, processing, CFAR.
 
 See docs/dsp.md for the formulas, conventions and sources.  Plotting lives in
-``clradcom.dsp.plots`` (imported on demand, it pulls in matplotlib).
+``clradcom.radar.plots`` (imported on demand, it pulls in matplotlib).
 """
 
 from clradcom.radar.cfar import (

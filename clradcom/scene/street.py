@@ -389,8 +389,8 @@ def street_readme(options: StreetOptions, plan: StreetPlan, scene: Scene,
     w(f"- Trees (`trees`): {len(plan.trees)} low-poly trees (icosphere crown r = 1.5 m at 4.3 m "
       "on a 3.2 m trunk, scaled 0.85–1.15),")
     w(f"  rows at |y| = {num(TREE_Y, 1)} m every {num(TREE_STEP, 1)} m.")
-    w("- Cars (`metal`, PEC): `meshes/car.ply` (`clradcom.models.rounded_car`, = `car_mesh()` "
-      "by default), 3.8 × 1.85 × 1.7 m,")
+    w("- Cars (`metal`, PEC): `meshes/car.ply` (`clradcom.scene.models.rounded_car`, "
+      "= `car_mesh()` by default), 3.8 × 1.85 × 1.7 m,")
     w("  nose +x, wheels on z = 0; bounding-box centre 0.85 m above the road.")
     w("")
     w("| car | position (m, wheels' plane) | yaw | velocity (m/s) |")
@@ -428,7 +428,7 @@ def street_readme(options: StreetOptions, plan: StreetPlan, scene: Scene,
     w("")
     w("## Ground truth for radar A (t = 0)")
     w("")
-    w("From the loaded scene with `clradcom.models.detection_truth(scene, 'A', "
+    w("From the loaded scene with `clradcom.radar.truth.detection_truth(scene, 'A', "
       "['carB', 'carC', 'carD'])`; p radar A position, c the car's bounding-box centre, "
       "u = (c − p)/|c − p|: R = |c − p|; nearest = distance from p to the car's closest "
       "triangle; v_rel = −(v_car − v_A)·u (positive closing); f_D = 2 v_rel / λ, "
