@@ -70,6 +70,14 @@ class TraceSettings:
         cap = min(self.diffraction.max_reflections, self.specular.max_reflections)
         return dataclasses.replace(self.diffraction, max_reflections=cap)
 
+    @property
+    def optics_search(self) -> OpticsSettings:
+        """The optics settings as searched: SBR bounces follow the specular search's
+        max_reflections unless set."""
+        if self.optics.max_bounces is not None:
+            return self.optics
+        return dataclasses.replace(self.optics, max_bounces=self.specular.max_reflections)
+
     def replace(self, **changes) -> TraceSettings:
         """A copy with fields of the nested settings changed, named ``mechanism__field``:
         ``settings.replace(specular__rays=10_000, scattering__enabled=True)``."""
@@ -156,7 +164,7 @@ def trace_scene(scene: Scene, settings: TraceSettings | None = None,
     links = [(t, r) for t in txs for r in rxs] if links is None else _check_links(scene, links)
     clock = _Clock(times if times is not None else StageTimes())
     say = progress or (lambda msg: None)
-    spec, opt, scat = settings.specular, settings.optics, settings.scattering
+    spec, opt, scat = settings.specular, settings.optics_search, settings.scattering
     diff = settings.diffraction_search
 
     with clock("geometry"):
@@ -185,7 +193,7 @@ def trace_scene(scene: Scene, settings: TraceSettings | None = None,
         if use_optics:
             with clock("physical optics"):
                 if t_idx not in shots:
-                    shots[t_idx] = optics.prepare(geom, tx, opt, spec.max_reflections)
+                    shots[t_idx] = optics.prepare(geom, tx, opt)
                 extra = optics.link_paths(geom, shots[t_idx], tx, rx, opt)
                 if extra:
                     kept = select_paths(paths, ~optics.replaced_paths(paths, shots[t_idx]))

@@ -122,3 +122,11 @@ def test_metadata_names_every_setting_by_mechanism():
     assert meta["settings.scattering.enabled"] is True
     assert meta["settings.scattering.tile_size_m"] == 0.5
     assert BASE.replace(optics__max_bounces=3).metadata()["settings.optics.max_bounces"] == 3
+
+
+def test_optics_search_follows_the_specular_depth_unless_set():
+    base = TraceSettings(specular=SpecularSettings(max_reflections=4))
+    assert base.optics_search.max_bounces == 4
+    own = base.replace(optics__max_bounces=2)
+    assert own.optics_search.max_bounces == 2
+    assert own.optics_search is own.optics

@@ -93,12 +93,11 @@ class SbrShot:
     tubes: tuple | None  # shoot_sbr's (grid, hits), None without SBR objects
 
 
-def prepare(geom: Geometry, tx: Radar, settings: OpticsSettings,
-            max_bounces: int) -> SbrShot:
-    """Sort the objects by optics and shoot tx's SBR tubes once for all its receivers
-    (``max_bounces`` when settings.max_bounces is None)."""
-    if settings.max_bounces is not None:
-        max_bounces = settings.max_bounces
+def prepare(geom: Geometry, tx: Radar, settings: OpticsSettings) -> SbrShot:
+    """Sort the objects by optics and shoot tx's SBR tubes once for all its receivers.
+    ``settings.max_bounces`` None means no SBR bounces (TraceSettings.optics_search fills
+    it from the specular search)."""
+    max_bounces = settings.max_bounces or 0
     modes = np.array(object_optics(geom.scene, settings.mode))
     po_objects = np.flatnonzero(modes != "go")
     sbr_objects = np.flatnonzero(modes == "po")
