@@ -201,7 +201,8 @@ def trace_scene(scene: Scene, settings: TraceSettings | None = None,
         if scat.enabled and geom.caster is not None:
             with clock("scattering"):
                 paths = concat_paths([paths, scattering.link_paths(
-                    geom, None, tx, rx, scat, stats["scattering"])])
+                    geom, scattering.prepare(geom, tx, scat), tx, rx, scat,
+                    stats["scattering"])])
         if wedges is not None:
             rx_candidates = candidates_of(r_idx) if diff.max_reflections else {}
             with clock("diffraction"):
