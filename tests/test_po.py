@@ -224,7 +224,9 @@ def test_back_side_and_non_pec_default(runtime):
     p_met = link(scene_m, runtime)
     ratio = abs(p_conc.gain.sum()) / abs(p_met.gain.sum())
     eps = scene.material_eps_r[0]
-    assert ratio == pytest.approx(abs((1 - np.sqrt(eps)) / (1 + np.sqrt(eps))), rel=1e-9)
+    # |Gamma(0)|; the two centroids are seen 0.5 deg off the normal, which moves the
+    # Fresnel coefficients at second order (~1e-9)
+    assert ratio == pytest.approx(abs((1 - np.sqrt(eps)) / (1 + np.sqrt(eps))), rel=1e-8)
 
 
 def test_doppler_and_delay_of_a_moving_plate(runtime):

@@ -11,6 +11,9 @@ key, else the default that :attr:`OpticsSettings.mode` gives PEC objects):
 * ``"po"``: every GO reflection path that ends on it makes way for PO facet returns
   (first bounce) and SBR-PO tube returns (bounces 2..max_bounces);
 * ``"go"``: untouched.
+
+A non-PEC object gets PO only through its own ``optics`` key; its facets then carry the
+currents of a penetrable surface (Fresnel-weighted PO, docs/po.md).
 """
 
 from __future__ import annotations

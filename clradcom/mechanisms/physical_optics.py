@@ -33,6 +33,26 @@ def _default_objects(scene):
     return [i for i, o in enumerate(scene.objects) if bool(pec[o.material])]
 
 
+def _mixed_transfer(scene, v, nrm, mat, pec, tx_pos, rx_pos):
+    """po_transfer's outputs for facets of PEC and penetrable materials: the PEC rows
+    with the PEC current, the others with the currents of the incident plus the
+    specularly reflected field (:func:`clradcom.physics.em.material_reflection_dyad` at
+    each facet's own incidence: Fresnel x roughness x sqrt(1 - S^2))."""
+    P = len(v)
+    T = np.empty((P, 3, 3), np.complex128)
+    L, c, k_dep, k_arr = np.empty(P), np.empty((P, 3)), np.empty((P, 3)), np.empty((P, 3))
+    metal, other = np.flatnonzero(pec), np.flatnonzero(~pec)
+
+    def reflection(k_in, n):
+        return em.material_reflection_dyad(scene, mat[other], k_in, n)
+
+    for rows, refl in ((metal, None), (other, reflection)):
+        if len(rows):
+            T[rows], L[rows], c[rows], k_dep[rows], k_arr[rows] = po_transfer(
+                v[rows], nrm[rows], tx_pos, rx_pos, scene.carrier_hz, refl)
+    return T, L, c, k_dep, k_arr
+
+
 def po_paths(geom, tx, rx, *, objects=None, min_relative_db=-80.0, two_sided=False):
     """PO facet paths of one tx -> rx link as :class:`clradcom.snapshot.Paths`.
 
@@ -56,10 +76,12 @@ def po_paths(geom, tx, rx, *, objects=None, min_relative_db=-80.0, two_sided=Fal
     Facets of one flat face are coherent pieces of one plate: the sum of their
     gains is that plate's PO return.
 
-    Non-PEC objects (when listed in ``objects``) are weighted by -r_te at normal
-    incidence (the Fresnel coefficient for eps_r, with PEC's -1 as reference):
-    an approximation that ignores the angle and polarisation dependence of the
-    dielectric's currents.
+    Non-PEC objects (when listed in ``objects``) carry the equivalent currents of a
+    penetrable surface, J = n x H_tot and M = -n x E_tot of the incident plus the
+    specularly reflected field, with the material's Fresnel coefficients (TE and TM at
+    each facet's own incidence angle), roughness factor and sqrt(1 - S^2) specular share
+    (:func:`clradcom.physics.po.penetrable_po_operator`; docs/po.md).  PEC facets keep
+    the PEC current J = 2 n x H_inc.
 
     Paths whose |gain| lies more than |min_relative_db| below the link's strongest
     facet are dropped, as are facets outside either antenna's pattern.
@@ -101,11 +123,10 @@ def po_paths(geom, tx, rx, *, objects=None, min_relative_db=-80.0, two_sided=Fal
     mat = scene.tri_material[tri_ids]
     obj = scene.tri_object[tri_ids]
     pec = scene.material_pec[mat]
-    refl = np.ones(len(tri_ids), dtype=np.complex128)
-    if not np.all(pec):
-        r_te, _ = em.fresnel_coefficients(scene.material_eps_r[mat], 1.0, pec)
-        refl = -r_te
-    T, L, c, k_dep, k_arr = po_transfer(v, nrm, tx_pos, rx_pos, scene.carrier_hz, refl)
+    if np.all(pec):
+        T, L, c, k_dep, k_arr = po_transfer(v, nrm, tx_pos, rx_pos, scene.carrier_hz)
+    else:
+        T, L, c, k_dep, k_arr = _mixed_transfer(scene, v, nrm, mat, pec, tx_pos, rx_pos)
     gain, M = em.path_gains(T, L, k_dep, k_arr, tx, rx, scene.carrier_hz)
 
     P = len(tri_ids)

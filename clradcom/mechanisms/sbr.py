@@ -25,7 +25,10 @@ earlier reflection dyads (C = I - k0 k0^T for m = 1), receiver at R_r along s::
 with e1', e2' the tube's square cross-section (side sqrt(dOmega) L_in, edges carried
 through the mirrors) projected along k_i onto the facet: the exact radiation integral
 of a parallelogram footprint with a linear phase.  This is :func:`clradcom.physics.po.po_transfer`
-with the facet replaced by the footprint and 1/R_t by the image source's 1/L_in.
+with the facet replaced by the footprint and 1/R_t by the image source's 1/L_in.  A footprint
+on a non-PEC facet radiates the currents of the incident plus reflected field instead,
+(I - s s^T)[n x (k_i x .)] -> K/2 of :func:`clradcom.physics.po.penetrable_po_operator` with
+the material's reflection dyad at the tube's incidence.
 """
 
 from __future__ import annotations
@@ -40,7 +43,7 @@ from clradcom.device.visibility import surface_sees
 from clradcom.geometry.triangles import triangle_normals
 from clradcom.paths import InteractionType, Paths
 from clradcom.physics import em
-from clradcom.physics.po import sinc
+from clradcom.physics.po import penetrable_po_operator, sinc
 from clradcom.physics.vectors import orthonormal_frame
 
 __all__ = ["TubeGrid", "TubeHits", "bounding_sphere", "launch_tubes", "shoot_tubes",
@@ -282,17 +285,20 @@ def _radiate(geom, hits: TubeHits, grid: TubeGrid, tx, rx):
     i_fp = area * sinc(0.5 * np.einsum("ij,ij->i", q, edges[0])) * sinc(
         0.5 * np.einsum("ij,ij->i", q, edges[1]))
     mat = scene.tri_material[hits.triangle[keep]]
-    refl = np.ones(len(keep), dtype=np.complex128)
     pec = scene.material_pec[mat]
-    if not np.all(pec):
-        r_te, _ = em.fresnel_coefficients(scene.material_eps_r[mat], 1.0, pec)
-        refl = -r_te
     eye = np.eye(3)
     cross2 = k_in[:, :, None] * n[:, None, :] - kn[:, None, None] * eye
     proj = eye - s[:, :, None] * s[:, None, :]
+    op = proj @ cross2
+    if not np.all(pec):
+        # penetrable footprints: currents of the incident plus reflected field
+        pen = np.flatnonzero(~pec)
+        op = op.astype(np.complex128)
+        D = em.material_reflection_dyad(scene, mat[pen], k_in[pen], n[pen])
+        op[pen] = 0.5 * penetrable_po_operator(n[pen], k_in[pen], s[pen], D)
     L = L_in + R_r
-    scale = -1j * k0 / (2.0 * np.pi) * L / (L_in * R_r) * i_fp * refl
-    T = scale[:, None, None] * (proj @ cross2 @ hits.chain[keep])
+    scale = -1j * k0 / (2.0 * np.pi) * L / (L_in * R_r) * i_fp
+    T = scale[:, None, None] * (op @ hits.chain[keep])
     k_dep = grid.directions[hits.tube[keep]]
     return T, L, k_dep, s, keep
 

@@ -26,6 +26,16 @@ scene).  A flat plate at normal incidence in its far field gives
 T = -j (2A / (lambda R)) (I - k k^T) monostatic, i.e. sigma = 4 pi A^2 / lambda^2,
 and the polarimetric matrix is j (2A/(lambda R)) times the GO plate's (-I in the
 backscatter-alignment basis).
+
+A penetrable (lossy dielectric) facet carries J = n x H_tot and M = -n x E_tot of the
+incident plus the locally reflected plane wave E_r = D E_i (D the reflection dyad of
+the facet's material at its own incidence angle: TE and TM Fresnel coefficients,
+roughness, specular share), radiated with the same integral::
+
+    T = -(j k / 4 pi) L/(R_t R_r) K I_c(q)
+    K = (I - s s^T)[n x (k_i x .) + n x (k_r x D .)] + s x (n x (I + D) .)
+
+(:func:`penetrable_po_operator`; a PEC's D gives M = 0 and K = 2 (I - s s^T)[n x (k_i x .)]).
 """
 
 from __future__ import annotations
@@ -37,7 +47,8 @@ import numpy as np
 from clradcom.geometry.triangles import triangle_normals_and_double_areas
 from clradcom.physics import em
 
-__all__ = ["po_facet_field", "po_transfer", "sinc", "triangle_po_integral"]
+__all__ = ["penetrable_po_operator", "po_facet_field", "po_transfer", "sinc",
+           "triangle_po_integral"]
 
 #: Below this spread max|q.(v_i - c)| (rad) the integral uses its Taylor series.
 _SERIES_SPREAD = 2.0
@@ -130,15 +141,58 @@ def triangle_po_integral(vertices, q):
     return out
 
 
+def penetrable_po_operator(normal, k_in, s, reflection):
+    """Current operator K (F,3,3) of a penetrable facet: the scattered far field of its
+    lit-side equivalent currents per incident field, for ``reflection`` the local
+    reflection dyad D (F,3,3) (E_r = D E_i, :func:`clradcom.physics.em.reflection_dyad`
+    at k_in on this facet, Fresnel coefficients x roughness x specular share)::
+
+        K = (I - s s^T) [n x (k_i x .) + n x (k_r x D .)] + s x (n x (I + D) .)
+        k_r = k_i - 2 (k_i . n) n
+
+    from J = n x (H_i + H_r), M = -n x (E_i + E_r), H = k x E / eta (docs/po.md).  The
+    facet's transfer dyad is T = -(j k / 4 pi) L/(R_t R_r) K I_c(q).  A PEC's D
+    (r_te = -1, r_tm = +1) gives M = 0 and K = 2 (I - s s^T)[n x (k_i x .)], the PEC
+    current of :func:`po_transfer`.  ``normal`` is the lit-side unit normal (k_in . n < 0),
+    ``s`` the unit direction towards the receiver.
+    """
+    n = np.asarray(normal, dtype=np.float64).reshape(-1, 3)
+    ki = np.asarray(k_in, dtype=np.float64).reshape(-1, 3)
+    s = np.asarray(s, dtype=np.float64).reshape(-1, 3)
+    D = np.asarray(reflection, dtype=np.complex128).reshape(-1, 3, 3)
+    eye = np.eye(3)
+    kin = np.einsum("fi,fi->f", n, ki)
+    kr = ki - 2.0 * kin[:, None] * n
+    # n x (b x e) = b (n . e) - e (n . b); n . k_r = -n . k_i
+    a_i = ki[:, :, None] * n[:, None, :] - kin[:, None, None] * eye
+    a_r = kr[:, :, None] * n[:, None, :] + kin[:, None, None] * eye
+    proj = eye - s[:, :, None] * s[:, None, :]
+    return proj @ (a_i + a_r @ D) + _cross_matrix(s) @ _cross_matrix(n) @ (eye + D)
+
+
+def _cross_matrix(v):
+    """[v]_x (F,3,3): [v]_x e = v x e."""
+    z = np.zeros(len(v))
+    return np.stack([np.stack([z, -v[:, 2], v[:, 1]], axis=-1),
+                     np.stack([v[:, 2], z, -v[:, 0]], axis=-1),
+                     np.stack([-v[:, 1], v[:, 0], z], axis=-1)], axis=1)
+
+
 def po_transfer(vertices, normal, tx_pos, rx_pos, carrier_hz, reflection=None):
     """PO transfer dyad T (F,3,3), length L (F,), centroid c (F,3) and the unit
-    directions k_dep = (c - tx)/R_t, k_arr = (rx - c)/R_r of facets (PEC)::
+    directions k_dep = (c - tx)/R_t, k_arr = (rx - c)/R_r of facets.
+
+    PEC (``reflection`` None)::
 
         T = -(j k / 2 pi) L/(R_t R_r) (I - s s^T) [n x (k_i x .)] I_c(k (s - k_i))
 
+    Penetrable: ``reflection`` is a callable ``(k_in (F,3), normal (F,3)) -> D (F,3,3)``
+    giving each facet's local reflection dyad (e.g.
+    :func:`clradcom.physics.em.material_reflection_dyad` of its material); then
+    T = -(j k / 4 pi) L/(R_t R_r) K I_c with K of :func:`penetrable_po_operator`
+    (J = n x H_tot, M = -n x E_tot of the incident plus reflected fields).
+
     ``normal`` (F,3) is the lit-side unit normal (the caller checks the sides).
-    ``reflection`` (F,) complex, optional: a scalar weight per facet, 1 for PEC
-    (see :func:`po_paths` for the dielectric approximation).
     """
     v = np.asarray(vertices, dtype=np.float64).reshape(-1, 3, 3)
     n = np.asarray(normal, dtype=np.float64).reshape(-1, 3)
@@ -157,24 +211,29 @@ def po_transfer(vertices, normal, tx_pos, rx_pos, carrier_hz, reflection=None):
     s = dr / R_r[:, None]
     L = R_t + R_r
     I_c = triangle_po_integral(v - c[:, None, :], k * (s - ki))
-    eye = np.eye(3)
-    # n x (k_i x e) = k_i (n . e) - e (n . k_i)
-    cross2 = ki[:, :, None] * n[:, None, :] - np.einsum("fi,fi->f", n, ki)[:, None, None] * eye
-    proj = eye - s[:, :, None] * s[:, None, :]
     scale = -1j * k / (2.0 * np.pi) * L / (R_t * R_r) * I_c
-    if reflection is not None:
-        scale = scale * np.broadcast_to(np.asarray(reflection, dtype=np.complex128), scale.shape)
-    T = scale[:, None, None] * (proj @ cross2)
+    if reflection is None:
+        eye = np.eye(3)
+        # n x (k_i x e) = k_i (n . e) - e (n . k_i)
+        cross2 = ki[:, :, None] * n[:, None, :] - np.einsum("fi,fi->f", n, ki)[:, None, None] * eye
+        proj = eye - s[:, :, None] * s[:, None, :]
+        op = proj @ cross2
+    else:
+        n = np.broadcast_to(n, ki.shape)
+        D = np.asarray(reflection(ki, n), dtype=np.complex128)
+        op = 0.5 * penetrable_po_operator(n, ki, s, D)
+    T = scale[:, None, None] * op
     return T, L, c, ki, s
 
 
 def po_facet_field(vertices, normal, tx_pos, rx_pos, e_tx, carrier_hz, reflection=None):
-    """Bistatic PO scattered field of PEC facets, normalised like :mod:`clradcom.physics.em`.
+    """Bistatic PO scattered field of facets, normalised like :mod:`clradcom.physics.em`.
 
     The transmitter radiates ``e_tx e^{-jkd}/d`` (e_tx (F,3) complex, world,
     transverse to k_dep: C_theta theta_hat + C_phi phi_hat); the returned field at
     rx is ``E = T e_tx e^{-jkL}/L`` (F,3), so the gain for a receive vector e_rx is
-    a = (lambda/4 pi) e_rx . E.  Returns (E, T, L, centroid).
+    a = (lambda/4 pi) e_rx . E.  ``reflection`` as in :func:`po_transfer` (None: PEC).
+    Returns (E, T, L, centroid).
     """
     T, L, c, _, _ = po_transfer(vertices, normal, tx_pos, rx_pos, carrier_hz, reflection)
     k = 2.0 * np.pi * float(carrier_hz) / em.C0
