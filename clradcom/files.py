@@ -8,14 +8,19 @@
 * Never over an input: ``inputs`` lists the files a run read; a target that is one of
   them is refused before anything is written.
 * :func:`staged_folder` - a run's whole output folder is built beside the old one and
-  swapped in at the end, so a folder is never half old, half new.
+  swapped in at the end, so a folder is never half old, half new. Given the names a run
+  owns (``owned``), whatever else the old folder holds (another tool's subfolder, a
+  user's notes) is carried into the new one instead of being dropped with it.
 * :func:`save_figure` - matplotlib figures through :func:`atomic_write`, with the date
   and the random SVG ids fixed so that identical runs give identical bytes.
+* :func:`write_csv`, :func:`write_text` - tables and text through :func:`atomic_write`.
 """
 
 from __future__ import annotations
 
 import contextlib
+import csv
+import fnmatch
 import io
 import os
 import secrets
@@ -26,7 +31,8 @@ from pathlib import Path
 
 from clradcom.errors import ArgumentError
 
-__all__ = ["OutputError", "atomic_write", "save_figure", "staged_folder"]
+__all__ = ["OutputError", "atomic_write", "save_figure", "staged_folder", "write_csv",
+           "write_text"]
 
 #: Salt of matplotlib's SVG ids (clip paths, glyphs): fixed for byte-identical SVGs.
 SVG_HASH_SALT = "clradcom"
@@ -165,41 +171,138 @@ def save_figure(figure, path: str | os.PathLike, *, inputs=(), **savefig_kw) -> 
     return atomic_write(target, write, inputs=inputs)
 
 
+def write_text(path: str | os.PathLike, text: str, *, inputs=(),
+               encoding: str = "utf-8") -> Path:
+    """Write a text file atomically (see :func:`atomic_write`); newlines as given."""
+    data = text.encode(encoding)
+    return atomic_write(path, lambda fh: fh.write(data), inputs=inputs)
+
+
+def write_csv(path: str | os.PathLike, rows, header=None, *, inputs=()) -> Path:
+    """Write a CSV file atomically: ``header`` (when given), then ``rows`` (sequences)
+    as the :mod:`csv` module's default dialect writes them (``\\r\\n`` line ends)."""
+    buffer = io.StringIO(newline="")
+    writer = csv.writer(buffer)
+    if header is not None:
+        writer.writerow(header)
+    writer.writerows(rows)
+    return write_text(path, buffer.getvalue(), inputs=inputs)
+
+
+class _SwapStuck(OutputError):
+    """A failed swap could not be undone whole: the staging folder holds files that must
+    not be removed (carried from the old folder, or the new outputs with the old folder
+    moved aside)."""
+
+
+def _owns(name: str, owned) -> bool:
+    return any(fnmatch.fnmatchcase(name, pattern) for pattern in owned)
+
+
+def _under(path: Path, folder: Path) -> bool:
+    return path == folder or folder in path.parents
+
+
+def _swap_in(staging: Path, target: Path, parent: Path, owned) -> None:
+    """Carry what the run does not own from ``target`` into ``staging``, then swap
+    ``staging`` in for ``target``. On any failure or interrupt everything carried is moved
+    back and ``target`` is as it was; raises OutputError for a file system failure."""
+    carried: list[str] = []
+    old = None
+    try:
+        if target.exists() and owned is not None:
+            for entry in sorted(target.iterdir()):
+                if _owns(entry.name, owned) or (staging / entry.name).exists():
+                    continue
+                os.rename(entry, staging / entry.name)
+                carried.append(entry.name)
+        if target.exists():
+            old = parent / f".{target.name}.{secrets.token_hex(6)}.old"
+            os.replace(target, old)
+        os.replace(staging, target)
+    except BaseException as exc:
+        if not staging.exists():  # interrupted just after the swap: it is done
+            if old is not None:
+                shutil.rmtree(old, ignore_errors=True)
+            raise
+        restored = True
+        if old is not None and not target.exists():
+            try:
+                os.replace(old, target)
+            except OSError:
+                restored = False
+        stuck = list(carried) if not restored else []
+        for name in (reversed(carried) if restored else ()):
+            try:
+                os.rename(staging / name, target / name)
+            except OSError:
+                stuck.append(name)
+        if stuck or not restored:  # never remove the staging folder with such files in it
+            where = "" if restored else f"; the old folder is in {old}"
+            raise _SwapStuck(f"{target}: the new outputs could not be swapped in; they are "
+                             f"in {staging}" + (f", with {', '.join(stuck)} of the old "
+                                                f"folder" if stuck else "") + where) from exc
+        if isinstance(exc, OSError):
+            raise OutputError(f"{target}: cannot swap the new outputs in "
+                              f"({exc.strerror or exc}); the old folder is as it was") from exc
+        raise
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
+
+
 @contextlib.contextmanager
-def staged_folder(path: str | os.PathLike, *, inputs=()) -> Iterator[Path]:
+def staged_folder(path: str | os.PathLike, *, inputs=(), owned=None) -> Iterator[Path]:
     """Build an output folder beside ``path`` and swap it in when the block ends.
 
     Yields the staging folder to write into. On success the old folder (if any) is
-    replaced as a whole; on any error or interrupt the staging folder is removed and the
-    old folder stays untouched. Files listed in ``inputs`` must not lie in ``path``: the
-    swap would remove them.
+    replaced; on any error or interrupt the staging folder is removed and the old folder
+    stays untouched.
+
+    ``owned``: glob patterns of the names this run writes into the folder
+    (``"*_image.png"``). Without it the old folder is replaced as a whole. With it, the
+    entries of the old folder that match none of the patterns (another tool's
+    subfolder, a user's notes) are moved into the new folder just before the swap, so
+    only this run's own earlier outputs are replaced, all of them at once.
+
+    Refused before anything is written (:class:`OutputError` or ``ArgumentError``): a
+    ``path`` that exists and is not a folder, one that is or holds the current folder,
+    and one holding an input of the run (``inputs``) that the swap would remove (with
+    ``owned``: only inputs whose names it owns).
     """
-    target = Path(path)
+    target = Path(os.path.abspath(path))
     if target.exists() and not target.is_dir():
-        raise OutputError(f"{target}: exists and is not a folder; choose another output")
-    for source in inputs:
-        src = Path(source).resolve()
-        if target.exists() and target.resolve() in src.parents:
-            raise ArgumentError(f"the output folder holds an input of this run ({source}); "
-                                f"choose another output folder", argument="output",
-                                value=str(target))
-    parent = target.parent if str(target.parent) else Path(".")
+        raise OutputError(f"{path}: exists and is not a folder; choose another output")
+    try:
+        cwd = Path(os.getcwd()).resolve()
+    except OSError:  # the current folder was removed: it cannot be the target
+        cwd = None
+    if cwd is not None and _under(cwd, target.resolve()):
+        raise OutputError(f"{path}: is the current folder or holds it; a run replaces its "
+                          f"output folder, so choose a folder of its own")
+    if target.exists():
+        real = target.resolve()
+        for source in inputs:
+            src = Path(source).resolve()
+            if real not in src.parents:
+                continue
+            top = src.relative_to(real).parts[0]
+            if owned is None or _owns(top, owned):
+                raise ArgumentError(f"the output folder holds an input of this run "
+                                    f"({source}) that the run would replace; choose another "
+                                    f"output folder", argument="output", value=str(path))
+    parent = target.parent
     try:
         parent.mkdir(parents=True, exist_ok=True)
         staging = parent / f".{target.name}.{secrets.token_hex(6)}.new"
         staging.mkdir()
     except OSError as exc:
-        raise OutputError(f"{target}: cannot create the output folder "
+        raise OutputError(f"{path}: cannot create the output folder "
                           f"({exc.strerror or exc})") from exc
     try:
         yield staging
-        old = None
-        if target.exists():
-            old = parent / f".{target.name}.{secrets.token_hex(6)}.old"
-            os.replace(target, old)
-        os.replace(staging, target)
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
+        _swap_in(staging, target, parent, owned)
+    except _SwapStuck:
+        raise  # the staging folder holds files that must stay: never remove it
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise

@@ -4,14 +4,21 @@ from __future__ import annotations
 
 import numpy as np
 
+from clradcom.errors import ArgumentError
+from clradcom.files import save_figure
 
-def plot_top_view(scene, snapshot, link=None, n_paths: int = 20, path=None):
+
+def plot_top_view(scene, snapshot, link=None, n_paths: int = 20, path=None, *, inputs=()):
     """Top view (x-y) of the scene's triangles, radars and a link's strongest paths.
 
-    Returns the matplotlib Figure; writes it to ``path`` when given.
+    Returns the matplotlib Figure; writes it to ``path`` when given, atomically and
+    byte-identically for identical input (:func:`clradcom.files.save_figure`).
     """
     from matplotlib.collections import LineCollection, PolyCollection
     from matplotlib.figure import Figure
+
+    if isinstance(n_paths, bool) or not isinstance(n_paths, int | np.integer) or n_paths < 1:
+        raise ArgumentError("must be a positive integer", argument="n_paths", value=n_paths)
 
     fig = Figure(figsize=(11, 5), layout="constrained")
     ax = fig.add_subplot()
@@ -42,5 +49,5 @@ def plot_top_view(scene, snapshot, link=None, n_paths: int = 20, path=None):
     ax.set_ylabel("y (m)")
     ax.set_title(f"{scene.name}: top view, {n_paths} strongest paths")
     if path is not None:
-        fig.savefig(path, dpi=150)
+        save_figure(fig, path, inputs=inputs, dpi=150)
     return fig

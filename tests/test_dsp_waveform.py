@@ -104,7 +104,7 @@ def test_modulate_demodulate_refuse_bad_shapes():
     wf = small_waveform()
     with pytest.raises(ValueError, match="symbols"):
         ofdm_modulate(np.ones((wf.n_subcarriers + 1, wf.n_symbols)), wf)
-    with pytest.raises(ValueError, match="rx has"):
+    with pytest.raises(ValueError, match="rx: has"):
         ofdm_demodulate(np.ones(10), wf)
     with pytest.raises(ValueError, match="NaN"):
         ofdm_modulate(np.full((wf.n_subcarriers, wf.n_symbols), np.nan), wf)

@@ -11,10 +11,12 @@ on the same float32 triangles (scene set-up and the commit forced by a first ``r
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 
 import numpy as np
 
+from clradcom.cli import positive_int, run_tool
 from clradcom.geometry.bvh import build_bvh
 
 
@@ -107,14 +109,17 @@ def embree_build(tris: np.ndarray, repeat: int) -> tuple[float, float] | None:
     return best_total, best_commit
 
 
-def main(argv: list[str] | None = None) -> None:
+def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    ap.add_argument("--sizes", type=int, nargs="+", default=[16_000, 100_000, 1_000_000])
-    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--sizes", type=positive_int, nargs="+", default=[16_000, 100_000, 1_000_000])
+    ap.add_argument("--repeat", type=positive_int, default=3)
     ap.add_argument("--no-median", action="store_true", help="skip the median-split reference")
     ap.add_argument("--no-embree", action="store_true")
     args = ap.parse_args(argv)
+    return run_tool("bench_bvh.py", run, args)
 
+
+def run(args) -> int:
     print(
         f"{'scene':8s} {'tris':>9s} {'first_s':>8s} {'best_s':>8s} {'SAH':>9s} "
         f"{'SAH_med':>9s} {'depth':>5s} {'leaf':>5s} {'embree_s':>9s} {'commit_s':>9s} "
@@ -141,7 +146,8 @@ def main(argv: list[str] | None = None) -> None:
         "ratio = numpy best build / Embree (set-up + commit); SAH relative to root area, "
         "C_t = C_i = 1"
     )
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -16,11 +16,14 @@ from __future__ import annotations
 import argparse
 import resource
 import statistics
+import sys
 import time
 import tracemalloc
 
 import numpy as np
 
+from clradcom.cli import positive_int, run_tool, seed
+from clradcom.errors import check_memory
 from clradcom.radar import (
     Waveform,
     detect,
@@ -119,15 +122,22 @@ def traced_peak(fn):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--paths", type=int, default=1000)
-    ap.add_argument("--repeat", type=int, default=3)
-    ap.add_argument("--ref-paths", type=int, default=None,
+    ap.add_argument("--paths", type=positive_int, default=1000)
+    ap.add_argument("--repeat", type=positive_int, default=3)
+    ap.add_argument("--ref-paths", type=positive_int, default=None,
                     help="paths for the slow references (default: all); times are scaled "
                          "linearly to --paths and marked '*'")
-    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--seed", type=seed, default=1)
     args = ap.parse_args(argv)
+    return run_tool("bench_dsp.py", run, args)
 
+
+def run(args) -> int:
     wf = Waveform()
+    # the matmul synthesis' (N, K) and (K, M) complex factors and their product's operands
+    check_memory(3 * 16 * args.paths * (wf.n_subcarriers + wf.n_symbols),
+                 what=f"{args.paths} paths", argument="--paths", value=args.paths,
+                 advice="use fewer --paths")
     rng = np.random.default_rng(args.seed)
     k = args.paths
     r = rng.uniform(1.0, 200.0, k)  # street scale, inside the ISI-free 206 m
@@ -205,7 +215,8 @@ def main(argv=None):
         print(f"* reference timed on {kr} paths and scaled linearly to {k}.")
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     print(f"process max RSS: {rss:.0f} MiB")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -24,9 +24,12 @@ Context (not measured here): Sionna RT 2.2 on this machine's CPU, reflections
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 
+from clradcom.cli import int_in, list_of, positive_int, run_tool
 from clradcom.device.runtime import get_runtime
+from clradcom.errors import ArgumentError
 from clradcom.paths import pattern_counts
 from clradcom.scene.reader import load_scene
 from clradcom.trace import (
@@ -46,20 +49,50 @@ def main(argv=None):
                     help="tx:rx links to trace together (default A:A,A:D - monostatic and "
                          "the bistatic link to the radar on car D)")
     ap.add_argument("--device", default=None)
-    ap.add_argument("--orders", default="1,2,3,4,5")
-    ap.add_argument("--rays", default="100000,300000,1000000")
+    ap.add_argument("--orders", type=list_of(int_in(1, 16), "order"), default=[1, 2, 3, 4, 5])
+    ap.add_argument("--rays", type=list_of(positive_int, "ray count"),
+                    default=[100_000, 300_000, 1_000_000])
     ap.add_argument("--diffractions", type=int, choices=(0, 1, 2, 3), default=1,
                     help="UTD edge diffractions per path in the first table (default 1)")
-    ap.add_argument("--diffraction-orders", default="0,1,2,3",
+    ap.add_argument("--diffraction-orders", type=_optional(list_of(int_in(0, 3), "order")),
+                    default=[0, 1, 2, 3],
                     help="diffraction orders of the second table ('' skips it)")
-    ap.add_argument("--diffraction-rays", type=int, default=300_000)
-    ap.add_argument("--diffraction-reflections", default="0,1",
-                    help="reflections beside the edges in the second table")
+    ap.add_argument("--diffraction-rays", type=positive_int, default=300_000)
+    ap.add_argument("--diffraction-reflections", type=list_of(int_in(0, 16), "order"),
+                    default=[0, 1], help="reflections beside the edges in the second table")
     args = ap.parse_args(argv)
+    return run_tool("bench_paths.py", run, args)
+
+
+def _optional(parse):
+    """'' for none, else ``parse``."""
+    def inner(text):
+        return [] if not str(text).strip() else parse(text)
+    inner.__name__ = parse.__name__
+    return inner
+
+
+def parse_links(scene, text) -> list[tuple[int, int]]:
+    """tx:rx pairs of radar names, each name checked against the scene."""
+    links = []
+    for pair in text.split(","):
+        names = pair.strip().split(":")
+        if len(names) != 2 or not all(names):
+            raise ArgumentError("wants tx:rx pairs of radar names, comma separated (A:A,A:D)",
+                                argument="--links", value=text)
+        for name in names:
+            if name not in [r.name for r in scene.radars]:
+                raise ArgumentError(f"radar {name!r} is not in {scene.name!r} (radars: "
+                                    f"{[r.name for r in scene.radars]})", argument="--links",
+                                    value=text)
+        links.append(tuple(scene.radar_index(n) for n in names))
+    return links
+
+
+def run(args) -> int:
     scene = load_scene(args.scene)
+    links = parse_links(scene, args.links)
     rt = get_runtime(args.device)
-    links = [tuple(scene.radar_index(n) for n in pair.split(":"))
-             for pair in args.links.split(",")]
     print(f"device : {rt.info.describe()}")
     print(f"scene  : {scene.name}, {len(scene.triangles)} triangles, links {args.links}")
     # warm up: geometry, kernels compiled
@@ -69,8 +102,8 @@ def main(argv=None):
     print(f"\n{'order':>5} {'rays':>9} {'refl.':>6} {'diffr.':>6} {'geometry':>9} "
           f"{'candid.':>9} {'specular':>9} {'wedges':>8} {'UTD':>7} {'total s':>8} "
           f"{'paths/s':>9}")
-    for order in (int(x) for x in args.orders.split(",")):
-        for rays in (int(x) for x in args.rays.split(",")):
+    for order in args.orders:
+        for rays in args.rays:
             times = StageTimes()
             t0 = time.perf_counter()
             settings = TraceSettings(
@@ -88,14 +121,15 @@ def main(argv=None):
                   f"{total:>8.2f} {n / total:>9.1f}")
     if args.diffraction_orders:
         diffraction_table(scene, rt, links, args)
+    return 0
 
 
 def diffraction_table(scene, rt, links, args):
     print(f"\ncost of each diffraction order (reflection order 2, {args.diffraction_rays} rays)")
     print(f"{'edges':>5} {'refl.':>5} {'candidates':>11} {'over cap':>10} {'paths':>6} "
           f"{'UTD s':>7} {'total s':>8}  paths per pattern")
-    for order in (int(x) for x in args.diffraction_orders.split(",")):
-        for refl in (int(x) for x in args.diffraction_reflections.split(",")):
+    for order in args.diffraction_orders:
+        for refl in args.diffraction_reflections:
             if order == 0 and refl:
                 continue
             times = StageTimes()
@@ -114,4 +148,4 @@ def diffraction_table(scene, rt, links, args):
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -25,13 +25,16 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
+from clradcom.cli import positive_int, run_tool
 from clradcom.device.raycast import RayCaster, make_rays, spawn_origins
 from clradcom.device.runtime import get_runtime
+from clradcom.errors import check_memory
 from clradcom.scene.models import street_triangles
 
 
@@ -96,11 +99,21 @@ def clradcom_once(caster, rays):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    ap.add_argument("--rays", type=int, default=1_000_000, help="primary rays (default 1e6)")
+    ap.add_argument("--rays", type=positive_int, default=1_000_000,
+                    help="primary rays (default 1e6)")
     ap.add_argument("--device", default=None, help="OpenCL device spec (see: clradcom devices)")
-    ap.add_argument("--repeat", type=int, default=5, help="timed repetitions, best kept")
+    ap.add_argument("--repeat", type=positive_int, default=5,
+                    help="timed repetitions, best kept")
     ap.add_argument("--no-embree", action="store_true", help="skip the Embree reference")
     args = ap.parse_args(argv)
+    return run_tool("bench_raycast.py", run, args)
+
+
+def run(args) -> int:
+    # the direction lattice, two ray sets and their hits (32 bytes each) and the bounce
+    # computation's float64 temporaries
+    check_memory(args.rays * (24 + 2 * (32 + 32) + 6 * 24), what=f"{args.rays} rays",
+                 argument="--rays", value=args.rays, advice="use fewer --rays")
 
     tris, _ = street_triangles(seed=0)
     tris32 = np.ascontiguousarray(tris, dtype=np.float32)
@@ -177,7 +190,8 @@ def main(argv=None):
         print(line)
     print("\nratio = clradcom throughput / Embree throughput on the same cores "
           "(end-to-end for clradcom: upload, kernel, download)")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

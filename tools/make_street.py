@@ -15,6 +15,11 @@ writes them.
 Meshes are little-endian binary PLY (float32 vertices, int32 faces) built by the package, not
 by a library exporter, so the bytes do not depend on a trimesh version. The car mesh is written
 once (meshes/car.ply) and referenced by all four cars; one tree mesh serves every tree.
+
+The output folder is built beside the old one and swapped in when it is complete:
+street.toml, README.md and meshes/ are this tool's and are replaced together (an
+interrupted run leaves the old ones as they were); anything else in the folder is kept.
+Errors are one line on stderr, exit code 2.
 """
 
 from __future__ import annotations
@@ -22,6 +27,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from clradcom.cli import finite_float, output_folder, positive_float, positive_int, run_tool
+from clradcom.files import atomic_write, staged_folder, write_text
 from clradcom.radar.truth import detection_truth
 from clradcom.scene.reader import load_scene
 from clradcom.scene.street import (
@@ -34,6 +41,8 @@ from clradcom.scene.street import (
 
 REPO = Path(__file__).resolve().parent.parent
 DEFAULT_OUT = REPO / "scenes" / "street"
+#: the names this tool writes into its output folder (clradcom.files.staged_folder)
+OUTPUTS = ("street.toml", "README.md", "meshes")
 
 
 def options_from_args(args) -> StreetOptions:
@@ -43,23 +52,20 @@ def options_from_args(args) -> StreetOptions:
 
 
 def build(args) -> Path:
-    """Write street.toml, meshes/*.ply and README.md into args.out."""
+    """Write street.toml, meshes/*.ply and README.md into args.out, swapped in whole
+    (meshes of an earlier layout go with the old folder)."""
     options = options_from_args(args)
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    mdir = out / "meshes"
-    if mdir.is_dir():  # remove stale meshes of an earlier layout (only our .ply files)
-        for f in sorted(mdir.glob("*.ply")):
-            f.unlink()
     plan = plan_street(options)
-    mdir.mkdir(parents=True, exist_ok=True)
-    for name, data in street_meshes(plan).items():
-        (mdir / name).write_bytes(data)
-    (out / "street.toml").write_text(street_toml(options, plan), encoding="utf-8")
-    scene = load_scene(out / "street.toml")
-    truth = detection_truth(scene, "A", ["carB", "carC", "carD"])
-    (out / "README.md").write_text(street_readme(options, plan, scene, truth),
-                                   encoding="utf-8")
+    with staged_folder(out, owned=OUTPUTS) as stage:
+        mdir = stage / "meshes"
+        mdir.mkdir()
+        for name, data in street_meshes(plan).items():
+            atomic_write(mdir / name, lambda fh, data=data: fh.write(data))
+        write_text(stage / "street.toml", street_toml(options, plan))
+        scene = load_scene(stage / "street.toml")
+        truth = detection_truth(scene, "A", ["carB", "carC", "carD"])
+        write_text(stage / "README.md", street_readme(options, plan, scene, truth))
     return out
 
 
@@ -67,23 +73,23 @@ def parse_args(argv=None):
     ap = argparse.ArgumentParser(
         description="Write the seed paper's street scene (TOML + binary PLY meshes + README) "
                     "deterministically.")
-    ap.add_argument("--out", default=str(DEFAULT_OUT),
+    ap.add_argument("--out", type=output_folder, default=str(DEFAULT_OUT),
                     help="output folder (default: scenes/street in the repository)")
-    ap.add_argument("--length", type=float, default=160.0,
+    ap.add_argument("--length", type=finite_float, default=160.0,
                     help="street length in m, starting 40 m behind car A (default 160)")
     ap.add_argument("--no-trees", dest="trees", action="store_false",
                     help="leave the trees out")
-    ap.add_argument("--car-roundness", type=float, default=0.25,
+    ap.add_argument("--car-roundness", type=finite_float, default=0.25,
                     help="superellipsoid exponent of the car body: 1 ellipsoid, toward 0 a "
                          "box (default 0.25 = car_mesh())")
-    ap.add_argument("--car-segments", type=int, default=20,
+    ap.add_argument("--car-segments", type=positive_int, default=20,
                     help="car body segments around (height segments = half; default 20 = "
                          "car_mesh(), ~750 triangles)")
     ap.add_argument("--car-flat-ends", action="store_true",
                     help="car body grid shifted half a cell so nose and tail carry flat "
                          "facets facing exactly +-x (a specular echo straight back; the "
                          "default car_mesh() grid has a vertex on the axis instead)")
-    ap.add_argument("--lane-width", type=float, default=3.5, help="lane width in m")
+    ap.add_argument("--lane-width", type=positive_float, default=3.5, help="lane width in m")
     ap.add_argument("--range-from", choices=("radar", "car-centre"), default="radar",
                     help="reference of the paper's distances R: radar A's antenna (default) "
                          "or car A's centre")
@@ -98,9 +104,13 @@ def parse_args(argv=None):
 
 
 def main(argv=None) -> int:
-    out = build(parse_args(argv))
-    print(f"wrote {out}")
-    return 0
+    args = parse_args(argv)
+
+    def run() -> int:
+        print(f"wrote {build(args)}")
+        return 0
+
+    return run_tool("make_street.py", run)
 
 
 if __name__ == "__main__":

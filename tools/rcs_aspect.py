@@ -15,8 +15,14 @@ left side, 180° at the rear.  No ground: the car's own returns only.
 
 RCS here is the apparent one at the stated range, sigma = |a|^2 (4 pi)^3 R^4 / lambda^2
 with the coherent sum a of all paths, isotropic antennas, VV and HH from the
-polarimetric matrix.  Writes rcs_aspect.csv and rcs_aspect.png into --out and prints
+polarimetric matrix. Writes rcs_aspect.csv and rcs_aspect.png into --out and prints
 the run time of each method. The computation is clradcom.evaluation.rcs.
+
+Every option is checked before anything is traced (the radar outside the car's bounding
+sphere, at most 4e6 ray tubes per grid, the aspects within the memory budget). The
+output folder is built beside the old one and swapped in when the run is done (an
+interrupted or failed run leaves the old one as it was; other files in it are kept).
+Errors are one line on stderr, exit code 2.
 
     python tools/rcs_aspect.py --out out/rcs [--range-m 20] [--step-deg 5] [--device SPEC]
 """
@@ -24,56 +30,85 @@ the run time of each method. The computation is clradcom.evaluation.rcs.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
 import numpy as np
 
+from clradcom.cli import finite_float, output_folder, positive_float, run_tool
 from clradcom.device.runtime import get_runtime
+from clradcom.errors import check_memory
 from clradcom.evaluation.rcs import (
     MODELS,
     aspect_rcs,
     aspect_scene,
+    check_aspect_grids,
     model_mesh,
     plot_rcs,
     write_rcs_csv,
 )
+from clradcom.files import staged_folder
+
+#: the names this tool writes into its output folder (clradcom.files.staged_folder)
+OUTPUTS = ("rcs_aspect.csv", "rcs_aspect.png")
+#: memory an aspect holds before it is traced: its radar in the aspect scene (record,
+#: pattern, the scene dict it is built from) and its CSV row
+ASPECT_BYTES = 4096
 
 
-def positive(kind):
-    def parse(text):
-        v = kind(text)
-        if not v > 0:
-            raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
-        return v
-    return parse
-
-
-def main(argv=None):
+def parse_args(argv):
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--out", required=True, help="folder for rcs_aspect.csv / .png")
+    ap.add_argument("--out", type=output_folder, required=True,
+                    help="folder for rcs_aspect.csv / .png")
     ap.add_argument("--model", choices=MODELS, default="car",
                     help="car: car_mesh() (default); rounded: rounded_car(face_centred=True)")
-    ap.add_argument("--range-m", type=positive(float), default=20.0)
-    ap.add_argument("--height-m", type=float, default=0.5,
+    ap.add_argument("--range-m", type=positive_float, default=20.0)
+    ap.add_argument("--height-m", type=finite_float, default=0.5,
                     help="radar height (default 0.5 m; the car stands on z = 0)")
-    ap.add_argument("--start-deg", type=float, default=0.0)
-    ap.add_argument("--stop-deg", type=float, default=180.0)
-    ap.add_argument("--step-deg", type=positive(float), default=5.0)
+    ap.add_argument("--start-deg", type=finite_float, default=0.0)
+    ap.add_argument("--stop-deg", type=finite_float, default=180.0)
+    ap.add_argument("--step-deg", type=positive_float, default=5.0)
     ap.add_argument("--bounces", type=int, choices=(1, 2, 3, 4, 5), default=3)
-    ap.add_argument("--spacing-wavelengths", type=positive(float), default=0.5,
+    ap.add_argument("--spacing-wavelengths", type=positive_float, default=0.5,
                     help="SBR ray-tube pitch at the car (default 0.5 wavelength)")
-    ap.add_argument("--go-spacing-m", type=positive(float), default=0.01,
+    ap.add_argument("--go-spacing-m", type=positive_float, default=0.01,
                     help="pitch of the GO candidate rays at the car (default 1 cm)")
     ap.add_argument("--device", default=None)
     args = ap.parse_args(argv)
     if args.stop_deg < args.start_deg:
         ap.error(f"--stop-deg ({args.stop_deg}) is below --start-deg ({args.start_deg})")
+    return args
 
+
+def main(argv=None):
+    args = parse_args(argv)
+    return run_tool("rcs_aspect.py", run, args)
+
+
+def run(args) -> int:
+    n_aspects = math.floor((args.stop_deg - args.start_deg + 1e-9) / args.step_deg) + 1
+    check_memory(n_aspects * ASPECT_BYTES, what=f"{n_aspects} aspects",
+                 argument="--step-deg", value=args.step_deg,
+                 advice="use a coarser --step-deg or a narrower --start-deg/--stop-deg")
     aspects = np.arange(args.start_deg, args.stop_deg + 1e-9, args.step_deg)
     R, h = args.range_m, args.height_m
     scene = aspect_scene(model_mesh(args.model), aspects, R, h)
+    check_aspect_grids(scene, R, spacing_wavelengths=args.spacing_wavelengths,
+                       go_spacing_m=args.go_spacing_m,
+                       names={"range_m": "--range-m", "go_spacing_m": "--go-spacing-m",
+                              "spacing_wavelengths": "--spacing-wavelengths"})
+    out = Path(args.out)
+    with staged_folder(out, owned=OUTPUTS) as stage:
+        measure(args, scene, aspects, stage)
+    print(f"wrote {out / 'rcs_aspect.csv'} and {out / 'rcs_aspect.png'}")
+    return 0
+
+
+def measure(args, scene, aspects, stage) -> None:
+    """Trace every aspect, print it, write the CSV and the chart into ``stage``."""
+    R, h = args.range_m, args.height_m
     rt = get_runtime(args.device)
     print(f"device : {rt.info.describe()}")
     print(f"car    : {args.model}, {len(scene.triangles)} triangles; radar at {R} m, "
@@ -93,9 +128,7 @@ def main(argv=None):
               f"({row['go_paths']} paths)   PO+SBR {row['po_sbr_vv_dbsm']:6.1f} dBsm "
               f"({row['po_facets']} facets, {row['sbr_paths']} SBR paths)", flush=True)
 
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    write_rcs_csv(out / "rcs_aspect.csv", rows)
+    write_rcs_csv(stage / "rcs_aspect.csv", rows)
     n = len(aspects)
     print(f"time GO      : {t_go:7.2f} s  ({t_go / n * 1e3:.0f} ms per aspect)")
     print(f"time PO      : {t_po:7.2f} s  ({t_po / n * 1e3:.0f} ms per aspect)")
@@ -104,9 +137,7 @@ def main(argv=None):
     print(f"time PO+SBR  : {t_po + t_sbr:7.2f} s")
     plot_rcs(rows, model=args.model, range_m=args.range_m, height_m=args.height_m,
              bounces=args.bounces, go_s=t_go, po_sbr_s=t_po + t_sbr,
-             path=out / "rcs_aspect.png")
-    print(f"wrote {out / 'rcs_aspect.csv'} and {out / 'rcs_aspect.png'}")
-    return 0
+             path=stage / "rcs_aspect.png")
 
 
 if __name__ == "__main__":

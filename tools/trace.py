@@ -21,6 +21,19 @@ Stages and what they write into the output folder (default: out/<scene name>/):
                                               that matches it (or none)
   3. picture    scene_top.png: the scene from above, strongest paths drawn
 
+Before anything is traced the run is checked whole: every option, the scene, the
+radar stage's inputs (the waveform at the scene's carrier, each radar's noise figure
+>= 0 dB), the memory the rays and the radar frame need (refused over the budget, half
+the machine's memory or CLRADCOM_MEMORY_BUDGET, e.g. "24G"), and the output folder.
+A radar with tx_power_w = 0 transmits nothing, so it has no echo: its image and tables
+are left out, with a line saying so (its links are still traced into the snapshot).
+
+The output folder is built beside the old one and swapped in when the run is done:
+an interrupted or failed run leaves the old outputs as they were, and a finished one
+never mixes them with new ones (files of this tool's names from an earlier run are
+replaced as a whole; anything else in the folder, e.g. tools/tradeoff.py's tradeoff/,
+is kept). Errors are one line on stderr, exit code 2.
+
 The device is the default OpenCL device (a GPU where one exists, else PoCL's
 CPU device); choose another with --device or CLRADCOM_DEVICE (list them with
 `clradcom devices`).
@@ -35,11 +48,24 @@ from pathlib import Path
 
 import numpy as np
 
-from clradcom.device.runtime import OpenCLError, get_runtime
-from clradcom.errors import SceneError
+from clradcom.cli import (
+    int_in,
+    output_folder,
+    positive_int,
+    run_tool,
+    seed,
+    tool_waveform,
+)
+from clradcom.device.runtime import get_runtime
+from clradcom.errors import ArgumentError, SceneError
+from clradcom.files import staged_folder
 from clradcom.plots import plot_top_view
-from clradcom.radar import Waveform
-from clradcom.radar.pipeline import SYNTHESIS_METHODS, process, radar_frame
+from clradcom.radar.pipeline import (
+    SYNTHESIS_METHODS,
+    check_frame_memory,
+    process,
+    radar_frame,
+)
 from clradcom.radar.plots import save_radar_image
 from clradcom.radar.report import (
     DETECTION_COLUMNS,
@@ -55,6 +81,7 @@ from clradcom.radar.report import (
     truth_rows,
     write_table,
 )
+from clradcom.radar.synthesis import check_noise_figure
 from clradcom.radar.truth import detection_truth, match_truth
 from clradcom.scene.reader import load_scene
 from clradcom.snapshot import save_snapshot
@@ -65,8 +92,15 @@ from clradcom.trace import (
     SpecularSettings,
     StageTimes,
     TraceSettings,
+    check_launch_memory,
     trace_scene,
 )
+
+#: the names this tool writes into its output folder (clradcom.files.staged_folder)
+OUTPUTS = ("snapshot.npz", "*_image.png", "*_image.svg", "*_detections.csv", "*_truth.csv",
+           "scene_top.png")
+#: noise figure of a radar whose scene entry gives none
+DEFAULT_NOISE_FIGURE_DB = 10.0
 
 
 class Stopwatch:
@@ -92,16 +126,17 @@ def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("scene", help="scene file (TOML), e.g. scenes/street/street.toml")
-    ap.add_argument("--out", default=None, help="output folder (default out/<scene name>)")
+    ap.add_argument("--out", type=output_folder, default=None,
+                    help="output folder (default out/<scene name>)")
     ap.add_argument("--device", default=None,
                     help="OpenCL device: 'gpu', 'cpu', 'P:D' or part of its name")
-    ap.add_argument("--rays", type=int, default=1_000_000,
+    ap.add_argument("--rays", type=positive_int, default=1_000_000,
                     help="rays launched per transmitter over its pattern (default 1e6)")
-    ap.add_argument("--reflections", type=int, default=5,
+    ap.add_argument("--reflections", type=int_in(0, 16), default=5,
                     help="maximum specular reflections per path (default 5, the paper's)")
     ap.add_argument("--diffractions", type=int, choices=(0, 1, 2, 3), default=1,
                     help="UTD edge diffractions per path (default 1; 0 turns them off)")
-    ap.add_argument("--diffraction-reflections", type=int, default=0,
+    ap.add_argument("--diffraction-reflections", type=int_in(0, 16), default=0,
                     help="reflections allowed beside the edges of a diffracted path "
                          "(default 0; each one costs seconds on the street, see "
                          "tools/bench_paths.py)")
@@ -119,7 +154,9 @@ def build_parser() -> argparse.ArgumentParser:
                          "only, 1 one before or after it, 2 also one on each side")
     ap.add_argument("--synthesis", choices=SYNTHESIS_METHODS, default="fast",
                     help="fast: frequency-domain model; exact: time-domain with ICI/ISI")
-    ap.add_argument("--seed", type=int, default=0, help="seed of the random OFDM data")
+    ap.add_argument("--seed", type=seed, default=0,
+                    help="seed of the random OFDM data (an integer >= 0; the noise uses "
+                         "seed + 1)")
     ap.add_argument("--no-noise", action="store_true", help="leave thermal noise out")
     return ap
 
@@ -135,75 +172,113 @@ def settings_from_args(args) -> TraceSettings:
                                       max_reflections=args.scattering_reflections))
 
 
+def radar_noise(scene, args) -> dict[int, float | None]:
+    """Noise figure (None: no noise) of every radar whose own echoes are imaged, checked
+    before tracing: a noise figure below 0 dB is refused naming the scene's key."""
+    out = {}
+    for i, radar in enumerate(scene.radars):
+        if radar.role != "txrx":
+            continue
+        if args.no_noise:
+            out[i] = None
+            continue
+        nf = radar.noise_figure_db
+        if nf is None:
+            out[i] = DEFAULT_NOISE_FIGURE_DB
+            continue
+        try:
+            out[i] = check_noise_figure(nf)
+        except ValueError as exc:
+            raise SceneError(exc.reason, file=scene.source,
+                             key=f"radars[{i}].noise_figure_db", value=nf) from None
+    return out
+
+
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
+    return run_tool("trace.py", run, args)
+
+
+def run(args) -> int:
     sw = Stopwatch()
-    try:
-        with sw.stage("load scene"):
-            scene = load_scene(args.scene)
-        out = Path(args.out or Path("out") / scene.name)
-        out.mkdir(parents=True, exist_ok=True)
+    # everything the run will refuse, before it starts
+    settings = settings_from_args(args)
+    check_launch_memory(settings, argument="--rays", value=args.rays)
+    with sw.stage("load scene"):
+        scene = load_scene(args.scene)
+    wf = tool_waveform(scene.carrier_hz, scene=scene)
+    check_frame_memory(wf, args.synthesis)
+    noise = radar_noise(scene, args)
+    out = Path(args.out or Path("out") / scene.name)
+    with staged_folder(out, inputs=[args.scene], owned=OUTPUTS) as stage:
         with sw.stage("open OpenCL device"):
             runtime = get_runtime(args.device)
         print(f"  device: {runtime.info.describe()}")
-        settings = settings_from_args(args)
         times = StageTimes()
         with sw.stage(f"trace {len(scene.triangles)} triangles, {args.rays} rays per tx"):
-            snap = trace_scene(scene, settings, runtime=runtime, times=times,
-                               progress=lambda m: print(f"    {m}", flush=True))
+            try:
+                snap = trace_scene(scene, settings, runtime=runtime, times=times,
+                                   progress=lambda m: print(f"    {m}", flush=True))
+            except ValueError as exc:
+                if isinstance(exc, SceneError | ArgumentError):
+                    raise
+                # a mechanism's refusal of something in this scene
+                raise SceneError(str(exc), file=scene.source) from exc
         for k, v in times.seconds.items():
             print(f"    {k:<20} {v:7.2f} s")
         with sw.stage("write snapshot"):
-            save_snapshot(out / "snapshot.npz", snap)
+            save_snapshot(stage / "snapshot.npz", snap)
         print(snap.summary())
-    except (SceneError, OpenCLError, ValueError) as exc:
-        print(f"trace.py: {exc}", file=sys.stderr)
-        return 2
-
-    wf = Waveform(carrier_hz=scene.carrier_hz)
-    for link in snap:
-        if link.tx_index != link.rx_index:
-            continue
-        radar = scene.radars[link.tx_index]
-        nf = None if args.no_noise else (radar.noise_figure_db if radar.noise_figure_db
-                                         is not None else 10.0)
-        with sw.stage(f"radar {radar.name}: synthesise ({args.synthesis}), process, CFAR"):
-            D, Dr = radar_frame(link.paths, wf, seed=args.seed, method=args.synthesis,
-                                tx_power_w=radar.tx_power_w if nf is not None else None,
-                                noise_figure_db=nf)
-            image, dets = process(D, Dr, wf)
-        with sw.stage(f"radar {radar.name}: image and tables"):
-            # colour down to the noise floor, so weak echoes beside the ground return show
-            save_radar_image(image, out / f"{radar.name}_image", dets,
-                             dynamic_range_db=display_range_db(image))
-            write_table(out / f"{radar.name}_detections.csv", detection_rows(dets),
-                        DETECTION_COLUMNS)
-            truth = detection_truth(scene, radar.name, moving_objects(scene, radar))
-            matches = match_truth(dets, truth, *match_tolerances(wf))
-            rows = truth_rows(truth, matches)
-            print(f"  {radar.name}: {len(dets)} detections; moving objects:")
-            print(f"    {'object':<10} {'R set':>7} {'v set':>7} {'R det':>7} {'v det':>7}")
-            for t, (*_, rd, vd) in zip(truth, rows, strict=True):
-                print(f"    {t['name']:<10} {t['range_centre_m']:7.2f} {t['v_rel_m_s']:7.2f} "
-                      f"{rd or 'missed':>7} {vd:>7}")
-            static = static_returns_beyond(dets, radar, STATIC_RANGE_M, wf.velocity_resolution)
-            rng, above = strongest_static_cell(image, radar, STATIC_RANGE_M,
-                                               scene_reach_m(scene, radar.position),
-                                               wf.velocity_resolution)
-            print(f"    static returns beyond {STATIC_RANGE_M:.0f} m at the radar's own speed "
-                  f"({np.linalg.norm(radar.velocity):.1f} m/s): {len(static)} detections"
-                  + (f", at {', '.join(f'{r:.1f}' for r in static[:6])} m" if static else "")
-                  + ("" if rng is None else f"; strongest cell {rng:.1f} m, {above:.1f} dB "
-                     f"over the image's median"))
-            write_table(out / f"{radar.name}_truth.csv", rows, TRUTH_COLUMNS)
-    with sw.stage("top view"):
-        mono = [lk for lk in snap if lk.tx_index == lk.rx_index]
-        plot_top_view(scene, snap, mono[0] if mono else None, path=out / "scene_top.png")
+        for link in snap:
+            if link.tx_index != link.rx_index:
+                continue
+            radar = scene.radars[link.tx_index]
+            if radar.tx_power_w == 0:
+                print(f"  {radar.name}: tx_power_w = 0 W: it transmits nothing, so it has no "
+                      "echo; no radar image or tables for it")
+                continue
+            radar_stage(sw, args, scene, wf, link, radar, noise[link.tx_index], stage)
+        with sw.stage("top view"):
+            mono = [lk for lk in snap if lk.tx_index == lk.rx_index]
+            plot_top_view(scene, snap, mono[0] if mono else None, path=stage / "scene_top.png")
     print("\nstage timings:")
     for name, dt in sw.rows:
         print(f"  {dt:8.2f} s  {name}")
     print(f"outputs in {out}/")
     return 0
+
+
+def radar_stage(sw, args, scene, wf, link, radar, nf, stage) -> None:
+    """One radar's own echoes: frame, image, detections, truth; printed and written."""
+    with sw.stage(f"radar {radar.name}: synthesise ({args.synthesis}), process, CFAR"):
+        D, Dr = radar_frame(link.paths, wf, seed=args.seed, method=args.synthesis,
+                            tx_power_w=radar.tx_power_w if nf is not None else None,
+                            noise_figure_db=nf)
+        image, dets = process(D, Dr, wf)
+    with sw.stage(f"radar {radar.name}: image and tables"):
+        # colour down to the noise floor, so weak echoes beside the ground return show
+        save_radar_image(image, stage / f"{radar.name}_image", dets,
+                         dynamic_range_db=display_range_db(image))
+        write_table(stage / f"{radar.name}_detections.csv", detection_rows(dets),
+                    DETECTION_COLUMNS)
+        truth = detection_truth(scene, radar.name, moving_objects(scene, radar))
+        matches = match_truth(dets, truth, *match_tolerances(wf))
+        rows = truth_rows(truth, matches)
+        print(f"  {radar.name}: {len(dets)} detections; moving objects:")
+        print(f"    {'object':<10} {'R set':>7} {'v set':>7} {'R det':>7} {'v det':>7}")
+        for t, (*_, rd, vd) in zip(truth, rows, strict=True):
+            print(f"    {t['name']:<10} {t['range_centre_m']:7.2f} {t['v_rel_m_s']:7.2f} "
+                  f"{rd or 'missed':>7} {vd:>7}")
+        static = static_returns_beyond(dets, radar, STATIC_RANGE_M, wf.velocity_resolution)
+        rng, above = strongest_static_cell(image, radar, STATIC_RANGE_M,
+                                           scene_reach_m(scene, radar.position),
+                                           wf.velocity_resolution)
+        print(f"    static returns beyond {STATIC_RANGE_M:.0f} m at the radar's own speed "
+              f"({np.linalg.norm(radar.velocity):.1f} m/s): {len(static)} detections"
+              + (f", at {', '.join(f'{r:.1f}' for r in static[:6])} m" if static else "")
+              + ("" if rng is None else f"; strongest cell {rng:.1f} m, {above:.1f} dB "
+                 f"over the image's median"))
+        write_table(stage / f"{radar.name}_truth.csv", rows, TRUTH_COLUMNS)
 
 
 if __name__ == "__main__":

@@ -46,6 +46,16 @@ Pareto flags included), tradeoff.png (run time against each accuracy measure, th
 front marked), and prints a table and the cheapest setting for each accuracy target
 (--target-nmse-db, --target-enr-db, --target-range-m/--target-velocity-mps).
 The sweep, the measures, the fronts, the CSV and the chart are clradcom.evaluation.tradeoff.
+
+The output folder is built beside the old one and swapped in when the run is done (an
+interrupted or failed run leaves the old one as it was; other files in it are kept).
+While the sweep runs, the rows measured so far are kept in <out>.partial.csv beside the
+folder (removed when the run finishes), so an interrupted sweep loses nothing.
+--from-csv redraws from an earlier sweep's CSV into out/<scene>/tradeoff-from-csv/ by
+default, never into the folder holding that CSV (an --out that would replace the CSV
+is refused). Every option is checked before anything is traced, including the memory
+the rays and the frame need (refused over the budget: half the machine's memory, or
+CLRADCOM_MEMORY_BUDGET, e.g. "24G"). Errors are one line on stderr, exit code 2.
 """
 
 from __future__ import annotations
@@ -56,35 +66,50 @@ import sys
 import time
 from pathlib import Path
 
-from clradcom.device.runtime import OpenCLError, get_runtime
-from clradcom.errors import SceneError
+from clradcom.cli import (
+    finite_float,
+    int_in,
+    list_of,
+    non_negative_float,
+    non_negative_int,
+    output_folder,
+    positive_int,
+    run_tool,
+    seed,
+    tool_waveform,
+)
+from clradcom.device.runtime import get_runtime
+from clradcom.errors import ArgumentError, SceneError
 from clradcom.evaluation import budget
 from clradcom.evaluation import tradeoff as tr
 from clradcom.evaluation.tradeoff import BACKENDS, DEFAULT_SYNTHESIS, SETTING_COLUMNS
+from clradcom.files import staged_folder
 from clradcom.mechanisms.scattering import scattering_triangle_bounds
-from clradcom.radar import Waveform
+from clradcom.radar.pipeline import check_frame_memory
+from clradcom.radar.synthesis import check_noise_figure
 from clradcom.scene.reader import load_scene
-from clradcom.trace import TraceSettings
+from clradcom.trace import TraceSettings, check_launch_memory
+
+#: the names this tool writes into its output folder (clradcom.files.staged_folder)
+OUTPUTS = ("tradeoff.csv", "tradeoff.png")
+OPTICS = ("none", "pec", "sbr")
 
 
 # ----------------------------------------------------------------------------------------
 # argument parsing
 # ----------------------------------------------------------------------------------------
-def _list(conv):
-    def parse(text):
-        try:
-            return [conv(v.strip()) for v in text.split(",") if v.strip()]
-        except ValueError as exc:
-            raise argparse.ArgumentTypeError(f"{text!r}: {exc}") from None
-    return parse
-
-
 def _bool(v: str) -> bool:
     if v.lower() in ("1", "true", "on", "yes"):
         return True
     if v.lower() in ("0", "false", "off", "no"):
         return False
-    raise ValueError(f"not a boolean: {v!r}")
+    raise argparse.ArgumentTypeError(f"must be 0/1, true/false, on/off or yes/no, got {v!r}")
+
+
+def _optics(v: str) -> str:
+    if v not in OPTICS:
+        raise argparse.ArgumentTypeError(f"must be one of {OPTICS}, got {v!r}")
+    return v
 
 
 def _value(v: str):
@@ -121,14 +146,21 @@ def parse_args(argv):
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("scene", help="scene file (TOML)")
     ap.add_argument("--radar", default=None, help="radar (default: the first txrx one)")
-    ap.add_argument("--out", default=None, help="output folder (default out/<scene>/tradeoff)")
+    ap.add_argument("--out", type=output_folder, default=None,
+                    help="output folder (default out/<scene>/tradeoff; with --from-csv "
+                         "out/<scene>/tradeoff-from-csv)")
     ap.add_argument("--device", default=None, help="OpenCL device (see tools/trace.py)")
-    ap.add_argument("--rays", type=_list(int), default=[10_000, 100_000, 1_000_000])
-    ap.add_argument("--reflections", type=_list(int), default=[0, 1, 2, 5])
-    ap.add_argument("--diffractions", type=_list(int), default=[0, 1])
-    ap.add_argument("--optics", type=_list(str), default=["none", "pec", "sbr"],
+    ap.add_argument("--rays", type=list_of(positive_int, "ray count"),
+                    default=[10_000, 100_000, 1_000_000])
+    ap.add_argument("--reflections", type=list_of(int_in(0, 16), "reflection order"),
+                    default=[0, 1, 2, 5])
+    ap.add_argument("--diffractions", type=list_of(int_in(0, 3), "diffraction order"),
+                    default=[0, 1])
+    ap.add_argument("--optics", type=list_of(_optics, "optics mode"),
+                    default=["none", "pec", "sbr"],
                     help="physical_optics values; the last is the reference's")
-    ap.add_argument("--scattering", type=_list(_bool), default=[False, True])
+    ap.add_argument("--scattering", type=list_of(_bool, "scattering flag"),
+                    default=[False, True])
     ap.add_argument("--vary", type=_vary, action="append", default=[],
                     help="FIELD=v1,v2: sweep another TraceSettings field too (last value "
                          "is the reference's)")
@@ -136,37 +168,40 @@ def parse_args(argv):
                     help=f"back ends per trace (default {DEFAULT_SYNTHESIS})")
     ap.add_argument("--reference-synthesis", choices=sorted(BACKENDS), default="exact",
                     help="synthesis of the reference (default exact)")
-    ap.add_argument("--reference-margin-db", type=float, default=None,
+    ap.add_argument("--reference-margin-db", type=finite_float, default=None,
                     help="drop the reference's paths this far below the noise floor before "
                          "its synthesis (default: keep all; e.g. -20 keeps the exact "
                          "synthesis of a street affordable)")
-    ap.add_argument("--reference-rays", type=int, default=None,
+    ap.add_argument("--reference-rays", type=positive_int, default=None,
                     help="rays of the reference (default 4 x the largest of --rays)")
     ap.add_argument("--no-trace-prune", action="store_true",
                     help="do not set the tracer's scattering threshold from the noise floor")
-    ap.add_argument("--margin-db", type=float, default=0.0,
+    ap.add_argument("--margin-db", type=finite_float, default=0.0,
                     help="noise floor margin: paths below floor + margin are pruned")
-    ap.add_argument("--subcarriers", type=int, default=None, help="N (default the paper's)")
-    ap.add_argument("--symbols", type=int, default=None, help="M (default the paper's)")
-    ap.add_argument("--exact-max-paths", type=int, default=None,
+    ap.add_argument("--subcarriers", type=positive_int, default=None,
+                    help="N (default the paper's 1024; a multiple of 8, so that the cyclic "
+                         "prefix is a whole number of samples)")
+    ap.add_argument("--symbols", type=positive_int, default=None,
+                    help="M (default the paper's 256)")
+    ap.add_argument("--exact-max-paths", type=non_negative_int, default=None,
                     help="skip the exact back end for traces with more paths than this (its "
                          "cost grows with the paths; the reference always uses it)")
     ap.add_argument("--from-csv", default=None,
-                    help="trace nothing: fronts, chart, table and choices from this CSV")
-    ap.add_argument("--seed", type=int, default=0, help="seed of the OFDM symbols and noise")
-    ap.add_argument("--target-nmse-db", type=_list(float), default=[-10.0, -20.0, -30.0],
+                    help="trace nothing: fronts, chart, table and choices from this CSV "
+                         "(written to out/<scene>/tradeoff-from-csv unless --out is given; "
+                         "an --out whose tradeoff.csv is this CSV is refused)")
+    ap.add_argument("--seed", type=seed, default=0,
+                    help="seed of the OFDM symbols (an integer >= 0; the noise uses seed + 1)")
+    ap.add_argument("--target-nmse-db", type=list_of(finite_float, "target"),
+                    default=[-10.0, -20.0, -30.0],
                     help="channel error targets (dB) to pick settings for")
-    ap.add_argument("--target-enr-db", type=_list(float), default=[0.0],
+    ap.add_argument("--target-enr-db", type=list_of(finite_float, "target"), default=[0.0],
                     help="radar-image error re noise targets (dB) to pick settings for")
-    ap.add_argument("--target-range-m", type=float, default=None,
+    ap.add_argument("--target-range-m", type=non_negative_float, default=None,
                     help="detection target: range error (default: range resolution)")
-    ap.add_argument("--target-velocity-mps", type=float, default=None,
+    ap.add_argument("--target-velocity-mps", type=non_negative_float, default=None,
                     help="detection target: velocity error (default: velocity resolution)")
-    args = ap.parse_args(argv)
-    for name in ("rays", "reflections", "diffractions", "optics", "scattering"):
-        if not getattr(args, name):
-            ap.error(f"--{name} needs at least one value")
-    return args
+    return ap.parse_args(argv)
 
 
 # ----------------------------------------------------------------------------------------
@@ -179,48 +214,95 @@ def fmt(v, spec):
 # ----------------------------------------------------------------------------------------
 def main(argv=None) -> int:
     args = parse_args(argv)
-    try:
-        scene = load_scene(args.scene)
-        runtime = get_runtime(args.device)
-    except (SceneError, OpenCLError, ValueError) as exc:
-        print(f"tradeoff.py: {exc}", file=sys.stderr)
-        return 2
+    return run_tool("tradeoff.py", run, args)
+
+
+def frame_option(args, wf) -> tuple[str, object]:
+    """The option(s) that set the frame's size, as the user typed them."""
+    if args.subcarriers is not None and args.symbols is not None:
+        return "--subcarriers x --symbols", f"{args.subcarriers} x {args.symbols}"
+    if args.symbols is not None:
+        return "--symbols", args.symbols
+    if args.subcarriers is not None:
+        return "--subcarriers", args.subcarriers
+    return "frame", f"{wf.n_subcarriers} x {wf.n_symbols}"
+
+
+def run(args) -> int:
+    scene = load_scene(args.scene)
     names = [r.name for r in scene.radars]
     if args.radar is None:
         txrx = [i for i, r in enumerate(scene.radars) if r.role == "txrx"]
         if not txrx:
-            print(f"tradeoff.py: {args.scene}: no radar with role 'txrx'", file=sys.stderr)
-            return 2
+            raise SceneError("no radar with role 'txrx'", file=args.scene)
         radar_idx = txrx[0]
     elif args.radar in names:
         radar_idx = names.index(args.radar)
     else:
-        print(f"tradeoff.py: --radar {args.radar!r} is not in the scene (radars: {names})",
-              file=sys.stderr)
-        return 2
+        raise ArgumentError(f"is not in the scene (radars: {names})", argument="--radar",
+                            value=args.radar)
     radar = scene.radars[radar_idx]
-    for name, _ in args.vary:
+    if radar.role != "txrx":
+        raise ArgumentError(f"has role {radar.role!r}: the sweep needs a radar's own echoes, "
+                            "so one that transmits and receives ('txrx')", argument="--radar",
+                            value=radar.name)
+    if radar.tx_power_w == 0:
+        raise SceneError("the radar transmits nothing, so it has no echo to sweep; choose a "
+                         "radar that transmits (--radar)", file=scene.source,
+                         key=f"radars[{radar_idx}].tx_power_w", value=radar.tx_power_w)
+    for name, values in args.vary:
         field = tr.settings_field(name)
         if field is None or field in tr.SETTING_FIELDS.values():
-            print(f"tradeoff.py: --vary {name!r}: not a TraceSettings field other than "
-                  f"{SETTING_COLUMNS} (fields: {tr.vary_field_names()})", file=sys.stderr)
-            return 2
-    wf_kw = {"carrier_hz": scene.carrier_hz}
-    if args.subcarriers:
-        wf_kw["n_subcarriers"] = args.subcarriers
-    if args.symbols:
-        wf_kw["n_symbols"] = args.symbols
+            raise ArgumentError(f"not a TraceSettings field other than {SETTING_COLUMNS} "
+                                f"(fields: {tr.vary_field_names()})", argument="--vary",
+                                value=name)
+        for value in values:  # each value must make valid settings before anything runs
+            try:
+                TraceSettings().replace(**{field: value})
+            except ArgumentError as exc:
+                raise ArgumentError(str(exc), argument="--vary",
+                                    value=f"{name}={value!r}") from None
+    wf = tool_waveform(scene.carrier_hz, subcarriers=args.subcarriers, symbols=args.symbols,
+                       scene=scene)
+    nf_db = radar.noise_figure_db if radar.noise_figure_db is not None else 10.0
     try:
-        wf = Waveform(**wf_kw)
-        nf_db = radar.noise_figure_db if radar.noise_figure_db is not None else 10.0
-        floor = budget.noise_floor(wf, radar.tx_power_w, nf_db, margin_db=args.margin_db)
-    except ValueError as exc:
-        print(f"tradeoff.py: {exc}", file=sys.stderr)
-        return 2
-    out = Path(args.out or Path("out") / scene.name / "tradeoff")
-    out.mkdir(parents=True, exist_ok=True)
+        check_noise_figure(nf_db)
+    except ArgumentError as exc:
+        raise SceneError(exc.reason, file=scene.source,
+                         key=f"radars[{radar_idx}].noise_figure_db", value=nf_db) from None
+    frame_arg, frame_value = frame_option(args, wf)
+    exact = args.reference_synthesis == "exact" or any(b == "exact" for b, _ in args.synthesis)
+    check_frame_memory(wf, "exact" if exact else "fast", argument=frame_arg,
+                       value=frame_value, advice="choose fewer --subcarriers or --symbols")
+    floor = budget.noise_floor(wf, radar.tx_power_w, nf_db, margin_db=args.margin_db)
     if args.from_csv:
+        out = Path(args.out or Path("out") / scene.name / "tradeoff-from-csv")
         return from_csv(args.from_csv, args, wf, out)
+    ref_rays = args.reference_rays or 4 * max(args.rays)
+    check_launch_memory(TraceSettings().replace(specular__rays=ref_rays,
+                                                specular__max_reflections=max(args.reflections)),
+                        argument="--reference-rays" if args.reference_rays else "--rays",
+                        value=args.reference_rays or args.rays,
+                        advice="launch fewer rays (the reference launches --reference-rays, "
+                               "by default 4 x the most of --rays)")
+    out = Path(args.out or Path("out") / scene.name / "tradeoff")
+    partial = out.parent / f"{out.name}.partial.csv"
+    try:
+        with staged_folder(out, inputs=[args.scene], owned=OUTPUTS) as stage:
+            runtime = get_runtime(args.device)
+            code = sweep(args, scene, radar_idx, radar, wf, nf_db, floor, runtime, stage, out,
+                         partial)
+    except BaseException:
+        if partial.exists():
+            print(f"tradeoff.py: the rows measured so far are in {partial}", file=sys.stderr)
+        raise
+    if partial.exists():
+        partial.unlink()
+    return code
+
+
+def sweep(args, scene, radar_idx, radar, wf, nf_db, floor, runtime, stage, out,
+          partial) -> int:
     print(f"device: {runtime.info.describe()}")
     print(f"radar {radar.name}: P_tx {radar.tx_power_w} W, NF {nf_db} dB, "
           f"{wf.n_subcarriers} x {wf.n_symbols} frame")
@@ -311,7 +393,8 @@ def main(argv=None) -> int:
             continue
         records.extend(step.records)
         skipped_exact += step.skipped_exact
-        tr.write_tradeoff_csv(records, extra, out / "tradeoff.csv")  # partial, in case
+        # the rows so far, beside the folder: an interrupted sweep loses nothing
+        tr.write_tradeoff_csv(records, extra, partial)
         latest = tr.setting_label(records[-1]).rsplit(" ", 1)[0] if records else str(step.point)
         print(f"  [{time.perf_counter() - t_start:6.1f} s] {step.index + 1}/{len(points)} "
               f"{latest}: {step.n_paths} paths, trace {step.trace_s:.2f} s", flush=True)
@@ -319,17 +402,18 @@ def main(argv=None) -> int:
         print(f"  exact synthesis skipped for {skipped_exact} traces of more than "
               f"{args.exact_max_paths} paths (--exact-max-paths)")
     if not records:
-        print("tradeoff.py: every setting failed", file=sys.stderr)
-        return 2
-    return finish(records, extra, args, wf, out)
+        raise ArgumentError("every setting of the sweep failed (see the lines above)",
+                            argument="scene", value=args.scene)
+    return finish(records, extra, args, wf, stage, out)
 
 
-def finish(records, extra, args, wf, out) -> int:
-    """Pareto flags, CSV, chart, table and the cheapest setting per target."""
+def finish(records, extra, args, wf, stage, out, inputs=()) -> int:
+    """Pareto flags, CSV, chart (into the staging folder), table and the cheapest setting
+    per target."""
     tr.mark_pareto(records)
-    tr.write_tradeoff_csv(records, extra, out / "tradeoff.csv")
+    tr.write_tradeoff_csv(records, extra, stage / "tradeoff.csv", inputs=inputs)
     ref_seconds = tr.reference_seconds(records)
-    tr.plot_tradeoff(records, ref_seconds, out / "tradeoff.png")
+    tr.plot_tradeoff(records, ref_seconds, stage / "tradeoff.png", inputs=inputs)
     print(f"\n{'setting':<48} {'s':>6} {'paths':>6} {'pruned':>6} {'NMSE':>7} {'image':>7} "
           f"{'count':>6} {'found':>5} {'dR m':>5} {'dv m/s':>6}  front")
     for r in sorted(records, key=lambda r: r["seconds"]):
@@ -359,14 +443,21 @@ def finish(records, extra, args, wf, out) -> int:
 
 
 def from_csv(path, args, wf, out) -> int:
-    """Fronts, chart, table and choices again from a CSV this tool wrote."""
+    """Fronts, chart, table and choices again from a CSV this tool wrote, into ``out``
+    (never over the CSV itself)."""
     try:
         records, extra = tr.read_tradeoff_csv(path, wf)
-        return finish(records, extra, args, wf, out)
-    except (OSError, ValueError, KeyError, StopIteration) as exc:
-        print(f"tradeoff.py: --from-csv {path}: not a tradeoff.py CSV ({exc!r})",
-              file=sys.stderr)
-        return 2
+    except ArgumentError as exc:
+        raise ArgumentError(exc.reason, argument="--from-csv", value=path) from None
+    try:
+        with staged_folder(out, inputs=[path], owned=OUTPUTS) as stage:
+            return finish(records, extra, args, wf, stage, out, inputs=[path])
+    except ArgumentError as exc:
+        if exc.argument != "output":
+            raise
+        raise ArgumentError(f"holds the --from-csv file {path}, which this run would "
+                            "replace; choose another --out", argument="--out",
+                            value=str(out)) from None
 
 
 if __name__ == "__main__":

@@ -20,7 +20,6 @@ matrix (:func:`dbsm`). tools/rcs_aspect.py prints, writes and draws what these r
 
 from __future__ import annotations
 
-import csv
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -29,6 +28,8 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from clradcom.device.runtime import Runtime
+from clradcom.errors import ArgumentError
+from clradcom.files import save_figure, write_csv
 from clradcom.mechanisms import specular as sp
 from clradcom.mechanisms.common import build_geometry
 from clradcom.mechanisms.physical_optics import po_paths
@@ -38,14 +39,18 @@ from clradcom.scene.models import car_mesh, rounded_car
 from clradcom.scene.reader import scene_from_dict
 from clradcom.scene.records import Scene
 
-__all__ = ["CARRIER_HZ", "FLOOR_DBSM", "MODELS", "AspectRcs", "aspect_rcs", "aspect_scene",
-           "dbsm", "model_mesh", "plot_rcs", "write_rcs_csv"]
+__all__ = ["CARRIER_HZ", "FLOOR_DBSM", "MAX_TUBES", "MODELS", "AspectRcs", "aspect_rcs",
+           "aspect_scene", "check_aspect_grids", "dbsm", "grid_tubes", "model_mesh", "plot_rcs",
+           "write_rcs_csv"]
 
 CARRIER_HZ = 24e9
 FLOOR_DBSM = -40.0  # plotted where a method returns nothing
 #: the car models: "car" car_mesh(); "rounded" rounded_car(face_centred=True), whose nose
 #: and side carry facets facing exactly +x and +y
 MODELS = ("car", "rounded")
+#: most ray tubes of one grid (the ``max_rays`` of
+#: :func:`clradcom.mechanisms.sbr.launch_tubes`, which refuses more)
+MAX_TUBES = 4_000_000
 
 
 def dbsm(m, range_m: float, wavelength_m: float):
@@ -62,7 +67,8 @@ def model_mesh(model: str):
         return car_mesh()
     if model == "rounded":
         return rounded_car(face_centred=True)
-    raise ValueError(f"model must be one of {', '.join(map(repr, MODELS))}, got {model!r}")
+    raise ArgumentError(f"must be one of {', '.join(map(repr, MODELS))}", argument="model",
+                        value=model)
 
 
 def aspect_scene(mesh, aspects_deg, range_m: float, height_m: float,
@@ -78,6 +84,45 @@ def aspect_scene(mesh, aspects_deg, range_m: float, height_m: float,
                      "faces": np.asarray(mesh.faces).tolist()}],
         "radars": [{"name": f"a{i:03d}", "position": p, "pattern": "isotropic"}
                    for i, p in enumerate(positions)]})
+
+
+def grid_tubes(radius_m: float, distance_m: float, spacing_m: float) -> int:
+    """Ray tubes of one square grid of pitch ``spacing_m`` over a sphere of ``radius_m``
+    seen from ``distance_m`` away, counted as :func:`~clradcom.mechanisms.sbr.launch_tubes`
+    counts them."""
+    rho = radius_m * distance_m / np.sqrt(distance_m**2 - radius_m**2) + spacing_m
+    return (2 * int(np.ceil(rho / spacing_m)) + 1) ** 2
+
+
+def check_aspect_grids(scene: Scene, range_m: float, *, spacing_wavelengths: float = 0.5,
+                       go_spacing_m: float = 0.01, names=None) -> None:
+    """Refuse, before anything is traced, what :func:`aspect_rcs` cannot do: a radar
+    inside (or on) the model's bounding sphere, and a GO or SBR grid of more than
+    :data:`MAX_TUBES` tubes. :class:`~clradcom.errors.ArgumentError` names the argument
+    (``names`` maps "range_m", "go_spacing_m", "spacing_wavelengths" to what the caller
+    calls them, a command-line option say)."""
+    names = {"range_m": "range_m", "go_spacing_m": "go_spacing_m",
+             "spacing_wavelengths": "spacing_wavelengths", **(names or {})}
+    for key, v in (("range_m", range_m), ("go_spacing_m", go_spacing_m),
+                   ("spacing_wavelengths", spacing_wavelengths)):
+        if isinstance(v, bool) or not isinstance(v, int | float) or not 0 < v < np.inf:
+            raise ArgumentError("must be positive and finite", argument=names[key], value=v)
+    centre, radius = bounding_sphere(scene.triangles)
+    dist = min(float(np.linalg.norm(np.asarray(r.position) - centre)) for r in scene.radars)
+    if dist <= radius * 1.001:
+        raise ArgumentError(f"puts a radar {dist:.3g} m from the centre of the model's "
+                            f"bounding sphere (radius {radius:.3g} m): it must lie outside it",
+                            argument=names["range_m"], value=range_m)
+    lam = C0 / scene.carrier_hz
+    for key, spacing in (("go_spacing_m", go_spacing_m),
+                         ("spacing_wavelengths", spacing_wavelengths * lam)):
+        n = grid_tubes(radius, dist, spacing)
+        if n > MAX_TUBES:
+            raise ArgumentError(f"needs {n} ray tubes over the model's bounding sphere "
+                                f"(radius {radius:.3g} m), more than {MAX_TUBES}; use a "
+                                f"coarser spacing", argument=names[key],
+                                value=go_spacing_m if key == "go_spacing_m"
+                                else spacing_wavelengths)
 
 
 @dataclass
@@ -103,6 +148,8 @@ def aspect_rcs(scene: Scene, aspects_deg, range_m: float, runtime: Runtime | Non
     ``spacing_wavelengths``: SBR ray-tube pitch at the model; ``go_spacing_m``: pitch of
     the GO candidate rays at the model.
     """
+    check_aspect_grids(scene, range_m, spacing_wavelengths=spacing_wavelengths,
+                       go_spacing_m=go_spacing_m)
     lam = C0 / scene.carrier_hz
     geom = build_geometry(scene, runtime)
     sphere = bounding_sphere(scene.triangles)
@@ -135,20 +182,21 @@ def aspect_rcs(scene: Scene, aspects_deg, range_m: float, runtime: Runtime | Non
         yield AspectRcs(row=row, go_s=t1 - t0, po_s=t2 - t1, sbr_s=t3 - t2, tubes=tubes)
 
 
-def write_rcs_csv(path, rows) -> None:
-    """The rows of :func:`aspect_rcs` as CSV, floats to 0.001."""
-    with open(path, "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        w.writeheader()
-        for r in rows:
-            w.writerow({k: (f"{v:.3f}" if isinstance(v, float) else v) for k, v in r.items()})
+def write_rcs_csv(path, rows, *, inputs=()) -> None:
+    """The rows of :func:`aspect_rcs` as CSV, floats to 0.001; written atomically
+    (:func:`clradcom.files.write_csv`)."""
+    if not len(rows):
+        raise ArgumentError("has no rows to write", argument="rows", value=rows)
+    header = list(rows[0])
+    write_csv(path, [[(f"{r[k]:.3f}" if isinstance(r[k], float) else r[k]) for k in header]
+                     for r in rows], header, inputs=inputs)
 
 
 def plot_rcs(rows, *, model: str, range_m: float, height_m: float, bounces: int,
-             go_s: float, po_sbr_s: float, path=None) -> Figure:
+             go_s: float, po_sbr_s: float, path=None, inputs=()) -> Figure:
     """RCS against aspect: GO (VV), PO + SBR (VV, HH) and PO facets alone (VV), their run
     times in the legend, nothing returned drawn at :data:`FLOOR_DBSM`. Written to ``path``
-    when given."""
+    when given, atomically and byte-identically (:func:`clradcom.files.save_figure`)."""
     a = np.array([r["aspect_deg"] for r in rows])
     fig = Figure(figsize=(9, 5.5), layout="constrained")
     ax = fig.add_subplot()
@@ -170,5 +218,5 @@ def plot_rcs(rows, *, model: str, range_m: float, height_m: float, bounces: int,
     ax.grid(alpha=0.3)
     ax.legend(loc="lower right", fontsize=8)
     if path is not None:
-        fig.savefig(path, dpi=120)
+        save_figure(fig, path, inputs=inputs, dpi=120)
     return fig

@@ -25,8 +25,10 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from clradcom.errors import ArgumentError
 from clradcom.evaluation import accuracy as acc
 from clradcom.evaluation import budget
+from clradcom.files import save_figure, write_csv
 from clradcom.radar import (
     Waveform,
     add_thermal_noise,
@@ -124,7 +126,8 @@ def trace_settings(point: dict) -> TraceSettings:
     for name, value in point.items():
         key = settings_field(name)
         if key is None:
-            raise ValueError(f"sweep point column {name!r} is no TraceSettings field")
+            raise ArgumentError(f"column {name!r} is no TraceSettings field", argument="point",
+                                value=point)
         changes[key] = value
     return TraceSettings().replace(**changes)
 
@@ -144,8 +147,8 @@ def grid_point(rays, reflections, diffractions, optics, scattering, extra=(),
     for name, value in extra:
         key = settings_field(name)
         if key is None:
-            raise ValueError(f"{name!r} is no TraceSettings field (fields: "
-                             f"{vary_field_names()})")
+            raise ArgumentError(f"{name!r} is no TraceSettings field (fields: "
+                                f"{vary_field_names()})", argument="extra", value=name)
         off = (key.startswith("scattering__") and not point["scattering"]) or (
             key.startswith("diffraction__") and not point["max_diffractions"])
         if key == "diffraction__max_reflections":
@@ -475,44 +478,73 @@ def describe_target(target: budget.AccuracyTarget) -> str:
 # ----------------------------------------------------------------------------------------
 # files
 # ----------------------------------------------------------------------------------------
-def write_tradeoff_csv(records, extra, path) -> None:
+def write_tradeoff_csv(records, extra, path, *, inputs=()) -> None:
     """tradeoff.csv: ``setting``, the setting columns (and ``extra``), back end and prune,
-    the measures and the Pareto flags; floats to 6 significant digits."""
+    the measures and the Pareto flags; floats to 6 significant digits. Written
+    atomically, never over a file in ``inputs`` (:func:`clradcom.files.write_csv`)."""
     cols = (["setting"] + SETTING_COLUMNS + list(extra) + ["synthesis", "prune"]
             + MEASURE_COLUMNS + PARETO_COLUMNS)
-    with open(path, "w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(cols)
-        for r in records:
-            row = []
-            for c in cols:
-                v = r.get(c, "")
-                row.append(f"{v:.6g}" if isinstance(v, float) else v)
-            w.writerow(row)
+    rows = []
+    for r in records:
+        row = []
+        for c in cols:
+            v = r.get(c, "")
+            row.append(f"{v:.6g}" if isinstance(v, float) else v)
+        rows.append(row)
+    write_csv(path, rows, cols, inputs=inputs)
+
+
+#: columns a CSV must have to be redrawn, and those of them that must hold numbers
+_NEEDED = ["setting", *SETTING_COLUMNS, "synthesis", "prune", *MEASURE_COLUMNS]
+_NUMERIC = ["rays", "seconds", "paths_traced", "paths_used", "count_share", "power_share",
+            "channel_nmse_db", "image_error_db", "targets", "targets_found",
+            "pruned_reflection", "pruned_diffraction", "pruned_scattering"]
 
 
 def read_tradeoff_csv(path, waveform: Waveform) -> tuple[list[dict], list[str]]:
     """(records, extra columns) of a CSV :func:`write_tradeoff_csv` wrote, ready for
     :func:`mark_pareto` and the chart again (``waveform``: the sweep's, for the
-    detection score). Raises ValueError (also for a CSV without rows), KeyError or
-    StopIteration for a file that is no such CSV."""
-    records = budget.read_records(path)
-    with open(path, newline="") as fh:
-        header = next(csv.reader(fh))
+    detection score). A file that cannot be read or is no such CSV (a column missing, a
+    measure that is no number, no rows) is refused with
+    :class:`~clradcom.errors.ArgumentError` naming ``path`` and what is wrong."""
+    def refuse(reason):
+        return ArgumentError(reason, argument="path", value=str(path))
+
+    try:
+        with open(path, newline="") as fh:
+            header = next(csv.reader(fh), [])
+        records = budget.read_records(path)
+    except OSError as exc:
+        raise refuse(f"cannot read it ({exc.strerror or exc})") from None
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise refuse(f"not a tradeoff.py CSV ({exc})") from None
+    missing = [c for c in _NEEDED if c not in header]
+    if missing:
+        raise refuse(f"not a tradeoff.py CSV: no column {missing[0]!r}"
+                     + (f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""))
+    if not records:
+        raise refuse("not a tradeoff.py CSV: no rows")
     extra = header[header.index("scattering") + 1:header.index("synthesis")]
-    for r in records:
-        r.update(_extra=extra, _dr=waveform.range_resolution, _dv=waveform.velocity_resolution)
+    for i, r in enumerate(records):
+        for k in _NUMERIC:
+            if isinstance(r[k], bool) or not isinstance(r[k], int | float):
+                raise refuse(f"row {i + 1}: {k} = {r[k]!r} is no number")
+        if not isinstance(r["prune"], bool):
+            raise refuse(f"row {i + 1}: prune = {r['prune']!r} is neither True nor False")
         for k in ("range_error_m", "velocity_error_mps"):
             r[k] = math.nan if r[k] == "" else r[k]
-    if not records:
-        raise ValueError("no rows")
+            if not isinstance(r[k], int | float):
+                raise refuse(f"row {i + 1}: {k} = {r[k]!r} is no number")
+        r.update(_extra=extra, _dr=waveform.range_resolution, _dv=waveform.velocity_resolution)
     return records, extra
 
 
-def plot_tradeoff(records, ref_seconds: float | None = None, path=None) -> Figure:
+def plot_tradeoff(records, ref_seconds: float | None = None, path=None, *,
+                  inputs=()) -> Figure:
     """Run time against each accuracy measure (channel NMSE, image error, share of paths
     found, detection error), the Pareto front of each marked, the reference run's time
-    as a line. Written to ``path`` when given."""
+    as a line. Written to ``path`` when given, atomically and byte-identically for
+    identical records (:func:`clradcom.files.save_figure`)."""
     t = np.array([r["seconds"] for r in records])
 
     def clip_db(key):
@@ -559,5 +591,5 @@ def plot_tradeoff(records, ref_seconds: float | None = None, path=None) -> Figur
     axes[3].legend(fontsize=8, loc="best")
     fig.tight_layout()
     if path is not None:
-        fig.savefig(path, dpi=120)
+        save_figure(fig, path, inputs=inputs, dpi=120)
     return fig

@@ -2,7 +2,8 @@
 
 ``radar_frame``  paths of a monostatic link -> received symbols D_r (plus noise)
 ``process``      D_r and D -> radar image -> CFAR detections
-``match_truth``  detections against the scene's ground truth (nearest in range and velocity)
+``frame_memory_bytes`` / ``check_frame_memory``  what a frame holds at its peak, refused
+                 over the memory budget before anything is allocated
 
 Each is a plain function so tools/trace.py, the benchmarks and tests share them.
 """
@@ -11,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from clradcom.errors import ArgumentError, check_memory
 from clradcom.radar import (
     Waveform,
     add_thermal_noise,
@@ -21,9 +23,52 @@ from clradcom.radar import (
     synthesize_frequency_domain,
     synthesize_time_domain,
 )
+from clradcom.radar.synthesis import check_noise_figure, check_tx_power
 from clradcom.radar.waveform import ofdm_demodulate
 
 SYNTHESIS_METHODS = ("fast", "exact")
+
+#: N x M complex128 arrays held at the peak of each stage (tracemalloc on a 512 x 128
+#: frame, finufft's own oversampled grids added): the fast synthesis (D, H, D_r, the noise
+#: and its temporaries, finufft's 2 x 2 oversampled grid), the exact one (the frame in time
+#: and up to four Chebyshev nodes' (N, M) grids and transforms at a time, their finufft
+#: grids), and processing: D, D_r and F = D_r/D plus 2.5 per zero-padded image cell
+#: (the padded spectrum, its transform, its power in float64) for the display image
+#: and the critically sampled one.
+FRAME_ARRAYS = {"fast": 9.0, "exact": 30.0}
+PROCESS_ARRAYS = 3.0
+IMAGE_ARRAYS_PER_CELL = 2.5
+
+
+def frame_memory_bytes(waveform: Waveform, method: str = "fast", zero_pad=(2, 2)) -> int:
+    """Bytes that :func:`radar_frame` and :func:`process` hold at their peak for one
+    N x M frame (16 N M bytes per complex128 array; :data:`FRAME_ARRAYS`)."""
+    if not isinstance(waveform, Waveform):
+        raise ArgumentError("must be a clradcom.radar.Waveform", argument="waveform",
+                            value=waveform)
+    if method not in SYNTHESIS_METHODS:
+        raise ArgumentError(f"must be one of {SYNTHESIS_METHODS}", argument="method",
+                            value=method)
+    cell = 16.0 * waveform.n_subcarriers * waveform.n_symbols
+    pad = float(np.prod(zero_pad))
+    arrays = max(FRAME_ARRAYS[method], PROCESS_ARRAYS + IMAGE_ARRAYS_PER_CELL * (pad + 1))
+    return int(arrays * cell)
+
+
+def check_frame_memory(waveform: Waveform, method: str = "fast", zero_pad=(2, 2), *,
+                       budget_bytes: float | None = None, argument: str = "waveform",
+                       value=None, advice: str = "choose fewer subcarriers or symbols",
+                       copies: int = 1) -> None:
+    """Refuse a frame (``copies`` of it held at once) whose estimate exceeds the memory
+    budget (:func:`clradcom.errors.check_memory`), before anything is allocated, with
+    :class:`~clradcom.errors.MemoryBudgetError` naming ``argument`` (default the
+    waveform's N x M) and ``advice``."""
+    need = copies * frame_memory_bytes(waveform, method, zero_pad)
+    n, m = waveform.n_subcarriers, waveform.n_symbols
+    check_memory(need, what=f"the {n} x {m} radar frame ({method} synthesis"
+                            + (f", {copies} at once" if copies > 1 else "") + ")",
+                 argument=argument, value=f"N x M = {n} x {m}" if value is None else value,
+                 advice=advice, budget_bytes=budget_bytes)
 
 
 def radar_frame(paths, waveform: Waveform, *, seed: int = 0, method: str = "fast",
@@ -33,10 +78,16 @@ def radar_frame(paths, waveform: Waveform, *, seed: int = 0, method: str = "fast
 
     method "fast" is the frequency-domain model (no ICI/ISI); "exact" the
     time-domain superposition. Thermal noise is added when both tx power and
-    noise figure are given.
+    noise figure are given (power positive, noise figure >= 0 dB). A frame over the
+    memory budget is refused first (:func:`check_frame_memory`).
     """
     if method not in SYNTHESIS_METHODS:
-        raise ValueError(f"method must be one of {SYNTHESIS_METHODS}, got {method!r}")
+        raise ArgumentError(f"must be one of {SYNTHESIS_METHODS}", argument="method",
+                            value=method)
+    if tx_power_w is not None and noise_figure_db is not None:
+        check_tx_power(tx_power_w)
+        check_noise_figure(noise_figure_db)
+    check_frame_memory(waveform, method)
     D = random_symbols(waveform, seed)
     gains = np.asarray(paths.gain)
     if method == "fast":

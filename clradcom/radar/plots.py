@@ -14,14 +14,21 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from clradcom.errors import ArgumentError
+from clradcom.files import save_figure
 from clradcom.radar.processing import RadarImage
 from clradcom.radar.report import INTERFERENCE_TITLES
 
 
 def _limits(name, lim):
-    lo, hi = (float(x) for x in lim)
+    try:
+        lo, hi = (float(x) for x in lim)
+    except (TypeError, ValueError):
+        raise ArgumentError("must be a (low, high) pair of numbers", argument=name,
+                            value=lim) from None
     if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
-        raise ValueError(f"{name} must be an increasing pair of finite numbers, got {lim!r}")
+        raise ArgumentError("must be an increasing pair of finite numbers", argument=name,
+                            value=lim)
     return lo, hi
 
 
@@ -32,16 +39,18 @@ def plot_radar_image(image: RadarImage, detections=None, range_lim_m=(0.0, 100.0
     relative to the strongest cell shown; detections (``cfar.detect`` output) as circles."""
     rlo, rhi = _limits("range_lim_m", range_lim_m)
     vlo, vhi = _limits("velocity_lim_mps", velocity_lim_mps)
-    if not (np.isfinite(dynamic_range_db) and dynamic_range_db > 0):
-        raise ValueError(f"dynamic_range_db must be positive, got {dynamic_range_db!r}")
+    if not (isinstance(dynamic_range_db, int | float | np.floating)
+            and np.isfinite(dynamic_range_db) and dynamic_range_db > 0):
+        raise ArgumentError("must be positive and finite", argument="dynamic_range_db",
+                            value=dynamic_range_db)
     r, v = image.range_m, image.velocity_mps
     ri = np.flatnonzero((r >= rlo) & (r <= rhi))
     vi = np.flatnonzero((v >= vlo) & (v <= vhi))
     if ri.size == 0 or vi.size == 0:
-        raise ValueError(
-            f"limits {range_lim_m!r} m, {velocity_lim_mps!r} m/s select no image cells "
-            f"(image covers {r[0]:.3g}..{r[-1]:.3g} m, {v[0]:.3g}..{v[-1]:.3g} m/s)"
-        )
+        raise ArgumentError(
+            f"with velocity_lim_mps = {velocity_lim_mps!r} selects no image cells "
+            f"(image covers {r[0]:.3g}..{r[-1]:.3g} m, {v[0]:.3g}..{v[-1]:.3g} m/s)",
+            argument="range_lim_m", value=range_lim_m)
     crop = np.asarray(image.power_db)[np.ix_(ri, vi)]
     top = np.max(crop[np.isfinite(crop)]) if np.isfinite(crop).any() else 0.0
     dr = r[1] - r[0] if r.size > 1 else 1.0
@@ -71,16 +80,18 @@ def plot_radar_image(image: RadarImage, detections=None, range_lim_m=(0.0, 100.0
     return fig
 
 
-def save_radar_image(image: RadarImage, path_stem, detections=None, **kwargs):
-    """Plot (see ``plot_radar_image``) and write ``<stem>.png`` and ``<stem>.svg``.
+def save_radar_image(image: RadarImage, path_stem, detections=None, *, inputs=(), **kwargs):
+    """Plot (see ``plot_radar_image``) and write ``<stem>.png`` and ``<stem>.svg``, each
+    atomically and byte-identically for identical input
+    (:func:`clradcom.files.save_figure`; never over a file in ``inputs``).
     Returns the two paths."""
     stem = Path(path_stem)
     if stem.suffix.lower() in (".png", ".svg"):
         stem = stem.with_suffix("")
     fig = plot_radar_image(image, detections, **kwargs)
     paths = (stem.with_suffix(".png"), stem.with_suffix(".svg"))
-    fig.savefig(paths[0], dpi=150)
-    fig.savefig(paths[1])
+    save_figure(fig, paths[0], inputs=inputs, dpi=150)
+    save_figure(fig, paths[1], inputs=inputs)
     return paths
 
 
@@ -96,10 +107,22 @@ def plot_interference_images(images: dict, detections: dict, floor_clean: float,
     """
     titles = INTERFERENCE_TITLES if titles is None else titles
     keys = list(titles)
+    for name, given in (("images", images), ("detections", detections)):
+        missing = [k for k in ["clean", *keys] if k not in given]
+        if missing:
+            raise ArgumentError(f"has no {missing[0]!r} entry (wants {['clean', *keys]})",
+                                argument=name, value=sorted(given))
+    if not (isinstance(floor_clean, int | float | np.floating) and np.isfinite(floor_clean)
+            and floor_clean > 0):
+        raise ArgumentError("must be a positive, finite noise power", argument="floor_clean",
+                            value=floor_clean)
     ref = images["clean"]
     r, v = ref.range_m, ref.velocity_mps
     ri = np.flatnonzero(r <= range_max_m)
     vi = np.flatnonzero(np.abs(v) <= 40.0)
+    if ri.size == 0 or vi.size == 0:
+        raise ArgumentError(f"selects no image cells (image covers {r[0]:.3g}..{r[-1]:.3g} "
+                            "m)", argument="range_max_m", value=range_max_m)
     top = float(ref.power_db[np.ix_(ri, vi)].max())  # one colour scale: A's strongest echo
     # down to 3 dB under the interference-free floor, so the rise of the floor shows
     dyn_db = max(30.0, top - 10 * math.log10(floor_clean) + 3.0)
@@ -125,12 +148,13 @@ def plot_interference_images(images: dict, detections: dict, floor_clean: float,
 
 
 def save_interference_images(images: dict, path_stem, detections: dict, floor_clean: float,
-                             range_max_m: float = 60.0, titles=None):
-    """Plot (see ``plot_interference_images``) and write ``<stem>.png`` and ``<stem>.svg``.
-    Returns the two paths."""
+                             range_max_m: float = 60.0, titles=None, *, inputs=()):
+    """Plot (see ``plot_interference_images``) and write ``<stem>.png`` and ``<stem>.svg``,
+    each atomically and byte-identically for identical input
+    (:func:`clradcom.files.save_figure`). Returns the two paths."""
     stem = Path(path_stem)
     fig = plot_interference_images(images, detections, floor_clean, range_max_m, titles)
     paths = (stem.with_suffix(".png"), stem.with_suffix(".svg"))
-    fig.savefig(paths[0], dpi=120)
-    fig.savefig(paths[1])
+    save_figure(fig, paths[0], inputs=inputs, dpi=120)
+    save_figure(fig, paths[1], inputs=inputs)
     return paths

@@ -8,11 +8,11 @@ tools/interference.py print and write what they return.
 
 from __future__ import annotations
 
-import csv
 import math
 
 import numpy as np
 
+from clradcom.files import write_csv
 from clradcom.radar.cfar import detect
 from clradcom.radar.interference import InterferenceResult
 from clradcom.radar.processing import RadarImage
@@ -44,12 +44,10 @@ INTERFERENCE_TITLES = {"clean": "A without D", "interfered": "A with D interferi
 # ----------------------------------------------------------------------------------------
 # tables
 # ----------------------------------------------------------------------------------------
-def write_table(path, rows, header) -> None:
-    """A CSV file: one header row, then the rows as they are."""
-    with open(path, "w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(header)
-        w.writerows(rows)
+def write_table(path, rows, header, *, inputs=()) -> None:
+    """A CSV file: one header row, then the rows as they are; written atomically, never
+    over a file in ``inputs`` (:func:`clradcom.files.write_csv`)."""
+    write_csv(path, rows, header, inputs=inputs)
 
 
 def detection_rows(detections) -> list[tuple[str, str, str, str]]:

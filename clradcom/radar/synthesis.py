@@ -23,7 +23,7 @@ import warnings
 
 import numpy as np
 
-from clradcom.errors import AliasingWarning, CyclicPrefixWarning
+from clradcom.errors import AliasingWarning, ArgumentError, CyclicPrefixWarning
 from clradcom.radar.waveform import Waveform, check_symbols
 
 BOLTZMANN = 1.380649e-23
@@ -39,17 +39,17 @@ def check_paths(gains, delays_s, dopplers_hz):
     fd = np.atleast_1d(np.asarray(dopplers_hz))
     for name, arr in (("gains", a), ("delays_s", tau), ("dopplers_hz", fd)):
         if arr.ndim != 1:
-            raise ValueError(f"{name} must be 1-D (one value per path), got shape {arr.shape}")
+            raise ArgumentError(f"must be 1-D (one value per path), got shape {arr.shape}",
+                                argument=name)
         if not (np.issubdtype(arr.dtype, np.number) or arr.size == 0):
-            raise ValueError(f"{name} must be numeric, got dtype {arr.dtype}")
+            raise ArgumentError(f"must be numeric, got dtype {arr.dtype}", argument=name)
     if not (a.size == tau.size == fd.size):
-        raise ValueError(
+        raise ArgumentError(
             "gains, delays_s and dopplers_hz must have the same length, got "
-            f"{a.size}, {tau.size}, {fd.size}"
-        )
+            f"{a.size}, {tau.size}, {fd.size}", argument="gains")
     for name, arr in (("delays_s", tau), ("dopplers_hz", fd)):
         if np.iscomplexobj(arr):
-            raise ValueError(f"{name} must be real, got complex values")
+            raise ArgumentError("must be real, got complex values", argument=name)
     a = a.astype(complex)
     tau = tau.astype(float)
     fd = fd.astype(float)
@@ -57,10 +57,12 @@ def check_paths(gains, delays_s, dopplers_hz):
         bad = ~np.isfinite(arr)
         if bad.any():
             i = int(np.flatnonzero(bad)[0])
-            raise ValueError(f"{name}[{i}] is {arr[i]!r}; every path value must be finite")
+            raise ArgumentError(f"{name}[{i}] is {arr[i]!r}; every path value must be finite",
+                                argument=name)
     if (tau < 0).any():
         i = int(np.flatnonzero(tau < 0)[0])
-        raise ValueError(f"delays_s[{i}] = {tau[i]!r} is negative; delays must be >= 0")
+        raise ArgumentError(f"delays_s[{i}] = {tau[i]!r} is negative; delays must be >= 0",
+                            argument="delays_s")
     return a, tau, fd
 
 
@@ -366,15 +368,37 @@ def _isi_correction(y, d_pad, a, fd, rho, shift, waveform, eps, chunk_elems=1 <<
 # ----------------------------------------------------------------------------------------
 # noise
 # ----------------------------------------------------------------------------------------
+def check_noise_figure(noise_figure_db, argument: str = "noise_figure_db") -> float:
+    """A receiver noise figure in dB: finite and >= 0 (F = 10^{NF/10} >= 1 by definition:
+    a receiver adds noise, it never removes any); ``argument`` names it in the error."""
+    if not (isinstance(noise_figure_db, int | float | np.floating)
+            and not isinstance(noise_figure_db, bool) and math.isfinite(noise_figure_db)):
+        raise ArgumentError("must be a finite number of dB", argument=argument,
+                            value=noise_figure_db)
+    if noise_figure_db < 0:
+        raise ArgumentError("a receiver's noise figure is >= 0 dB by definition (F = "
+                            "10^(NF/10) >= 1: a receiver adds noise, it removes none)",
+                            argument=argument, value=noise_figure_db)
+    return float(noise_figure_db)
+
+
+def check_tx_power(tx_power_w, argument: str = "tx_power_w") -> float:
+    """A transmit power in W that a radar frame can be scaled to: positive and finite.
+    (A radar transmitting nothing, 0 W, has no echo: there is no frame to make.)"""
+    if not (isinstance(tx_power_w, int | float | np.floating) and not isinstance(tx_power_w, bool)
+            and math.isfinite(tx_power_w) and tx_power_w > 0):
+        raise ArgumentError("must be positive and finite (a radar transmitting nothing has "
+                            "no echo)", argument=argument, value=tx_power_w)
+    return float(tx_power_w)
+
+
 def thermal_noise_power(bandwidth_hz: float, noise_figure_db: float,
                         temperature_k: float = 290.0) -> float:
-    """Receiver noise power k·T·B·F in watts (F = 10^{NF/10})."""
+    """Receiver noise power k·T·B·F in watts (F = 10^{NF/10}; NF >= 0 dB)."""
     for name, v in (("bandwidth_hz", bandwidth_hz), ("temperature_k", temperature_k)):
         if not (isinstance(v, int | float | np.floating) and math.isfinite(v) and v > 0):
-            raise ValueError(f"{name} must be positive and finite, got {v!r}")
-    if not (isinstance(noise_figure_db, int | float | np.floating)
-            and math.isfinite(noise_figure_db)):
-        raise ValueError(f"noise_figure_db must be finite, got {noise_figure_db!r}")
+            raise ArgumentError("must be positive and finite", argument=name, value=v)
+    check_noise_figure(noise_figure_db)
     return BOLTZMANN * temperature_k * bandwidth_hz * 10.0 ** (noise_figure_db / 10.0)
 
 
@@ -383,7 +407,8 @@ def add_noise(signal, noise_variance: float, rng=None) -> np.ndarray:
     element (σ²/2 per real and imaginary part)."""
     s = np.asarray(signal)
     if not (math.isfinite(noise_variance) and noise_variance >= 0):
-        raise ValueError(f"noise_variance must be finite and >= 0, got {noise_variance!r}")
+        raise ArgumentError("must be finite and >= 0", argument="noise_variance",
+                            value=noise_variance)
     rng = np.random.default_rng(rng)
     scale = math.sqrt(noise_variance / 2.0)
     noise = rng.standard_normal(s.shape) + 1j * rng.standard_normal(s.shape)
@@ -400,8 +425,6 @@ def add_thermal_noise(signal, tx_power_w: float, noise_figure_db: float, bandwid
     OFDM transforms here are unitary the same σ² holds per subcarrier cell, so this works on
     a time-domain frame and on D_r (N, M) alike.  B is normally ``waveform.bandwidth``.
     """
-    if not (isinstance(tx_power_w, int | float | np.floating) and math.isfinite(tx_power_w)
-            and tx_power_w > 0):
-        raise ValueError(f"tx_power_w must be positive and finite, got {tx_power_w!r}")
+    check_tx_power(tx_power_w)
     var = thermal_noise_power(bandwidth_hz, noise_figure_db, temperature_k) / tx_power_w
     return add_noise(signal, var, rng)

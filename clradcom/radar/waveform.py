@@ -75,33 +75,38 @@ class Waveform:
         try:
             cp = float(self.cp_s)
         except (TypeError, ValueError):
-            raise ValueError(f"cp_s must be a real number, got {self.cp_s!r}") from None
+            raise ArgumentError("must be a real number", argument="cp_s",
+                                value=self.cp_s) from None
         if not math.isfinite(cp) or cp < 0.0:
-            raise ValueError(f"cp_s must be non-negative and finite, got {self.cp_s!r}")
+            raise ArgumentError("must be non-negative and finite", argument="cp_s",
+                                value=self.cp_s)
         if not isinstance(self.modulation, str) or self.modulation.lower() not in MODULATIONS:
-            raise ValueError(f"modulation must be one of {MODULATIONS}, got {self.modulation!r}")
+            raise ArgumentError(f"must be one of {MODULATIONS}", argument="modulation",
+                                value=self.modulation)
         if self.useful_duration_s is not None:
             t = _positive_finite("useful_duration_s", self.useful_duration_s)
             if abs(t * df - 1.0) > ORTHOGONALITY_TOLERANCE:
-                raise ValueError(
-                    f"useful_duration_s={t!r} contradicts subcarrier_spacing_hz={df!r}: "
+                raise ArgumentError(
+                    f"contradicts subcarrier_spacing_hz={df!r}: "
                     f"orthogonal OFDM needs T = 1/Δf = {1.0 / df!r} s, but T·Δf = {t * df!r} "
-                    f"(tolerance {ORTHOGONALITY_TOLERANCE})"
-                )
+                    f"(tolerance {ORTHOGONALITY_TOLERANCE})", argument="useful_duration_s",
+                    value=self.useful_duration_s)
         if fc <= n * df / 2:
-            raise ValueError(
-                f"carrier_hz={fc!r} must exceed half the bandwidth N·Δf/2 = {n * df / 2!r} Hz"
-            )
+            raise ArgumentError(
+                f"must exceed half the bandwidth N·Δf/2 = {n * df / 2!r} Hz (N = {n}, "
+                f"Δf = {df!r} Hz)", argument="carrier_hz", value=self.carrier_hz)
         if cp * df >= 1.0:
             raise ArgumentError(
                 f"the cyclic prefix must be shorter than the symbol it precedes, "
                 f"T = 1/Δf = {1.0 / df!r} s", argument="cp_s", value=self.cp_s)
         n_cp_exact = cp * n * df
         if abs(n_cp_exact - round(n_cp_exact)) > CP_SAMPLE_TOLERANCE:
-            raise ValueError(
-                f"cp_s={cp!r} is {n_cp_exact!r} samples at the sample rate N·Δf = {n * df!r} Hz;"
+            step = cp_subcarrier_step(cp, df)
+            raise ArgumentError(
+                f"is {n_cp_exact!r} samples at the sample rate N·Δf = {n * df!r} Hz (N = {n});"
                 f" it must be a whole number of samples (±{CP_SAMPLE_TOLERANCE})"
-            )
+                + ("" if step is None else f": N a multiple of {step} makes it one"),
+                argument="cp_s", value=self.cp_s)
 
     # --- sampling ------------------------------------------------------------------------
     @property
@@ -206,6 +211,18 @@ class Waveform:
         return {k: getattr(self, k) for k in names}
 
 
+def cp_subcarrier_step(cp_s: float, subcarrier_spacing_hz: float,
+                       limit: int = 1 << 16) -> int | None:
+    """Smallest N step such that a cyclic prefix ``cp_s`` is a whole number of samples at
+    N·Δf for every multiple of it (8 for the paper's 1.375 µs at 90.909 kHz), or None
+    where no N up to ``limit`` does."""
+    for n in range(1, limit + 1):
+        exact = cp_s * n * subcarrier_spacing_hz
+        if abs(exact - round(exact)) <= CP_SAMPLE_TOLERANCE:
+            return n
+    return None
+
+
 def paper_waveform(**overrides) -> Waveform:
     """The paper's Table I waveform (the dataclass defaults), with optional overrides."""
     return Waveform(**overrides)
@@ -228,7 +245,7 @@ def constellation(modulation: str) -> np.ndarray:
         levels = np.arange(-(side - 1), side, 2, dtype=float)
         pts = (levels[:, None] + 1j * levels[None, :]).ravel()
         return pts / np.sqrt(np.mean(np.abs(pts) ** 2))
-    raise ValueError(f"modulation must be one of {MODULATIONS}, got {modulation!r}")
+    raise ArgumentError(f"must be one of {MODULATIONS}", argument="modulation", value=modulation)
 
 
 def random_symbols(waveform: Waveform, seed=None) -> np.ndarray:
@@ -246,9 +263,9 @@ def check_symbols(symbols, waveform: Waveform, name: str = "symbols") -> np.ndar
     d = np.asarray(symbols)
     shape = (waveform.n_subcarriers, waveform.n_symbols)
     if d.shape != shape:
-        raise ValueError(f"{name} must have shape (N, M) = {shape}, got {d.shape}")
+        raise ArgumentError(f"must have shape (N, M) = {shape}, got {d.shape}", argument=name)
     if not np.all(np.isfinite(d)):
-        raise ValueError(f"{name} contains NaN or infinite values")
+        raise ArgumentError("contains NaN or infinite values", argument=name)
     return d.astype(complex, copy=False)
 
 
@@ -272,12 +289,13 @@ def ofdm_demodulate(rx, waveform: Waveform) -> np.ndarray:
     """
     y = np.asarray(rx)
     if y.ndim != 1:
-        raise ValueError(f"rx must be 1-D, got shape {y.shape}")
+        raise ArgumentError(f"must be 1-D, got shape {y.shape}", argument="rx")
     need = waveform.n_samples
     if y.size < need:
-        raise ValueError(f"rx has {y.size} samples, the waveform needs M·(N+N_cp) = {need}")
+        raise ArgumentError(f"has {y.size} samples, the waveform needs M·(N+N_cp) = {need}",
+                            argument="rx")
     if not np.all(np.isfinite(y[:need])):
-        raise ValueError("rx contains NaN or infinite values")
+        raise ArgumentError("contains NaN or infinite values", argument="rx")
     frames = y[:need].reshape(waveform.n_symbols, waveform.samples_per_symbol)
     body = frames[:, waveform.n_cp:]
     return np.fft.fft(body, axis=1, norm="ortho").T.copy()
