@@ -37,7 +37,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from clradcom.device.raycast import make_rays, spawn_origins
-from clradcom.device.visibility import confirm_slack, reaches_face, segments_clear
+from clradcom.device.visibility import (
+    antenna_blocked,
+    confirm_margin_m,
+    confirm_slack,
+    reaches_face,
+    segments_clear,
+)
 from clradcom.errors import ArgumentError, BoundaryWarning, CausticWarning
 from clradcom.geometry.wedges import (
     Wedges,
@@ -202,7 +208,8 @@ def _keller_plausible(tx, rx, starts, ends) -> np.ndarray:
 def diffraction_angles(chains: Chains, points, wedges: Wedges, ok=None):
     """(phi', phi, beta0, grazing) (C, nd) at each diffraction, and a mask of candidates
     whose every diffraction sees both neighbours from outside its wedge (or along one of
-    its faces: ``grazing`` marks incidence along a face), not end-on."""
+    its faces: ``grazing`` marks incidence along a face from the previous edge, where KP's
+    1/2 applies), not end-on."""
     C = len(chains)
     nd = chains.n_diffractions
     keep = np.ones(C, bool) if ok is None else np.asarray(ok, bool).copy()
@@ -244,7 +251,11 @@ def diffraction_angles(chains: Chains, points, wedges: Wedges, ok=None):
         p, _ = _snap_to_faces(p, limit)
         good &= (pp <= limit) & (p <= limit) & ~(graze_in & (np.abs(p - pp) < GRAZING_RAD))
         phi_p[:, j], phi[:, j], beta0[:, j] = pp, p, b0
-        grazing[:, j] = graze_in
+        # KP's grazing 1/2 is for a total (incident + face-reflected) field arriving along
+        # the face: the hop from another edge.  The wave of an antenna (or of a mirror)
+        # near the face's plane is the incident field alone, and the full D gives its
+        # diffraction, as for the antenna receiving there (reciprocity).
+        grazing[:, j] = graze_in & (i > 0) & (chains.pattern[i - 1] == DIFFRACTION)
         keep &= good
         j += 1
     return phi_p, phi, beta0, grazing, keep
@@ -252,8 +263,10 @@ def diffraction_angles(chains: Chains, points, wedges: Wedges, ok=None):
 
 def _snap_to_faces(angle, limit):
     """Angles within GRAZING_RAD of a face (0 or n pi, or 2 pi as 0) put on it, and a
-    mask of those; the wedge's interior stays beyond ``limit``."""
-    a = np.where(angle > 2 * np.pi - GRAZING_RAD, 0.0, angle)
+    mask of those; the wedge's interior stays beyond ``limit``.  For a half-plane
+    (n pi = 2 pi) an angle just below 2 pi lies at face n, its back, not at face 0."""
+    a = np.where((angle > 2 * np.pi - GRAZING_RAD) & (limit < 2 * np.pi - GRAZING_RAD), 0.0,
+                 angle)
     on0 = a < GRAZING_RAD
     on_n = np.abs(a - limit) < GRAZING_RAD
     a = np.where(on0, 0.0, np.where(on_n, limit, a))
@@ -284,6 +297,8 @@ def confirm_chains(caster, tri_face, face_normal, chains: Chains, points, ok=Non
     (:func:`clradcom.device.visibility.reaches_face`,
     :func:`clradcom.device.visibility.segments_clear`). Segments leave reflection points
     from just off the face and diffraction points from EDGE_CLEARANCE_M along themselves.
+    The millimetre next to each antenna is decided in float64
+    (:func:`clradcom.device.visibility.antenna_blocked`), as for specular paths.
     """
     pattern, elem = chains.pattern, chains.elements
     C, K = elem.shape
@@ -296,7 +311,10 @@ def confirm_chains(caster, tri_face, face_normal, chains: Chains, points, ok=Non
         start, end = points[idx, i], points[idx, i + 1]
         seg = end - start
         length = np.linalg.norm(seg, axis=1)
-        tmin = np.zeros(len(idx))
+        if i == 0:  # leaving the transmitter: its first millimetre is antenna_blocked's
+            tmin = confirm_slack(start, length)
+        else:
+            tmin = np.zeros(len(idx))
         if i > 0 and pattern[i - 1] == REFLECTION:
             start = spawn_origins(start, face_normal[elem[idx, i - 1]], seg)
         elif i > 0:
@@ -312,6 +330,12 @@ def confirm_chains(caster, tri_face, face_normal, chains: Chains, points, ok=Non
         else:
             stop = EDGE_CLEARANCE_M / np.maximum(length, 1e-12) if i < K else slack
             good = segments_clear(caster, tri_face, start, end, tmin, 1.0 - stop) & (length > 0)
+        if i == K:  # reaching the receiver
+            good &= ~antenna_blocked(caster.triangles, tri_face, end, start,
+                                     2.0 * confirm_margin_m(end))
+        if i == 0:
+            good &= ~antenna_blocked(caster.triangles, tri_face, start, end,
+                                     2.0 * confirm_margin_m(start))
         keep[idx[~good]] = False
         idx = idx[good]
     triangles[~keep] = -1
