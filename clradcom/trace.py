@@ -182,6 +182,7 @@ def trace_scene(scene: Scene, settings: TraceSettings | None = None,
         say(f"paths {tx.name} -> {rx.name}")
         with clock("specular"):
             paths = specular.link_paths(geom, tx_candidates, tx, rx, spec)
+        go_paths = paths  # the GO decisions the UTD terms follow at their boundaries
         if use_optics:
             with clock("physical optics"):
                 if t_idx not in shots:
@@ -199,7 +200,7 @@ def trace_scene(scene: Scene, settings: TraceSettings | None = None,
             with clock("diffraction"):
                 paths = concat_paths([paths, diffraction.link_paths(
                     geom, wedges, tx, rx, diff, tx_candidates, rx_candidates,
-                    stats["diffraction"])])
+                    stats["diffraction"], go_paths=go_paths)])
         out.append(Link(tx_name=tx.name, rx_name=rx.name, tx_index=t_idx, rx_index=r_idx,
                         paths=paths))
 

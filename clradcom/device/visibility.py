@@ -29,8 +29,11 @@ from clradcom.device.raycast import RayCaster, make_rays, spawn_origins
 #: A segment counts as reaching its reflection point when the first thing it
 #: meets is that face within this many metres (plus float32 resolution).
 CONFIRM_TOL_M = 1e-3
-#: A reflection point counts as inside a triangle when it lies at most this far
-#: outside an edge, relative to 1 + its largest coordinate (float64 rounding).
+#: A point counts as inside a triangle when it lies at most this far outside an edge that
+#: the triangle shares with another triangle of its face (a seam), relative to 1 + its
+#: largest coordinate (float64 rounding), so a seam has no gap.  Outside a rim edge of
+#: the face (one no other triangle of the face shares) nothing counts as inside: the
+#: rim is decided exactly, as UTD decides its edge's boundaries.
 INSIDE_TOL_REL = 1e-9
 #: A sight line from a surface point stops this fraction of its length short of its
 #: target, so the target's own surface (an antenna on a wall) does not block it.
@@ -125,6 +128,40 @@ def _edge_distances(points, tri):
     return out
 
 
+def _seam_edges(tri_ids, edges, triangles, tri_face) -> np.ndarray:
+    """(M,) bool: edge ``edges[m]`` (vertex j to j + 1) of triangle ``tri_ids[m]`` is a
+    seam: another triangle of the same face has both its end vertices (bit for bit, as
+    neighbours in a mesh do)."""
+    tri_ids = np.asarray(tri_ids)
+    edges = np.asarray(edges)
+    out = np.zeros(len(tri_ids), dtype=bool)
+    a = triangles[tri_ids, edges]
+    b = triangles[tri_ids, (edges + 1) % 3]
+    face = tri_face[tri_ids]
+    for f in np.unique(face):
+        sel = np.flatnonzero(face == f)
+        cand = np.flatnonzero(tri_face == f)
+        verts = triangles[cand][None]  # (1, K, 3, 3)
+        has_a = np.all(verts == a[sel, None, None], axis=3).any(axis=2)
+        has_b = np.all(verts == b[sel, None, None], axis=3).any(axis=2)
+        out[sel] = np.any(has_a & has_b & (cand[None] != tri_ids[sel, None]), axis=1)
+    return out
+
+
+def _inside(dist, min_dist, tri_ids, triangles, tri_face) -> np.ndarray:
+    """(M,) bool: edge distances ``dist`` (M, 3) of points to triangles ``tri_ids`` say
+    inside: none negative, or the negative ones (>= ``min_dist``, (M,)) across seams."""
+    exact = np.all(dist >= 0.0, axis=1)
+    near = ~exact & np.all(dist >= min_dist[:, None], axis=1)
+    if near.any():
+        m, j = np.nonzero((dist < 0.0) & near[:, None])
+        seam = _seam_edges(np.asarray(tri_ids)[m], j, triangles, tri_face)
+        rim = np.zeros(len(dist), dtype=bool)
+        rim[m[~seam]] = True
+        exact |= near & ~rim
+    return exact
+
+
 def containing_triangles(points, faces, prims, triangles, tri_face):
     """The triangle of face ``faces[c]`` that holds ``points[c]`` in float64, or -1.
 
@@ -133,10 +170,13 @@ def containing_triangles(points, faces, prims, triangles, tri_face):
     face's rim count as inside, and one inside count as outside; the UTD field of the
     rim assumes the exact side, so the total field jumps there.  Decided here in
     float64, the reflection appears and disappears where the edge diffraction
-    expects it.
+    expects it: a point on or inside the rim is inside, one outside it by any amount
+    is not; across a seam between two triangles of the face INSIDE_TOL_REL of rounding
+    is forgiven, so the seam has no gap.
     """
     points = np.asarray(points, dtype=np.float64)
     faces = np.asarray(faces)
+    tri_face = np.asarray(tri_face)
     out = np.full(len(points), -1, dtype=np.int32)
     if len(points) == 0:
         return out
@@ -144,7 +184,8 @@ def containing_triangles(points, faces, prims, triangles, tri_face):
     prims = np.asarray(prims)
     guess = (prims >= 0) & (tri_face[np.maximum(prims, 0)] == faces)
     g = np.flatnonzero(guess)
-    inside = np.all(_edge_distances(points[g], triangles[prims[g]]) >= min_dist[g, None], axis=1)
+    inside = _inside(_edge_distances(points[g], triangles[prims[g]]), min_dist[g], prims[g],
+                     triangles, tri_face)
     out[g[inside]] = prims[g[inside]]
     rest = np.flatnonzero(out < 0)
     if len(rest) == 0:
@@ -166,8 +207,9 @@ def containing_triangles(points, faces, prims, triangles, tri_face):
             sel = pts_idx[near][c0:c0 + step]
             p = np.repeat(points[sel], len(cand), axis=0)
             t = np.tile(tri, (len(sel), 1, 1))
-            dist = _edge_distances(p, t).reshape(len(sel), len(cand), 3)
-            inside = np.all(dist >= min_dist[sel, None, None], axis=2)
+            inside = _inside(_edge_distances(p, t), np.repeat(min_dist[sel], len(cand)),
+                             np.tile(cand, len(sel)), triangles, tri_face)
+            inside = inside.reshape(len(sel), len(cand))
             hit = inside.any(axis=1)
             out[sel[hit]] = cand[np.argmax(inside[hit], axis=1)]
     return out

@@ -63,6 +63,12 @@ EDGE_CLEARANCE_M = 1e-3
 GRAZING_RAD = 1e-6
 #: A diffraction this close (rad) to a shadow or reflection boundary is "on" it.
 ON_BOUNDARY_RAD = 1e-9
+#: Within this many float32 roundoffs of a boundary, relative to 1 + |Q| over the shorter
+#: leg at the edge point Q (and never less than ON_BOUNDARY_RAD), a UTD term takes the
+#: side of the tracer's own GO decision of that boundary (the line of sight or the face's
+#: reflection found or not), so GO and UTD are cut at one decision: the float32 casts
+#: that confirm GO paths resolve about 1e-7 |p|, and float64 rounding the rest.
+GO_MATCH_REL = 1e-6
 #: Occlusion tests of segments that touch an edge run this far (m) off the wedge, so a
 #: segment grazing along a face is not blocked by that face's own triangles.
 EDGE_LIFT_M = 1e-4
@@ -342,9 +348,58 @@ def confirm_chains(caster, tri_face, face_normal, chains: Chains, points, ok=Non
     return keep, triangles
 
 
+def go_face_sequences(paths: Paths, tri_face) -> set:
+    """The planar-face sequences (tuples; () for the line of sight) of the GO paths
+    (reflections only) among ``paths``."""
+    out = set()
+    n = np.asarray(paths.n_interactions)
+    for k in np.unique(n):
+        rows = np.flatnonzero(n == k)
+        rows = rows[np.all(paths.interaction[rows, :k] == REFLECTION, axis=1)]
+        out.update(map(tuple, np.asarray(tri_face)[paths.face_id[rows, :k]].tolist()))
+    return out
+
+
+def go_sides(chains: Chains, i: int, points, phi, phi_p, wedges: Wedges, tri_face,
+             go_sequences: set):
+    """Sides of the four UTD terms (D1-D4, utd.boundary_epsilons) of the diffraction at
+    ``pattern[i]`` of single-diffraction candidates: within the GO_MATCH_REL band of a
+    term's boundary, +1 where the tracer's GO path of that boundary was found, -1 where
+    not; 0 (the term's own sign) elsewhere.  That GO path is the candidate's reflections
+    without the edge (shadow boundary, D1 and D2) or with the edge replaced by a
+    reflection off face n (D3) or face 0 (D4): the same face sequence,
+    ``go_sequences`` (:func:`go_face_sequences`)."""
+    C = len(chains)
+    sides = [np.zeros(C, np.int8) for _ in range(4)]
+    w = chains.elements[:, i]
+    eps = utd.boundary_epsilons(phi, phi_p, wedges.n[w])
+    q = points[:, i + 1]
+    leg = np.minimum(np.linalg.norm(q - points[:, i], axis=1),
+                     np.linalg.norm(points[:, i + 2] - q, axis=1))
+    band = np.maximum(ON_BOUNDARY_RAD,
+                      GO_MATCH_REL * (1.0 + np.abs(q).max(axis=1)) / np.maximum(leg, 1e-12))
+    near = [np.abs(e) < band for e in eps]
+    face0 = np.asarray(tri_face)[wedges.tri0[w]]
+    face_n = np.where(wedges.tri1[w] >= 0, np.asarray(tri_face)[np.maximum(wedges.tri1[w], 0)],
+                      face0)
+    for c in np.flatnonzero(near[0] | near[1] | near[2] | near[3]):
+        pre = tuple(int(f) for f in chains.elements[c, :i])
+        post = tuple(int(f) for f in chains.elements[c, i + 1:])
+        counterpart = (pre + post, pre + post, pre + (int(face_n[c]),) + post,
+                       pre + (int(face0[c]),) + post)
+        for k in range(4):
+            if near[k][c]:
+                sides[k][c] = 1 if counterpart[k] in go_sequences else -1
+    return sides
+
+
 def chain_fields(scene, faces, wedges: Wedges, chains: Chains, points, triangles, angles,
-                 tx, rx) -> Paths:
-    """UTD fields of confirmed mixed paths as :class:`Paths` (K = len(pattern))."""
+                 tx, rx, go_sequences: set | None = None) -> Paths:
+    """UTD fields of confirmed mixed paths as :class:`Paths` (K = len(pattern)).
+
+    With ``go_sequences`` (the face sequences of the link's GO paths) a single
+    diffraction near one of its boundaries takes the side of the GO decision there
+    (:func:`go_sides`), so the total is continuous through the boundary."""
     pattern, elem = chains.pattern, chains.elements
     C, K = elem.shape
     if C == 0:
@@ -371,12 +426,17 @@ def chain_fields(scene, faces, wedges: Wedges, chains: Chains, points, triangles
             obj[:, i] = faces.object_id[el]
             face_id[:, i] = triangles[:, i]
         else:
-            _warn_on_boundaries(phi[:, j], phi_p[:, j], wedges.n[el], grazing[:, j])
+            sides = None
+            if go_sequences is not None and chains.n_diffractions == 1:
+                sides = go_sides(chains, i, points, phi[:, j], phi_p[:, j], wedges,
+                                 faces.tri_face, go_sequences)
+            _warn_on_boundaries(phi[:, j], phi_p[:, j], wedges.n[el], grazing[:, j], sides)
             m0, m1 = wedges.material0[el], wedges.material1[el]
             pec = scene.material_pec[m0] & scene.material_pec[m1]
             d_soft, d_hard = utd.diffraction_coefficients(
                 phi[:, j], phi_p[:, j], beta0[:, j], wedges.n[el], k, L[:, j],
-                eps_r_0=scene.material_eps_r[m0], eps_r_n=scene.material_eps_r[m1], pec=pec)
+                eps_r_0=scene.material_eps_r[m0], eps_r_n=scene.material_eps_r[m1], pec=pec,
+                go_sides=sides)
             # incidence along a face: the wave arriving there is already the total
             # (incident + face-reflected) field, so KP's grazing 1/2 applies [KP74]
             half = np.where(grazing[:, j], 0.5, 1.0)
@@ -401,12 +461,17 @@ def chain_fields(scene, faces, wedges: Wedges, chains: Chains, points, triangles
                  points=points, object_id=obj, face_id=face_id)
 
 
-def _warn_on_boundaries(phi, phi_p, n, grazing):
+def _warn_on_boundaries(phi, phi_p, n, grazing, sides=None):
     """BoundaryWarning for diffractions exactly on a shadow boundary (phi - phi' = +-pi)
-    or a reflection boundary (phi + phi' = pi or (2n - 1) pi). Grazing incidence puts
-    every boundary on a face by construction: KP's 1/2 handles it, no warning."""
+    or a reflection boundary (phi + phi' = pi or (2n - 1) pi) whose side no GO decision
+    gave (``sides``, :func:`go_sides`: then the total is continuous there). Grazing
+    incidence puts every boundary on a face by construction: KP's 1/2 handles it, no
+    warning."""
     d_inc = np.abs(np.abs(phi - phi_p) - np.pi)
     d_ref = np.minimum(np.abs(phi + phi_p - np.pi), np.abs(phi + phi_p - (2 * n - 1) * np.pi))
+    if sides is not None:
+        d_inc = np.where((sides[0] != 0) | (sides[1] != 0), np.inf, d_inc)
+        d_ref = np.where((sides[2] != 0) | (sides[3] != 0), np.inf, d_ref)
     on = ~grazing & ((d_inc < ON_BOUNDARY_RAD) | (d_ref < ON_BOUNDARY_RAD))
     if on.any():
         i = int(np.flatnonzero(on)[0])
@@ -652,11 +717,14 @@ def _chain_hop(wedges: Wedges, chain: np.ndarray) -> np.ndarray:
 
 
 def diffraction_link_paths(scene, faces, caster, wedges: Wedges, tx, rx, tx_sequences,
-                           rx_sequences, budget: DiffractionSettings, keep_fn=None):
+                           rx_sequences, budget: DiffractionSettings, keep_fn=None,
+                           go_sequences: set | None = None):
     """All confirmed diffraction paths of one link: (list of Paths per pattern, stats).
 
     ``keep_fn(k_dep, k_arr)`` (optional) drops paths outside the antennas' patterns
-    before their fields are computed.
+    before their fields are computed.  ``go_sequences`` (optional) are the face
+    sequences of the link's GO paths, whose decisions the UTD terms follow at their
+    boundaries (:func:`chain_fields`).
     """
     stats = {"candidates": 0, "paths": 0}
     out = []
@@ -681,7 +749,7 @@ def diffraction_link_paths(scene, faces, caster, wedges: Wedges, tx, rx, tx_sequ
             continue
         ch = Chains(ch.pattern, ch.elements[sel])
         out.append(chain_fields(scene, faces, wedges, ch, pts[sel], tris[sel],
-                                (pp[sel], p[sel], b0[sel], graze[sel]), tx, rx))
+                                (pp[sel], p[sel], b0[sel], graze[sel]), tx, rx, go_sequences))
         stats["paths"] += len(sel)
     return out, stats
 
@@ -702,12 +770,18 @@ def prepare(geom: Geometry, settings: DiffractionSettings) -> Wedges | None:
 
 def link_paths(geom: Geometry, wedges: Wedges, tx: Radar, rx: Radar,
                settings: DiffractionSettings, tx_sequences=None, rx_sequences=None,
-               stats: dict | None = None) -> Paths:
+               stats: dict | None = None, go_paths: Paths | None = None) -> Paths:
     """UTD diffraction paths of one link, up to settings.max_diffractions edges mixed with
-    reflections from the rays' face sequences of tx and rx (``stats`` adds up counts)."""
+    reflections from the rays' face sequences of tx and rx (``stats`` adds up counts).
+
+    ``go_paths``: the link's GO paths (line of sight and reflections, as the specular
+    mechanism found them): at a shadow or reflection boundary the UTD term follows their
+    decision, so the GO + UTD total is continuous (docs/stability.md)."""
+    go = None if go_paths is None else go_face_sequences(go_paths, geom.faces.tri_face)
     parts, counts = diffraction_link_paths(
         geom.scene, geom.faces, geom.caster, wedges, tx, rx, tx_sequences or {},
-        rx_sequences or {}, settings, keep_fn=lambda d, a: seen_by_antennas(tx, rx, d, a))
+        rx_sequences or {}, settings, keep_fn=lambda d, a: seen_by_antennas(tx, rx, d, a),
+        go_sequences=go)
     if stats is not None:
         for key, value in counts.items():
             stats[key] = stats.get(key, 0) + value
