@@ -167,6 +167,7 @@ def trace_scene(scene: Scene, settings: TraceSettings | None = None,
     candidates: dict[int, specular.Candidates] = {}  # per radar, as tx (or as rx for edges)
     shots: dict[int, optics.SbrShot] = {}  # per transmitter
     stats: dict[str, dict[str, int]] = {"diffraction": {}, "scattering": {}}
+    seeing: dict = {}  # the wedges each antenna position may see, shared by its links
 
     def candidates_of(index: int) -> specular.Candidates:
         if index not in candidates:
@@ -200,7 +201,7 @@ def trace_scene(scene: Scene, settings: TraceSettings | None = None,
             with clock("diffraction"):
                 paths = concat_paths([paths, diffraction.link_paths(
                     geom, wedges, tx, rx, diff, tx_candidates, rx_candidates,
-                    stats["diffraction"], go_paths=go_paths)])
+                    stats["diffraction"], go_paths=go_paths, seeing=seeing)])
         out.append(Link(tx_name=tx.name, rx_name=rx.name, tx_index=t_idx, rx_index=r_idx,
                         paths=paths))
 

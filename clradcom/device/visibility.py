@@ -57,7 +57,7 @@ def confirm_slack(end, length) -> np.ndarray:
     return confirm_margin_m(end) / np.maximum(length, 1e-12)
 
 
-def antenna_blocked(triangles, tri_face, antennas, others, radius) -> np.ndarray:
+def antenna_blocked(caster: RayCaster, tri_face, antennas, others, radius) -> np.ndarray:
     """(S,) bool: a face crosses the segment antennas[s] -> others[s] strictly between its
     ends, within ``radius`` (m, scalar or (S,)) of the antenna; all in float64.
 
@@ -70,6 +70,7 @@ def antenna_blocked(triangles, tri_face, antennas, others, radius) -> np.ndarray
     (:func:`containing_triangles`).  So an antenna behind a face is blocked however close
     it is, from either end of the link, and one exactly on a face is not.
     """
+    triangles = caster.triangles
     antennas = np.asarray(antennas, dtype=np.float64)
     others = np.asarray(others, dtype=np.float64)
     S = len(others)
@@ -79,11 +80,14 @@ def antenna_blocked(triangles, tri_face, antennas, others, radius) -> np.ndarray
     if S == 0 or len(triangles) == 0:
         return out
     tri_face = np.asarray(tri_face)
-    lo, hi = triangles.min(axis=1), triangles.max(axis=1)
-    ants, which = np.unique(antennas, axis=0, return_inverse=True)
-    which = which.reshape(-1)
-    for a_idx, ant in enumerate(ants):
-        rows = np.flatnonzero(which == a_idx)
+    lo, hi = caster.triangle_bounds()
+    if np.all(antennas == antennas[0]):  # the usual case: one antenna for all segments
+        groups = [(antennas[0], np.arange(S))]
+    else:
+        ants, which = np.unique(antennas, axis=0, return_inverse=True)
+        which = which.reshape(-1)
+        groups = [(ant, np.flatnonzero(which == i)) for i, ant in enumerate(ants)]
+    for ant, rows in groups:
         r = radius[rows].max()
         # triangles whose box lies within the radius of the antenna: the only candidates
         near = np.flatnonzero(np.all((ant >= lo - r) & (ant <= hi + r), axis=1))
@@ -115,7 +119,7 @@ def antenna_blocked(triangles, tri_face, antennas, others, radius) -> np.ndarray
     return out
 
 
-def _edge_distances(points, tri):
+def edge_distances(points, tri):
     """(C, 3) signed in-plane distances (m) of points inside the three edges of their
     triangles (C, 3, 3): all >= 0 inside, negative outside."""
     n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
@@ -184,7 +188,7 @@ def containing_triangles(points, faces, prims, triangles, tri_face):
     prims = np.asarray(prims)
     guess = (prims >= 0) & (tri_face[np.maximum(prims, 0)] == faces)
     g = np.flatnonzero(guess)
-    inside = _inside(_edge_distances(points[g], triangles[prims[g]]), min_dist[g], prims[g],
+    inside = _inside(edge_distances(points[g], triangles[prims[g]]), min_dist[g], prims[g],
                      triangles, tri_face)
     out[g[inside]] = prims[g[inside]]
     rest = np.flatnonzero(out < 0)
@@ -207,7 +211,7 @@ def containing_triangles(points, faces, prims, triangles, tri_face):
             sel = pts_idx[near][c0:c0 + step]
             p = np.repeat(points[sel], len(cand), axis=0)
             t = np.tile(tri, (len(sel), 1, 1))
-            inside = _inside(_edge_distances(p, t), np.repeat(min_dist[sel], len(cand)),
+            inside = _inside(edge_distances(p, t), np.repeat(min_dist[sel], len(cand)),
                              np.tile(cand, len(sel)), triangles, tri_face)
             inside = inside.reshape(len(sel), len(cand))
             hit = inside.any(axis=1)
@@ -344,10 +348,10 @@ def confirm_paths(caster: RayCaster, tri_face, face_normals, points: np.ndarray,
             triangles[idx, i] = tri
         else:
             good = segments_clear(caster, tri_face, start, end, tmin, 1.0 - slack) & (length > 0)
-            good &= ~antenna_blocked(caster.triangles, tri_face, end, start,
+            good &= ~antenna_blocked(caster, tri_face, end, start,
                                      2.0 * confirm_margin_m(end))
         if i == 0:
-            good &= ~antenna_blocked(caster.triangles, tri_face, start, end,
+            good &= ~antenna_blocked(caster, tri_face, start, end,
                                      2.0 * confirm_margin_m(start))
         keep[idx[~good]] = False
         idx = idx[good]
@@ -382,6 +386,6 @@ def surface_sees(caster: RayCaster, points, normals, targets, ignore_prim, *,
         t = np.broadcast_to(targets, org.shape)
         if tri_face is None:
             tri_face = np.arange(len(caster.triangles))
-        sees[sees] = ~antenna_blocked(caster.triangles, tri_face, t[sees], org[sees],
+        sees[sees] = ~antenna_blocked(caster, tri_face, t[sees], org[sees],
                                       2.0 * confirm_margin_m(t[sees]))
     return sees

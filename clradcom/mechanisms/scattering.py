@@ -323,7 +323,7 @@ def reflection_legs(geom, end, q, nrm, tri_ids, tiles, face_ids, lo, hi):
     prim = reaches_face(geom.caster, geom.faces.tri_face, start, p, face, slack,
                         tmin=confirm_slack(start, length))
     good = prim >= 0
-    good[good] = ~antenna_blocked(geom.caster.triangles, geom.faces.tri_face, end, p[good],
+    good[good] = ~antenna_blocked(geom.caster, geom.faces.tri_face, end, p[good],
                                   2.0 * confirm_margin_m(start[good]))
     # tile -> p: nothing in between (stop short of the mirror itself)
     idx = np.flatnonzero(good)
