@@ -18,9 +18,9 @@ from dsp_helpers import small_waveform
 from scipy.special import fresnel as scipy_fresnel
 from test_paths import (
     ETA_ROAD,
-    ROAD,
     K0,
     LAM,
+    ROAD,
     fresnel,
     plane,
     radar,
@@ -32,7 +32,6 @@ from test_paths import (
 
 from clradcom.errors import (
     AliasingWarning,
-    BoundaryWarning,
     CausticWarning,
     CyclicPrefixWarning,
     NearFieldWarning,

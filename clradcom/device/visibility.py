@@ -57,6 +57,14 @@ def confirm_slack(end, length) -> np.ndarray:
     return confirm_margin_m(end) / np.maximum(length, 1e-12)
 
 
+def antenna_slack(antenna, length) -> np.ndarray:
+    """The fraction of segments of ``length`` (m) leaving ``antenna`` that their casts
+    leave to :func:`antenna_blocked`: :func:`confirm_slack`, but at most half the segment,
+    so a segment shorter than two margins still has its far half cast (where a
+    reflection point's face must be met)."""
+    return np.minimum(confirm_slack(antenna, length), 0.5)
+
+
 def antenna_blocked(caster: RayCaster, tri_face, antennas, others, radius) -> np.ndarray:
     """(S,) bool: a face crosses the segment antennas[s] -> others[s] strictly between its
     ends, within ``radius`` (m, scalar or (S,)) of the antenna; all in float64.
@@ -340,7 +348,7 @@ def confirm_paths(caster: RayCaster, tri_face, face_normals, points: np.ndarray,
             start = spawn_origins(start, face_normals[seqs[idx, i - 1]], end - start)
             tmin = 0.0
         else:  # leaving the transmitter
-            tmin = confirm_slack(start, length)
+            tmin = antenna_slack(start, length)
         slack = confirm_slack(end, length)
         if i < k:
             tri = reaches_face(caster, tri_face, start, end, seqs[idx, i], slack, tmin)

@@ -39,6 +39,7 @@ import numpy as np
 from clradcom.device.raycast import make_rays, spawn_origins
 from clradcom.device.visibility import (
     antenna_blocked,
+    antenna_slack,
     confirm_margin_m,
     confirm_slack,
     containing_triangles,
@@ -267,7 +268,8 @@ def diffraction_angles(chains: Chains, points, wedges: Wedges, ok=None):
         # the face: the hop from another edge.  The wave of an antenna (or of a mirror)
         # near the face's plane is the incident field alone, and the full D gives its
         # diffraction, as for the antenna receiving there (reciprocity).
-        grazing[:, j] = graze_in & (i > 0) & (chains.pattern[i - 1] == DIFFRACTION)
+        after_edge = i > 0 and chains.pattern[i - 1] == DIFFRACTION
+        grazing[:, j] = graze_in & after_edge
         keep &= good
         j += 1
     return phi_p, phi, beta0, grazing, keep
@@ -324,7 +326,7 @@ def confirm_chains(caster, tri_face, face_normal, chains: Chains, points, ok=Non
         seg = end - start
         length = np.linalg.norm(seg, axis=1)
         if i == 0:  # leaving the transmitter: its first millimetre is antenna_blocked's
-            tmin = confirm_slack(start, length)
+            tmin = antenna_slack(start, length)
         else:
             tmin = np.zeros(len(idx))
         if i > 0 and pattern[i - 1] == REFLECTION:

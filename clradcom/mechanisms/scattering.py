@@ -41,6 +41,7 @@ import numpy as np
 
 from clradcom.device.visibility import (
     antenna_blocked,
+    antenna_slack,
     confirm_margin_m,
     confirm_slack,
     reaches_face,
@@ -321,7 +322,7 @@ def reflection_legs(geom, end, q, nrm, tri_ids, tiles, face_ids, lo, hi):
     length = np.linalg.norm(p - start, axis=1)
     slack = confirm_slack(p, length)
     prim = reaches_face(geom.caster, geom.faces.tri_face, start, p, face, slack,
-                        tmin=confirm_slack(start, length))
+                        tmin=antenna_slack(start, length))
     good = prim >= 0
     good[good] = ~antenna_blocked(geom.caster, geom.faces.tri_face, end, p[good],
                                   2.0 * confirm_margin_m(start[good]))
