@@ -209,6 +209,7 @@ def trace_scene(scene: Scene, settings: TraceSettings | None = None,
     candidates: dict[int, specular.Candidates] = {}  # per radar, as tx (or as rx for edges)
     shots: dict[int, optics.SbrShot] = {}  # per transmitter
     stats: dict[str, dict[str, int]] = {"diffraction": {}, "scattering": {}}
+    seeing: dict = {}  # the wedges each antenna position may see, shared by its links
 
     def candidates_of(index: int) -> specular.Candidates:
         if index not in candidates:
@@ -224,6 +225,7 @@ def trace_scene(scene: Scene, settings: TraceSettings | None = None,
         say(f"paths {tx.name} -> {rx.name}")
         with clock("specular"):
             paths = specular.link_paths(geom, tx_candidates, tx, rx, spec)
+        go_paths = paths  # the GO decisions the UTD terms follow at their boundaries
         if use_optics:
             with clock("physical optics"):
                 if t_idx not in shots:
@@ -242,7 +244,7 @@ def trace_scene(scene: Scene, settings: TraceSettings | None = None,
             with clock("diffraction"):
                 paths = concat_paths([paths, diffraction.link_paths(
                     geom, wedges, tx, rx, diff, tx_candidates, rx_candidates,
-                    stats["diffraction"])])
+                    stats["diffraction"], go_paths=go_paths, seeing=seeing)])
         out.append(Link(tx_name=tx.name, rx_name=rx.name, tx_index=t_idx, rx_index=r_idx,
                         paths=paths))
 

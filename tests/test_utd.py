@@ -20,6 +20,7 @@ from clradcom.physics.utd import (
     F_ASYMPTOTIC_MIN,
     F_SERIES_MAX,
     a_plus_minus,
+    boundary_epsilons,
     diffraction_coefficients,
     diffraction_dyad,
     distance_parameter,
@@ -208,6 +209,32 @@ def test_halfplane_on_the_boundaries(soft):
         # exactly on it: indicator 1/2 and the mean of the one-sided limits
         e0 = abs(utd_total(b, phi_p, krho, 2.0, soft) - halfplane_exact(b, phi_p, krho, soft))
         assert e0 < 1e-8
+
+
+@pytest.mark.parametrize("soft", [True, False])
+def test_go_sides_take_the_branch_of_the_go_decision(soft):
+    """Exactly on a boundary (and within rounding of it) a caller that keeps its GO field
+    whole (present: +1, absent: -1) gets the one-sided UTD branch of that side, and the
+    total is Sommerfeld's exact half-plane field there either way."""
+    phi_p, krho = np.radians(40.0), 20.0
+    rho = krho / K0
+    for k, b in ((1, PI + phi_p), (3, PI - phi_p)):  # D2: shadow, D4: 0-face reflection
+        eps = boundary_epsilons(b, phi_p, 2.0)
+        assert abs(eps[k]) < 1e-15
+        exact = halfplane_exact(b, phi_p, krho, soft)
+        r0 = -1.0 if soft else 1.0
+        go_field = np.exp(1j * krho * np.cos(b - phi_p)) if k == 1 else r0 * np.exp(
+            1j * krho * np.cos(b + phi_p))
+        rest = utd_total(b, phi_p, krho, 2.0, soft) - 0.5 * go_field  # the other GO terms
+        rest -= diffraction_coefficients(b, phi_p, PI / 2, 2.0, K0, rho)[0 if soft else 1] * (
+            np.exp(-1j * krho) / np.sqrt(rho))
+        for side in (1, -1):
+            sides = [0, 0, 0, 0]
+            sides[k] = side
+            D = diffraction_coefficients(b, phi_p, PI / 2, 2.0, K0, rho, go_sides=sides)
+            d = D[0 if soft else 1] * np.exp(-1j * krho) / np.sqrt(rho)
+            total = rest + (side > 0) * go_field + d
+            assert abs(total - exact) < 1e-10, (k, side)
 
 
 # ---------------------------------------------------------------------------

@@ -9,6 +9,7 @@ from clradcom.device.raycast import RayCaster
 from clradcom.device.visibility import (
     confirm_paths,
     confirm_slack,
+    containing_triangles,
     reaches_face,
     segments_clear,
     surface_sees,
@@ -66,3 +67,20 @@ def test_confirm_paths_checks_every_segment(caster):
     keep, tris = confirm_paths(caster, TRI_FACE, FACE_NORMAL, points, np.zeros((2, 1), int))
     assert keep.tolist() == [True, False]
     assert tris[:, 0].tolist() == [0, -1]
+
+
+def test_inside_is_exact_at_the_rim_and_forgiving_at_a_seam():
+    """containing_triangles: a point on the floor's rim is inside, one 1e-12 m outside it is
+    not (INSIDE_TOL_REL forgives rounding across seams only, so the rim is where UTD puts
+    its edge's boundary); points on the diagonal seam between the floor's two triangles
+    are inside whichever triangle is guessed first."""
+    rim = np.array([[0.3, -1.0, 0.0], [0.3, -1.0 - 1e-12, 0.0], [3.0 + 1e-12, 0.2, 0.0],
+                    [-3.0, 0.7, 0.0]])
+    got = containing_triangles(rim, np.zeros(4, int), np.zeros(4, int), TRIANGLES, TRI_FACE)
+    assert got.tolist() == [0, -1, -1, 1]
+    t = np.linspace(0.01, 0.99, 97)
+    seam = np.array([-3.0, -1.0, 0.0]) + t[:, None] * np.array([6.0, 2.0, 0.0])
+    for guess in (0, 1):
+        got = containing_triangles(seam, np.zeros(len(t), int), np.full(len(t), guess),
+                                   TRIANGLES, TRI_FACE)
+        assert np.all(got >= 0)

@@ -120,6 +120,7 @@ class RayCaster:
         self._slot_prim = rt.to_device(slot_prim)
         self._lock = threading.Lock()
         self._buffers: dict[str, tuple[int, object]] = {}
+        self._bounds: tuple[np.ndarray, np.ndarray] | None = None
         # PoCL's CPU device uses USE_HOST_PTR memory in place (5% of the end-to-end
         # time saved on 500k rays); other devices get reused buffers and copies.
         self._zero_copy = rt.info.device_type == "CPU"
@@ -181,6 +182,12 @@ class RayCaster:
             else:
                 cl.enqueue_copy(rt.queue, out, out_buf, is_blocking=True)
         return out
+
+    def triangle_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """(lo, hi): the (T, 3) float64 corners of every triangle's box, computed once."""
+        if self._bounds is None:
+            self._bounds = (self.triangles.min(axis=1), self.triangles.max(axis=1))
+        return self._bounds
 
     def closest_hit(self, rays: np.ndarray, ignore_prim=None) -> np.ndarray:
         """HIT_DTYPE per ray: t (inf on a miss), u, v, prim (-1 on a miss), unit ng."""

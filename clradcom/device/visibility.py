@@ -11,7 +11,11 @@ float32 answer may disagree with the float64 geometry the fields are computed fr
   (:func:`containing_triangles`);
 * :func:`segments_clear` - nothing may block a segment; a float32 "blocked" is
   re-decided in float64 (:func:`blocked_in_float64`);
-* :func:`confirm_paths` - both along a chain of reflection points;
+* :func:`antenna_blocked` - the last millimetre of a segment at an antenna, where the
+  casts stop short (so an antenna on a wall is not blocked by that wall), decided
+  wholly in float64: a face strictly between blocks, a face through the antenna does
+  not;
+* :func:`confirm_paths` - all three along a chain of reflection points;
 * :func:`surface_sees` - a point on a surface (a facet, a tile, a ray-tube hit) sees
   a target, the surface's own triangle ignored.
 """
@@ -26,12 +30,21 @@ from clradcom.geometry.triangles import triangle_cross_products, triangle_normal
 #: A segment counts as reaching its reflection point when the first thing it
 #: meets is that face within this many metres (plus float32 resolution).
 CONFIRM_TOL_M = 1e-3
-#: A reflection point counts as inside a triangle when it lies at most this far
-#: outside an edge, relative to 1 + its largest coordinate (float64 rounding).
+#: A point counts as inside a triangle when it lies at most this far outside an edge that
+#: the triangle shares with another triangle of its face (a seam), relative to 1 + its
+#: largest coordinate (float64 rounding), so a seam has no gap.  Outside a rim edge of
+#: the face (one no other triangle of the face shares) nothing counts as inside: the
+#: rim is decided exactly, as UTD decides its edge's boundaries.
 INSIDE_TOL_REL = 1e-9
 #: A sight line from a surface point stops this fraction of its length short of its
 #: target, so the target's own surface (an antenna on a wall) does not block it.
 SIGHT_STOP = 1e-7
+#: An antenna this close to a face's plane, relative to 1 + its largest coordinate, lies
+#: on that face: the face never blocks the antenna's own segments (an antenna on a wall or
+#: on the road sees both sides).  Any farther behind a face, the face blocks.  About 500
+#: float64 roundoffs: what rounding leaves of the plane distance of a point that is on the
+#: plane, not a length of the scene.
+ON_FACE_TOL_REL = 1e-13
 
 
 def confirm_margin_m(end) -> np.ndarray:
@@ -45,7 +58,77 @@ def confirm_slack(end, length) -> np.ndarray:
     return confirm_margin_m(end) / np.maximum(length, 1e-12)
 
 
-def _edge_distances(points, tri):
+def antenna_slack(antenna, length) -> np.ndarray:
+    """The fraction of segments of ``length`` (m) leaving ``antenna`` that their casts
+    leave to :func:`antenna_blocked`: :func:`confirm_slack`, but at most half the segment,
+    so a segment shorter than two margins still has its far half cast (where a
+    reflection point's face must be met)."""
+    return np.minimum(confirm_slack(antenna, length), 0.5)
+
+
+def antenna_blocked(caster: RayCaster, tri_face, antennas, others, radius) -> np.ndarray:
+    """(S,) bool: a face crosses the segment antennas[s] -> others[s] strictly between its
+    ends, within ``radius`` (m, scalar or (S,)) of the antenna; all in float64.
+
+    The casts that confirm a segment stop :func:`confirm_margin_m` short of an antenna
+    (and start as far from one), so that an antenna on a wall is not blocked by that
+    wall; this decides the part they leave out.  A face blocks when the antenna lies
+    farther than ON_FACE_TOL_REL x (1 + |antenna|) from its plane, on the other side
+    from ``others[s]`` (which must not lie on that plane either: the segment's own
+    reflection point), and the crossing lies inside the face
+    (:func:`containing_triangles`).  So an antenna behind a face is blocked however close
+    it is, from either end of the link, and one exactly on a face is not.
+    """
+    triangles = caster.triangles
+    antennas = np.asarray(antennas, dtype=np.float64)
+    others = np.asarray(others, dtype=np.float64)
+    S = len(others)
+    antennas = np.broadcast_to(antennas, (S, 3))
+    radius = np.broadcast_to(np.asarray(radius, dtype=np.float64), (S,))
+    out = np.zeros(S, dtype=bool)
+    if S == 0 or len(triangles) == 0:
+        return out
+    tri_face = np.asarray(tri_face)
+    lo, hi = caster.triangle_bounds()
+    if np.all(antennas == antennas[0]):  # the usual case: one antenna for all segments
+        groups = [(antennas[0], np.arange(S))]
+    else:
+        ants, which = np.unique(antennas, axis=0, return_inverse=True)
+        which = which.reshape(-1)
+        groups = [(ant, np.flatnonzero(which == i)) for i, ant in enumerate(ants)]
+    for ant, rows in groups:
+        r = radius[rows].max()
+        # triangles whose box lies within the radius of the antenna: the only candidates
+        near = np.flatnonzero(np.all((ant >= lo - r) & (ant <= hi + r), axis=1))
+        if len(near) == 0:
+            continue
+        tri = triangles[near]
+        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        n /= np.linalg.norm(n, axis=1, keepdims=True)
+        d_ant = np.einsum("ij,ij->i", n, ant - tri[:, 0])  # (N,)
+        off = np.abs(d_ant) > ON_FACE_TOL_REL * (1.0 + np.abs(ant).max())
+        near, n, d_ant, tri = near[off], n[off], d_ant[off], tri[off]
+        if len(near) == 0:
+            continue
+        other = others[rows]
+        d_other = (other @ n.T) - np.einsum("ij,ij->i", n, tri[:, 0])[None, :]  # (R, N)
+        on_other = np.abs(d_other) <= ON_FACE_TOL_REL * (1.0 + np.abs(other).max(axis=1))[:, None]
+        cross = (d_ant[None, :] * d_other < 0) & ~on_other
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = d_ant[None, :] / (d_ant[None, :] - d_other)
+        seg = other - ant
+        cross &= t * np.linalg.norm(seg, axis=1)[:, None] <= radius[rows][:, None]
+        i, j = np.nonzero(cross)
+        if len(i) == 0:
+            continue
+        points = ant + t[i, j][:, None] * seg[i]
+        inside = containing_triangles(points, tri_face[near[j]], near[j], triangles,
+                                      tri_face) >= 0
+        out[rows[i[inside]]] = True
+    return out
+
+
+def edge_distances(points, tri):
     """(C, 3) signed in-plane distances (m) of points inside the three edges of their
     triangles (C, 3, 3): all >= 0 inside, negative outside."""
     n = triangle_normals(tri)
@@ -57,6 +140,40 @@ def _edge_distances(points, tri):
     return out
 
 
+def _seam_edges(tri_ids, edges, triangles, tri_face) -> np.ndarray:
+    """(M,) bool: edge ``edges[m]`` (vertex j to j + 1) of triangle ``tri_ids[m]`` is a
+    seam: another triangle of the same face has both its end vertices (bit for bit, as
+    neighbours in a mesh do)."""
+    tri_ids = np.asarray(tri_ids)
+    edges = np.asarray(edges)
+    out = np.zeros(len(tri_ids), dtype=bool)
+    a = triangles[tri_ids, edges]
+    b = triangles[tri_ids, (edges + 1) % 3]
+    face = tri_face[tri_ids]
+    for f in np.unique(face):
+        sel = np.flatnonzero(face == f)
+        cand = np.flatnonzero(tri_face == f)
+        verts = triangles[cand][None]  # (1, K, 3, 3)
+        has_a = np.all(verts == a[sel, None, None], axis=3).any(axis=2)
+        has_b = np.all(verts == b[sel, None, None], axis=3).any(axis=2)
+        out[sel] = np.any(has_a & has_b & (cand[None] != tri_ids[sel, None]), axis=1)
+    return out
+
+
+def _inside(dist, min_dist, tri_ids, triangles, tri_face) -> np.ndarray:
+    """(M,) bool: edge distances ``dist`` (M, 3) of points to triangles ``tri_ids`` say
+    inside: none negative, or the negative ones (>= ``min_dist``, (M,)) across seams."""
+    exact = np.all(dist >= 0.0, axis=1)
+    near = ~exact & np.all(dist >= min_dist[:, None], axis=1)
+    if near.any():
+        m, j = np.nonzero((dist < 0.0) & near[:, None])
+        seam = _seam_edges(np.asarray(tri_ids)[m], j, triangles, tri_face)
+        rim = np.zeros(len(dist), dtype=bool)
+        rim[m[~seam]] = True
+        exact |= near & ~rim
+    return exact
+
+
 def containing_triangles(points, faces, prims, triangles, tri_face):
     """The triangle of face ``faces[c]`` that holds ``points[c]`` in float64, or -1.
 
@@ -65,10 +182,13 @@ def containing_triangles(points, faces, prims, triangles, tri_face):
     face's rim count as inside, and one inside count as outside; the UTD field of the
     rim assumes the exact side, so the total field jumps there.  Decided here in
     float64, the reflection appears and disappears where the edge diffraction
-    expects it.
+    expects it: a point on or inside the rim is inside, one outside it by any amount
+    is not; across a seam between two triangles of the face INSIDE_TOL_REL of rounding
+    is forgiven, so the seam has no gap.
     """
     points = np.asarray(points, dtype=np.float64)
     faces = np.asarray(faces)
+    tri_face = np.asarray(tri_face)
     out = np.full(len(points), -1, dtype=np.int32)
     if len(points) == 0:
         return out
@@ -76,7 +196,8 @@ def containing_triangles(points, faces, prims, triangles, tri_face):
     prims = np.asarray(prims)
     guess = (prims >= 0) & (tri_face[np.maximum(prims, 0)] == faces)
     g = np.flatnonzero(guess)
-    inside = np.all(_edge_distances(points[g], triangles[prims[g]]) >= min_dist[g, None], axis=1)
+    inside = _inside(edge_distances(points[g], triangles[prims[g]]), min_dist[g], prims[g],
+                     triangles, tri_face)
     out[g[inside]] = prims[g[inside]]
     rest = np.flatnonzero(out < 0)
     if len(rest) == 0:
@@ -98,8 +219,9 @@ def containing_triangles(points, faces, prims, triangles, tri_face):
             sel = pts_idx[near][c0:c0 + step]
             p = np.repeat(points[sel], len(cand), axis=0)
             t = np.tile(tri, (len(sel), 1, 1))
-            dist = _edge_distances(p, t).reshape(len(sel), len(cand), 3)
-            inside = np.all(dist >= min_dist[sel, None, None], axis=2)
+            inside = _inside(edge_distances(p, t), np.repeat(min_dist[sel], len(cand)),
+                             np.tile(cand, len(sel)), triangles, tri_face)
+            inside = inside.reshape(len(sel), len(cand))
             hit = inside.any(axis=1)
             out[sel[hit]] = cand[np.argmax(inside[hit], axis=1)]
     return out
@@ -204,7 +326,9 @@ def confirm_paths(caster: RayCaster, tri_face, face_normals, points: np.ndarray,
     point it must reach that point's face there (:func:`reaches_face`); the
     last segment must reach the receiver with nothing in between
     (:func:`segments_clear`). Segments leave reflection points from just off
-    the face, on the side they leave into.
+    the face, on the side they leave into. The casts leave out the
+    :func:`confirm_margin_m` next to the transmitter (points[:, 0]) and the
+    receiver (points[:, -1]); :func:`antenna_blocked` decides those in float64.
     """
     tri_face = np.asarray(tri_face)
     C, k2, _ = points.shape
@@ -222,13 +346,21 @@ def confirm_paths(caster: RayCaster, tri_face, face_normals, points: np.ndarray,
         length = np.linalg.norm(end - start, axis=1)
         if i > 0:
             start = spawn_origins(start, face_normals[seqs[idx, i - 1]], end - start)
+            tmin = 0.0
+        else:  # leaving the transmitter
+            tmin = antenna_slack(start, length)
         slack = confirm_slack(end, length)
         if i < k:
-            tri = reaches_face(caster, tri_face, start, end, seqs[idx, i], slack)
+            tri = reaches_face(caster, tri_face, start, end, seqs[idx, i], slack, tmin)
             good = tri >= 0
             triangles[idx, i] = tri
         else:
-            good = segments_clear(caster, tri_face, start, end, 0.0, 1.0 - slack) & (length > 0)
+            good = segments_clear(caster, tri_face, start, end, tmin, 1.0 - slack) & (length > 0)
+            good &= ~antenna_blocked(caster, tri_face, end, start,
+                                     2.0 * confirm_margin_m(end))
+        if i == 0:
+            good &= ~antenna_blocked(caster, tri_face, start, end,
+                                     2.0 * confirm_margin_m(start))
         keep[idx[~good]] = False
         idx = idx[good]
     triangles[~keep] = -1
@@ -236,14 +368,16 @@ def confirm_paths(caster: RayCaster, tri_face, face_normals, points: np.ndarray,
 
 
 def surface_sees(caster: RayCaster, points, normals, targets, ignore_prim, *,
-                 leave_direction=None, stop_short_m=None) -> np.ndarray:
+                 leave_direction=None, stop_short_m=None, tri_face=None) -> np.ndarray:
     """(S,) bool: nothing but the surface's own triangle ``ignore_prim`` lies between
     the surface points (S,3) and their targets ((3,) or (S,3)).
 
     The sight line starts just off the surface (:func:`spawn_origins`) on the side of
-    ``leave_direction`` (default: toward the target) and stops SIGHT_STOP of its
-    length short of the target, or ``stop_short_m`` metres short where given (a
-    target on a face that is not to block it).
+    ``leave_direction`` (default: toward the target) and stops ``stop_short_m`` metres
+    short of the target where given (a target on a face that is not to block it).
+    Otherwise the target is an antenna: the cast stops SIGHT_STOP of its length short
+    and :func:`antenna_blocked` decides the last :func:`confirm_margin_m` in float64
+    against the planar faces ``tri_face`` (default: every triangle its own face).
     """
     points = np.asarray(points, dtype=np.float64)
     targets = np.asarray(targets, dtype=np.float64)
@@ -254,4 +388,12 @@ def surface_sees(caster: RayCaster, points, normals, targets, ignore_prim, *,
     sight = targets - org
     stop = SIGHT_STOP if stop_short_m is None else stop_short_m / np.linalg.norm(sight, axis=1)
     rays = make_rays(org, sight, 0.0, 1.0 - stop)
-    return ~caster.occluded(rays, ignore_prim=np.asarray(ignore_prim).astype(np.int32))
+    sees = ~caster.occluded(rays, ignore_prim=np.asarray(ignore_prim).astype(np.int32))
+    if stop_short_m is None and sees.any():
+        # the target is an antenna: what lies just before it is decided in float64
+        t = np.broadcast_to(targets, org.shape)
+        if tri_face is None:
+            tri_face = np.arange(len(caster.triangles))
+        sees[sees] = ~antenna_blocked(caster, tri_face, t[sees], org[sees],
+                                      2.0 * confirm_margin_m(t[sees]))
+    return sees

@@ -37,7 +37,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from clradcom.device.raycast import make_rays, spawn_origins
-from clradcom.device.visibility import confirm_slack, reaches_face, segments_clear
+from clradcom.device.visibility import (
+    antenna_blocked,
+    antenna_slack,
+    confirm_margin_m,
+    confirm_slack,
+    containing_triangles,
+    edge_distances,
+    reaches_face,
+    segments_clear,
+)
 from clradcom.errors import ArgumentError, BoundaryWarning, CausticWarning
 from clradcom.geometry.wedges import (
     Wedges,
@@ -57,9 +66,19 @@ EDGE_CLEARANCE_M = 1e-3
 GRAZING_RAD = 1e-6
 #: A diffraction this close (rad) to a shadow or reflection boundary is "on" it.
 ON_BOUNDARY_RAD = 1e-9
+#: Within this many float32 roundoffs of a boundary, relative to 1 + |Q| over the shorter
+#: leg at the edge point Q (and never less than ON_BOUNDARY_RAD), a UTD term takes the
+#: side of the tracer's own GO decision of that boundary (the line of sight or the face's
+#: reflection found or not), so GO and UTD are cut at one decision: the float32 casts
+#: that confirm GO paths resolve about 1e-7 |p|, and float64 rounding the rest.
+GO_MATCH_REL = 1e-6
 #: Occlusion tests of segments that touch an edge run this far (m) off the wedge, so a
 #: segment grazing along a face is not blocked by that face's own triangles.
 EDGE_LIFT_M = 1e-4
+#: wedges_seeing halves a piece of an edge that no single face is proven to hide at most
+#: this many times (pieces down to 1/16 of an edge) before keeping the wedge anyway.
+#: Halving only helps where blockers overlap; deeper cost more than it saved on the street.
+SEEING_MAX_DEPTH = 2
 
 REFLECTION = int(InteractionType.REFLECTION)
 DIFFRACTION = int(InteractionType.DIFFRACTION)
@@ -202,7 +221,8 @@ def _keller_plausible(tx, rx, starts, ends) -> np.ndarray:
 def diffraction_angles(chains: Chains, points, wedges: Wedges, ok=None):
     """(phi', phi, beta0, grazing) (C, nd) at each diffraction, and a mask of candidates
     whose every diffraction sees both neighbours from outside its wedge (or along one of
-    its faces: ``grazing`` marks incidence along a face), not end-on."""
+    its faces: ``grazing`` marks incidence along a face from the previous edge, where KP's
+    1/2 applies), not end-on."""
     C = len(chains)
     nd = chains.n_diffractions
     keep = np.ones(C, bool) if ok is None else np.asarray(ok, bool).copy()
@@ -244,7 +264,12 @@ def diffraction_angles(chains: Chains, points, wedges: Wedges, ok=None):
         p, _ = _snap_to_faces(p, limit)
         good &= (pp <= limit) & (p <= limit) & ~(graze_in & (np.abs(p - pp) < GRAZING_RAD))
         phi_p[:, j], phi[:, j], beta0[:, j] = pp, p, b0
-        grazing[:, j] = graze_in
+        # KP's grazing 1/2 is for a total (incident + face-reflected) field arriving along
+        # the face: the hop from another edge.  The wave of an antenna (or of a mirror)
+        # near the face's plane is the incident field alone, and the full D gives its
+        # diffraction, as for the antenna receiving there (reciprocity).
+        after_edge = i > 0 and chains.pattern[i - 1] == DIFFRACTION
+        grazing[:, j] = graze_in & after_edge
         keep &= good
         j += 1
     return phi_p, phi, beta0, grazing, keep
@@ -252,8 +277,10 @@ def diffraction_angles(chains: Chains, points, wedges: Wedges, ok=None):
 
 def _snap_to_faces(angle, limit):
     """Angles within GRAZING_RAD of a face (0 or n pi, or 2 pi as 0) put on it, and a
-    mask of those; the wedge's interior stays beyond ``limit``."""
-    a = np.where(angle > 2 * np.pi - GRAZING_RAD, 0.0, angle)
+    mask of those; the wedge's interior stays beyond ``limit``.  For a half-plane
+    (n pi = 2 pi) an angle just below 2 pi lies at face n, its back, not at face 0."""
+    a = np.where((angle > 2 * np.pi - GRAZING_RAD) & (limit < 2 * np.pi - GRAZING_RAD), 0.0,
+                 angle)
     on0 = a < GRAZING_RAD
     on_n = np.abs(a - limit) < GRAZING_RAD
     a = np.where(on0, 0.0, np.where(on_n, limit, a))
@@ -284,6 +311,8 @@ def confirm_chains(caster, tri_face, face_normal, chains: Chains, points, ok=Non
     (:func:`clradcom.device.visibility.reaches_face`,
     :func:`clradcom.device.visibility.segments_clear`). Segments leave reflection points
     from just off the face and diffraction points from EDGE_CLEARANCE_M along themselves.
+    The millimetre next to each antenna is decided in float64
+    (:func:`clradcom.device.visibility.antenna_blocked`), as for specular paths.
     """
     pattern, elem = chains.pattern, chains.elements
     C, K = elem.shape
@@ -296,7 +325,10 @@ def confirm_chains(caster, tri_face, face_normal, chains: Chains, points, ok=Non
         start, end = points[idx, i], points[idx, i + 1]
         seg = end - start
         length = np.linalg.norm(seg, axis=1)
-        tmin = np.zeros(len(idx))
+        if i == 0:  # leaving the transmitter: its first millimetre is antenna_blocked's
+            tmin = antenna_slack(start, length)
+        else:
+            tmin = np.zeros(len(idx))
         if i > 0 and pattern[i - 1] == REFLECTION:
             start = spawn_origins(start, face_normal[elem[idx, i - 1]], seg)
         elif i > 0:
@@ -312,15 +344,70 @@ def confirm_chains(caster, tri_face, face_normal, chains: Chains, points, ok=Non
         else:
             stop = EDGE_CLEARANCE_M / np.maximum(length, 1e-12) if i < K else slack
             good = segments_clear(caster, tri_face, start, end, tmin, 1.0 - stop) & (length > 0)
+        if i == K:  # reaching the receiver
+            good &= ~antenna_blocked(caster, tri_face, end, start,
+                                     2.0 * confirm_margin_m(end))
+        if i == 0:
+            good &= ~antenna_blocked(caster, tri_face, start, end,
+                                     2.0 * confirm_margin_m(start))
         keep[idx[~good]] = False
         idx = idx[good]
     triangles[~keep] = -1
     return keep, triangles
 
 
+def go_face_sequences(paths: Paths, tri_face) -> set:
+    """The planar-face sequences (tuples; () for the line of sight) of the GO paths
+    (reflections only) among ``paths``."""
+    out = set()
+    n = np.asarray(paths.n_interactions)
+    for k in np.unique(n):
+        rows = np.flatnonzero(n == k)
+        rows = rows[np.all(paths.interaction[rows, :k] == REFLECTION, axis=1)]
+        out.update(map(tuple, np.asarray(tri_face)[paths.face_id[rows, :k]].tolist()))
+    return out
+
+
+def go_sides(chains: Chains, i: int, points, phi, phi_p, wedges: Wedges, tri_face,
+             go_sequences: set):
+    """Sides of the four UTD terms (D1-D4, utd.boundary_epsilons) of the diffraction at
+    ``pattern[i]`` of single-diffraction candidates: within the GO_MATCH_REL band of a
+    term's boundary, +1 where the tracer's GO path of that boundary was found, -1 where
+    not; 0 (the term's own sign) elsewhere.  That GO path is the candidate's reflections
+    without the edge (shadow boundary, D1 and D2) or with the edge replaced by a
+    reflection off face n (D3) or face 0 (D4): the same face sequence,
+    ``go_sequences`` (:func:`go_face_sequences`)."""
+    C = len(chains)
+    sides = [np.zeros(C, np.int8) for _ in range(4)]
+    w = chains.elements[:, i]
+    eps = utd.boundary_epsilons(phi, phi_p, wedges.n[w])
+    q = points[:, i + 1]
+    leg = np.minimum(np.linalg.norm(q - points[:, i], axis=1),
+                     np.linalg.norm(points[:, i + 2] - q, axis=1))
+    band = np.maximum(ON_BOUNDARY_RAD,
+                      GO_MATCH_REL * (1.0 + np.abs(q).max(axis=1)) / np.maximum(leg, 1e-12))
+    near = [np.abs(e) < band for e in eps]
+    face0 = np.asarray(tri_face)[wedges.tri0[w]]
+    face_n = np.where(wedges.tri1[w] >= 0, np.asarray(tri_face)[np.maximum(wedges.tri1[w], 0)],
+                      face0)
+    for c in np.flatnonzero(near[0] | near[1] | near[2] | near[3]):
+        pre = tuple(int(f) for f in chains.elements[c, :i])
+        post = tuple(int(f) for f in chains.elements[c, i + 1:])
+        counterpart = (pre + post, pre + post, pre + (int(face_n[c]),) + post,
+                       pre + (int(face0[c]),) + post)
+        for k in range(4):
+            if near[k][c]:
+                sides[k][c] = 1 if counterpart[k] in go_sequences else -1
+    return sides
+
+
 def chain_fields(scene, faces, wedges: Wedges, chains: Chains, points, triangles, angles,
-                 tx, rx) -> Paths:
-    """UTD fields of confirmed mixed paths as :class:`Paths` (K = len(pattern))."""
+                 tx, rx, go_sequences: set | None = None) -> Paths:
+    """UTD fields of confirmed mixed paths as :class:`Paths` (K = len(pattern)).
+
+    With ``go_sequences`` (the face sequences of the link's GO paths) a single
+    diffraction near one of its boundaries takes the side of the GO decision there
+    (:func:`go_sides`), so the total is continuous through the boundary."""
     pattern, elem = chains.pattern, chains.elements
     C, K = elem.shape
     if C == 0:
@@ -347,12 +434,17 @@ def chain_fields(scene, faces, wedges: Wedges, chains: Chains, points, triangles
             obj[:, i] = faces.object_id[el]
             face_id[:, i] = triangles[:, i]
         else:
-            _warn_on_boundaries(phi[:, j], phi_p[:, j], wedges.n[el], grazing[:, j])
+            sides = None
+            if go_sequences is not None and chains.n_diffractions == 1:
+                sides = go_sides(chains, i, points, phi[:, j], phi_p[:, j], wedges,
+                                 faces.tri_face, go_sequences)
+            _warn_on_boundaries(phi[:, j], phi_p[:, j], wedges.n[el], grazing[:, j], sides)
             m0, m1 = wedges.material0[el], wedges.material1[el]
             pec = scene.material_pec[m0] & scene.material_pec[m1]
             d_soft, d_hard = utd.diffraction_coefficients(
                 phi[:, j], phi_p[:, j], beta0[:, j], wedges.n[el], k, L[:, j],
-                eps_r_0=scene.material_eps_r[m0], eps_r_n=scene.material_eps_r[m1], pec=pec)
+                eps_r_0=scene.material_eps_r[m0], eps_r_n=scene.material_eps_r[m1], pec=pec,
+                go_sides=sides)
             # incidence along a face: the wave arriving there is already the total
             # (incident + face-reflected) field, so KP's grazing 1/2 applies [KP74]
             half = np.where(grazing[:, j], 0.5, 1.0)
@@ -377,12 +469,17 @@ def chain_fields(scene, faces, wedges: Wedges, chains: Chains, points, triangles
                  points=points, object_id=obj, face_id=face_id)
 
 
-def _warn_on_boundaries(phi, phi_p, n, grazing):
+def _warn_on_boundaries(phi, phi_p, n, grazing, sides=None):
     """BoundaryWarning for diffractions exactly on a shadow boundary (phi - phi' = +-pi)
-    or a reflection boundary (phi + phi' = pi or (2n - 1) pi). Grazing incidence puts
-    every boundary on a face by construction: KP's 1/2 handles it, no warning."""
+    or a reflection boundary (phi + phi' = pi or (2n - 1) pi) whose side no GO decision
+    gave (``sides``, :func:`go_sides`: then the total is continuous there). Grazing
+    incidence puts every boundary on a face by construction: KP's 1/2 handles it, no
+    warning."""
     d_inc = np.abs(np.abs(phi - phi_p) - np.pi)
     d_ref = np.minimum(np.abs(phi + phi_p - np.pi), np.abs(phi + phi_p - (2 * n - 1) * np.pi))
+    if sides is not None:
+        d_inc = np.where((sides[0] != 0) | (sides[1] != 0), np.inf, d_inc)
+        d_ref = np.where((sides[2] != 0) | (sides[3] != 0), np.inf, d_ref)
     on = ~grazing & ((d_inc < ON_BOUNDARY_RAD) | (d_ref < ON_BOUNDARY_RAD))
     if on.any():
         i = int(np.flatnonzero(on)[0])
@@ -396,14 +493,33 @@ def _warn_on_boundaries(phi, phi_p, n, grazing):
 # ---------------------------------------------------------------------------
 # candidates
 
-def wedges_seeing(caster, wedges: Wedges, point, samples=(0.25, 0.5, 0.75)) -> np.ndarray:
-    """Mask of wedges with at least one sample point on the edge that sees ``point``
-    unobstructed from outside the wedge (a cheap candidate filter; the exact diffraction
-    point is confirmed later)."""
+def wedges_seeing(caster, wedges: Wedges, point, samples=(0.25, 0.5, 0.75), tri_face=None,
+                  max_depth: int = SEEING_MAX_DEPTH) -> np.ndarray:
+    """Mask of wedges of which some point (away from the ends by EDGE_CLEARANCE_M, where
+    Keller points may lie) may see ``point`` unobstructed from outside the wedge: a
+    candidate filter that only over-accepts (the exact diffraction point is confirmed
+    later).
+
+    Sight lines to three ``samples`` (fractions of the edge) come first; a wedge seen
+    there is in.  A wedge hidden at all of them is dropped only when its whole usable
+    edge is proven hidden: the edge is cut into pieces between sight lines whose first
+    blocker is known, and a piece is hidden when one planar face (``tri_face``, default
+    one per triangle) covers the whole triangle ``point`` - piece
+    (:func:`_face_covers`).  Pieces not proven so are halved (a sight line from the
+    midpoint: clear -> the wedge is in) down to ``max_depth`` halvings; a wedge with a
+    piece still open then is kept.  (Three samples alone dropped edges whose samples a
+    plate hid while their Keller points were in plain sight.)"""
+    return _seeing(caster, wedges, point, samples, tri_face, max_depth)[1]
+
+
+def _seeing(caster, wedges: Wedges, point, samples=(0.25, 0.5, 0.75), tri_face=None,
+            max_depth: int = SEEING_MAX_DEPTH):
+    """(seen at the samples, kept): :func:`wedges_seeing`'s mask and the part of it the
+    sample sight lines alone decided."""
     W = len(wedges)
     seen = np.zeros(W, dtype=bool)
     if W == 0:
-        return seen
+        return seen, seen
     p = np.asarray(point, dtype=np.float64)
     for f in samples:
         q = wedges.start + f * (wedges.end - wedges.start)
@@ -417,7 +533,180 @@ def wedges_seeing(caster, wedges: Wedges, point, samples=(0.25, 0.5, 0.75)) -> n
         origin = q[idx] + EDGE_LIFT_M * lift_direction(wedges, idx, d[idx])
         rays = make_rays(origin, p - origin, tmin=clear, tmax=1.0 - clear)
         seen[idx[~caster.occluded(rays)]] = True
-    return seen
+    # the rest, piece by piece; whether the point lies outside the wedge is the same for
+    # every point of a straight edge
+    mid = 0.5 * (wedges.start + wedges.end)
+    sampled = seen.copy()
+    todo = np.flatnonzero(~seen & _outside(wedges, np.arange(W), p - mid)
+                          & (wedges.length > 2 * EDGE_CLEARANCE_M))
+    if len(todo) == 0:
+        return sampled, seen
+    tri_face = np.arange(len(caster.triangles)) if tri_face is None else np.asarray(tri_face)
+    c = EDGE_CLEARANCE_M
+    length = wedges.length[todo]
+    knots = np.sort(np.clip(np.stack([np.full(len(todo), c), 0.25 * length, 0.5 * length,
+                                      0.75 * length, length - c], axis=1),
+                            c, (length - c)[:, None]), axis=1)
+    prim_k = _first_blocker(caster, wedges, np.repeat(todo, 5), knots.ravel(), p)
+    seen[todo[np.any(prim_k.reshape(-1, 5) < 0, axis=1)]] = True
+    # pieces between consecutive knots: wedge, ends (m along it), first blocker at each end
+    w_p = np.repeat(todo, 4)
+    s0, s1 = knots[:, :-1].ravel(), knots[:, 1:].ravel()
+    b0 = prim_k.reshape(-1, 5)[:, :-1].ravel()
+    b1 = prim_k.reshape(-1, 5)[:, 1:].ravel()
+    outlines: dict = {}
+    for depth in range(max_depth + 1):
+        keep = ~seen[w_p] & (s1 > s0)
+        # the face first met at either end may hide the whole piece (a car in front of a
+        # wall at one end, the wall alone behind it)
+        for b, at_end in ((b0, False), (b1, True)):
+            sel = np.flatnonzero(keep)
+            keep[sel[_face_covers(caster.triangles, tri_face, wedges, w_p[sel], s0[sel],
+                                  s1[sel], b[sel], at_end, p, outlines)]] = False
+        w_p, s0, s1, b0, b1 = w_p[keep], s0[keep], s1[keep], b0[keep], b1[keep]
+        if len(w_p) == 0:
+            return sampled, seen
+        if depth == max_depth:
+            break
+        sm = 0.5 * (s0 + s1)
+        bm = _first_blocker(caster, wedges, w_p, sm, p)
+        seen[w_p[bm < 0]] = True
+        w_p = np.concatenate([w_p, w_p])
+        s0, s1 = np.concatenate([s0, sm]), np.concatenate([sm, s1])
+        b0, b1 = np.concatenate([b0, bm]), np.concatenate([bm, b1])
+    # pieces neither seen nor proven hidden: keep their wedges (over-accept)
+    seen[w_p] = True
+    return sampled, seen
+
+
+def _edge_origins(wedges: Wedges, w, s, p):
+    """(origins, lengths): the points s metres along wedges w, lifted off them by
+    EDGE_LIFT_M as the sight lines to p leave them, and their distances to p."""
+    q = wedges.start[w] + s[:, None] * wedges.direction[w]
+    d = p - q
+    return q + EDGE_LIFT_M * lift_direction(wedges, w, d), np.linalg.norm(d, axis=1)
+
+
+def _first_blocker(caster, wedges: Wedges, w, s, p) -> np.ndarray:
+    """(S,) the triangle first met on the sight line from s metres along wedges w to p
+    (as wedges_seeing casts them), -1 where nothing blocks it."""
+    origin, length = _edge_origins(wedges, w, s, p)
+    clear = EDGE_CLEARANCE_M / np.maximum(length, 1e-12)
+    return caster.closest_hit(make_rays(origin, p - origin, tmin=clear,
+                                        tmax=1.0 - clear))["prim"]
+
+
+def _face_outlines(triangles, tri_face, cache: dict):
+    """(edges (E, 2, 3), first (F + 1,)): the edges of every planar face that no other of
+    its triangles shares (vertex for vertex), i.e. the faces' outlines, grouped by face:
+    those of face f are edges[first[f]:first[f + 1]].  Kept in ``cache``."""
+    if "edges" not in cache:
+        e = np.stack([triangles, np.roll(triangles, -1, axis=1)], axis=2).reshape(-1, 2, 3)
+        face = np.repeat(tri_face, 3)
+        a, b = e[:, 0], e[:, 1]
+        first = _lex_less(a, b)
+        rows = np.concatenate([face[:, None].astype(np.float64),
+                               np.where(first[:, None], a, b), np.where(first[:, None], b, a)],
+                              axis=1)
+        _, inverse, counts = np.unique(rows, axis=0, return_inverse=True, return_counts=True)
+        rim = np.flatnonzero(counts[inverse.reshape(-1)] == 1)
+        rim = rim[np.argsort(face[rim], kind="stable")]
+        n_faces = int(tri_face.max()) + 1 if len(tri_face) else 0
+        cache["edges"] = e[rim]
+        cache["first"] = np.searchsorted(face[rim], np.arange(n_faces + 1))
+    return cache["edges"], cache["first"]
+
+
+def _lex_less(a, b) -> np.ndarray:
+    """(N,) rows of a lexicographically before rows of b ((N, 3) each)."""
+    out = np.zeros(len(a), dtype=bool)
+    decided = np.zeros(len(a), dtype=bool)
+    for k in range(3):
+        less, more = a[:, k] < b[:, k], a[:, k] > b[:, k]
+        out |= ~decided & less
+        decided |= less | more
+    return out
+
+
+def _face_covers(triangles, tri_face, wedges: Wedges, w, s0, s1, blocker, at_end: bool, p,
+                 outlines: dict) -> np.ndarray:
+    """(P,) bool: the planar face of triangle ``blocker`` (the first thing met on the
+    sight line from the piece's start, or its end where ``at_end``) blocks every sight
+    line from the piece [s0, s1] (metres along wedge w, lifted as wedges_seeing lifts it)
+    to p; in float64, with margins, so it says True only where the confirming casts would
+    block them too.
+
+    The sight lines fill the triangle p - piece.  The face's plane must separate p from
+    the whole piece (the plane distance is linear along it: its ends decide), at least
+    2 EDGE_CLEARANCE_M from the edge (the casts ignore blockers next to it).  The lines
+    then cross the plane along the segment x0 x1, the piece projected from p: it lies in
+    the face when both ends lie in the blocker (a triangle is convex), or when the end
+    whose line met the blocker lies in the face and x0 x1 comes no closer than the margin
+    to the face's outline (its rim edges).  The margin, 1e-5 m (merge_coplanar joins
+    planes that close) + 1e-6 (1 + |x|) (float32 resolution), keeps the proof on the safe
+    side."""
+    out = np.zeros(len(w), dtype=bool)
+    idx = np.flatnonzero(blocker >= 0)  # a clear end has no blocker to test
+    if len(idx) == 0:
+        return out
+    w, s0, s1, blocker = w[idx], s0[idx], s1[idx], blocker[idx]
+    o0, _ = _edge_origins(wedges, w, s0, p)
+    o1, _ = _edge_origins(wedges, w, s1, p)
+    v = triangles[blocker]
+    n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    dp = np.einsum("ij,ij->i", n, p - v[:, 0])
+    d0 = np.einsum("ij,ij->i", n, o0 - v[:, 0])
+    d1 = np.einsum("ij,ij->i", n, o1 - v[:, 0])
+    margin = 1e-5 + 1e-6 * (1.0 + np.abs(p).max())
+    ok = (d0 * dp < 0) & (d1 * dp < 0) & (np.abs(dp) > margin)
+    ok &= (np.abs(d0) > 2 * EDGE_CLEARANCE_M) & (np.abs(d1) > 2 * EDGE_CLEARANCE_M)
+    sel = np.flatnonzero(ok)
+    if len(sel) == 0:
+        return out
+    idx, blocker = idx[sel], blocker[sel]
+    x0 = o0[sel] + (d0[sel] / (d0[sel] - dp[sel]))[:, None] * (p - o0[sel])
+    x1 = o1[sel] + (d1[sel] / (d1[sel] - dp[sel]))[:, None] * (p - o1[sel])
+    tol = margin + 1e-6 * np.maximum(np.abs(x0).max(axis=1), np.abs(x1).max(axis=1))
+    # both ends well inside the blocker: the segment is in it
+    tri = triangles[blocker]
+    one = np.all(edge_distances(x0, tri) > tol[:, None], axis=1) & np.all(
+        edge_distances(x1, tri) > tol[:, None], axis=1)
+    out[idx[one]] = True
+    # otherwise across seams: the blocker's end in the face, the segment clear of its outline
+    rest = np.flatnonzero(~one)
+    if len(rest) == 0:
+        return out
+    faces = tri_face[blocker[rest]]
+    anchor = (x1 if at_end else x0)[rest]
+    inside = containing_triangles(anchor, faces, blocker[rest], triangles, tri_face) >= 0
+    rest, faces = rest[inside], faces[inside]
+    edges, first = _face_outlines(triangles, tri_face, outlines)
+    count = first[faces + 1] - first[faces]
+    pair = np.repeat(np.arange(len(rest)), count)
+    e = first[faces][pair] + np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
+    gap = np.full(len(rest), np.inf)
+    np.minimum.at(gap, pair, _segment_distances(x0[rest][pair], x1[rest][pair], edges[e, 0],
+                                                edges[e, 1]))
+    out[idx[rest[gap > tol[rest]]]] = True
+    return out
+
+
+def _segment_distances(a, b, c, d) -> np.ndarray:
+    """(N,) distances (m) between the segments a[i] b[i] and c[i] d[i] in 3-D (closest
+    points by clamping, Ericson, Real-Time Collision Detection 5.1.9)."""
+    u, v, w0 = b - a, d - c, a - c
+    uu = np.einsum("ij,ij->i", u, u)
+    vv = np.einsum("ij,ij->i", v, v)
+    uv = np.einsum("ij,ij->i", u, v)
+    uw = np.einsum("ij,ij->i", u, w0)
+    vw = np.einsum("ij,ij->i", v, w0)
+    den = uu * vv - uv * uv
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sc = np.clip(np.where(den > 0, (uv * vw - vv * uw) / den, 0.0), 0.0, 1.0)
+        tc = np.clip(np.where(vv > 0, (uv * sc + vw) / vv, 0.0), 0.0, 1.0)
+        sc = np.clip(np.where(uu > 0, (uv * tc - uw) / uu, 0.0), 0.0, 1.0)
+    return np.linalg.norm(w0 + sc[:, None] * u - tc[:, None] * v, axis=1)
 
 
 def _outside(wedges: Wedges, w, direction) -> np.ndarray:
@@ -532,7 +821,7 @@ def _product(parts, chunk: int):
 
 def diffraction_candidates(caster, wedges: Wedges, tx_pos, rx_pos, tx_sequences: dict,
                            rx_sequences: dict, budget: DiffractionSettings, stats=None,
-                           chunk: int = 1 << 19):
+                           chunk: int = 1 << 19, tri_face=None, seeing: dict | None = None):
     """Candidate :class:`Chains` of one link, yielded in chunks of at most ``chunk``.
 
     * one diffraction: [tx's ray-found face sequence of a reflections] + wedge, or
@@ -544,14 +833,23 @@ def diffraction_candidates(caster, wedges: Wedges, tx_pos, rx_pos, tx_sequences:
       reflection before the first or after the last edge when the budget allows.
 
     ``stats`` (a dict) receives ``chains_over_cap``: chains the cap left out.
+    ``tri_face``: the planar face of every triangle, for :func:`wedges_seeing`;
+    ``seeing`` (a dict) keeps its masks per antenna position, for the next links of a
+    trace.
     """
     stats = {} if stats is None else stats
     stats.setdefault("chains_over_cap", 0)
     if len(wedges) == 0 or budget.max_diffractions < 1:
         return
-    seen_tx = wedges_seeing(caster, wedges, tx_pos)
-    seen_rx = seen_tx if np.array_equal(tx_pos, rx_pos) else wedges_seeing(caster, wedges,
-                                                                           rx_pos)
+    seeing = {} if seeing is None else seeing
+
+    def seen_from(pos):
+        key = tuple(float(x) for x in np.asarray(pos, dtype=np.float64))
+        if key not in seeing:
+            seeing[key] = _seeing(caster, wedges, pos, tri_face=tri_face)
+        return seeing[key]
+
+    (sampled_tx, seen_tx), (sampled_rx, seen_rx) = seen_from(tx_pos), seen_from(rx_pos)
     sides = [(0, 0)] + [(a, 0) for a in range(1, budget.max_reflections + 1)] + [
         (0, b) for b in range(1, budget.max_reflections + 1)]
     for a, b in sides:
@@ -570,15 +868,25 @@ def diffraction_candidates(caster, wedges: Wedges, tx_pos, rx_pos, tx_sequences:
     if budget.max_diffractions < 2:
         return
     every = np.arange(len(wedges))
-    near_tx, near_rx = np.flatnonzero(seen_tx), np.flatnonzero(seen_rx)
+    near_rx = np.flatnonzero(seen_rx)
+    # pairs of wedges seen at their sample points first, in the pair search's order, then
+    # those with a wedge only the whole-edge test kept: where these add no path, the
+    # paths keep the order they had when the samples alone decided
+    old_tx, new_tx = np.flatnonzero(sampled_tx), np.flatnonzero(seen_tx & ~sampled_tx)
+    old_rx, new_rx = np.flatnonzero(sampled_rx), np.flatnonzero(seen_rx & ~sampled_rx)
+    hop = budget.max_hop_m
     for nd in range(2, budget.max_diffractions + 1):
         if nd == 2:
-            chain = wedge_pairs(caster, wedges, near_tx, near_rx, budget.max_hop_m, tx_pos,
-                                rx_pos)
+            chain = np.concatenate([
+                wedge_pairs(caster, wedges, old_tx, old_rx, hop, tx_pos, rx_pos),
+                wedge_pairs(caster, wedges, new_tx, near_rx, hop, tx_pos, rx_pos),
+                wedge_pairs(caster, wedges, old_tx, new_rx, hop, tx_pos, rx_pos)])
         else:
             chain = _chains_of(
-                wedge_pairs(caster, wedges, near_tx, every, budget.max_hop_m, source=tx_pos),
-                wedge_pairs(caster, wedges, every, near_rx, budget.max_hop_m, target=rx_pos))
+                np.concatenate([wedge_pairs(caster, wedges, ends, every, hop, source=tx_pos)
+                                for ends in (old_tx, new_tx)]),
+                np.concatenate([wedge_pairs(caster, wedges, every, ends, hop, target=rx_pos)
+                                for ends in (old_rx, new_rx)]))
         for a, b in sides:
             if a + b > 1:
                 continue
@@ -628,16 +936,20 @@ def _chain_hop(wedges: Wedges, chain: np.ndarray) -> np.ndarray:
 
 
 def diffraction_link_paths(scene, faces, caster, wedges: Wedges, tx, rx, tx_sequences,
-                           rx_sequences, budget: DiffractionSettings, keep_fn=None):
+                           rx_sequences, budget: DiffractionSettings, keep_fn=None,
+                           go_sequences: set | None = None, seeing: dict | None = None):
     """All confirmed diffraction paths of one link: (list of Paths per pattern, stats).
 
     ``keep_fn(k_dep, k_arr)`` (optional) drops paths outside the antennas' patterns
-    before their fields are computed.
+    before their fields are computed.  ``go_sequences`` (optional) are the face
+    sequences of the link's GO paths, whose decisions the UTD terms follow at their
+    boundaries (:func:`chain_fields`).  ``seeing``: see :func:`diffraction_candidates`.
     """
     stats = {"candidates": 0, "paths": 0}
     out = []
     for ch in diffraction_candidates(caster, wedges, tx.position, rx.position, tx_sequences,
-                                     rx_sequences, budget, stats):
+                                     rx_sequences, budget, stats, tri_face=faces.tri_face,
+                                     seeing=seeing):
         stats["candidates"] += len(ch)
         pts, ok = unfold_points(ch, tx.position, rx.position, faces.normal, faces.offset,
                                 wedges)
@@ -657,7 +969,7 @@ def diffraction_link_paths(scene, faces, caster, wedges: Wedges, tx, rx, tx_sequ
             continue
         ch = Chains(ch.pattern, ch.elements[sel])
         out.append(chain_fields(scene, faces, wedges, ch, pts[sel], tris[sel],
-                                (pp[sel], p[sel], b0[sel], graze[sel]), tx, rx))
+                                (pp[sel], p[sel], b0[sel], graze[sel]), tx, rx, go_sequences))
         stats["paths"] += len(sel)
     return out, stats
 
@@ -678,12 +990,20 @@ def prepare(geom: Geometry, settings: DiffractionSettings) -> Wedges | None:
 
 def link_paths(geom: Geometry, wedges: Wedges, tx: Radar, rx: Radar,
                settings: DiffractionSettings, tx_sequences=None, rx_sequences=None,
-               stats: dict | None = None) -> Paths:
+               stats: dict | None = None, go_paths: Paths | None = None,
+               seeing: dict | None = None) -> Paths:
     """UTD diffraction paths of one link, up to settings.max_diffractions edges mixed with
-    reflections from the rays' face sequences of tx and rx (``stats`` adds up counts)."""
+    reflections from the rays' face sequences of tx and rx (``stats`` adds up counts).
+
+    ``go_paths``: the link's GO paths (line of sight and reflections, as the specular
+    mechanism found them): at a shadow or reflection boundary the UTD term follows their
+    decision, so the GO + UTD total is continuous (docs/stability.md).  ``seeing`` (a
+    dict kept over the links of a trace) holds the wedges each antenna may see."""
+    go = None if go_paths is None else go_face_sequences(go_paths, geom.faces.tri_face)
     parts, counts = diffraction_link_paths(
         geom.scene, geom.faces, geom.caster, wedges, tx, rx, tx_sequences or {},
-        rx_sequences or {}, settings, keep_fn=lambda d, a: seen_by_antennas(tx, rx, d, a))
+        rx_sequences or {}, settings, keep_fn=lambda d, a: seen_by_antennas(tx, rx, d, a),
+        go_sequences=go, seeing=seeing)
     if stats is not None:
         for key, value in counts.items():
             stats[key] = stats.get(key, 0) + value

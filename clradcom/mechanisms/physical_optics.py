@@ -115,7 +115,8 @@ def po_paths(geom, tx, rx, *, objects=None, min_relative_db=-80.0, two_sided=Fal
     # visibility of the centroid from tx and rx
     vis = np.ones(len(tri_ids), dtype=bool)
     for end in (tx_pos, rx_pos):
-        vis &= surface_sees(geom.caster, c, nrm, end, tri_ids)
+        vis &= surface_sees(geom.caster, c, nrm, end, tri_ids,
+                            tri_face=geom.faces.tri_face)
     if not vis.any():
         return Paths.empty(1)
     tri_ids, v, nrm, c = tri_ids[vis], v[vis], nrm[vis], c[vis]

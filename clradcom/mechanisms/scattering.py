@@ -39,7 +39,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from clradcom.device.visibility import confirm_margin_m, confirm_slack, reaches_face, surface_sees
+from clradcom.device.visibility import (
+    antenna_blocked,
+    antenna_slack,
+    confirm_margin_m,
+    confirm_slack,
+    reaches_face,
+    surface_sees,
+)
 from clradcom.errors import ArgumentError
 from clradcom.geometry.triangles import (
     point_triangle_distance,
@@ -308,11 +315,16 @@ def reflection_legs(geom, end, q, nrm, tri_ids, tiles, face_ids, lo, hi):
     p = np.concatenate(cols[2])
     img = np.concatenate(cols[3])
     tile = np.asarray(tiles)[loc]
-    # end -> p: the first thing met must be this face, at p
+    # end -> p: the first thing met must be this face, at p; the first millimetre from the
+    # antenna is decided in float64, as for specular paths
     start = np.broadcast_to(end, p.shape)
-    slack = confirm_slack(p, np.linalg.norm(p - start, axis=1))
-    prim = reaches_face(geom.caster, geom.faces.tri_face, start, p, face, slack)
+    length = np.linalg.norm(p - start, axis=1)
+    slack = confirm_slack(p, length)
+    prim = reaches_face(geom.caster, geom.faces.tri_face, start, p, face, slack,
+                        tmin=antenna_slack(start, length))
     good = prim >= 0
+    good[good] = ~antenna_blocked(geom.caster, geom.faces.tri_face, end, p[good],
+                                  2.0 * confirm_margin_m(start[good]))
     # tile -> p: nothing in between (stop short of the mirror itself)
     idx = np.flatnonzero(good)
     if len(idx):
@@ -323,7 +335,8 @@ def reflection_legs(geom, end, q, nrm, tri_ids, tiles, face_ids, lo, hi):
 
 def _visible(geom, q, nrm, tri_ids, idx, end):
     """Mask over ``idx``: nothing between tile q and ``end`` (tile's triangle ignored)."""
-    return surface_sees(geom.caster, q[idx], nrm[idx], end, tri_ids[idx])
+    return surface_sees(geom.caster, q[idx], nrm[idx], end, tri_ids[idx],
+                        tri_face=geom.faces.tri_face)
 
 
 def _mirror_dyads(scene, faces, face, k_in):

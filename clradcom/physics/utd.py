@@ -49,6 +49,7 @@ from clradcom.physics.vectors import checked_unit, dot
 __all__ = [
     "transition_function",
     "a_plus_minus",
+    "boundary_epsilons",
     "diffraction_coefficients",
     "distance_parameter",
     "spreading_factor",
@@ -174,7 +175,24 @@ def a_plus_minus(beta, n):
     return 2.0 * np.sin(ep / 2) ** 2, 2.0 * np.sin(em / 2) ** 2
 
 
-def _cot_f_over_sqrt_2kl(eps, n, kl):
+def boundary_epsilons(phi, phi_p, n):
+    """(eps1, eps2, eps3, eps4): the signed angles (rad) of the four cot*F terms D1-D4 of
+    eq. U4 from their boundaries, |eps| <= n pi.
+
+    Each is 0 on its boundary and > 0 on the side where the GO field that jumps there is
+    present: the incident field for D1 (phi' - phi = pi) and D2 (phi - phi' = pi), the
+    reflection off face n for D3 (phi + phi' = (2n - 1) pi), off face 0 for D4
+    (phi + phi' = pi).  Far from its boundary a term's eps is just a number; the sign
+    statement is for the term near 0.
+    """
+    phi = np.asarray(phi, dtype=np.float64)
+    phi_p = np.asarray(phi_p, dtype=np.float64)
+    ep_i, em_i = _epsilons(phi - phi_p, n)
+    ep_r, em_r = _epsilons(phi + phi_p, n)
+    return ep_i, em_i, ep_r, em_r
+
+
+def _cot_f_over_sqrt_2kl(eps, n, kl, side=None):
     """cot(eps/(2n)) F(2 kL sin^2(eps/2)) / sqrt(2 kL), finite everywhere (eq. U5).
 
     With x = 2 kL sin^2(eps/2) and F(x) = sqrt(x) G(x)::
@@ -186,17 +204,20 @@ def _cot_f_over_sqrt_2kl(eps, n, kl):
     At eps -> 0 (a shadow or reflection boundary) this tends to
     sgn(eps) n sqrt(pi) e^{j pi/4} (KP's boundary limit, ref. §2), at eps = 0
     exactly to 0, the mean of the two one-sided limits (GO indicator 1/2 there).
+    The product is sgn(eps) times an even function of eps: ``side`` (+1, -1, or 0 for
+    sgn(eps)) picks the sign, i.e. the one-sided branch, where given.
     """
     x = 2.0 * kl * np.sin(eps / 2) ** 2
     ratio = n * np.sinc(eps / (2 * np.pi)) / np.sinc(eps / (2 * np.pi * n))
-    return np.sign(eps) * np.cos(eps / (2 * n)) * ratio * _transition_over_sqrt(x)
+    sign = np.sign(eps) if side is None else np.where(side != 0, np.sign(side), np.sign(eps))
+    return sign * np.cos(eps / (2 * n)) * ratio * _transition_over_sqrt(x)
 
 
 # ---------------------------------------------------------------------------
 # diffraction coefficients
 
 def diffraction_coefficients(phi, phi_p, beta0, n, k, L, eps_r_0=None, eps_r_n=None, pec=True,
-                             *, rho_0=1.0, rho_n=1.0):
+                             *, rho_0=1.0, rho_n=1.0, go_sides=None):
     """UTD wedge-diffraction coefficients (D_soft, D_hard) (eq. U4) [KP74 eq. (24);
     L84 eq. (6)]::
 
@@ -248,6 +269,13 @@ def diffraction_coefficients(phi, phi_p, beta0, n, k, L, eps_r_0=None, eps_r_n=N
         PEC faces (both).  Where false, Luebbers' lossy form.
     rho_0, rho_n : array_like, keyword-only
         Extra factors on R_0, R_n (default 1).
+    go_sides : sequence of four array_like, keyword-only
+        Per term D1-D4: +1 where the caller's GO field of that term's boundary is
+        present, -1 where it is absent, 0 for sgn(eps) (:func:`boundary_epsilons`).  A
+        non-zero side takes the term's one-sided branch of that side at |eps|: for a
+        term within rounding of its boundary, so that the GO and UTD fields are cut
+        at one decision (clradcom.mechanisms.diffraction), and exactly on it, where
+        sgn(eps) = 0 would give the mean of the two branches.
 
     Returns
     -------
@@ -272,14 +300,15 @@ def diffraction_coefficients(phi, phi_p, beta0, n, k, L, eps_r_0=None, eps_r_n=N
     sin_b = np.maximum(np.abs(np.sin(beta0)), SIN_BETA0_MIN)
     kl = k * L
 
-    def term(eps):
-        return _cot_f_over_sqrt_2kl(eps, n, kl)
+    sides = (None,) * 4 if go_sides is None else tuple(np.asarray(g) for g in go_sides)
 
-    ep_i, em_i = _epsilons(phi - phi_p, n)
-    ep_r, em_r = _epsilons(phi + phi_p, n)
-    t_inc = term(ep_i) + term(em_i)
-    t_n = term(ep_r)  # n-face reflection boundary phi + phi' = (2n - 1) pi
-    t_0 = term(em_r)  # 0-face reflection boundary phi + phi' = pi
+    def term(eps, side):
+        return _cot_f_over_sqrt_2kl(eps, n, kl, side)
+
+    ep_i, em_i, ep_r, em_r = boundary_epsilons(phi, phi_p, n)
+    t_inc = term(ep_i, sides[0]) + term(em_i, sides[1])
+    t_n = term(ep_r, sides[2])  # n-face reflection boundary phi + phi' = (2n - 1) pi
+    t_0 = term(em_r, sides[3])  # 0-face reflection boundary phi + phi' = pi
 
     if np.all(pec):
         r0_s = rn_s = np.asarray(-1.0 + 0j)
