@@ -405,8 +405,8 @@ def test_edge_seen_end_on_through_the_tracer(runtime):
     assert top_edge_paths(p) == [] and 0 in p.n_interactions.tolist()
 
 
-@pytest.mark.xfail(strict=True, reason="clradcom/mechanisms/diffraction.py drops a Keller point whose "
-                   "ray runs within 1e-9 rad of the edge, so the end-on edge's finite UTD "
+@pytest.mark.xfail(strict=True, reason="clradcom/mechanisms/diffraction.py drops a Keller point "
+                   "whose ray runs within 1e-9 rad of the edge, so the end-on edge's finite UTD "
                    "limit (0.2 of the line of sight here) jumps to nothing")
 def test_edge_seen_end_on_is_continuous(runtime):
     """Physics: the field is continuous as the edge turns end-on.  Code (today): the

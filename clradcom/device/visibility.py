@@ -103,8 +103,7 @@ def antenna_blocked(caster: RayCaster, tri_face, antennas, others, radius) -> np
         if len(near) == 0:
             continue
         tri = triangles[near]
-        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-        n /= np.linalg.norm(n, axis=1, keepdims=True)
+        n = triangle_normals(tri)
         d_ant = np.einsum("ij,ij->i", n, ant - tri[:, 0])  # (N,)
         off = np.abs(d_ant) > ON_FACE_TOL_REL * (1.0 + np.abs(ant).max())
         near, n, d_ant, tri = near[off], n[off], d_ant[off], tri[off]

@@ -35,6 +35,7 @@ import warnings
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from clradcom.device.raycast import make_rays, spawn_origins
 from clradcom.device.visibility import (
@@ -737,8 +738,6 @@ def wedge_pairs(caster, wedges: Wedges, first, second, max_hop_m: float, source=
     lie within ``max_hop_m`` of each other and see each other from outside both
     wedges; with ``source`` (``target``) given, the first (second) edge must also be
     able to hold a Keller point between that point and the other edge."""
-    from scipy.spatial import cKDTree
-
     first = np.asarray(first, np.int64)
     second = np.asarray(second, np.int64)
     empty = np.zeros((0, 2), np.int64)
