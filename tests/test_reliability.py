@@ -1,13 +1,18 @@
 """Bad input is refused where it is read, naming what was given (docs/reliability.md)."""
 
+import os
+import stat
+
 import pytest
 from tool_helpers import ROOT
 
 import clradcom.trace as trace_module
 from clradcom.device.runtime import ENV_DEVICE, OpenCLError, get_runtime
 from clradcom.errors import ArgumentError, ArgumentTypeError
+from clradcom.paths import Paths
 from clradcom.radar.waveform import Waveform
 from clradcom.scene import load_scene
+from clradcom.snapshot import Link, Snapshot, load_snapshot, save_snapshot
 from clradcom.trace import SpecularSettings, TraceSettings, trace_scene
 
 PLATE = ROOT / "scenes" / "canonical" / "plate.toml"
@@ -42,3 +47,15 @@ def test_cyclic_prefix_must_be_shorter_than_the_symbol():
                                             "shorter"):
         Waveform(cp_s=12e-6)
     assert Waveform(cp_s=5.5e-6).n_cp < Waveform().n_subcarriers
+
+
+def test_overwriting_a_private_snapshot_keeps_it_private(tmp_path):
+    snap = Snapshot(scene_name="s", carrier_hz=24e9, scene_hash="ab",
+                    links=(Link("A", "A", 0, 0, Paths.empty(0)),))
+    target = tmp_path / "snap.npz"
+    save_snapshot(target, snap)
+    os.chmod(target, 0o600)
+    save_snapshot(target, snap)
+    assert stat.S_IMODE(target.stat().st_mode) == 0o600
+    assert load_snapshot(target) == snap
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["snap.npz"]
