@@ -11,6 +11,7 @@ import threading
 import numpy as np
 
 from clradcom.device.runtime import Runtime, get_runtime
+from clradcom.errors import ArgumentError
 from clradcom.geometry import layout
 from clradcom.geometry.bvh import build_bvh
 from clradcom.geometry.layout import bvh8_nodes, tri4_groups
@@ -48,19 +49,19 @@ def make_rays(origins, directions, tmin=0.0, tmax=np.inf) -> np.ndarray:
     origins = np.asarray(origins, dtype=np.float64)
     directions = np.asarray(directions, dtype=np.float64)
     if origins.ndim != 2 or origins.shape[1] != 3:
-        raise ValueError(f"origins must have shape (R, 3), got {origins.shape}")
+        raise ArgumentError(f"origins must have shape (R, 3), got {origins.shape}")
     if directions.shape != origins.shape:
-        raise ValueError(
+        raise ArgumentError(
             f"directions shape {directions.shape} differs from origins shape {origins.shape}"
         )
     for name, arr in (("origins", origins), ("directions", directions)):
         bad = ~np.isfinite(arr).all(axis=1)
         if bad.any():
             i = int(np.flatnonzero(bad)[0])
-            raise ValueError(f"{name}[{i}] is not finite: {arr[i].tolist()}")
+            raise ArgumentError(f"{name}[{i}] is not finite: {arr[i].tolist()}")
     zero = ~np.any(directions != 0.0, axis=1)
     if zero.any():
-        raise ValueError(f"directions[{int(np.flatnonzero(zero)[0])}] is the zero vector")
+        raise ArgumentError(f"directions[{int(np.flatnonzero(zero)[0])}] is the zero vector")
     rays = np.empty(len(origins), dtype=RAY_DTYPE)
     rays["org"] = origins
     rays["dir"] = directions
@@ -106,7 +107,7 @@ class RayCaster:
     def __init__(self, triangles, bvh=None, runtime: Runtime | None = None):
         triangles = np.asarray(triangles, dtype=np.float64)
         if triangles.ndim != 3 or triangles.shape[1:] != (3, 3):
-            raise ValueError(f"triangles must have shape (T, 3, 3), got {triangles.shape}")
+            raise ArgumentError(f"triangles must have shape (T, 3, 3), got {triangles.shape}")
         self.runtime = runtime or get_runtime()
         self.triangles = triangles
         if bvh is None:

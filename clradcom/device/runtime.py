@@ -32,6 +32,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from clradcom.errors import ArgumentError
+
 ENV_DEVICE = "CLRADCOM_DEVICE"
 
 INSTALL_HINT = (
@@ -213,9 +215,9 @@ def define_options(defines: Mapping[str, int] | None) -> tuple[str, ...]:
     options = []
     for name, value in sorted((defines or {}).items()):
         if not _MACRO_NAME.fullmatch(name):
-            raise ValueError(f"{name!r} is not a C macro name")
+            raise ArgumentError(f"{name!r} is not a C macro name")
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-            raise ValueError(f"macro {name} must be an integer, got {value!r}")
+            raise ArgumentError(f"macro {name} must be an integer, got {value!r}")
         options.append(f"-D{name}={int(value)}")
     return tuple(options)
 

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from clradcom.errors import ArgumentError
 from clradcom.paths import InteractionType
 from clradcom.radar.processing import radar_image
 from clradcom.radar.truth import match_truth
@@ -41,9 +42,9 @@ __all__ = [
 def _finite_complex(name: str, x) -> np.ndarray:
     a = np.asarray(x)
     if not np.issubdtype(a.dtype, np.number):
-        raise ValueError(f"{name} must be numeric, got dtype {a.dtype}")
+        raise ArgumentError(f"{name} must be numeric, got dtype {a.dtype}")
     if not np.all(np.isfinite(a)):
-        raise ValueError(f"{name} contains NaN or infinite values")
+        raise ArgumentError(f"{name} contains NaN or infinite values")
     return a.astype(complex, copy=False)
 
 
@@ -57,10 +58,10 @@ def frame_channel(D, Dr) -> np.ndarray:
     d = _finite_complex("D", D)
     dr = _finite_complex("Dr", Dr)
     if d.shape != dr.shape or d.ndim != 2:
-        raise ValueError(f"D and Dr must be (N, M) arrays of one shape, got {d.shape} "
+        raise ArgumentError(f"D and Dr must be (N, M) arrays of one shape, got {d.shape} "
                          f"and {dr.shape}")
     if np.any(d == 0):
-        raise ValueError("D has zero symbols; D_r / D is undefined there")
+        raise ArgumentError("D has zero symbols; D_r / D is undefined there")
     return dr / d
 
 
@@ -68,7 +69,7 @@ def _pair(H, H_ref):
     h = _finite_complex("H", H)
     r = _finite_complex("H_ref", H_ref)
     if h.shape != r.shape:
-        raise ValueError(f"H and H_ref must have one shape, got {h.shape} and {r.shape}")
+        raise ArgumentError(f"H and H_ref must have one shape, got {h.shape} and {r.shape}")
     return h, r
 
 
@@ -81,7 +82,7 @@ def channel_nmse_db(H, H_ref) -> float:
     h, r = _pair(H, H_ref)
     ref = float(np.sum(np.abs(r) ** 2))
     if ref == 0.0:
-        raise ValueError("H_ref is all zero: the reference has no channel to compare with")
+        raise ArgumentError("H_ref is all zero: the reference has no channel to compare with")
     err = float(np.sum(np.abs(h - r) ** 2))
     return -math.inf if err == 0.0 else 10.0 * math.log10(err / ref)
 
@@ -99,7 +100,7 @@ def error_to_noise_db(H, H_ref, noise_variance: float) -> float:
     h, r = _pair(H, H_ref)
     var = float(noise_variance)
     if not (math.isfinite(var) and var > 0):
-        raise ValueError(f"noise_variance must be positive and finite, got {noise_variance!r}")
+        raise ArgumentError(f"noise_variance must be positive and finite, got {noise_variance!r}")
     err = float(np.sum(np.abs(h - r) ** 2))
     return -math.inf if err == 0.0 else 10.0 * math.log10(err / var)
 
@@ -117,7 +118,7 @@ def image_error_to_noise_db(H, H_ref, noise_variance: float, waveform, window="h
     h, r = _pair(H, H_ref)
     var = float(noise_variance)
     if not (math.isfinite(var) and var > 0):
-        raise ValueError(f"noise_variance must be positive and finite, got {noise_variance!r}")
+        raise ArgumentError(f"noise_variance must be positive and finite, got {noise_variance!r}")
     d = h - r
     if not np.any(d):
         return -math.inf
@@ -141,13 +142,13 @@ def path_signatures(n_interactions, interaction, face_id) -> list[tuple]:
     faces = np.asarray(face_id).astype(np.int64)
     P = len(n)
     if codes.shape[0] != P or faces.shape[0] != P or codes.ndim != 2 or faces.ndim != 2:
-        raise ValueError(f"interaction and face_id must be (P, K) with P = {P} paths, got "
+        raise ArgumentError(f"interaction and face_id must be (P, K) with P = {P} paths, got "
                          f"{codes.shape} and {faces.shape}")
     out = []
     for i in range(P):
         k = int(n[i])
         if k > codes.shape[1]:
-            raise ValueError(f"n_interactions[{i}] = {k} exceeds the {codes.shape[1]} "
+            raise ArgumentError(f"n_interactions[{i}] = {k} exceeds the {codes.shape[1]} "
                              "interaction slots")
         out.append((k, *codes[i, :k].tolist(), *faces[i, :k].tolist()))
     return out
@@ -184,7 +185,7 @@ def path_completeness(reference, paths, power_floor: float = 0.0) -> Completenes
     """
     floor = float(power_floor)
     if not (math.isfinite(floor) and floor >= 0):
-        raise ValueError(f"power_floor must be finite and >= 0, got {power_floor!r}")
+        raise ArgumentError(f"power_floor must be finite and >= 0, got {power_floor!r}")
     ref = {s: p for s, p in _signature_power(reference).items() if p >= floor and p > 0}
     got = _signature_power(paths)
     total = sum(ref.values())
@@ -201,7 +202,7 @@ def path_kind(interaction) -> np.ndarray:
     facet and SBR returns count as reflection: they stand in for GO reflections."""
     codes = np.asarray(interaction)
     if codes.ndim != 2:
-        raise ValueError(f"interaction must be (P, K), got shape {codes.shape}")
+        raise ArgumentError(f"interaction must be (P, K), got shape {codes.shape}")
     kind = np.full(codes.shape[0], "reflection", dtype=object)
     kind[(codes == int(InteractionType.DIFFRACTION)).any(axis=1)] = "diffraction"
     kind[(codes == int(InteractionType.SCATTERING)).any(axis=1)] = "scattering"
@@ -238,7 +239,7 @@ def detection_errors(detections, truth, range_tol_m: float,
     """
     for name, v in (("range_tol_m", range_tol_m), ("velocity_tol_mps", velocity_tol_mps)):
         if not (isinstance(v, int | float | np.floating) and math.isfinite(v) and v > 0):
-            raise ValueError(f"{name} must be positive and finite, got {v!r}")
+            raise ArgumentError(f"{name} must be positive and finite, got {v!r}")
     matches = match_truth(detections, truth, range_tol_m, velocity_tol_mps)
     rows, r_err, v_err = [], [], []
     for t, m in zip(truth, matches, strict=True):
@@ -277,10 +278,10 @@ def pareto_front(cost, *errors, tolerances=None) -> np.ndarray:
     n = len(cols[0])
     for i, c in enumerate(cols):
         if len(c) != n:
-            raise ValueError(f"criterion {i} has {len(c)} values, cost has {n}")
+            raise ArgumentError(f"criterion {i} has {len(c)} values, cost has {n}")
     tol = np.zeros(len(errors)) if tolerances is None else np.asarray(tolerances, float)
     if tol.shape != (len(errors),) or np.any(~np.isfinite(tol)) or np.any(tol < 0):
-        raise ValueError(f"tolerances must be {len(errors)} finite values >= 0, got "
+        raise ArgumentError(f"tolerances must be {len(errors)} finite values >= 0, got "
                          f"{tolerances!r}")
     X = np.stack([np.where(np.isnan(c), np.inf, c) for c in cols], axis=1)
     tol = np.concatenate([[0.0], tol])

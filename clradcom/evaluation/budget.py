@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from clradcom.errors import ArgumentError
 from clradcom.evaluation.accuracy import path_kind
 from clradcom.geometry.triangles import point_triangle_distance
 from clradcom.paths import select_paths
@@ -63,19 +64,19 @@ __all__ = [
 
 def _positive(name, v) -> float:
     if isinstance(v, bool) or not isinstance(v, int | float | np.floating | np.integer):
-        raise ValueError(f"{name} must be a positive number, got {v!r}")
+        raise ArgumentError(f"{name} must be a positive number, got {v!r}")
     x = float(v)
     if not (math.isfinite(x) and x > 0):
-        raise ValueError(f"{name} must be positive and finite, got {v!r}")
+        raise ArgumentError(f"{name} must be positive and finite, got {v!r}")
     return x
 
 
 def _finite(name, v) -> float:
     if isinstance(v, bool) or not isinstance(v, int | float | np.floating | np.integer):
-        raise ValueError(f"{name} must be a finite number, got {v!r}")
+        raise ArgumentError(f"{name} must be a finite number, got {v!r}")
     x = float(v)
     if not math.isfinite(x):
-        raise ValueError(f"{name} must be finite, got {v!r}")
+        raise ArgumentError(f"{name} must be finite, got {v!r}")
     return x
 
 
@@ -93,7 +94,7 @@ def processing_gain(n_subcarriers: int, n_symbols: int, window_range="hann",
     for name, length, win in (("n_subcarriers", n_subcarriers, window_range),
                               ("n_symbols", n_symbols, window_doppler)):
         if isinstance(length, bool) or not isinstance(length, int | np.integer) or length < 1:
-            raise ValueError(f"{name} must be a positive integer, got {length!r}")
+            raise ArgumentError(f"{name} must be a positive integer, got {length!r}")
         w = get_window(win, int(length))
         out *= float(np.sum(w)) ** 2 / float(np.sum(w**2))
     return out
@@ -131,7 +132,7 @@ def noise_floor(waveform: Waveform, tx_power_w: float, noise_figure_db: float, *
     ``margin_db`` (negative: keep paths that far below the noise too).
     """
     if not isinstance(waveform, Waveform):
-        raise ValueError(f"waveform must be a clradcom.radar.Waveform, got {type(waveform)!r}")
+        raise ArgumentError(f"waveform must be a clradcom.radar.Waveform, got {type(waveform)!r}")
     p_tx = _positive("tx_power_w", tx_power_w)
     nf = _finite("noise_figure_db", noise_figure_db)
     margin = _finite("margin_db", margin_db)
@@ -157,7 +158,7 @@ def max_path_length(floor_power: float, wavelength_m: float, gamma_product: floa
     lam = _positive("wavelength_m", wavelength_m)
     g = _finite("gamma_product", gamma_product)
     if not 0.0 <= g <= 1.0:
-        raise ValueError(f"gamma_product must lie in [0, 1], got {gamma_product!r}")
+        raise ArgumentError(f"gamma_product must lie in [0, 1], got {gamma_product!r}")
     amp = lam / (4.0 * math.pi) * math.sqrt(_positive("g_tx", g_tx) * _positive("g_rx", g_rx))
     return amp * g / math.sqrt(p)
 
@@ -203,7 +204,7 @@ def shortest_path_length(scene, tx_position, rx_position, order: int) -> float:
     d(tx, scene) + d(rx, scene) (distances to the nearest triangle) and at least |tx − rx|.
     """
     if isinstance(order, bool) or not isinstance(order, int | np.integer) or order < 0:
-        raise ValueError(f"order must be an integer >= 0, got {order!r}")
+        raise ArgumentError(f"order must be an integer >= 0, got {order!r}")
     tx = np.asarray(tx_position, dtype=np.float64)
     rx = np.asarray(rx_position, dtype=np.float64)
     direct = float(np.linalg.norm(rx - tx))
@@ -248,10 +249,10 @@ def order_bounds(scene, tx, rx, floor_power: float, max_order: int, *,
     p = _positive("floor_power", floor_power)
     if isinstance(max_order, bool) or not isinstance(max_order, int | np.integer) \
             or max_order < 0:
-        raise ValueError(f"max_order must be an integer >= 0, got {max_order!r}")
+        raise ArgumentError(f"max_order must be an integer >= 0, got {max_order!r}")
     gmax = scene_gamma_max(scene) if gamma_max is None else _finite("gamma_max", gamma_max)
     if not 0.0 <= gmax <= 1.0:
-        raise ValueError(f"gamma_max must lie in [0, 1], got {gamma_max!r}")
+        raise ArgumentError(f"gamma_max must lie in [0, 1], got {gamma_max!r}")
     g_tx, g_rx = pattern_peak_gain(tx.pattern), pattern_peak_gain(rx.pattern)
     lam = scene.wavelength_m
     out = []
@@ -330,9 +331,9 @@ def prune_paths(paths, floor_power: float, waveform: Waveform | None = None):
     """
     p = _finite("floor_power", floor_power)
     if p < 0:
-        raise ValueError(f"floor_power must be >= 0, got {floor_power!r}")
+        raise ArgumentError(f"floor_power must be >= 0, got {floor_power!r}")
     if waveform is not None and not isinstance(waveform, Waveform):
-        raise ValueError(f"waveform must be a clradcom.radar.Waveform, got {type(waveform)!r}")
+        raise ArgumentError(f"waveform must be a clradcom.radar.Waveform, got {type(waveform)!r}")
     gain = np.asarray(paths.gain)
     power = np.abs(gain) ** 2
     weak = power < p
@@ -390,17 +391,17 @@ class AccuracyTarget:
         m = self.min_targets_found
         if m is not None and (isinstance(m, bool) or not isinstance(m, int | np.integer)
                               or m < 0):
-            raise ValueError(f"min_targets_found must be an integer >= 0, got {m!r}")
+            raise ArgumentError(f"min_targets_found must be an integer >= 0, got {m!r}")
         for name in ("range_error_m", "velocity_error_mps"):
             v = getattr(self, name)
             if v is not None and _finite(name, v) < 0:
-                raise ValueError(f"{name} must be >= 0, got {v!r}")
+                raise ArgumentError(f"{name} must be >= 0, got {v!r}")
         for name in ("power_share", "count_share"):
             v = getattr(self, name)
             if v is not None and not 0.0 <= _finite(name, v) <= 1.0:
-                raise ValueError(f"{name} must lie in [0, 1], got {v!r}")
+                raise ArgumentError(f"{name} must lie in [0, 1], got {v!r}")
         if all(getattr(self, n) is None for n in self.__dataclass_fields__):
-            raise ValueError("an accuracy target needs at least one criterion")
+            raise ArgumentError("an accuracy target needs at least one criterion")
 
     def shortfalls(self, record: dict) -> list[str]:
         """Why a sweep record misses this target (empty: it meets it)."""
@@ -412,12 +413,12 @@ class AccuracyTarget:
 
         def num(key):
             if key not in record:
-                raise ValueError(f"sweep record has no {key!r} column (has "
+                raise ArgumentError(f"sweep record has no {key!r} column (has "
                                  f"{sorted(record)})")
             try:
                 return float(record[key])
             except (TypeError, ValueError):
-                raise ValueError(f"sweep record's {key!r} is not a number: "
+                raise ArgumentError(f"sweep record's {key!r} is not a number: "
                                  f"{record[key]!r}") from None
 
         for key in ("channel_nmse_db", "error_to_noise_db", "image_error_db"):
@@ -475,16 +476,16 @@ def choose_settings(records, target: AccuracyTarget, cost_key: str = "seconds"
     """
     records = list(records)
     if not isinstance(target, AccuracyTarget):
-        raise ValueError(f"target must be an AccuracyTarget, got {type(target)!r}")
+        raise ArgumentError(f"target must be an AccuracyTarget, got {type(target)!r}")
     if not records:
         return BudgetChoice(None, 0, "no sweep records to choose from")
     scored = []
     for i, r in enumerate(records):
         if cost_key not in r:
-            raise ValueError(f"sweep record {i} has no {cost_key!r} column")
+            raise ArgumentError(f"sweep record {i} has no {cost_key!r} column")
         cost = float(r[cost_key])
         if not math.isfinite(cost):
-            raise ValueError(f"sweep record {i}: {cost_key} = {r[cost_key]!r} is not finite")
+            raise ArgumentError(f"sweep record {i}: {cost_key} = {r[cost_key]!r} is not finite")
         scored.append((cost, i, target._misses(r)))
     meeting = [s for s in scored if not s[2]]
     if meeting:

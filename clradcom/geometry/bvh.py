@@ -47,6 +47,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from clradcom.errors import ArgumentError
+
 __all__ = [
     "BVH_NODE_DTYPE",
     "Bvh",
@@ -177,13 +179,13 @@ def triangle_bounds(triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.n
     """
     arr = np.asarray(triangles)
     if arr.ndim != 3 or arr.shape[1:] != (3, 3):
-        raise ValueError(
+        raise ArgumentError(
             f"triangles must have shape (T, 3, 3) (T triangles x 3 vertices x xyz), got {arr.shape}"
         )
     if arr.shape[0] == 0:
-        raise ValueError("cannot build a BVH over 0 triangles")
+        raise ArgumentError("cannot build a BVH over 0 triangles")
     if not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
-        raise ValueError(f"triangles must be a real numeric array, got dtype {arr.dtype}")
+        raise ArgumentError(f"triangles must be a real numeric array, got dtype {arr.dtype}")
     with np.errstate(over="ignore", invalid="ignore"):
         tris = np.ascontiguousarray(arr, dtype=np.float32)
         lo = np.minimum(np.minimum(tris[:, 0], tris[:, 1]), tris[:, 2])
@@ -193,12 +195,12 @@ def triangle_bounds(triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.n
         bad_in = ~np.isfinite(arr).reshape(arr.shape[0], -1).all(axis=1)
         if bad_in.any():
             bad = np.flatnonzero(bad_in)
-            raise ValueError(
+            raise ArgumentError(
                 f"triangles contain NaN or infinite vertex coordinates ({bad.size} triangles, "
                 f"first index {int(bad[0])})"
             )
         bad = np.flatnonzero(~np.isfinite(tris).reshape(tris.shape[0], -1).all(axis=1))
-        raise ValueError(
+        raise ArgumentError(
             f"vertex coordinates overflow float32 ({bad.size} triangles, first index {int(bad[0])})"
         )
     return tris, lo, hi
@@ -254,25 +256,25 @@ def build_bvh(
         docstring for the layout.
     """
     if method not in ("sah", "median"):
-        raise ValueError(f"method must be 'sah' or 'median', got {method!r}")
+        raise ArgumentError(f"method must be 'sah' or 'median', got {method!r}")
     if axes not in ("longest", "all"):
-        raise ValueError(f"axes must be 'longest' or 'all', got {axes!r}")
+        raise ArgumentError(f"axes must be 'longest' or 'all', got {axes!r}")
     max_leaf_size = int(max_leaf_size)
     n_bins = int(n_bins)
     if max_leaf_size < 1:
-        raise ValueError(f"max_leaf_size must be >= 1, got {max_leaf_size}")
+        raise ArgumentError(f"max_leaf_size must be >= 1, got {max_leaf_size}")
     if n_bins < 2:
-        raise ValueError(f"n_bins must be >= 2, got {n_bins}")
+        raise ArgumentError(f"n_bins must be >= 2, got {n_bins}")
     max_leaf_cap = max(int(max_leaf_cap), max_leaf_size)
     ct = float(traversal_cost)
     ci = float(intersect_cost)
     if not (ct >= 0.0 and ci > 0.0):
-        raise ValueError("traversal_cost must be >= 0 and intersect_cost > 0")
+        raise ArgumentError("traversal_cost must be >= 0 and intersect_cost > 0")
 
     _, tlo, thi = triangle_bounds(triangles)
     n_tri = tlo.shape[0]
     if n_tri > np.iinfo(np.int32).max // 2:
-        raise ValueError(f"too many triangles for int32 node indices: {n_tri}")
+        raise ArgumentError(f"too many triangles for int32 node indices: {n_tri}")
     max_depth = max(int(max_depth), int(_levels_needed(np.array([n_tri]), max_leaf_size)[0]))
 
     # Working set, structure-of-arrays (3, n), in node order: each active node owns a

@@ -18,6 +18,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from clradcom.errors import ArgumentError
 from clradcom.geometry.triangles import triangle_normals_and_double_areas
 
 
@@ -72,9 +73,9 @@ def merge_coplanar(triangles, tri_object, tri_material, angle_tol=1e-5, offset_t
     obj = np.asarray(tri_object, dtype=np.int64)
     mat = np.asarray(tri_material, dtype=np.int64)
     if tri.ndim != 3 or tri.shape[1:] != (3, 3):
-        raise ValueError(f"triangles must have shape (T, 3, 3), got {tri.shape}")
+        raise ArgumentError(f"triangles must have shape (T, 3, 3), got {tri.shape}")
     if obj.shape != (len(tri),) or mat.shape != (len(tri),):
-        raise ValueError("tri_object and tri_material need one entry per triangle")
+        raise ArgumentError("tri_object and tri_material need one entry per triangle")
     if len(tri) == 0:  # a free-space scene: no faces
         return Faces(tri_face=np.zeros(0, np.int32), normal=np.zeros((0, 3)),
                      offset=np.zeros(0), object_id=np.zeros(0, np.int32),
@@ -82,7 +83,7 @@ def merge_coplanar(triangles, tri_object, tri_material, angle_tol=1e-5, offset_t
     n, d, area2 = triangle_planes(tri)
     if not np.all(area2 > 0):
         bad = int(np.flatnonzero(~(area2 > 0))[0])
-        raise ValueError(f"triangle {bad} is degenerate (zero area): it has no plane")
+        raise ArgumentError(f"triangle {bad} is degenerate (zero area): it has no plane")
     T = len(tri)
     d_tol = offset_tol * (1.0 + 1e-2 * float(np.abs(tri).max()))
     q = np.round(np.column_stack([n / angle_tol * 0.5, d / d_tol]))

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from clradcom.errors import ArgumentError
+
 #: Children per traversal record: the kernels test a record's boxes as one float8.
 BVH_WIDTH = 8
 #: Traversal stack entries per work item; :func:`bvh8_nodes` refuses a tree that needs more.
@@ -145,7 +147,7 @@ def bvh8_nodes(nodes: np.ndarray, leaf_first=None, leaf_count=None) -> np.ndarra
     leaf_first = left if leaf_first is None else np.asarray(leaf_first, dtype=np.int64)
     leaf_count = counts if leaf_count is None else np.asarray(leaf_count, dtype=np.int64)
     if leaf_count[counts > 0].max(initial=0) > MAX_LEAF_GROUPS:
-        raise ValueError(f"a BVH leaf holds {int(leaf_count.max())} triangle groups; at most "
+        raise ArgumentError(f"a BVH leaf holds {int(leaf_count.max())} triangle groups; at most "
                          f"{MAX_LEAF_GROUPS} are supported")
     ext = (nodes["bmax"].astype(np.float64) - nodes["bmin"].astype(np.float64))
     area = ext[:, 0] * ext[:, 1] + ext[:, 1] * ext[:, 2] + ext[:, 2] * ext[:, 0]
@@ -168,7 +170,7 @@ def bvh8_nodes(nodes: np.ndarray, leaf_first=None, leaf_count=None) -> np.ndarra
     inner_code = rec_index[slot]
     leaf_code = -((leaf_first[slot] << LEAF_GROUP_BITS) + leaf_count[slot]) - 1
     if leaf_code.min(initial=0) < np.iinfo(np.int32).min:
-        raise ValueError("too many leaf slots for the 8-wide leaf codes")
+        raise ArgumentError("too many leaf slots for the 8-wide leaf codes")
     out["child"] = np.where(used, np.where(is_leaf, leaf_code, inner_code), 0)
 
     # stack need: a record pushes up to (children - 1) entries before going on, so a
@@ -183,6 +185,6 @@ def bvh8_nodes(nodes: np.ndarray, leaf_first=None, leaf_count=None) -> np.ndarra
         sub = np.where(inner[rows], need[np.where(inner[rows], child[rows], 0)], 0)
         need[rows] = k_minus_1[rows] + sub.max(axis=1)
     if need[0] > BVH_STACK_SIZE:
-        raise ValueError(f"BVH needs a traversal stack of {int(need[0])} entries; the kernels "
+        raise ArgumentError(f"BVH needs a traversal stack of {int(need[0])} entries; the kernels "
                          f"hold {BVH_STACK_SIZE} (build it with a smaller max_depth)")
     return out

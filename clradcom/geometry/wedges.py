@@ -23,6 +23,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from clradcom.errors import ArgumentError
 from clradcom.geometry.triangles import triangle_normals_and_double_areas
 
 __all__ = ["Wedges", "extract_wedges", "weld_vertices", "DiffractionPoint",
@@ -153,12 +154,12 @@ def extract_wedges(triangles, tri_object, tri_material, angle_threshold_deg: flo
     obj = np.asarray(tri_object, dtype=np.int64).reshape(-1)
     mat = np.asarray(tri_material, dtype=np.int64).reshape(-1)
     if tri.ndim != 3 or tri.shape[1:] != (3, 3):
-        raise ValueError(f"triangles must have shape (T, 3, 3), got {tri.shape}")
+        raise ArgumentError(f"triangles must have shape (T, 3, 3), got {tri.shape}")
     T = len(tri)
     if obj.shape != (T,) or mat.shape != (T,):
-        raise ValueError("tri_object and tri_material need one entry per triangle")
+        raise ArgumentError("tri_object and tri_material need one entry per triangle")
     if not 0.0 <= angle_threshold_deg < 180.0:
-        raise ValueError(f"angle_threshold_deg must be in [0, 180), got {angle_threshold_deg}")
+        raise ArgumentError(f"angle_threshold_deg must be in [0, 180), got {angle_threshold_deg}")
     stats = {"triangles": T, "degenerate": 0, "inconsistent": 0, "nonmanifold": 0,
              "boundary_edges": 0, "crease_segments": 0, "weld_tol_m": 0.0}
     if T == 0:

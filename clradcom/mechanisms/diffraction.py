@@ -147,11 +147,11 @@ def unfold_points(chains: Chains, tx, rx, face_normal, face_offset, wedges: Wedg
             starts.append(_apply(A, b, wedges.start[w]))
             ends.append(_apply(A, b, wedges.end[w]))
         else:
-            raise ValueError(f"pattern[{i}] = {kind!r} is neither REFLECTION nor DIFFRACTION")
+            raise ArgumentError(f"pattern[{i}] = {kind!r} is neither REFLECTION nor DIFFRACTION")
     rx_unf = _apply(A, b, np.broadcast_to(rx, (C, 3)))
     nd = len(starts)
     if nd == 0:
-        raise ValueError(f"pattern {pattern} has no diffraction: specular paths are "
+        raise ArgumentError(f"pattern {pattern} has no diffraction: specular paths are "
                          "clradcom.specular's")
     if nd == 1:
         dp = diffraction_point(tx, rx_unf, starts[0], ends[0])

@@ -73,7 +73,7 @@ def object_optics(scene: Scene, mode: str) -> list[str]:
         own = getattr(o, "optics", None)
         if own is not None:
             if own not in OPTICS:
-                raise ValueError(f"object {o.name!r}: optics must be one of "
+                raise ArgumentError(f"object {o.name!r}: optics must be one of "
                                  f"{', '.join(OPTICS)}, got {own!r}")
             out.append(own)
         else:

@@ -40,6 +40,7 @@ import numpy as np
 
 from clradcom.device.raycast import make_rays, spawn_origins
 from clradcom.device.visibility import surface_sees
+from clradcom.errors import ArgumentError
 from clradcom.geometry.triangles import triangle_normals
 from clradcom.paths import InteractionType, Paths
 from clradcom.physics import em
@@ -76,7 +77,7 @@ def launch_tubes(tx_pos, spheres, spacing_m: float, max_rays: int = 4_000_000) -
     tx = np.asarray(tx_pos, dtype=np.float64)
     spacing = float(spacing_m)
     if not (np.isfinite(spacing) and spacing > 0):
-        raise ValueError(f"spacing_m must be a positive number, got {spacing_m!r}")
+        raise ArgumentError(f"spacing_m must be a positive number, got {spacing_m!r}")
     dirs, dom, e1s, e2s = [], [], [], []
     cones = []
     total = 0
@@ -86,7 +87,7 @@ def launch_tubes(tx_pos, spheres, spacing_m: float, max_rays: int = 4_000_000) -
         d_vec = c - tx
         D = float(np.linalg.norm(d_vec))
         if D <= r * 1.001:
-            raise ValueError(f"the transmitter at {tx.tolist()} lies inside the bounding "
+            raise ArgumentError(f"the transmitter at {tx.tolist()} lies inside the bounding "
                              f"sphere (centre {c.tolist()}, radius {r:.3g} m) of an SBR "
                              f"object; give that object optics = \"both\"")
         w = d_vec / D
@@ -95,7 +96,7 @@ def launch_tubes(tx_pos, spheres, spacing_m: float, max_rays: int = 4_000_000) -
         n = int(np.ceil(rho / spacing))
         total += (2 * n + 1) ** 2
         if total > max_rays:
-            raise ValueError(f"SBR needs more than max_rays = {max_rays} ray tubes "
+            raise ArgumentError(f"SBR needs more than max_rays = {max_rays} ray tubes "
                              f"(spacing {spacing:.3g} m over a sphere of radius {r:.3g} m); "
                              f"use a coarser spacing")
         g = np.arange(-n, n + 1) * spacing

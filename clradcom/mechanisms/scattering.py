@@ -95,14 +95,14 @@ def make_tiles(triangles, tile_size_m):
     """
     v = np.asarray(triangles, dtype=np.float64).reshape(-1, 3, 3)
     if not (np.isfinite(tile_size_m) and tile_size_m > 0):
-        raise ValueError(f"tile_size_m must be > 0, got {tile_size_m}")
+        raise ArgumentError(f"tile_size_m must be > 0, got {tile_size_m}")
     if len(v) == 0:
         z = np.zeros((0, 3))
         return z, np.zeros(0), z.copy(), np.zeros(0, np.int64)
     with np.errstate(invalid="ignore", divide="ignore"):  # such triangles are refused below
         nrm, two_a = triangle_normals_and_double_areas(v)
     if np.any(two_a == 0) or not np.all(np.isfinite(two_a)):
-        raise ValueError("degenerate or non-finite triangle")
+        raise ArgumentError("degenerate or non-finite triangle")
     ns = _subdivisions(v, tile_size_m)
     centres, areas, normals, ids = [], [], [], []
     cache = {}
@@ -158,7 +158,7 @@ def choose_tile_size(wavelength, distance, accuracy=DEFAULT_ACCURACY):
     R = float(distance)
     acc = float(accuracy)
     if not (lam > 0 and R > 0 and acc > 0):
-        raise ValueError("wavelength, distance and accuracy must be > 0")
+        raise ArgumentError("wavelength, distance and accuracy must be > 0")
     dphi = math.sqrt(45.0 * acc / 4.0)
     return math.sqrt(2.0 * lam * R * dphi / math.pi)
 
@@ -203,7 +203,7 @@ def tile_transfer(centres, areas, normals, tx_pos, rx_pos, scattering, gamma,
     r_i = np.linalg.norm(dt, axis=-1)
     r_s = np.linalg.norm(dr, axis=-1)
     if np.any(r_i == 0) or np.any(r_s == 0):
-        raise ValueError("tx or rx coincides with a tile centre")
+        raise ArgumentError("tx or rx coincides with a tile centre")
     ki, s = dt / r_i[:, None], dr / r_s[:, None]
     cos_i = np.clip(-np.einsum("pi,pi->p", ki, n), 0.0, 1.0)
     cos_s = np.clip(np.einsum("pi,pi->p", s, n), 0.0, 1.0)
@@ -420,7 +420,7 @@ def scattering_paths(geom, tx, rx, *, tile_size_m=None, threshold_db=-60.0, seed
     """
     mr = max_reflections
     if not (isinstance(mr, (int, np.integer)) and not isinstance(mr, bool) and 0 <= mr <= 2):
-        raise ValueError(f"max_reflections must be 0, 1 or 2 (one reflection on each side "
+        raise ArgumentError(f"max_reflections must be 0, 1 or 2 (one reflection on each side "
                          f"of the tile at most), got {max_reflections!r}")
     scene = geom.scene
     if geom.caster is None or len(scene.triangles) == 0:
@@ -446,7 +446,7 @@ def scattering_paths(geom, tx, rx, *, tile_size_m=None, threshold_db=-60.0, seed
         size = float(tile_size_m)
         cnt = _estimate_count(tris, size)
         if cnt > max_tiles:
-            raise ValueError(f"tile_size_m={size} gives {cnt} tiles > max_tiles={max_tiles}")
+            raise ArgumentError(f"tile_size_m={size} gives {cnt} tiles > max_tiles={max_tiles}")
     q, area, nrm, local = make_tiles(tris, size)
     tri_ids = tri_sel[local]
     # phases drawn for every tile before any selection: fixed per tile for a seed
@@ -454,7 +454,7 @@ def scattering_paths(geom, tx, rx, *, tile_size_m=None, threshold_db=-60.0, seed
     if triangle_mask is not None:
         mask = np.asarray(triangle_mask, dtype=bool)
         if mask.shape != (len(scene.triangles),):
-            raise ValueError(f"triangle_mask must have one entry per scene triangle "
+            raise ArgumentError(f"triangle_mask must have one entry per scene triangle "
                              f"({len(scene.triangles)}), got shape {mask.shape}")
         traced = mask[tri_ids]
         q, area, nrm, local = q[traced], area[traced], nrm[traced], local[traced]
@@ -604,7 +604,7 @@ def scattering_triangle_bounds(scene, tx, rx, floor_power: float):
     """
     p = float(floor_power)
     if not (math.isfinite(p) and p > 0):
-        raise ValueError(f"floor_power must be a finite number > 0, got {floor_power!r}")
+        raise ArgumentError(f"floor_power must be a finite number > 0, got {floor_power!r}")
     S_mat = np.asarray(scene.material_scattering)
     ids = np.flatnonzero(S_mat[scene.tri_material] > 0)
     if ids.size == 0:

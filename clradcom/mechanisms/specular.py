@@ -50,7 +50,7 @@ def fibonacci_cap(n: int, half_angle: float = np.pi) -> np.ndarray:
     from +x) give equal areas, so the lattice density is the same everywhere.
     """
     if n < 1:
-        raise ValueError(f"need at least one direction, got n={n}")
+        raise ArgumentError(f"need at least one direction, got n={n}")
     k = np.arange(n, dtype=np.float64)
     x = 1.0 - (1.0 - np.cos(half_angle)) * (k + 0.5) / n
     r = np.sqrt(np.maximum(1.0 - x * x, 0.0))
@@ -77,7 +77,7 @@ def launch_directions(n_rays: int, gain_fn=None, orientation=None) -> np.ndarray
     probe = fibonacci_sphere(1 << 16)
     inside = np.asarray(gain_fn(probe)) > 0
     if not inside.any():
-        raise ValueError("the antenna pattern has zero gain everywhere (or in a region "
+        raise ArgumentError("the antenna pattern has zero gain everywhere (or in a region "
                          "narrower than 0.01 sr)")
     spacing = np.sqrt(4.0 * np.pi / len(probe))
     half_angle = min(np.pi, float(np.arccos(probe[inside, 0].min())) + 2.0 * spacing)

@@ -40,7 +40,7 @@ import warnings
 import numpy as np
 from scipy.special import i0e
 
-from clradcom.errors import NearFieldWarning
+from clradcom.errors import ArgumentError, NearFieldWarning
 from clradcom.physics.vectors import checked_unit, cross, dot, perpendicular
 from clradcom.scene.antenna import directions_to_angles, theta_phi_unit_vectors
 
@@ -158,7 +158,7 @@ def roughness_factor(roughness_m, cos_theta, k, model=ROUGHNESS_AMENT):
     where ``model == 1`` (broadcast).  Unknown codes raise ``ValueError``."""
     model = np.asarray(model)
     if np.any((model != ROUGHNESS_AMENT) & (model != ROUGHNESS_BOITHIAS)):
-        raise ValueError(f"roughness_model codes must be 0 (Ament) or 1 (Boithias), "
+        raise ArgumentError(f"roughness_model codes must be 0 (Ament) or 1 (Boithias), "
                          f"got {np.unique(model)}")
     return np.where(model == ROUGHNESS_BOITHIAS, boithias(roughness_m, cos_theta, k),
                     ament(roughness_m, cos_theta, k))
@@ -198,7 +198,7 @@ def reflection_dyad(k_in, normal, r_te, r_tm):
     k = checked_unit(np.asarray(k_in, dtype=np.float64).reshape(-1, 3), "k_in")
     n = checked_unit(np.asarray(normal, dtype=np.float64).reshape(-1, 3), "normal")
     if k.shape != n.shape:
-        raise ValueError(f"k_in {k.shape} and normal {n.shape} differ in shape")
+        raise ArgumentError(f"k_in {k.shape} and normal {n.shape} differ in shape")
     r_te = np.broadcast_to(np.asarray(r_te, dtype=np.complex128), k.shape[:1])
     r_tm = np.broadcast_to(np.asarray(r_tm, dtype=np.complex128), k.shape[:1])
     kn = dot(k, n)
@@ -242,17 +242,17 @@ def _num_interactions(num_interactions, n_paths, k_max):
         return np.full(n_paths, k_max, dtype=np.int64)
     nk = np.asarray(num_interactions)
     if nk.shape != (n_paths,) or nk.dtype.kind not in "iu":
-        raise ValueError(f"num_interactions must be ({n_paths},) integers, got "
+        raise ArgumentError(f"num_interactions must be ({n_paths},) integers, got "
                          f"shape {nk.shape} dtype {nk.dtype}")
     if np.any(nk < 0) or np.any(nk > k_max):
-        raise ValueError(f"num_interactions must lie in [0, {k_max}]")
+        raise ArgumentError(f"num_interactions must lie in [0, {k_max}]")
     return nk.astype(np.int64)
 
 
 def _check_points(points):
     pts = np.asarray(points, dtype=np.float64)
     if pts.ndim != 3 or pts.shape[-1] != 3 or pts.shape[1] < 2:
-        raise ValueError(f"points must have shape (P, K+2, 3), got {pts.shape}")
+        raise ArgumentError(f"points must have shape (P, K+2, 3), got {pts.shape}")
     return pts
 
 
@@ -281,14 +281,14 @@ def path_segments(points, num_interactions=None):
     used = _point_mask(n_paths, n_pts, nk)
     if not np.all(np.isfinite(pts[used])):
         bad = np.argwhere(used & ~np.all(np.isfinite(pts), axis=-1))[0]
-        raise ValueError(f"points hold NaN or inf (path {bad[0]}, point {bad[1]})")
+        raise ArgumentError(f"points hold NaN or inf (path {bad[0]}, point {bad[1]})")
     pts = np.where(used[..., None], pts, 0.0)
     d = pts[:, 1:] - pts[:, :-1]
     s = np.linalg.norm(d, axis=-1)
     active = np.arange(n_pts - 1)[None, :] <= nk[:, None]
     if np.any(active & (s == 0)):
         bad = np.argwhere(active & (s == 0))[0]
-        raise ValueError(f"path {bad[0]} has a zero-length segment {bad[1]} "
+        raise ArgumentError(f"path {bad[0]} has a zero-length segment {bad[1]} "
                          "(two consecutive points coincide)")
     s = np.where(active, s, 0.0)
     u = np.where(active[..., None], d / np.where(s > 0, s, 1.0)[..., None], 0.0)
@@ -348,7 +348,7 @@ def path_transfer(points, face_normals, eps_r, pec, roughness_m, roughness_model
     nk = _num_interactions(num_interactions, n_paths, k_max)
     nrm = np.asarray(face_normals, dtype=np.float64)
     if nrm.shape != (n_paths, k_max, 3):
-        raise ValueError(f"face_normals must have shape {(n_paths, k_max, 3)}, got {nrm.shape}")
+        raise ArgumentError(f"face_normals must have shape {(n_paths, k_max, 3)}, got {nrm.shape}")
     shape = (n_paths, k_max)
     eps = np.broadcast_to(np.asarray(eps_r, dtype=np.complex128), shape)
     pec_a = np.broadcast_to(np.asarray(pec, dtype=bool), shape)
@@ -383,7 +383,7 @@ def _antenna_basis_world(directions_world, orientation):
     local axes in world) at world directions, mapped back to world."""
     R = np.asarray(orientation, dtype=np.float64)
     if R.shape != (3, 3):
-        raise ValueError(f"orientation must be (3,3), got {R.shape}")
+        raise ArgumentError(f"orientation must be (3,3), got {R.shape}")
     d_loc = np.asarray(directions_world, dtype=np.float64).reshape(-1, 3) @ R
     theta, phi = directions_to_angles(d_loc)
     th, ph = theta_phi_unit_vectors(theta, phi)
@@ -414,9 +414,9 @@ def polarimetric_matrix(T, L, k_dep, k_arr, tx_orientation, rx_orientation, carr
     T = np.asarray(T, dtype=np.complex128)
     L = np.asarray(L, dtype=np.float64).reshape(-1)
     if T.ndim != 3 or T.shape[1:] != (3, 3) or T.shape[0] != L.shape[0]:
-        raise ValueError(f"T must be (P,3,3) and L (P,), got {T.shape} and {L.shape}")
+        raise ArgumentError(f"T must be (P,3,3) and L (P,), got {T.shape} and {L.shape}")
     if np.any(~np.isfinite(L)) or np.any(L <= 0):
-        raise ValueError("path lengths L must be finite and > 0")
+        raise ArgumentError("path lengths L must be finite and > 0")
     lam = C0 / float(carrier_hz)
     short = L < lam
     if short.any():
@@ -495,11 +495,11 @@ def doppler_hz(points, velocities, wavelength, num_interactions=None):
     u, _, active = path_segments(points, num_interactions)
     v = np.asarray(velocities, dtype=np.float64)
     if v.shape != np.shape(points):
-        raise ValueError(f"velocities {v.shape} must match points {np.shape(points)}")
+        raise ArgumentError(f"velocities {v.shape} must match points {np.shape(points)}")
     n_paths, n_pts = v.shape[:2]
     used = _point_mask(n_paths, n_pts, _num_interactions(num_interactions, n_paths, n_pts - 2))
     if not np.all(np.isfinite(v[used])):
-        raise ValueError("velocities hold NaN or inf")
+        raise ArgumentError("velocities hold NaN or inf")
     v = np.where(used[..., None], v, 0.0)
     dv = np.where(active[..., None], v[:, 1:] - v[:, :-1], 0.0)
     dLdt = np.sum(dv * u, axis=(1, 2))

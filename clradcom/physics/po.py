@@ -44,6 +44,7 @@ import math
 
 import numpy as np
 
+from clradcom.errors import ArgumentError
 from clradcom.geometry.triangles import triangle_normals_and_double_areas
 from clradcom.physics import em
 
@@ -96,12 +97,12 @@ def triangle_po_integral(vertices, q):
     """
     v = np.asarray(vertices, dtype=np.float64)
     if v.ndim != 3 or v.shape[1:] != (3, 3):
-        raise ValueError(f"vertices must have shape (F,3,3), got {v.shape}")
+        raise ArgumentError(f"vertices must have shape (F,3,3), got {v.shape}")
     q = np.broadcast_to(np.asarray(q, dtype=np.float64), (len(v), 3))
     with np.errstate(invalid="ignore", divide="ignore"):  # such triangles are refused below
         n, two_area = triangle_normals_and_double_areas(v)
     if np.any(two_area == 0) or not np.all(np.isfinite(two_area)):
-        raise ValueError("degenerate or non-finite triangle")
+        raise ArgumentError("degenerate or non-finite triangle")
     c = v.mean(axis=1)
     qc = np.einsum("fi,fi->f", q, c)
     d = np.einsum("fi,fvi->fv", q, v - c[:, None, :])  # (F,3) phase deviations
@@ -206,7 +207,7 @@ def po_transfer(vertices, normal, tx_pos, rx_pos, carrier_hz, reflection=None):
     R_t = np.linalg.norm(dt, axis=-1)
     R_r = np.linalg.norm(dr, axis=-1)
     if np.any(R_t == 0) or np.any(R_r == 0):
-        raise ValueError("tx or rx coincides with a facet centroid")
+        raise ArgumentError("tx or rx coincides with a facet centroid")
     ki = dt / R_t[:, None]
     s = dr / R_r[:, None]
     L = R_t + R_r

@@ -43,6 +43,7 @@ import math
 import numpy as np
 from scipy.special import fresnel
 
+from clradcom.errors import ArgumentError
 from clradcom.physics.em import fresnel_coefficients
 from clradcom.physics.vectors import checked_unit, dot
 
@@ -137,7 +138,7 @@ def transition_function(x):
     """
     x = np.asarray(x, dtype=np.float64)
     if np.any(x < 0):
-        raise ValueError("transition_function: x must be >= 0")
+        raise ArgumentError("transition_function: x must be >= 0")
     out = np.sqrt(x) * _transition_over_sqrt(np.where(np.isnan(x), 1.0, x))
     return np.where(np.isnan(x), np.nan + 0j, out)
 
@@ -288,14 +289,14 @@ def diffraction_coefficients(phi, phi_p, beta0, n, k, L, eps_r_0=None, eps_r_n=N
     k = np.asarray(k, dtype=np.float64)
     L = np.asarray(L, dtype=np.float64)
     if np.any(~((n > 0) & (n <= 2))):
-        raise ValueError("diffraction_coefficients: n must lie in (0, 2]")
+        raise ArgumentError("diffraction_coefficients: n must lie in (0, 2]")
     if np.any(~(k > 0)):
-        raise ValueError("diffraction_coefficients: k must be > 0")
+        raise ArgumentError("diffraction_coefficients: k must be > 0")
     if np.any(~(L >= 0)):
-        raise ValueError("diffraction_coefficients: L must be >= 0 (and not NaN)")
+        raise ArgumentError("diffraction_coefficients: L must be >= 0 (and not NaN)")
     for name, v in (("phi", phi), ("phi_p", phi_p), ("beta0", beta0)):
         if not np.all(np.isfinite(v)):
-            raise ValueError(f"diffraction_coefficients: {name} must be finite")
+            raise ArgumentError(f"diffraction_coefficients: {name} must be finite")
     pec = np.asarray(pec, dtype=bool)
     sin_b = np.maximum(np.abs(np.sin(beta0)), SIN_BETA0_MIN)
     kl = k * L
@@ -315,7 +316,7 @@ def diffraction_coefficients(phi, phi_p, beta0, n, k, L, eps_r_0=None, eps_r_n=N
         r0_h = rn_h = np.asarray(1.0 + 0j)
     else:
         if eps_r_0 is None or eps_r_n is None:
-            raise ValueError("diffraction_coefficients: eps_r_0 and eps_r_n are required "
+            raise ArgumentError("diffraction_coefficients: eps_r_0 and eps_r_n are required "
                              "where pec is false")
         cos0 = sin_b * np.abs(np.sin(phi_p))
         cosn = sin_b * np.abs(np.sin(n * np.pi - phi))
@@ -350,7 +351,7 @@ def distance_parameter(s, s_prime=np.inf, beta0=np.pi / 2):
     s_prime = np.asarray(s_prime, dtype=np.float64)
     sin_b = np.maximum(np.abs(np.sin(np.asarray(beta0, dtype=np.float64))), SIN_BETA0_MIN)
     if np.any(~(s > 0)) or np.any(~(s_prime > 0)):
-        raise ValueError("distance_parameter: s and s_prime must be > 0")
+        raise ArgumentError("distance_parameter: s and s_prime must be > 0")
     return s * sin_b**2 / (1.0 + s / s_prime)
 
 
@@ -367,14 +368,14 @@ def spreading_factor(s, s_prime=np.inf, wave="spherical"):
     """
     s = np.asarray(s, dtype=np.float64)
     if np.any(~(s > 0)):
-        raise ValueError("spreading_factor: s must be > 0")
+        raise ArgumentError("spreading_factor: s must be > 0")
     if wave in ("plane", "cylindrical"):
         return 1.0 / np.sqrt(s)
     if wave != "spherical":
-        raise ValueError(f"spreading_factor: unknown wave {wave!r}")
+        raise ArgumentError(f"spreading_factor: unknown wave {wave!r}")
     s_prime = np.asarray(s_prime, dtype=np.float64)
     if np.any(~(s_prime > 0)):
-        raise ValueError("spreading_factor: s_prime must be > 0")
+        raise ArgumentError("spreading_factor: s_prime must be > 0")
     return 1.0 / np.sqrt(s * (1.0 + s / s_prime))
 
 
@@ -406,9 +407,9 @@ def multi_edge_spreading(segment_lengths, beta0=np.pi / 2):
     """
     s = np.asarray(segment_lengths, dtype=np.float64)
     if s.ndim < 1 or s.shape[-1] < 2:
-        raise ValueError("multi_edge_spreading: need (..., N+1) segment lengths, N >= 1")
+        raise ArgumentError("multi_edge_spreading: need (..., N+1) segment lengths, N >= 1")
     if np.any(~(s > 0)):
-        raise ValueError("multi_edge_spreading: segment lengths must be > 0")
+        raise ArgumentError("multi_edge_spreading: segment lengths must be > 0")
     rho = np.cumsum(s, axis=-1)[..., :-1]
     s_out = s[..., 1:]
     A = np.prod(np.sqrt(rho / (s_out * (rho + s_out))), axis=-1)
@@ -482,13 +483,13 @@ def edge_fixed_basis(s_hat_in, s_hat_out, edge_dir, face0_normal=None):
     if face0_normal is not None:
         n0 = checked_unit(face0_normal, "face0_normal")
         if np.any(np.abs(dot(n0, e)) > 1e-6):
-            raise ValueError("edge_fixed_basis: face0_normal must be orthogonal to edge_dir")
+            raise ArgumentError("edge_fixed_basis: face0_normal must be orthogonal to edge_dir")
     xi = np.cross(e, si)
     xo = np.cross(e, so)
     ni = np.linalg.norm(xi, axis=-1, keepdims=True)
     no = np.linalg.norm(xo, axis=-1, keepdims=True)
     if np.any(ni < 1e-12) or np.any(no < 1e-12):
-        raise ValueError("edge_fixed_basis: a ray runs along the edge (beta0 = 0 or pi)")
+        raise ArgumentError("edge_fixed_basis: a ray runs along the edge (beta0 = 0 or pi)")
     phi_hat_p = -xi / ni
     phi_hat = xo / no
     beta_hat_p = np.cross(phi_hat_p, si)

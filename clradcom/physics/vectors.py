@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from clradcom.errors import ArgumentError
+
 __all__ = ["checked_unit", "cross", "dot", "orthonormal_frame", "perpendicular", "unit"]
 
 
@@ -26,10 +28,10 @@ def checked_unit(v, what: str):
     them)."""
     v = np.asarray(v, dtype=np.float64)
     if v.shape[-1:] != (3,):
-        raise ValueError(f"{what}: last axis must have length 3, got shape {v.shape}")
+        raise ArgumentError(f"{what}: last axis must have length 3, got shape {v.shape}")
     n = np.linalg.norm(v, axis=-1, keepdims=True)
     if not np.all(np.isfinite(n)) or np.any(n == 0):
-        raise ValueError(f"{what}: zero-length or non-finite vector")
+        raise ArgumentError(f"{what}: zero-length or non-finite vector")
     return v / n
 
 

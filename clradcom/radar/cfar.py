@@ -22,6 +22,7 @@ import numpy as np
 from scipy import ndimage
 from scipy.optimize import brentq
 
+from clradcom.errors import ArgumentError
 from clradcom.radar.processing import RadarImage
 
 DETECTION_DTYPE = np.dtype([
@@ -32,14 +33,14 @@ DETECTION_DTYPE = np.dtype([
 
 def _check_pfa(p_fa):
     if not (isinstance(p_fa, int | float | np.floating) and 0.0 < p_fa < 1.0):
-        raise ValueError(f"p_fa must lie in (0, 1), got {p_fa!r}")
+        raise ArgumentError(f"p_fa must lie in (0, 1), got {p_fa!r}")
     return float(p_fa)
 
 
 def ca_cfar_alpha(n_train: int, p_fa: float) -> float:
     """α = N_T (P_fa^{−1/N_T} − 1) for cell-averaging CFAR on square-law power."""
     if isinstance(n_train, bool) or not isinstance(n_train, int | np.integer) or n_train < 1:
-        raise ValueError(f"n_train must be a positive integer, got {n_train!r}")
+        raise ArgumentError(f"n_train must be a positive integer, got {n_train!r}")
     p_fa = _check_pfa(p_fa)
     return float(n_train * (p_fa ** (-1.0 / n_train) - 1.0))
 
@@ -53,9 +54,9 @@ def os_cfar_pfa(n_train: int, k: int, alpha: float) -> float:
 def os_cfar_alpha(n_train: int, k: int, p_fa: float) -> float:
     """Scale α that gives OS-CFAR with the k-th smallest of N_T cells the design P_fa."""
     if isinstance(n_train, bool) or not isinstance(n_train, int | np.integer) or n_train < 1:
-        raise ValueError(f"n_train must be a positive integer, got {n_train!r}")
+        raise ArgumentError(f"n_train must be a positive integer, got {n_train!r}")
     if isinstance(k, bool) or not isinstance(k, int | np.integer) or not 1 <= k <= n_train:
-        raise ValueError(f"rank k must be an integer in [1, {n_train}], got {k!r}")
+        raise ArgumentError(f"rank k must be an integer in [1, {n_train}], got {k!r}")
     p_fa = _check_pfa(p_fa)
     target = math.log(p_fa)
 
@@ -72,7 +73,7 @@ def _pair(name, value):
     v = (value, value) if np.isscalar(value) else tuple(value)
     if len(v) != 2 or any(isinstance(x, bool) or not isinstance(x, int | np.integer) or x < 0
                           for x in v):
-        raise ValueError(f"{name} must be a non-negative int or a pair of them, got {value!r}")
+        raise ArgumentError(f"{name} must be a non-negative int or a pair of them, got {value!r}")
     return int(v[0]), int(v[1])
 
 
@@ -96,15 +97,15 @@ def cfar_threshold(power, guard=(2, 2), train=(4, 4), p_fa: float = 1e-6,
     """
     pw = np.asarray(power, dtype=float)
     if pw.ndim != 2:
-        raise ValueError(f"power must be a 2-D map, got shape {pw.shape}")
+        raise ArgumentError(f"power must be a 2-D map, got shape {pw.shape}")
     if not np.all(np.isfinite(pw)) or (pw < 0).any():
-        raise ValueError("power must be finite and non-negative (square-law, not dB)")
+        raise ArgumentError("power must be finite and non-negative (square-law, not dB)")
     fp = training_footprint(guard, train)
     n_t = int(fp.sum())
     if n_t == 0:
-        raise ValueError(f"train={train!r} leaves no training cells")
+        raise ArgumentError(f"train={train!r} leaves no training cells")
     if fp.shape[0] > pw.shape[0] or fp.shape[1] > pw.shape[1]:
-        raise ValueError(f"CFAR window {fp.shape} is larger than the map {pw.shape}")
+        raise ArgumentError(f"CFAR window {fp.shape} is larger than the map {pw.shape}")
     if method == "ca":
         g, t = _pair("guard", guard), _pair("train", train)
         outer = (2 * (g[0] + t[0]) + 1, 2 * (g[1] + t[1]) + 1)
@@ -120,7 +121,7 @@ def cfar_threshold(power, guard=(2, 2), train=(4, 4), p_fa: float = 1e-6,
         xk = ndimage.rank_filter(pw, rank=k - 1, footprint=fp, mode="wrap")
         mean_ratio = float(np.sum(1.0 / np.arange(n_t - k + 1, n_t + 1)))
         return alpha * xk, xk / mean_ratio, alpha
-    raise ValueError(f"method must be 'ca' or 'os', got {method!r}")
+    raise ArgumentError(f"method must be 'ca' or 'os', got {method!r}")
 
 
 def parabolic_offset(y_minus, y0, y_plus):

@@ -34,7 +34,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from clradcom.errors import AliasingWarning, CyclicPrefixWarning
+from clradcom.errors import AliasingWarning, ArgumentError, CyclicPrefixWarning
 from clradcom.radar.processing import get_window, radar_image, spectral_estimate
 from clradcom.radar.synthesis import (
     channel_transfer_function,
@@ -86,9 +86,9 @@ def _finite(name, value) -> float:
     try:
         v = float(value)
     except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a real number, got {value!r}") from None
+        raise ArgumentError(f"{name} must be a real number, got {value!r}") from None
     if not math.isfinite(v):
-        raise ValueError(f"{name} must be finite, got {value!r}")
+        raise ArgumentError(f"{name} must be finite, got {value!r}")
     return v
 
 
@@ -107,14 +107,14 @@ def stream_signal(symbols, gains, delays_s, dopplers_hz, waveform: Waveform,
     a, tau, fd = check_paths(gains, np.zeros(np.size(delays_s)), dopplers_hz)
     tau = np.atleast_1d(np.asarray(delays_s, dtype=float))
     if tau.shape != a.shape or not np.all(np.isfinite(tau)):
-        raise ValueError(f"delays_s must be {a.size} finite values, got {delays_s!r}")
+        raise ArgumentError(f"delays_s must be {a.size} finite values, got {delays_s!r}")
     d = np.asarray(symbols)
     n, ell = waveform.n_subcarriers, waveform.samples_per_symbol
     if d.ndim != 2 or d.shape[0] != n:
-        raise ValueError(f"symbols must have shape (N={n}, J), got {d.shape}")
+        raise ArgumentError(f"symbols must have shape (N={n}, J), got {d.shape}")
     if isinstance(n_samples, bool) or not isinstance(n_samples, int | np.integer) \
             or n_samples < 1:
-        raise ValueError(f"n_samples must be a positive integer, got {n_samples!r}")
+        raise ArgumentError(f"n_samples must be a positive integer, got {n_samples!r}")
     n_out = int(n_samples)
     y = np.zeros(n_out, complex)
     if a.size == 0:
@@ -166,7 +166,7 @@ def own_echo_signal(symbols, gains, delays_s, dopplers_hz, waveform: Waveform,
         return stream_signal(d, a, tau + waveform.symbol_duration, fd, waveform,
                              capture_length(waveform))
     if method != "fast":
-        raise ValueError(f"method must be 'exact' or 'fast', got {method!r}")
+        raise ArgumentError(f"method must be 'exact' or 'fast', got {method!r}")
     within = _finite("exact_within_db", exact_within_db)
     y = np.zeros(capture_length(waveform), complex)
     if a.size == 0:
@@ -186,7 +186,7 @@ def own_echo_signal(symbols, gains, delays_s, dopplers_hz, waveform: Waveform,
 def _check_offsets(waveform: Waveform, timing_offset_s, cfo_hz, dopplers_hz=()):
     t_off = _finite("timing_offset_s", timing_offset_s)
     if not 0.0 <= t_off < waveform.symbol_duration:
-        raise ValueError(
+        raise ArgumentError(
             f"timing_offset_s={timing_offset_s!r} must lie in [0, T_sym) = "
             f"[0, {waveform.symbol_duration!r}) s: a whole symbol more only changes which "
             "random symbols fall into A's frame")
@@ -195,7 +195,7 @@ def _check_offsets(waveform: Waveform, timing_offset_s, cfo_hz, dopplers_hz=()):
     worst = max([abs(cfo + f) for f in fd] or [abs(cfo)])
     limit = MAX_FREQUENCY_OFFSET * waveform.subcarrier_spacing_hz
     if worst > limit:
-        raise ValueError(
+        raise ArgumentError(
             f"cfo_hz={cfo_hz!r} plus the D->A Doppler reaches {worst:.6g} Hz, beyond "
             f"{MAX_FREQUENCY_OFFSET}·Δf = {limit:.6g} Hz: the cyclic-prefix frequency "
             "estimate is ambiguous there")
@@ -217,11 +217,11 @@ def interference_signal(d_stream, gains, delays_s, dopplers_hz, waveform: Wavefo
     t_off, cfo = _check_offsets(waveform, timing_offset_s, cfo_hz, fd)
     ratio = _finite("power_ratio", power_ratio)
     if ratio <= 0:
-        raise ValueError(f"power_ratio must be positive, got {power_ratio!r}")
+        raise ArgumentError(f"power_ratio must be positive, got {power_ratio!r}")
     d = np.asarray(d_stream)
     if d.ndim != 2 or d.shape[0] != waveform.n_subcarriers \
             or d.shape[1] < stream_symbols(waveform):
-        raise ValueError(
+        raise ArgumentError(
             f"d_stream must have shape (N={waveform.n_subcarriers}, J >= "
             f"{stream_symbols(waveform)}), got {d.shape}")
     # capture time of stream symbol 0: one guard symbol plus the lead, back in time.
@@ -257,7 +257,7 @@ def frame_symbols(capture, waveform: Waveform) -> np.ndarray:
     """A's received symbols D_r (N, M): A's frame cut from the capture, CP off, DFT."""
     y = np.asarray(capture)
     if y.shape != (capture_length(waveform),):
-        raise ValueError(f"capture must have {capture_length(waveform)} samples, got {y.shape}")
+        raise ArgumentError(f"capture must have {capture_length(waveform)} samples, got {y.shape}")
     return ofdm_demodulate(y[frame_slice(waveform)], waveform)
 
 
@@ -290,9 +290,9 @@ def cp_sync(signal, waveform: Waveform) -> tuple[int, float, np.ndarray]:
     y = np.asarray(signal)
     n, ncp, ell = waveform.n_subcarriers, waveform.n_cp, waveform.samples_per_symbol
     if y.ndim != 1 or y.size < 2 * ell:
-        raise ValueError(f"signal must be 1-D with at least 2L = {2 * ell} samples")
+        raise ArgumentError(f"signal must be 1-D with at least 2L = {2 * ell} samples")
     if ncp == 0:
-        raise ValueError("cp_sync needs a cyclic prefix (waveform.n_cp = 0)")
+        raise ArgumentError("cp_sync needs a cyclic prefix (waveform.n_cp = 0)")
     z = y[:-n] * np.conj(y[n:])
     folded = np.zeros(ell, complex)
     full = z.size // ell
@@ -316,13 +316,13 @@ def demodulate_stream(signal, waveform: Waveform, theta: int, eps: float, backof
     y = np.asarray(signal)
     n, ncp, ell = waveform.n_subcarriers, waveform.n_cp, waveform.samples_per_symbol
     if not 0 <= backoff <= ncp:
-        raise ValueError(f"backoff must lie in [0, N_cp={ncp}], got {backoff!r}")
+        raise ArgumentError(f"backoff must lie in [0, N_cp={ncp}], got {backoff!r}")
     w0 = int(theta) + ncp - int(backoff)
     i = np.arange(y.size)
     yc = y * np.exp(-2j * np.pi * eps * i / n)
     n_win = (y.size - w0 - n) // ell + 1
     if n_win < 2:
-        raise ValueError("signal too short for two D symbols")
+        raise ArgumentError("signal too short for two D symbols")
     starts = w0 + ell * np.arange(n_win)
     blocks = yc[starts[:, None] + np.arange(n)[None, :]]
     return np.fft.fft(blocks, axis=1, norm="ortho").T.copy(), w0
@@ -375,7 +375,7 @@ def fit_components(grid, df: float, t_sym: float, *, min_peak_to_floor_db: float
     """
     g = np.asarray(grid, complex)
     if g.ndim != 2:
-        raise ValueError(f"grid must be 2-D, got shape {g.shape}")
+        raise ArgumentError(f"grid must be 2-D, got shape {g.shape}")
     n_sub, n_sym = g.shape
     thr = 10.0 ** (_finite("min_peak_to_floor_db", min_peak_to_floor_db) / 10.0)
     nu = np.zeros(0)
@@ -649,7 +649,7 @@ class InterferenceResult:
 def _own_frame(own_signal, waveform):
     y = np.asarray(own_signal, complex)
     if y.shape != (capture_length(waveform),):
-        raise ValueError(f"own_signal must have {capture_length(waveform)} samples "
+        raise ArgumentError(f"own_signal must have {capture_length(waveform)} samples "
                          f"(capture_length), got {y.shape}")
     return y
 
@@ -670,7 +670,7 @@ def run_interference(own_signal, own_symbols, d_stream, gains, delays_s, doppler
     d_a = check_symbols(own_symbols, waveform, "own_symbols")
     nv = _finite("noise_variance", noise_variance)
     if nv < 0:
-        raise ValueError(f"noise_variance must be >= 0, got {noise_variance!r}")
+        raise ArgumentError(f"noise_variance must be >= 0, got {noise_variance!r}")
     rng = np.random.default_rng(rng)
     noise = math.sqrt(nv / 2) * (rng.standard_normal(y_own.size)
                                  + 1j * rng.standard_normal(y_own.size))
@@ -746,7 +746,7 @@ def two_radar_run(own_paths, interferer_paths, waveform: Waveform, *, tx_power_w
                       ("noise_figure_db", noise_figure_db)):
         _finite(name, val)
     if not (tx_power_w > 0 and interferer_tx_power_w > 0):
-        raise ValueError(f"transmit powers must be positive, got A {tx_power_w!r} W, "
+        raise ArgumentError(f"transmit powers must be positive, got A {tx_power_w!r} W, "
                          f"D {interferer_tx_power_w!r} W")
     say = progress or (lambda msg: None)
     noise_var = thermal_noise_power(waveform.bandwidth, noise_figure_db) / tx_power_w

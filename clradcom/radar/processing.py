@@ -20,6 +20,7 @@ import numpy as np
 from scipy import fft as sfft
 from scipy.signal import windows as sw
 
+from clradcom.errors import ArgumentError
 from clradcom.radar.waveform import SPEED_OF_LIGHT, Waveform, check_symbols
 
 WINDOW_ALIASES = {
@@ -51,21 +52,21 @@ def spectral_estimate(rx_symbols, tx_symbols, method: str = "divide") -> np.ndar
     dr = np.asarray(rx_symbols)
     d = np.asarray(tx_symbols)
     if dr.shape != d.shape or dr.ndim != 2:
-        raise ValueError(
+        raise ArgumentError(
             f"rx_symbols {dr.shape} and tx_symbols {d.shape} must be 2-D arrays of equal shape"
         )
     if not (np.all(np.isfinite(dr)) and np.all(np.isfinite(d))):
-        raise ValueError("rx_symbols/tx_symbols contain NaN or infinite values")
+        raise ArgumentError("rx_symbols/tx_symbols contain NaN or infinite values")
     if method == "divide":
         if np.any(d == 0):
-            raise ValueError("tx_symbols contains zeros; use method='conjugate' or fix the data")
+            raise ArgumentError("tx_symbols contains zeros; use method='conjugate' or fix the data")
         return dr / d
     if method == "conjugate":
         p = np.mean(np.abs(d) ** 2)
         if p == 0:
-            raise ValueError("tx_symbols are all zero")
+            raise ArgumentError("tx_symbols are all zero")
         return dr * np.conj(d) / p
-    raise ValueError(f"method must be 'divide' or 'conjugate', got {method!r}")
+    raise ArgumentError(f"method must be 'divide' or 'conjugate', got {method!r}")
 
 
 def get_window(window, length: int) -> np.ndarray:
@@ -79,12 +80,12 @@ def get_window(window, length: int) -> np.ndarray:
     if isinstance(window, np.ndarray | list):
         w = np.asarray(window, dtype=float)
         if w.shape != (length,) or not np.all(np.isfinite(w)):
-            raise ValueError(f"window array must be {length} finite values, got shape {w.shape}")
+            raise ArgumentError(f"window array must be {length} finite values, got shape {w.shape}")
         return w
     name, params = (window[0], tuple(window[1:])) if isinstance(window, tuple) else (window, ())
     key = WINDOW_ALIASES.get(str(name).lower())
     if key is None:
-        raise ValueError(f"unknown window {window!r}; known: {sorted(WINDOW_ALIASES)}")
+        raise ArgumentError(f"unknown window {window!r}; known: {sorted(WINDOW_ALIASES)}")
     if key == "taylor":
         nbar = params[0] if len(params) > 0 else 4
         sll = params[1] if len(params) > 1 else 30.0
@@ -108,7 +109,7 @@ def velocity_axis(waveform: Waveform, m_fft: int) -> np.ndarray:
 
 def _zero_pad(name, value):
     if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
-        raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+        raise ArgumentError(f"{name} must be an integer >= 1, got {value!r}")
     return int(value)
 
 
@@ -127,7 +128,7 @@ def radar_image(spectral, waveform: Waveform, window_range="hann", window_dopple
     wm = get_window(window_doppler, m)
     norm = np.sqrt(np.sum(wn**2) * np.sum(wm**2))
     if norm == 0:
-        raise ValueError("window is all zeros")
+        raise ArgumentError("window is all zeros")
     g = f * (wn[:, None] / norm) * wm[None, :]
     # IDFT over n as a forward DFT of the conjugate-free form: ifft·N' keeps e^{+j2πnp/N'}.
     h = sfft.ifft(g, n=nz, axis=0, norm="forward", workers=workers)

@@ -156,7 +156,7 @@ def _channel_grid(weights, delays_s, dopplers_hz, n_sub, n_sym, df, t_sym, t0,
             for r in range(n_tr):
                 out[r] += w[r, k] * outer
         return out
-    raise ValueError(f"method must be 'nufft', 'matmul' or 'direct', got {method!r}")
+    raise ArgumentError(f"method must be 'nufft', 'matmul' or 'direct', got {method!r}")
 
 
 def channel_transfer_function(gains, delays_s, dopplers_hz, waveform: Waveform,
@@ -179,9 +179,9 @@ def _transfer(gains, delays_s, dopplers_hz, waveform, time_origin_s, method, eps
     a, tau, fd = check_paths(gains, delays_s, dopplers_hz)
     t0 = float(time_origin_s)
     if not math.isfinite(t0):
-        raise ValueError(f"time_origin_s must be finite, got {time_origin_s!r}")
+        raise ArgumentError(f"time_origin_s must be finite, got {time_origin_s!r}")
     if not (1e-15 < eps < 1e-1):
-        raise ValueError(f"eps must lie in (1e-15, 0.1), got {eps!r}")
+        raise ArgumentError(f"eps must lie in (1e-15, 0.1), got {eps!r}")
     # stacklevel: the warning names the line that called the public function
     warn_unmodelled(tau, fd, waveform, isi_modelled=False, stacklevel=stacklevel)
     return _channel_grid(a[None, :], tau, fd, waveform.n_subcarriers, waveform.n_symbols,
@@ -214,7 +214,7 @@ def chebyshev_order(theta_max: float, half_width: float, tol: float) -> int:
         if log_bound <= math.log(tol):
             return r
         r += 1
-    raise ValueError(
+    raise ArgumentError(
         f"Doppler spread too large for the exact synthesis: ε spread ±{half_width!r} "
         "subcarrier spacings needs more than 400 interpolation nodes"
     )
@@ -260,10 +260,10 @@ def synthesize_time_domain(symbols, gains, delays_s, dopplers_hz, waveform: Wave
     d = check_symbols(symbols, waveform)
     a, tau, fd = check_paths(gains, delays_s, dopplers_hz)
     if not (1e-15 < tol < 1e-1):
-        raise ValueError(f"tol must lie in (1e-15, 0.1), got {tol!r}")
+        raise ArgumentError(f"tol must lie in (1e-15, 0.1), got {tol!r}")
     eps = tol if eps is None else eps
     if not (1e-15 < eps < 1e-1):
-        raise ValueError(f"eps must lie in (1e-15, 0.1), got {eps!r}")
+        raise ArgumentError(f"eps must lie in (1e-15, 0.1), got {eps!r}")
 
     warn_unmodelled(tau, fd, waveform, isi_modelled=True)
     n, m, ncp = waveform.n_subcarriers, waveform.n_symbols, waveform.n_cp
@@ -293,7 +293,7 @@ def synthesize_time_domain(symbols, gains, delays_s, dopplers_hz, waveform: Wave
     try:
         n_nodes = chebyshev_order(theta_max, half, tol)
     except ValueError as exc:
-        raise ValueError(f"{exc} (dopplers_hz span [{float(fd.min())!r}, {float(fd.max())!r}] "
+        raise ArgumentError(f"{exc} (dopplers_hz span [{float(fd.min())!r}, {float(fd.max())!r}] "
                          f"Hz, Δf = {df!r} Hz); speeds that high are no radar target: check "
                          "the velocities, or use synthesize_frequency_domain") from None
     nodes = centre + half * np.cos((2 * np.arange(n_nodes) + 1) * np.pi / (2 * n_nodes))
