@@ -700,6 +700,29 @@ def test_geometry_rounded_by_more_than_a_wavelength_warns(tmp_path):
     loads_quietly(tmp_path, HEAD + PLANE + "position = [1e5, 0.0, 0.0]\n")
 
 
+# -- mesh files that are not what they claim ---------------------------------------------------
+
+
+def test_err_random_bytes_as_obj_names_mesh_and_key(tmp_path):
+    (tmp_path / "r.obj").write_bytes(bytes(range(256)) * 8)
+    refused(tmp_path, HEAD + '[[objects]]\nname = "m"\nmaterial = "metal"\nmesh = "r.obj"\n',
+            "objects[0].mesh", "r.obj", "not a text OBJ file", "NUL byte at offset 0")
+
+
+@pytest.mark.parametrize("ext, text", [
+    ("obj", b"# caf\xe9 \xb0\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n"),
+    ("off", b"OFF\n# \xe9\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n"),
+    ("stl", b"solid caf\xe9\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\n"
+            b"vertex 0 1 0\nendloop\nendfacet\nendsolid caf\xe9\n"),
+])
+def test_latin1_text_meshes_load(tmp_path, ext, text):
+    (tmp_path / f"l.{ext}").write_bytes(text)
+    s = loads_quietly(tmp_path, HEAD + f'[[objects]]\nname = "m"\nmaterial = "metal"\n'
+                      f'mesh = "l.{ext}"\n')
+    assert s.triangles.shape == (1, 3, 3)
+    assert np.allclose(np.sort(s.triangles[0], axis=0), [[0, 0, 0], [0, 0, 0], [1, 1, 0]])
+
+
 # -- library entry points ---------------------------------------------------------------------
 
 
