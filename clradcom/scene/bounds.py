@@ -3,9 +3,9 @@
 Two kinds of limit, each with its reason in the docs:
 
 * **refused** (:class:`~clradcom.errors.SceneError` naming file, key and value): values no
-  radio ray tracer can mean -- a carrier outside radio (3 MHz to 3 THz here), a speed at
-  or above the speed of light, a negative noise figure, geometry beyond what the float32
-  kernels can hold;
+  radio ray tracer can mean -- a carrier outside 3 MHz - 3 THz (above, not radio; below,
+  wavelengths longer than the objects), a speed at or above the speed of light, a
+  negative noise figure, geometry beyond what the float32 kernels can hold;
 * **warned** (:class:`~clradcom.errors.ValidityRangeWarning`, once per scene and key):
   values that are legal but outside where the methods and models hold -- a carrier
   outside 1-300 GHz, a speed above 1e-3 c (first-order Doppler off by more than 0.1 %),
@@ -35,7 +35,7 @@ __all__ = ["CARRIER_HZ_REFUSED", "CARRIER_HZ_VALID", "MAX_COORDINATE_M",
 CARRIER_HZ_REFUSED = (3e6, 3e12)
 #: Carriers outside [lo, hi] Hz are accepted with a warning: below 1 GHz (wavelength
 #: > 30 cm) metre-sized objects are only a few wavelengths large, where the asymptotic
-#: GO/UTD/PO methods lose accuracy, and ITU-R P.2040 materials start at 1 GHz; above
+#: GO/UTD/PO methods lose accuracy, and most ITU-R P.2040 materials start at 1 GHz; above
 #: 300 GHz (wavelength < 1 mm) millimetre roughness is no longer small against the
 #: wavelength, and gaseous absorption, which the tracer does not model, grows large.
 CARRIER_HZ_VALID = (1e9, 300e9)
@@ -82,7 +82,8 @@ def check_carrier(fields: FieldReader, value, carrier: float, key: str) -> None:
 
 def check_speed(fields: FieldReader, velocity: np.ndarray, value, key: str) -> float:
     """Refuse a speed |v| >= c; returns |v| (m/s) for :func:`warn_speeds`."""
-    speed = float(np.linalg.norm(velocity))
+    big = float(np.max(np.abs(velocity)))
+    speed = big * float(np.linalg.norm(velocity / big)) if big > 0 else 0.0  # no overflow
     if not speed < C0:
         raise fields.err(key, value, f"speed {speed:.9g} m/s is not below the speed of "
                          f"light ({C0:.0f} m/s)")

@@ -16,10 +16,18 @@ import numpy as np
 
 from clradcom.errors import SceneError
 
-__all__ = ["REQUIRED", "FieldReader", "key_path"]
+__all__ = ["REQUIRED", "FieldReader", "is_file", "key_path"]
 
 #: Default of the ``get*`` methods meaning "the key must be there".
 REQUIRED = object()
+
+
+def is_file(path: Path) -> bool:
+    """``path.is_file()``, False also for a name the OS refuses (too long, a NUL byte)."""
+    try:
+        return path.is_file()
+    except (OSError, ValueError):
+        return False
 
 
 def key_path(base: str, key: str) -> str:

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from clradcom.errors import NOVALUE, SceneError
-from clradcom.scene.fields import FieldReader
+from clradcom.scene.fields import FieldReader, is_file
 
 __all__ = ["MESH_SUFFIXES", "SHAPES", "MeshCache", "box_geometry", "load_mesh",
            "plane_geometry", "read_object_geometry"]
@@ -116,7 +116,7 @@ def load_mesh(fields: FieldReader, base_dir: Path, rel: str, key: str,
     if path.suffix.lower() not in MESH_SUFFIXES:
         raise fields.err(key, rel, f"unsupported mesh file type '{path.suffix}'; use "
                          f"{', '.join(MESH_SUFFIXES)}")
-    if not path.is_file():
+    if not is_file(path):
         raise fields.err(key, rel, f"mesh file not found (looked for {path})")
     rp = path.resolve()
     if rp in mesh_cache:
@@ -144,6 +144,9 @@ def load_mesh(fields: FieldReader, base_dir: Path, rel: str, key: str,
                          f"({type(exc).__name__}: {_first_line(exc)})") from None
     if faces.ndim != 2 or faces.shape[0] == 0 or faces.shape[1] != 3:
         raise fields.err(key, rel, f"mesh file {path} holds no triangles")
+    if verts.ndim != 2 or verts.shape[1] != 3:
+        raise fields.err(key, rel, f"mesh file {path}: its vertices are not 3-D points "
+                         f"(array of shape {verts.shape})")
     if faces.min() < 0 or faces.max() >= len(verts):
         raise fields.err(key, rel, f"mesh file {path} has face indices out of range")
     bad = ~np.all(np.isfinite(verts), axis=1)

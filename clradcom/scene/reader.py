@@ -38,7 +38,7 @@ import numpy as np
 
 from clradcom.errors import ArgumentTypeError, SceneError
 from clradcom.scene.bounds import check_carrier, warn_far_geometry, warn_speeds
-from clradcom.scene.fields import REQUIRED, FieldReader
+from clradcom.scene.fields import REQUIRED, FieldReader, is_file
 from clradcom.scene.read_geometry import MESH_SUFFIXES, SHAPES
 from clradcom.scene.read_materials import read_materials
 from clradcom.scene.read_objects import read_objects
@@ -56,11 +56,7 @@ def load_scene(path) -> Scene:
     to the scene file's folder.  Raises :class:`SceneError` on any bad input
     (:class:`~clradcom.errors.ArgumentTypeError` when ``path`` is not a path)."""
     path = _path_argument(path, "path")
-    try:
-        is_file = path.is_file()
-    except (OSError, ValueError):  # a name the OS refuses (too long, NUL byte)
-        is_file = False
-    if not is_file:
+    if not is_file(path):
         raise SceneError("scene file not found", file=path)
     try:
         text = path.read_text(encoding="utf-8")
