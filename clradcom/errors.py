@@ -8,9 +8,11 @@ offending value, so a user can find and fix the line without a traceback.
 from __future__ import annotations
 
 import os
+import reprlib
 from pathlib import Path
 
-__all__ = ["SceneError", "SceneWarning", "NOVALUE", "PhysicsWarning", "CyclicPrefixWarning",
+__all__ = ["SceneError", "SceneWarning", "ValidityRangeWarning", "NOVALUE", "PhysicsWarning",
+           "CyclicPrefixWarning",
            "AliasingWarning", "NearFieldWarning", "SurfaceContactWarning",
            "BoundaryWarning", "CausticWarning", "SnapshotError", "ArgumentError",
            "ArgumentTypeError", "MemoryBudgetError", "ENV_MEMORY_BUDGET", "MEMORY_SHARE",
@@ -27,8 +29,16 @@ class _NoValue:
 NOVALUE = _NoValue()
 
 
+#: Shortened repr for values too deep (or too odd) for repr() itself.
+_REPR = reprlib.Repr()
+_REPR.maxlevel = 3
+
+
 def _short(value: object, limit: int = 80) -> str:
-    text = repr(value)
+    try:
+        text = repr(value)
+    except Exception:  # noqa: BLE001 - a value nested too deep for repr (RecursionError)
+        text = _REPR.repr(value)
     if len(text) > limit:
         text = text[: limit - 3] + "..."
     return text
@@ -103,6 +113,13 @@ class PhysicsWarning(UserWarning):
 
     The subclasses name the case, so a user can silence or escalate one of them alone
     (``warnings.simplefilter("error", CyclicPrefixWarning)``)."""
+
+
+class ValidityRangeWarning(SceneWarning, PhysicsWarning):
+    """A scene value is legal but lies outside the range where the tracer's methods and
+    models hold (a carrier outside 1-300 GHz, a speed above 1e-3 c, geometry beyond what
+    float32 resolves to a wavelength; docs/scene-format.md "Physical bounds"). Both a
+    :class:`SceneWarning` and a :class:`PhysicsWarning`, so either filter catches it."""
 
 
 class CyclicPrefixWarning(PhysicsWarning):

@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from clradcom.errors import SnapshotError
+from clradcom.errors import ArgumentError, ArgumentTypeError, SnapshotError
 from clradcom.files import atomic_write
 from clradcom.paths import (
     PATH_FIELD_NAMES,
@@ -460,6 +460,9 @@ class _Reader:
         except Exception as exc:
             raise self.err(key, f"cannot read the array ({type(exc).__name__}: {exc}); "
                                 "the file is corrupt") from None
+        if not isinstance(arr, np.ndarray):  # numpy gives a member that is no .npy as bytes
+            raise self.err(key, "not a .npy array (a member of other content); the file "
+                                "is corrupt or not a snapshot")
         if arr.dtype.kind not in kind or (itemsize is not None
                                           and arr.dtype.itemsize != itemsize):
             want = {"U": "a unicode string", "i": "an integer", "f": "a float",
@@ -511,7 +514,10 @@ def _check_member_sizes(path: Path, max_bytes: int) -> None:
                             f"its arrays unpack to more than {max_bytes} bytes (max_bytes); "
                             f"pass a larger max_bytes to load_snapshot to read it",
                             file=path, key=info.filename.removesuffix(".npy"))
-    except (zipfile.BadZipFile, OSError, EOFError, NotImplementedError) as exc:
+    except SnapshotError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - BadZipFile, OSError, EOFError, a member name
+        # that is not the UTF-8 it claims (UnicodeDecodeError), ...: all mean corrupt
         raise SnapshotError(f"cannot read the zip archive ({type(exc).__name__}: {exc})",
                             file=path) from None
 
@@ -524,8 +530,17 @@ def load_snapshot(path: str | os.PathLike, *, max_bytes: int = MAX_SNAPSHOT_BYTE
     zip/npz, not a clradcom snapshot, of a newer format version, with a missing or unknown
     key, a wrong dtype or shape, or invalid values, and, before unpacking anything, one
     whose arrays would take more than ``max_bytes`` of memory. A missing file raises
-    FileNotFoundError.
+    FileNotFoundError; a ``path`` that is no str or os.PathLike, or a ``max_bytes`` that is
+    no int >= 0, an ArgumentTypeError or ArgumentError naming it.
     """
+    if not isinstance(path, str | os.PathLike):
+        raise ArgumentTypeError(f"must be a str or os.PathLike path, got "
+                                f"{type(path).__name__}", argument="path", value=path)
+    if isinstance(max_bytes, bool) or not isinstance(max_bytes, int | np.integer):
+        raise ArgumentTypeError(f"must be an int, got {type(max_bytes).__name__}",
+                                argument="max_bytes", value=max_bytes)
+    if max_bytes < 0:
+        raise ArgumentError("must be >= 0", argument="max_bytes", value=max_bytes)
     p = Path(path)
     if not p.exists():
         raise FileNotFoundError(f"{p}: no such snapshot file")

@@ -9,7 +9,13 @@ import numpy as np
 import pytest
 import trimesh
 
-from clradcom.errors import SceneError, SceneWarning
+from clradcom.errors import (
+    ArgumentTypeError,
+    PhysicsWarning,
+    SceneError,
+    SceneWarning,
+    ValidityRangeWarning,
+)
 from clradcom.scene.antenna import SectorPattern
 from clradcom.scene.reader import load_scene, scene_from_dict
 
@@ -514,3 +520,230 @@ def test_docs_scene_format_example_loads(tmp_path):
     assert s.materials[0].name == "wet_concrete" and s.materials[0].roughness_m == 0.002
     assert np.allclose(s.radars[0].position, [1.95, 0.0, 0.5])
     assert np.allclose(s.radars[0].velocity, [12.9, 0, 0])
+
+
+# -- physical bounds (docs/scene-format.md "Physical bounds") --------------------------------
+
+
+def loads_quietly(tmp_path, text, name="s.toml"):
+    """The scene, asserting that loading it warns of nothing."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        return load_scene(write(tmp_path, text, name))
+
+
+def warns_once(tmp_path, text, *fragments, name="s.toml"):
+    """The scene and the one ValidityRangeWarning loading it gives (with ``fragments``)."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        s = load_scene(write(tmp_path, text, name))
+    got = [w for w in caught if issubclass(w.category, ValidityRangeWarning)]
+    assert len(got) == 1, [str(w.message) for w in caught]
+    assert issubclass(got[0].category, SceneWarning)
+    assert issubclass(got[0].category, PhysicsWarning)
+    for f in fragments:
+        assert f in str(got[0].message), str(got[0].message)
+    return s
+
+
+@pytest.mark.parametrize("value, fragment", [("1e30", "3 THz"), ("3.1e12", "3 THz"),
+                                             ("1.0", "3 MHz"), ("2.9e6", "3 MHz")])
+def test_err_carrier_outside_radio(tmp_path, value, fragment):
+    refused(tmp_path, f"[scene]\ncarrier_hz = {value}\n", "scene.carrier_hz", float(value),
+            fragment)
+
+
+@pytest.mark.parametrize("value", ["3e6", "0.5e9", "400e9", "3e12"])
+def test_carrier_outside_the_methods_range_warns(tmp_path, value):
+    s = warns_once(tmp_path, f"[scene]\ncarrier_hz = {value}\n", "scene.carrier_hz",
+                   "1-300 GHz", "s.toml")
+    assert s.carrier_hz == float(value)
+
+
+@pytest.mark.parametrize("value", ["1e9", "24e9", "77e9", "300e9"])
+def test_carrier_inside_the_methods_range_is_quiet(tmp_path, value):
+    assert loads_quietly(tmp_path, f"[scene]\ncarrier_hz = {value}\n").carrier_hz == float(value)
+
+
+def test_err_object_at_the_speed_of_light(tmp_path):
+    refused(tmp_path, HEAD + PLANE + "velocity = [-299792458.0, 0.0, 0.0]\n",
+            "objects[0].velocity", [-299792458.0, 0.0, 0.0], "speed of light")
+
+
+def test_err_radar_faster_than_light(tmp_path):
+    refused(tmp_path, HEAD + '[[radars]]\nname = "r"\nposition = [0.0, 0.0, 0.0]\n'
+            "velocity = [6e8, 8e8, 0.0]\n", "radars[0].velocity", [6e8, 8e8, 0.0],
+            "speed 1e+09 m/s is not below the speed of light")
+
+
+def test_fast_objects_and_radars_warn_once_naming_them(tmp_path):
+    fast = HEAD + PLANE + "velocity = [0.0, 4e5, 0.0]\n" + PLANE.replace('"p"', '"q"') + (
+        "velocity = [1e8, 0.0, 0.0]\n[[radars]]\nname = \"r\"\nposition = [0.0, 0.0, 0.0]\n"
+        "velocity = [0.0, 0.0, -5e5]\n")
+    s = warns_once(tmp_path, fast, "objects[0].velocity (400000 m/s)",
+                   "objects[1].velocity (1e+08 m/s)", "radars[0].velocity (500000 m/s)",
+                   "first-order Doppler")
+    assert s.object_velocity[1, 0] == 1e8
+
+
+def test_road_speeds_and_aircraft_are_quiet(tmp_path):
+    loads_quietly(tmp_path, HEAD + PLANE + "velocity = [250.0, 0.0, 0.0]\n"
+                  "[[radars]]\nname = \"r\"\nposition = [0.0, 0.0, 0.0]\n"
+                  "velocity = [0.0, 299.0, 0.0]\n")
+
+
+def test_err_negative_noise_figure(tmp_path):
+    refused(tmp_path, HEAD + '[[radars]]\nname = "r"\nposition = [0.0, 0.0, 0.0]\n'
+            "noise_figure_db = -60.0\n", "radars[0].noise_figure_db", -60.0, ">= 0 dB",
+            "by definition")
+
+
+def test_err_noise_figure_beyond_any_receiver(tmp_path):
+    refused(tmp_path, HEAD + '[[radars]]\nname = "r"\nposition = [0.0, 0.0, 0.0]\n'
+            "noise_figure_db = 5000\n", "radars[0].noise_figure_db", 5000, "<= 300 dB")
+
+
+@pytest.mark.parametrize("text, value, fragment", [("inf", math.inf, "NaN or inf"),
+                                                   ("1e13", 1e13, "<= 1e+12 W")])
+def test_err_tx_power_infinite_or_beyond_any_transmitter(tmp_path, text, value, fragment):
+    refused(tmp_path, HEAD + '[[radars]]\nname = "r"\nposition = [0.0, 0.0, 0.0]\n'
+            f"tx_power_w = {text}\n", "radars[0].tx_power_w", value, fragment)
+
+
+def test_zero_tx_power_and_zero_noise_figure_load(tmp_path):
+    r = loads_quietly(tmp_path, HEAD + '[[radars]]\nname = "r"\nposition = [0.0, 0.0, 0.0]\n'
+                      "tx_power_w = 0\nnoise_figure_db = 0\n").radars[0]
+    assert r.tx_power_w == 0.0 and r.noise_figure_db == 0.0
+
+
+# -- numbers, nesting and geometry beyond what float64 / float32 hold -------------------------
+
+
+def test_err_integer_too_large_for_a_float(tmp_path):
+    big = int("9" * 401)
+    refused(tmp_path, f"[scene]\ncarrier_hz = {big}\n", "scene.carrier_hz", big,
+            "too large")
+    refused(tmp_path, HEAD + PLANE + f"velocity = [{big}, 0, 0]\n", "objects[0].velocity",
+            [big, 0, 0], "too large")
+
+
+def test_err_integer_with_more_digits_than_python_converts(tmp_path):
+    p = write(tmp_path, "[scene]\ncarrier_hz = " + "9" * 5000 + "\n")
+    with pytest.raises(SceneError, match="TOML value refused") as ei:
+        load_scene(p)
+    assert ei.value.file == str(p)
+
+
+@pytest.mark.parametrize("doc", ["[scene]\ncarrier_hz = 24e9\nx = " + "[" * 50_000
+                                 + "]" * 50_000 + "\n",
+                                 "a = " + "{b = " * 50_000 + "1" + "}" * 50_000 + "\n"])
+def test_err_toml_nested_50000_deep(tmp_path, doc):
+    p = write(tmp_path, doc)
+    with pytest.raises(SceneError, match="nested too deeply") as ei:
+        load_scene(p)
+    assert ei.value.file == str(p)
+
+
+def test_err_value_nested_too_deep_for_repr_still_names_key():
+    v: list = []
+    for _ in range(100_000):
+        v = [v]
+    with pytest.raises(SceneError) as ei:
+        scene_from_dict({"scene": {"carrier_hz": 24e9}, "objects": [
+            {"name": "p", "material": "metal", "shape": "plane", "size": [1, 1],
+             "velocity": v}]})
+    assert ei.value.key == "objects[0].velocity" and "[[[" in str(ei.value)
+
+
+def test_err_scale_overflowing_the_vertices_names_scale(tmp_path):
+    refused(tmp_path, HEAD + PLANE + "scale = 1e307\n", "objects[0].scale", 1e307,
+            "not finite", "float32")
+
+
+def test_err_scale_flattening_triangles_names_scale(tmp_path):
+    refused(tmp_path, HEAD + PLANE + "scale = [1.0, 1e-200, 1.0]\n", "objects[0].scale",
+            [1.0, 1e-200, 1.0], "triangle 0", "flattens it")
+
+
+def test_err_position_beyond_the_kernels_names_position(tmp_path):
+    refused(tmp_path, HEAD + PLANE + "position = [0.0, 1e30, 0.0]\n", "objects[0].position",
+            [0.0, 1e30, 0.0], "float32")
+
+
+def test_err_position_rounding_a_triangle_away_names_position(tmp_path):
+    refused(tmp_path, HEAD + PLANE + "position = [1e17, 0.0, 0.0]\n", "objects[0].position",
+            [1e17, 0.0, 0.0], "triangle 0", "far from the origin")
+
+
+def test_err_mesh_vertex_beyond_the_kernels_names_mesh(tmp_path):
+    (tmp_path / "far.obj").write_text("v 0 0 0\nv 1e30 0 0\nv 0 1 0\nf 1 2 3\n")
+    refused(tmp_path, HEAD + '[[objects]]\nname = "m"\nmaterial = "metal"\nmesh = "far.obj"\n',
+            "objects[0].mesh", "far.obj", "far.obj", "point 1")
+
+
+def test_err_box_extents_beyond_the_kernels(tmp_path):
+    refused(tmp_path, HEAD + '[[objects]]\nname = "b"\nmaterial = "metal"\nshape = "box"\n'
+            "extents = [1e300, 1.0, 1.0]\n", "objects[0].extents", [1e300, 1.0, 1.0], "box")
+
+
+def test_err_radar_position_beyond_the_kernels(tmp_path):
+    refused(tmp_path, HEAD + '[[radars]]\nname = "r"\nposition = [1e300, 0.0, 0.0]\n',
+            "radars[0].position", [1e300, 0.0, 0.0], "float32")
+
+
+def test_geometry_rounded_by_more_than_a_wavelength_warns(tmp_path):
+    # 24 GHz: float32 rounds by more than lambda = 12.5 mm beyond 2.1e5 m from the origin
+    warns_once(tmp_path, HEAD + PLANE + "position = [3e5, 0.0, 0.0]\n", "objects[0]",
+               "float32", "wavelength")
+    warns_once(tmp_path, HEAD + '[[radars]]\nname = "r"\nposition = [0.0, -4e5, 0.0]\n',
+               "radars[0].position")
+    loads_quietly(tmp_path, HEAD + PLANE + "position = [1e5, 0.0, 0.0]\n")
+
+
+# -- mesh files that are not what they claim ---------------------------------------------------
+
+
+def test_err_random_bytes_as_obj_names_mesh_and_key(tmp_path):
+    (tmp_path / "r.obj").write_bytes(bytes(range(256)) * 8)
+    refused(tmp_path, HEAD + '[[objects]]\nname = "m"\nmaterial = "metal"\nmesh = "r.obj"\n',
+            "objects[0].mesh", "r.obj", "not a text OBJ file", "NUL byte at offset 0")
+
+
+@pytest.mark.parametrize("ext, text", [
+    ("obj", b"# caf\xe9 \xb0\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n"),
+    ("off", b"OFF\n# \xe9\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n"),
+    ("stl", b"solid caf\xe9\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\n"
+            b"vertex 0 1 0\nendloop\nendfacet\nendsolid caf\xe9\n"),
+])
+def test_latin1_text_meshes_load(tmp_path, ext, text):
+    (tmp_path / f"l.{ext}").write_bytes(text)
+    s = loads_quietly(tmp_path, HEAD + f'[[objects]]\nname = "m"\nmaterial = "metal"\n'
+                      f'mesh = "l.{ext}"\n')
+    assert s.triangles.shape == (1, 3, 3)
+    assert np.allclose(np.sort(s.triangles[0], axis=0), [[0, 0, 0], [0, 0, 0], [1, 1, 0]])
+
+
+# -- library entry points ---------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("value", [None, 3, b"s.toml", ["s.toml"]])
+def test_load_scene_wants_a_path(value):
+    with pytest.raises(ArgumentTypeError, match="path = .*must be a str or os.PathLike"):
+        load_scene(value)
+
+
+def test_scene_from_dict_checks_its_arguments():
+    with pytest.raises(ArgumentTypeError, match="file = None"):
+        scene_from_dict({"scene": {"carrier_hz": 24e9}}, file=None)
+    with pytest.raises(ArgumentTypeError, match="base_dir = 3"):
+        scene_from_dict({"scene": {"carrier_hz": 24e9}}, base_dir=3)
+    with pytest.raises(SceneError, match="keys must be strings") as ei:
+        scene_from_dict({"scene": {"carrier_hz": 24e9, 1: 2}})
+    assert ei.value.key == "scene" and ei.value.value == 1
+
+
+def test_scene_file_name_the_os_refuses(tmp_path):
+    with pytest.raises(SceneError, match="not found"):
+        load_scene(str(tmp_path / "a\0b.toml"))
+    with pytest.raises(SceneError, match="not found"):
+        load_scene(tmp_path / ("x" * 5000 + ".toml"))

@@ -18,6 +18,7 @@ from __future__ import annotations
 import csv
 import hashlib
 import math
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -68,10 +69,12 @@ def polarization_jones(pol) -> np.ndarray:
     vec = np.asarray(pol, dtype=np.complex128).reshape(-1)
     if vec.shape != (2,) or not np.all(np.isfinite(vec)):
         raise ValueError("a Jones vector needs 2 finite components (C_theta, C_phi)")
-    norm = np.linalg.norm(vec)
-    if norm == 0:
+    big = float(np.max(np.abs(vec)))
+    if big == 0:
         raise ValueError("a Jones vector must not be zero")
-    return vec / norm
+    if not 1e-150 < big < 1e150:  # so that |vec|^2 neither overflows nor underflows
+        vec = vec / big
+    return vec / np.linalg.norm(vec)
 
 
 def euler_deg_to_matrix(angles_deg) -> np.ndarray:
@@ -161,6 +164,11 @@ class IsotropicPattern(Pattern):
         return np.ones_like(theta)
 
 
+#: Largest peak directivity a pattern may have (120 dBi): beyond any antenna (a 100 m dish
+#: at 100 GHz has about 97 dBi), and far from where float64 gains overflow.
+MAX_DIRECTIVITY = 1e12
+
+
 @dataclass(eq=False)
 class SectorPattern(Pattern):
     """Ideal sector: G = 4 pi / Omega inside ``|phi| <= az/2`` and
@@ -176,6 +184,9 @@ class SectorPattern(Pattern):
             raise ValueError("azimuth_width_deg must be in (0, 360]")
         if not 0 < self.elevation_width_deg <= 180:
             raise ValueError("elevation_width_deg must be in (0, 180]")
+        if not self.solid_angle * MAX_DIRECTIVITY >= 4.0 * math.pi:
+            raise ValueError(f"a sector this narrow has a directivity above "
+                             f"{MAX_DIRECTIVITY:g} (120 dBi), beyond any antenna")
 
     @property
     def solid_angle(self) -> float:
@@ -214,6 +225,10 @@ class CosinePowerPattern(Pattern):
     def __post_init__(self):
         if not (math.isfinite(self.q) and self.q >= 0):
             raise ValueError("q must be a finite number >= 0")
+        if 2.0 * (self.q + 1.0) > MAX_DIRECTIVITY:
+            raise ValueError(f"q must be <= {MAX_DIRECTIVITY / 2 - 1:g}: the peak directivity "
+                             f"2 (q + 1) would exceed {MAX_DIRECTIVITY:g} (120 dBi), beyond "
+                             "any antenna")
 
     @staticmethod
     def q_from_beamwidth(hpbw_deg: float) -> float:
@@ -221,7 +236,8 @@ class CosinePowerPattern(Pattern):
         half = math.radians(hpbw_deg) / 2.0
         if not 0 < half < math.pi / 2:
             raise ValueError("half-power beamwidth must be in (0, 180) degrees")
-        return math.log(0.5) / math.log(math.cos(half))
+        log_cos = math.log(math.cos(half))
+        return math.log(0.5) / log_cos if log_cos < 0 else math.inf  # cos rounds to 1
 
     def gain(self, directions_local) -> np.ndarray:
         d = np.asarray(directions_local, dtype=np.float64).reshape(-1, 3)
@@ -236,6 +252,16 @@ class CosinePowerPattern(Pattern):
         p = super().params()
         p.update(q=repr(float(self.q)))
         return p
+
+
+#: Largest |gain_db| of a tabulated pattern (and |C| = 10^(MAX_TABLE_DB/20) of a complex
+#: one): far beyond any antenna (the largest dishes reach about 90 dBi), and small enough
+#: that squared amplitudes and their integral stay inside float64.
+MAX_TABLE_DB = 300.0
+MAX_TABLE_AMPLITUDE = 10.0 ** (MAX_TABLE_DB / 20.0)
+#: Most bytes the arrays of an .npz pattern file may unpack to (as its zip directory
+#: declares them), so that a small deflated file cannot expand to gigabytes.
+MAX_PATTERN_NPZ_BYTES = 2**30
 
 
 @dataclass(eq=False)
@@ -266,8 +292,13 @@ class TabulatedPattern(Pattern):
             cp = np.asarray(self.c_phi, dtype=np.complex128)
             tables = [ct, cp]
         else:
-            tables = [np.sqrt(10.0 ** (np.asarray(self.gain_db, dtype=np.float64) / 10.0))
-                      .astype(np.complex128)]
+            gdb = np.asarray(self.gain_db, dtype=np.float64)
+            if not np.all(np.isfinite(gdb)):
+                raise ValueError("pattern table holds NaN or inf values")
+            if np.any(np.abs(gdb) > MAX_TABLE_DB):
+                raise ValueError(f"gain_db outside +-{MAX_TABLE_DB:g} dB (largest magnitude "
+                                 f"{np.max(np.abs(gdb)):g}): no antenna has such a gain")
+            tables = [np.sqrt(10.0 ** (gdb / 10.0)).astype(np.complex128)]
         shape = (th.size, ph.size)
         for t in tables:
             if t.shape != shape:
@@ -275,6 +306,10 @@ class TabulatedPattern(Pattern):
                                  f"(len(theta_deg), len(phi_deg)) = {shape}")
             if not np.all(np.isfinite(t)):
                 raise ValueError("pattern table holds NaN or inf values")
+            if np.any(np.abs(t) > MAX_TABLE_AMPLITUDE):
+                raise ValueError(f"pattern field amplitude above {MAX_TABLE_AMPLITUDE:g} "
+                                 f"({MAX_TABLE_DB:g} dB; largest {np.max(np.abs(t)):g}): no "
+                                 "antenna has such a gain")
         # periodic phi: append the wrap-around column when the grid is open
         ph_ext = ph
         if ph[-1] - ph[0] < 360.0 - 1e-9:
@@ -289,6 +324,12 @@ class TabulatedPattern(Pattern):
             if not total > 0:
                 raise ValueError("pattern is zero everywhere; cannot normalise")
             self._scale = 4.0 * math.pi / total
+            if not math.isfinite(self._scale):
+                raise ValueError(f"pattern too weak to normalise (integral of G {total:g})")
+        peak = self._scale * float(np.max(sum(np.abs(t) ** 2 for t in tables)))
+        if peak > MAX_DIRECTIVITY:
+            raise ValueError(f"peak gain {peak:g} ({10 * math.log10(peak):.1f} dBi) above "
+                             f"{MAX_DIRECTIVITY:g} (120 dBi), beyond any antenna")
 
     def _amplitudes(self, directions_local) -> list[np.ndarray]:
         theta, phi = directions_to_angles(directions_local)
@@ -370,7 +411,11 @@ def load_pattern_file(path, *, polarization=None, normalize: bool = True) -> Tab
     Raises :class:`SceneError` naming the pattern file, the column/array and value.
     """
     path = Path(path)
-    if not path.is_file():
+    try:
+        found = path.is_file()
+    except (OSError, ValueError):  # a name the OS refuses (too long, a NUL byte)
+        found = False
+    if not found:
         raise SceneError("pattern file not found", file=path)
     suffix = path.suffix.lower()
     if suffix == ".npz":
@@ -394,6 +439,15 @@ def load_pattern_file(path, *, polarization=None, normalize: bool = True) -> Tab
 
 def _read_npz(path: Path) -> dict:
     try:
+        with zipfile.ZipFile(path) as zf:
+            declared = sum(info.file_size for info in zf.infolist())
+    except Exception as exc:  # noqa: BLE001 - any reader failure is a malformed file
+        raise SceneError(f"cannot read .npz pattern file ({type(exc).__name__}: {exc})",
+                         file=path) from None
+    if declared > MAX_PATTERN_NPZ_BYTES:
+        raise SceneError(f"its arrays unpack to {declared} bytes, more than "
+                         f"{MAX_PATTERN_NPZ_BYTES} for a pattern table", file=path)
+    try:
         with np.load(path, allow_pickle=False) as z:
             data = {k: np.asarray(z[k]) for k in z.files}
     except Exception as exc:  # noqa: BLE001 - any reader failure is a malformed file
@@ -412,6 +466,8 @@ def _read_npz(path: Path) -> dict:
     for k, v in out.items():
         if v.dtype.kind not in "iufc":
             raise SceneError(f"array '{k}' is not numeric (dtype {v.dtype})", file=path, key=k)
+        if v.dtype.kind == "c" and k not in ("c_theta", "c_phi"):
+            raise SceneError(f"array '{k}' must be real (dtype {v.dtype})", file=path, key=k)
     return out
 
 

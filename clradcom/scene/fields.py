@@ -16,10 +16,18 @@ import numpy as np
 
 from clradcom.errors import SceneError
 
-__all__ = ["REQUIRED", "FieldReader", "key_path"]
+__all__ = ["REQUIRED", "FieldReader", "is_file", "key_path"]
 
 #: Default of the ``get*`` methods meaning "the key must be there".
 REQUIRED = object()
+
+
+def is_file(path: Path) -> bool:
+    """``path.is_file()``, False also for a name the OS refuses (too long, a NUL byte)."""
+    try:
+        return path.is_file()
+    except (OSError, ValueError):
+        return False
 
 
 def key_path(base: str, key: str) -> str:
@@ -39,8 +47,10 @@ class FieldReader:
     def check_keys(self, tbl: dict, allowed, kp: str) -> None:
         """Refuse any key of ``tbl`` outside ``allowed``, with a "did you mean" hint."""
         for k in tbl:
+            if not isinstance(k, str):  # only from scene_from_dict: TOML keys are strings
+                raise self.err(kp or None, k, "keys must be strings")
             if k not in allowed:
-                close = difflib.get_close_matches(k, allowed, n=1)
+                close = difflib.get_close_matches(k, allowed, n=1) if len(k) < 100 else []
                 hint = f" (did you mean '{close[0]}'?)" if close else ""
                 where = f"{kp}.{k}" if kp else k
                 raise self.err(where, tbl[k], f"unknown key '{k}'{hint}; allowed keys: "
@@ -73,7 +83,11 @@ class FieldReader:
         """A finite int or float (not a bool) as float."""
         if isinstance(v, bool) or not isinstance(v, int | float):
             raise self.err(key, v, f"expected {what}")
-        x = float(v)
+        try:
+            x = float(v)
+        except OverflowError:  # an int of more than 308 digits
+            raise self.err(key, v, "too large: beyond the range of a float "
+                           "(about 1.8e308)") from None
         if not math.isfinite(x):
             raise self.err(key, v, "NaN or inf is not allowed")
         return x
@@ -98,7 +112,11 @@ class FieldReader:
         for x in v:
             if isinstance(x, bool) or not isinstance(x, int | float):
                 raise self.err(key, v, f"expected {what}")
-        a = np.array(v, dtype=np.float64)
+        try:
+            a = np.array(v, dtype=np.float64)
+        except OverflowError:  # an int of more than 308 digits
+            raise self.err(key, v, "too large: beyond the range of a float "
+                           "(about 1.8e308)") from None
         if not np.all(np.isfinite(a)):
             raise self.err(key, v, "NaN or inf is not allowed")
         return a

@@ -218,7 +218,11 @@ def conductivity_to_eps_imag(sigma_s_m: float, freq_hz: float) -> float:
 
 
 def xpd_db_to_cross_pol_share(xpd_db: float) -> float:
-    """K_x from the scattering cross-polar discrimination: XPD = 10 log10((1-K)/K)."""
+    """K_x from the scattering cross-polar discrimination: XPD = 10 log10((1-K)/K).
+
+    No finite XPD overflows: beyond +-3000 dB (10^300) K is its limit, 0 or 1."""
+    if abs(xpd_db) > 3000.0:
+        return 0.0 if xpd_db > 0 else 1.0
     return 1.0 / (1.0 + 10.0 ** (xpd_db / 10.0))
 
 

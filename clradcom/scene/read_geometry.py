@@ -4,12 +4,13 @@ triangles)."""
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 
 import numpy as np
 
 from clradcom.errors import NOVALUE, SceneError
-from clradcom.scene.fields import FieldReader
+from clradcom.scene.fields import FieldReader, is_file
 
 __all__ = ["MESH_SUFFIXES", "SHAPES", "MeshCache", "box_geometry", "load_mesh",
            "plane_geometry", "read_object_geometry"]
@@ -115,7 +116,7 @@ def load_mesh(fields: FieldReader, base_dir: Path, rel: str, key: str,
     if path.suffix.lower() not in MESH_SUFFIXES:
         raise fields.err(key, rel, f"unsupported mesh file type '{path.suffix}'; use "
                          f"{', '.join(MESH_SUFFIXES)}")
-    if not path.is_file():
+    if not is_file(path):
         raise fields.err(key, rel, f"mesh file not found (looked for {path})")
     rp = path.resolve()
     if rp in mesh_cache:
@@ -124,14 +125,28 @@ def load_mesh(fields: FieldReader, base_dir: Path, rel: str, key: str,
     import trimesh  # local import: loading trimesh is slow-ish
 
     try:
-        mesh = trimesh.load(str(path), force="mesh", process=False)
+        text = _text_mesh_bytes(path)
+    except OSError as exc:
+        raise fields.err(key, rel, f"cannot read mesh file {path} ({exc})") from None
+    except ValueError as exc:
+        raise fields.err(key, rel, f"mesh file {path} {exc}") from None
+    try:
+        if text is None:
+            mesh = trimesh.load(str(path), force="mesh", process=False)
+        else:
+            mesh = trimesh.load(io.BytesIO(text), file_type=path.suffix.lower()[1:],
+                                resolver=trimesh.resolvers.FilePathResolver(str(path)),
+                                force="mesh", process=False)
         verts = np.asarray(mesh.vertices, dtype=np.float64)
         faces = np.asarray(mesh.faces, dtype=np.int64)
     except Exception as exc:  # noqa: BLE001 - any reader failure means unreadable
         raise fields.err(key, rel, f"cannot read mesh file {path} "
-                         f"({type(exc).__name__}: {exc})") from None
+                         f"({type(exc).__name__}: {_first_line(exc)})") from None
     if faces.ndim != 2 or faces.shape[0] == 0 or faces.shape[1] != 3:
         raise fields.err(key, rel, f"mesh file {path} holds no triangles")
+    if verts.ndim != 2 or verts.shape[1] != 3:
+        raise fields.err(key, rel, f"mesh file {path}: its vertices are not 3-D points "
+                         f"(array of shape {verts.shape})")
     if faces.min() < 0 or faces.max() >= len(verts):
         raise fields.err(key, rel, f"mesh file {path} has face indices out of range")
     bad = ~np.all(np.isfinite(verts), axis=1)
@@ -141,3 +156,38 @@ def load_mesh(fields: FieldReader, base_dir: Path, rel: str, key: str,
                          f"coordinates {verts[j].tolist()}")
     mesh_cache[rp] = (verts, faces)
     return verts, faces, str(path)
+
+
+def _first_line(exc: Exception, limit: int = 200) -> str:
+    text = str(exc).strip().splitlines()
+    line = text[0] if text else ""
+    return line if len(line) <= limit else line[:limit - 3] + "..."
+
+
+#: Mesh formats that are text (STL only in its ASCII form).
+_TEXT_MESH_SUFFIXES = (".obj", ".off", ".stl")
+
+
+def _text_mesh_bytes(path: Path) -> bytes | None:
+    """The bytes to give trimesh for a text mesh file that is not UTF-8, re-encoded as
+    UTF-8 from Latin-1 (every byte is a Latin-1 character; the numbers and keywords are
+    ASCII either way), or None to let trimesh read the file itself. trimesh would guess
+    the encoding with the optional charset_normalizer package, and fail without it.
+    Raises ValueError for NUL bytes, which no text mesh holds."""
+    suffix = path.suffix.lower()
+    if suffix not in _TEXT_MESH_SUFFIXES:
+        return None
+    data = path.read_bytes()
+    if suffix == ".stl" and len(data) >= 84:
+        count = int.from_bytes(data[80:84], "little")
+        if len(data) == 84 + 50 * count:  # binary STL: trimesh reads it as is
+            return None
+    nul = data.find(b"\0")
+    if nul >= 0:
+        raise ValueError(f"is not a text {suffix[1:].upper()} file (a NUL byte at offset "
+                         f"{nul}; binary data?)")
+    try:
+        data.decode("utf-8")
+    except UnicodeDecodeError:
+        return data.decode("latin-1").encode("utf-8")
+    return None

@@ -53,8 +53,9 @@ def read_materials(fields: FieldReader, entries: list, carrier: float) -> Materi
             raise fields.err(f"{kp}.name", name,
                              "this name belongs to a built-in material; pick another name "
                              f"and write base = '{name}' to start from it")
-        table.index[name] = len(table.materials)
-        table.materials.append(_read_material(fields, tbl, kp, name, table, carrier))
+        material = _read_material(fields, tbl, kp, name, table, carrier)
+        table.index[name] = len(table.materials)  # only now: no entry is its own base
+        table.materials.append(material)
     table.user_names = list(table.index)
     return table
 
@@ -123,6 +124,9 @@ def _base_material(fields, tbl, kp, name, table: MaterialTable, carrier) -> Mate
     """A copy of an earlier user material or a built-in (the hint of an unknown base looks
     among the built-ins only)."""
     base_name = fields.get_str(tbl, "base", kp)
+    if base_name == name:
+        raise fields.err(f"{kp}.base", base_name, "a material cannot be its own base; name "
+                         "a built-in or an earlier [[materials]] entry")
     if base_name in table.index:
         base = table.materials[table.index[base_name]]
     else:
@@ -162,6 +166,10 @@ def _permittivity_material(fields, tbl, kp, name, carrier) -> Material:
     if "conductivity_s_m" in tbl:
         sigma = fields.get_float(tbl, "conductivity_s_m", kp, lo=0.0, unit="S/m")
         im -= conductivity_to_eps_imag(sigma, carrier)
+        if not math.isfinite(im):
+            raise fields.err(f"{kp}.conductivity_s_m", tbl["conductivity_s_m"],
+                             "so large that eps'' = sigma / (2 pi f eps0) overflows at the "
+                             "carrier; for a metal use pec = true")
     return Material(name, complex(re_, im), conductivity_s_m=sigma)
 
 

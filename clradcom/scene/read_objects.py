@@ -9,9 +9,10 @@ from pathlib import Path
 
 import numpy as np
 
-from clradcom.errors import SceneWarning
+from clradcom.errors import NOVALUE, SceneWarning
 from clradcom.geometry.triangles import triangle_double_areas
 from clradcom.scene.antenna import euler_deg_to_matrix
+from clradcom.scene.bounds import check_coordinates, check_speed
 from clradcom.scene.fields import FieldReader
 from clradcom.scene.read_geometry import MeshCache, read_object_geometry
 from clradcom.scene.read_materials import MaterialTable, material_index
@@ -53,14 +54,18 @@ def _read_object(fields, kp, tbl, seen, materials, carrier, base_dir, mesh_cache
     position = fields.get_vec3(tbl, "position", kp, default=(0.0, 0.0, 0.0), unit="m")
     rot_deg = fields.get_vec3(tbl, "rotation_deg", kp, default=(0.0, 0.0, 0.0), unit="deg")
     velocity = fields.get_vec3(tbl, "velocity", kp, default=(0.0, 0.0, 0.0), unit="m/s")
+    if "velocity" in tbl:
+        check_speed(fields, velocity, tbl["velocity"], f"{kp}.velocity")
     scale = _read_scale(fields, tbl, kp)
     drop = fields.get_bool(tbl, "drop_degenerate", kp, default=False)
     optics = fields.get_str(tbl, "optics", kp, default=None, choices=OPTICS)
 
     verts, faces, label = read_object_geometry(fields, tbl, kp, base_dir, mesh_cache)
     rotation = euler_deg_to_matrix(rot_deg)
-    world = (verts * scale) @ rotation.T + position
+    world = _world_vertices(fields, tbl, kp, verts, scale, rotation, position, label)
     tri = world[faces]  # (F,3,3)
+    if not drop:
+        _refuse_flattened(fields, tbl, kp, label, tri, verts[faces], scale)
     tri = drop_or_refuse_degenerate(fields, tri, kp, label, drop, tbl.get("mesh"))
     obj = SceneObject(
         name=name, mesh=label, material=mat, material_name=mat_name, position=position,
@@ -85,16 +90,64 @@ def _read_scale(fields, tbl, kp) -> np.ndarray:
     return scale
 
 
-def drop_or_refuse_degenerate(fields: FieldReader, tri, kp, label, drop, written=None):
-    """``tri`` without its degenerate (zero or sliver area) triangles when ``drop`` (with a
-    SceneWarning); otherwise the first one is refused, naming the mesh file (``written``,
-    as the scene file gives it) or the inline faces."""
+def _world_vertices(fields, tbl, kp, verts, scale, rotation, position, label):
+    """``R (s * v) + p``, refused (naming the key to blame) where the local vertices,
+    their scaling or their translation leave what float64 and the float32 kernels hold."""
+    if label.startswith("shape:"):
+        shape = label.removeprefix("shape:")
+        key = {"box": "extents", "plane": "size", "triangles": "vertices"}[shape]
+        check_coordinates(fields, verts, f"{kp}.{key}", tbl.get(key, NOVALUE),
+                          f"the {shape}")
+    else:
+        check_coordinates(fields, verts, f"{kp}.mesh", tbl.get("mesh"),
+                          f"mesh file {label}")
+    with np.errstate(over="ignore", invalid="ignore"):
+        scaled = verts * scale
+        check_coordinates(fields, scaled, f"{kp}.scale", tbl.get("scale", NOVALUE),
+                          "scale times the object's vertices")
+        world = scaled @ rotation.T + position
+    check_coordinates(fields, world, f"{kp}.position", tbl.get("position", NOVALUE),
+                      "position plus the rotated, scaled vertices")
+    return world
+
+
+def _degenerate(tri) -> np.ndarray:
+    """(F,) bool: 2 * area <= DEGENERATE_REL * (longest edge)^2."""
     e1 = tri[:, 1] - tri[:, 0]
     e2 = tri[:, 2] - tri[:, 0]
     e3 = tri[:, 2] - tri[:, 1]
     cross = triangle_double_areas(tri)  # 2 * area
     longest = np.max(np.stack([np.einsum("ij,ij->i", e, e) for e in (e1, e2, e3)]), axis=0)
-    bad = cross <= DEGENERATE_REL * longest
+    return cross <= DEGENERATE_REL * longest
+
+
+def _refuse_flattened(fields, tbl, kp, label, tri, local, scale) -> None:
+    """Refuse, naming ``scale`` or ``position``, the first degenerate world triangle that
+    is not degenerate as written: a tiny (or very uneven) scale flattened it, or float64
+    rounding far from the origin did. Triangles degenerate as written are left to
+    :func:`drop_or_refuse_degenerate`."""
+    bad = np.flatnonzero(_degenerate(tri))
+    if bad.size == 0:
+        return
+    j = int(bad[0])
+    if _degenerate(local[j:j + 1])[0]:
+        return
+    what = label if not label.startswith("shape:") else f"{kp} ({label})"
+    if _degenerate(local[j:j + 1] * scale)[0]:
+        raise fields.err(f"{kp}.scale", tbl.get("scale", NOVALUE),
+                         f"triangle {j} of {what} has an area but this scale flattens it "
+                         "to a degenerate one (or to nothing, below the smallest float)")
+    raise fields.err(f"{kp}.position", tbl.get("position", NOVALUE),
+                     f"triangle {j} of {what} has an area but is degenerate once moved "
+                     "this far from the origin (float64 rounding there is larger than the "
+                     "triangle); move the origin nearer to the scene")
+
+
+def drop_or_refuse_degenerate(fields: FieldReader, tri, kp, label, drop, written=None):
+    """``tri`` without its degenerate (zero or sliver area) triangles when ``drop`` (with a
+    SceneWarning); otherwise the first one is refused, naming the mesh file (``written``,
+    as the scene file gives it) or the inline faces."""
+    bad = _degenerate(tri)
     if not bad.any():
         return tri
     idx = np.flatnonzero(bad)

@@ -9,6 +9,7 @@ import numpy as np
 
 from clradcom.errors import SceneError
 from clradcom.scene.antenna import (
+    MAX_DIRECTIVITY,
     CosinePowerPattern,
     IsotropicPattern,
     Pattern,
@@ -16,7 +17,7 @@ from clradcom.scene.antenna import (
     load_pattern_file,
     polarization_jones,
 )
-from clradcom.scene.fields import FieldReader
+from clradcom.scene.fields import FieldReader, is_file
 
 __all__ = ["PATTERN_KEYS", "PATTERN_TYPES", "read_pattern", "read_polarization"]
 
@@ -101,13 +102,17 @@ def _sector_pattern(fields, spec, k, jones) -> SectorPattern:
                           lo_open=True, hi=360.0, unit="deg")
     el = fields.get_float(spec, "elevation_width_deg", k, default=180.0, lo=0.0,
                           lo_open=True, hi=180.0, unit="deg")
-    return SectorPattern(polarization=jones, azimuth_width_deg=az, elevation_width_deg=el)
+    try:
+        return SectorPattern(polarization=jones, azimuth_width_deg=az, elevation_width_deg=el)
+    except ValueError as exc:
+        raise fields.err(k, spec, str(exc)) from None
 
 
 def _cosine_pattern(fields, spec, k, jones) -> CosinePowerPattern:
     """From exactly one of ``q`` or ``half_power_beamwidth_deg``."""
     if ("q" in spec) == ("half_power_beamwidth_deg" in spec):
         raise fields.err(k, spec, "give exactly one of q or half_power_beamwidth_deg")
+    key = f"{k}.q" if "q" in spec else f"{k}.half_power_beamwidth_deg"
     if "q" in spec:
         q = fields.get_float(spec, "q", k, lo=0.0)
     else:
@@ -117,7 +122,14 @@ def _cosine_pattern(fields, spec, k, jones) -> CosinePowerPattern:
             raise fields.err(f"{k}.half_power_beamwidth_deg",
                              spec["half_power_beamwidth_deg"], "must be < 180")
         q = CosinePowerPattern.q_from_beamwidth(hp)
-    return CosinePowerPattern(polarization=jones, q=q)
+        if 2.0 * (q + 1.0) > MAX_DIRECTIVITY:  # q is inf where cos(hp/2) rounds to 1
+            raise fields.err(key, spec["half_power_beamwidth_deg"],
+                             f"so narrow a beam has a peak directivity 2 (q + 1) above "
+                             f"{MAX_DIRECTIVITY:g} (120 dBi), beyond any antenna")
+    try:
+        return CosinePowerPattern(polarization=jones, q=q)
+    except ValueError as exc:
+        raise fields.err(key, spec[key.rsplit(".", 1)[1]], str(exc)) from None
 
 
 def _file_pattern(fields, spec, k, polarization, base_dir) -> Pattern:
@@ -125,7 +137,7 @@ def _file_pattern(fields, spec, k, polarization, base_dir) -> Pattern:
     rel = fields.get_str(spec, "path", k)
     normalize = fields.get_bool(spec, "normalize", k, default=True)
     path = base_dir / rel
-    if not path.is_file():
+    if not is_file(path):
         raise fields.err(f"{k}.path", rel, f"pattern file not found (looked for {path})")
     try:
         return load_pattern_file(path, polarization=polarization, normalize=normalize)

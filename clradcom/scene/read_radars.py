@@ -10,6 +10,12 @@ from pathlib import Path
 import numpy as np
 
 from clradcom.scene.antenna import euler_deg_to_matrix
+from clradcom.scene.bounds import (
+    NOISE_FIGURE_MAX_DB,
+    TX_POWER_MAX_W,
+    check_coordinates,
+    check_speed,
+)
 from clradcom.scene.fields import FieldReader
 from clradcom.scene.read_patterns import read_pattern
 from clradcom.scene.records import ROLES, Radar, SceneObject
@@ -46,9 +52,25 @@ def _read_radar(fields, kp, tbl, seen, objects, base_dir) -> Radar:
         position = pos_local
         orientation = r_local
         velocity = fields.get_vec3(tbl, "velocity", kp, default=(0.0, 0.0, 0.0), unit="m/s")
+        if "velocity" in tbl:
+            check_speed(fields, velocity, tbl["velocity"], f"{kp}.velocity")
+    check_coordinates(fields, position[None, :], f"{kp}.position", tbl["position"],
+                      "the radar's position" + (" on its object" if rides >= 0 else ""))
     role = fields.get_str(tbl, "role", kp, default="txrx", choices=ROLES)
     power = fields.get_float(tbl, "tx_power_w", kp, default=1.0, lo=0.0, unit="W")
+    if power > TX_POWER_MAX_W:
+        raise fields.err(f"{kp}.tx_power_w", tbl["tx_power_w"],
+                         f"must be <= {TX_POWER_MAX_W:g} W (a terawatt, far above any "
+                         "transmitter built)")
     nf = fields.get_float(tbl, "noise_figure_db", kp, default=None, unit="dB")
+    if nf is not None and nf < 0:
+        raise fields.err(f"{kp}.noise_figure_db", tbl["noise_figure_db"],
+                         "must be >= 0 dB: a noise figure F = SNR_in / SNR_out is at "
+                         "least 1 (0 dB, a noiseless receiver) by definition")
+    if nf is not None and nf > NOISE_FIGURE_MAX_DB:
+        raise fields.err(f"{kp}.noise_figure_db", tbl["noise_figure_db"],
+                         f"must be <= {NOISE_FIGURE_MAX_DB:g} dB (real receivers have "
+                         "0-20 dB)")
     pattern, pol, pol_name = read_pattern(fields, tbl, kp, base_dir)
     return Radar(
         name=name, position=np.asarray(position, dtype=np.float64), rides_on=rides,

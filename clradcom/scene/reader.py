@@ -29,14 +29,16 @@ the object's velocity.
 
 from __future__ import annotations
 
+import os
 import re
 import tomllib
 from pathlib import Path
 
 import numpy as np
 
-from clradcom.errors import SceneError
-from clradcom.scene.fields import REQUIRED, FieldReader
+from clradcom.errors import ArgumentTypeError, SceneError
+from clradcom.scene.bounds import check_carrier, warn_far_geometry, warn_speeds
+from clradcom.scene.fields import REQUIRED, FieldReader, is_file
 from clradcom.scene.read_geometry import MESH_SUFFIXES, SHAPES
 from clradcom.scene.read_materials import read_materials
 from clradcom.scene.read_objects import read_objects
@@ -51,9 +53,10 @@ SCENE_KEYS = ("name", "carrier_hz", "description")
 
 def load_scene(path) -> Scene:
     """Read and validate a TOML scene file; mesh and pattern paths are relative
-    to the scene file's folder.  Raises :class:`SceneError` on any bad input."""
-    path = Path(path)
-    if not path.is_file():
+    to the scene file's folder.  Raises :class:`SceneError` on any bad input
+    (:class:`~clradcom.errors.ArgumentTypeError` when ``path`` is not a path)."""
+    path = _path_argument(path, "path")
+    if not is_file(path):
         raise SceneError("scene file not found", file=path)
     try:
         text = path.read_text(encoding="utf-8")
@@ -66,12 +69,18 @@ def load_scene(path) -> Scene:
         m = re.search(r"at line (\d+)", msg)
         line = int(m.group(1)) if m else None
         raise SceneError(f"TOML syntax error: {msg}", file=path, line=line) from None
+    except RecursionError:
+        raise SceneError("TOML nested too deeply (arrays or tables inside each other "
+                         "hundreds of levels deep)", file=path) from None
+    except ValueError as exc:  # e.g. an integer of more than 4300 digits
+        raise SceneError(f"TOML value refused: {exc}", file=path) from None
     return scene_from_dict(data, file=path, base_dir=path.parent)
 
 
 def scene_from_dict(data: dict, *, file="<dict>", base_dir=".") -> Scene:
     """Build a :class:`Scene` from an already parsed TOML document (a dict)."""
-    file = Path(file) if not isinstance(file, Path) else file
+    file = _path_argument(file, "file")
+    base_dir = _path_argument(base_dir, "base_dir")
     fields = FieldReader(file)
     if not isinstance(data, dict):
         raise fields.err(None, data, "scene document must be a table")
@@ -79,11 +88,46 @@ def scene_from_dict(data: dict, *, file="<dict>", base_dir=".") -> Scene:
     name, description, carrier = _read_scene_table(fields, data)
     materials = read_materials(fields, fields.array_of_tables(data, "materials"), carrier)
     objects, triangles = read_objects(fields, fields.array_of_tables(data, "objects"),
-                                      materials, carrier, Path(base_dir))
-    radars = read_radars(fields, fields.array_of_tables(data, "radars"), objects,
-                         Path(base_dir))
+                                      materials, carrier, base_dir)
+    radars = read_radars(fields, fields.array_of_tables(data, "radars"), objects, base_dir)
+    _warn_out_of_range(fields, carrier, objects, triangles, radars)
     return _assemble_scene(file, name, description, carrier, materials.materials, objects,
                            triangles, radars)
+
+
+def _path_argument(value, argument: str) -> Path:
+    """``value`` as a Path; anything but a str or os.PathLike is an ArgumentTypeError."""
+    if isinstance(value, Path):
+        return value
+    if not isinstance(value, str | os.PathLike):
+        raise ArgumentTypeError(f"must be a str or os.PathLike path, got "
+                                f"{type(value).__name__}", argument=argument, value=value)
+    try:
+        return Path(value)
+    except TypeError:  # an os.PathLike whose __fspath__ gives bytes
+        raise ArgumentTypeError("must be a str path", argument=argument,
+                                value=value) from None
+
+
+def _warn_out_of_range(fields: FieldReader, carrier: float, objects: list[SceneObject],
+                       tris: list[np.ndarray], radars: list[Radar]) -> None:
+    """The warnings of docs/scene-format.md "Physical bounds" about speeds and geometry
+    far from the origin, once per scene (the carrier warns where it is read)."""
+    speeds = [(f"objects[{i}].velocity", float(np.linalg.norm(o.velocity)))
+              for i, o in enumerate(objects)]
+    speeds += [(f"radars[{i}].velocity", float(np.linalg.norm(r.velocity)))
+               for i, r in enumerate(radars) if r.rides_on < 0]
+    warn_speeds(fields, speeds)
+    far, where = 0.0, ""
+    for i, t in enumerate(tris):
+        m = float(np.max(np.abs(t), initial=0.0))
+        if m > far:
+            far, where = m, f"objects[{i}]"
+    for i, r in enumerate(radars):
+        m = float(np.max(np.abs(r.position)))
+        if m > far:
+            far, where = m, f"radars[{i}].position"
+    warn_far_geometry(fields, far, carrier, where)
 
 
 def _read_scene_table(fields: FieldReader, data: dict) -> tuple[str, str, float]:
@@ -97,6 +141,7 @@ def _read_scene_table(fields: FieldReader, data: dict) -> tuple[str, str, float]
     name = fields.get_str(sc, "name", "scene", default=fields.file.stem)
     description = fields.get_str(sc, "description", "scene", default="")
     carrier = fields.get_float(sc, "carrier_hz", "scene", lo=0.0, lo_open=True, unit="Hz")
+    check_carrier(fields, sc["carrier_hz"], carrier, "scene.carrier_hz")
     return name, description, carrier
 
 
