@@ -398,6 +398,19 @@ def test_a_carrier_the_radar_cannot_use_is_refused_before_tracing(trace_tool, tm
     assert not (tmp_path / "o").exists()
 
 
+def test_a_carrier_below_half_the_bandwidth_is_refused_before_tracing(
+        trace_tool, tmp_path, monkeypatch, capsys):
+    """10 MHz is a radio carrier the scene accepts (with a warning), but the paper's frame
+    spans 93 MHz: the radar stage refuses it before anything is traced."""
+    scene = plate_with(tmp_path, "carrier_hz = 1e7")
+    monkeypatch.setattr(trace_tool, "trace_scene", never)
+    with pytest.warns(UserWarning, match="carrier"):
+        assert run_trace(trace_tool, tmp_path / "o", scene=scene) == 2
+    err = capsys.readouterr().err
+    assert "carrier_hz = 10000000.0: the radar's carrier must exceed half the bandwidth" in err
+    assert not (tmp_path / "o").exists()
+
+
 def test_a_noise_figure_below_0_db_is_refused_before_tracing(trace_tool, tmp_path,
                                                              monkeypatch, capsys):
     scene = plate_with(tmp_path, "noise_figure_db = -1.0")
