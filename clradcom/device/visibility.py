@@ -314,6 +314,20 @@ def segments_clear(caster: RayCaster, tri_face, start, end, tmin, tmax) -> np.nd
     return ~blocked
 
 
+def antenna_ends_blocked(caster: RayCaster, tri_face, start, end, *, at_tx: bool,
+                         at_rx: bool) -> np.ndarray:
+    """(S,) bool: the float64 millimetre next to the transmitter (``start``, when the
+    segments leave it) or the receiver (``end``, when they reach it) is blocked
+    (:func:`antenna_blocked` over twice :func:`confirm_margin_m`)."""
+    blocked = np.zeros(len(end), dtype=bool)
+    if at_rx:
+        blocked |= antenna_blocked(caster, tri_face, end, start, 2.0 * confirm_margin_m(end))
+    if at_tx:
+        blocked |= antenna_blocked(caster, tri_face, start, end,
+                                   2.0 * confirm_margin_m(start))
+    return blocked
+
+
 def confirm_paths(caster: RayCaster, tri_face, face_normals, points: np.ndarray,
                   seqs: np.ndarray, ok: np.ndarray | None = None):
     """Mask of candidate paths whose every segment is confirmed by a ray cast.
@@ -355,11 +369,7 @@ def confirm_paths(caster: RayCaster, tri_face, face_normals, points: np.ndarray,
             triangles[idx, i] = tri
         else:
             good = segments_clear(caster, tri_face, start, end, tmin, 1.0 - slack) & (length > 0)
-            good &= ~antenna_blocked(caster, tri_face, end, start,
-                                     2.0 * confirm_margin_m(end))
-        if i == 0:
-            good &= ~antenna_blocked(caster, tri_face, start, end,
-                                     2.0 * confirm_margin_m(start))
+        good &= ~antenna_ends_blocked(caster, tri_face, start, end, at_tx=i == 0, at_rx=i == k)
         keep[idx[~good]] = False
         idx = idx[good]
     triangles[~keep] = -1

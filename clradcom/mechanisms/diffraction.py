@@ -39,9 +39,8 @@ from scipy.spatial import cKDTree
 
 from clradcom.device.raycast import make_rays, spawn_origins
 from clradcom.device.visibility import (
-    antenna_blocked,
+    antenna_ends_blocked,
     antenna_slack,
-    confirm_margin_m,
     confirm_slack,
     containing_triangles,
     edge_distances,
@@ -345,12 +344,7 @@ def confirm_chains(caster, tri_face, face_normal, chains: Chains, points, ok=Non
         else:
             stop = EDGE_CLEARANCE_M / np.maximum(length, 1e-12) if i < K else slack
             good = segments_clear(caster, tri_face, start, end, tmin, 1.0 - stop) & (length > 0)
-        if i == K:  # reaching the receiver
-            good &= ~antenna_blocked(caster, tri_face, end, start,
-                                     2.0 * confirm_margin_m(end))
-        if i == 0:
-            good &= ~antenna_blocked(caster, tri_face, start, end,
-                                     2.0 * confirm_margin_m(start))
+        good &= ~antenna_ends_blocked(caster, tri_face, start, end, at_tx=i == 0, at_rx=i == K)
         keep[idx[~good]] = False
         idx = idx[good]
     triangles[~keep] = -1
