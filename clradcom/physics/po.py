@@ -1,14 +1,13 @@
 """Physical-optics (PO) radiation integrals of flat triangles and their facet fields.
 
-A pure GO / image-method tracer sees a faceted body only where some facet's
-normal points exactly at the specular direction, so a monostatic radar misses
-almost every car facet.  Physical optics integrates the lit-side surface current
-of each facet instead, which gives every lit facet a (usually small) return with
-the facet's own sinc-like lobe.  Two and more bounces (corners) are the job of
-:mod:`clradcom.mechanisms.sbr` (shooting and bouncing ray tubes with the same PO radiation
-integral).  docs/po.md gives the derivation and sources
-(Gordon 1975; Knott, Shaeffer & Tuley, *Radar Cross Section*; Balanis,
-*Advanced Engineering Electromagnetics*, ch. 11).
+Each lit facet radiates the surface current the incident wave induces on it; the
+integral over a flat triangle has a closed form (Gordon 1975), so a facet's return and
+its sinc-like lobe cost one evaluation. PEC facets carry J = 2 n x H_inc; penetrable
+ones the currents of the incident plus the Fresnel-reflected field. The mechanisms that
+use this are :mod:`clradcom.mechanisms.physical_optics` (one path per facet) and
+:mod:`clradcom.mechanisms.sbr` (ray-tube footprints); docs/po.md gives the derivation and
+sources (Knott, Shaeffer & Tuley, *Radar Cross Section*; Balanis, *Advanced Engineering
+Electromagnetics*).
 
 Conventions are those of :mod:`clradcom.physics.em` (time factor e^{+jwt}, field
 bookkeeping with a 3x3 transfer dyad T and the unfolded length L):
