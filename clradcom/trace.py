@@ -26,13 +26,14 @@ from dataclasses import dataclass, field
 
 from clradcom import __version__
 from clradcom.device.runtime import Runtime
-from clradcom.errors import ArgumentError, ArgumentTypeError, check_memory
+from clradcom.errors import ArgumentError, ArgumentTypeError
 from clradcom.mechanisms import diffraction, optics, scattering, specular
 from clradcom.mechanisms.common import build_geometry
 from clradcom.mechanisms.diffraction import DiffractionSettings
 from clradcom.mechanisms.optics import OpticsSettings
 from clradcom.mechanisms.scattering import ScatteringSettings
 from clradcom.mechanisms.specular import SpecularSettings
+from clradcom.memory import check_memory
 from clradcom.paths import concat_paths, select_paths
 from clradcom.scene.records import Scene
 from clradcom.snapshot import Link, Snapshot
@@ -151,7 +152,7 @@ def check_launch_memory(settings: TraceSettings, *, budget_bytes: float | None =
                         argument: str = "settings.specular.rays", value=None,
                         advice: str = "launch fewer rays") -> None:
     """Refuse, before tracing, settings whose ray launch exceeds the memory budget
-    (:func:`clradcom.errors.check_memory`: a share of physical memory, or
+    (:func:`clradcom.memory.check_memory`: a share of physical memory, or
     ``CLRADCOM_MEMORY_BUDGET``) with :class:`~clradcom.errors.MemoryBudgetError`;
     ``argument``/``value`` name what the caller lets the user change (``--rays``)."""
     spec = settings.specular

@@ -3,7 +3,7 @@ cycle, and no clradcom import hidden inside a function to get around either.
 
 Layers, low to high (a module may import its own layer and those below):
 
-    errors, files, the package root
+    errors, files, memory, the package root
     geometry, paths        plain numpy: triangles, faces, wedges, BVH and kernel layouts;
                            the in-memory paths
     scene                  records, reader, materials, antennas, procedural models
@@ -27,7 +27,7 @@ import pytest
 PACKAGE = Path(__file__).resolve().parents[1] / "clradcom"
 
 LAYERS = [
-    {"clradcom", "clradcom.errors", "clradcom.files"},
+    {"clradcom", "clradcom.errors", "clradcom.files", "clradcom.memory"},
     {"clradcom.geometry", "clradcom.paths"},
     {"clradcom.scene"},
     {"clradcom.device"},

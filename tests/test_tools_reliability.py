@@ -15,15 +15,10 @@ import pytest
 from tool_helpers import ROOT, load_tool
 
 import clradcom.trace as trace_module
-from clradcom.errors import (
-    ENV_MEMORY_BUDGET,
-    ArgumentError,
-    MemoryBudgetError,
-    check_memory,
-    memory_budget_bytes,
-)
+from clradcom.errors import ArgumentError, MemoryBudgetError
 from clradcom.evaluation import tradeoff as tr
 from clradcom.files import OutputError, staged_folder, write_csv
+from clradcom.memory import ENV_MEMORY_BUDGET, check_memory, memory_budget_bytes
 from clradcom.paths import Paths
 from clradcom.radar import Waveform
 from clradcom.radar.pipeline import check_frame_memory, frame_memory_bytes, process, radar_frame

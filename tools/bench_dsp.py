@@ -23,7 +23,7 @@ import tracemalloc
 import numpy as np
 
 from clradcom.cli import positive_int, run_tool, seed
-from clradcom.errors import check_memory
+from clradcom.memory import check_memory
 from clradcom.radar import (
     Waveform,
     detect,

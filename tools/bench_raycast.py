@@ -34,7 +34,7 @@ import numpy as np
 from clradcom.cli import positive_int, run_tool
 from clradcom.device.raycast import RayCaster, make_rays, spawn_origins
 from clradcom.device.runtime import get_runtime
-from clradcom.errors import check_memory
+from clradcom.memory import check_memory
 from clradcom.scene.models import street_triangles
 
 

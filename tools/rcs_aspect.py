@@ -38,7 +38,6 @@ import numpy as np
 
 from clradcom.cli import finite_float, output_folder, positive_float, run_tool
 from clradcom.device.runtime import get_runtime
-from clradcom.errors import check_memory
 from clradcom.evaluation.rcs import (
     MODELS,
     aspect_rcs,
@@ -49,6 +48,7 @@ from clradcom.evaluation.rcs import (
     write_rcs_csv,
 )
 from clradcom.files import staged_folder
+from clradcom.memory import check_memory
 
 #: the names this tool writes into its output folder (clradcom.files.staged_folder)
 OUTPUTS = ("rcs_aspect.csv", "rcs_aspect.png")

@@ -12,7 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from clradcom.errors import ArgumentError, check_memory
+from clradcom.errors import ArgumentError
+from clradcom.memory import check_memory
 from clradcom.radar import (
     Waveform,
     add_thermal_noise,
@@ -60,7 +61,7 @@ def check_frame_memory(waveform: Waveform, method: str = "fast", zero_pad=(2, 2)
                        value=None, advice: str = "choose fewer subcarriers or symbols",
                        copies: int = 1) -> None:
     """Refuse a frame (``copies`` of it held at once) whose estimate exceeds the memory
-    budget (:func:`clradcom.errors.check_memory`), before anything is allocated, with
+    budget (:func:`clradcom.memory.check_memory`), before anything is allocated, with
     :class:`~clradcom.errors.MemoryBudgetError` naming ``argument`` (default the
     waveform's N x M) and ``advice``."""
     need = copies * frame_memory_bytes(waveform, method, zero_pad)
