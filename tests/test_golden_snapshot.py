@@ -3,8 +3,8 @@ the snapshot the tracer wrote before the package was reorganised.
 
 ``tests/data/all_mechanisms_v1.npz`` was traced by commit 2a77dfd (the flat 27-module
 layout, snapshot format 1) from ``tests/data/all_mechanisms.toml`` with the settings
-below, on PoCL's CPU device. Gains, matrices, delays, Doppler shifts, points, object and
-face ids must match bit for bit; interaction codes too, once the physical-optics and
+below, on PoCL's CPU device (1 m scattering tiles keep the file small: 814 paths,
+208 KiB). Gains, matrices, delays, Doppler shifts, points, object and face ids must match bit for bit; interaction codes too, once the physical-optics and
 SBR codes that format 2 added are read as the REFLECTION that format 1 wrote for them.
 Kernels on another OpenCL device may propose other candidates in float32; this
 reference holds for the PoCL CPU device the suite runs on.
@@ -32,7 +32,8 @@ SETTINGS = TraceSettings(
     specular=SpecularSettings(max_reflections=3, rays=20_000),
     diffraction=DiffractionSettings(max_diffractions=2, max_reflections=1),
     optics=OpticsSettings(mode="sbr"),
-    scattering=ScatteringSettings(enabled=True, max_reflections=1, floor=1e-11),
+    scattering=ScatteringSettings(enabled=True, max_reflections=1, tile_size_m=1.0,
+                                  floor=1e-11),
 )
 EXACT_FIELDS = ("gain", "matrix", "delay_s", "doppler_hz", "n_interactions", "points",
                 "object_id", "face_id")
