@@ -4,10 +4,11 @@ the snapshot the tracer wrote before the package was reorganised.
 ``tests/data/all_mechanisms_v1.npz`` was traced by commit 2a77dfd (the flat 27-module
 layout, snapshot format 1) from ``tests/data/all_mechanisms.toml`` with the settings
 below, on PoCL's CPU device (1 m scattering tiles keep the file small: 814 paths,
-208 KiB). Gains, matrices, delays, Doppler shifts, points, object and face ids must match bit for bit; interaction codes too, once the physical-optics and
-SBR codes that format 2 added are read as the REFLECTION that format 1 wrote for them.
-Kernels on another OpenCL device may propose other candidates in float32; this
-reference holds for the PoCL CPU device the suite runs on.
+208 KiB). Gains, matrices, delays, Doppler shifts, points, object and face ids must
+match bit for bit; interaction codes too, once the physical-optics and SBR codes that
+format 2 added are read as the REFLECTION that format 1 wrote for them. Kernels on
+another OpenCL device may propose other candidates in float32; this reference holds for
+the PoCL CPU device the suite runs on.
 """
 
 from pathlib import Path
