@@ -328,6 +328,25 @@ def antenna_ends_blocked(caster: RayCaster, tri_face, start, end, *, at_tx: bool
     return blocked
 
 
+def confirm_segments(caster: RayCaster, tri_face, start, end, length, *, face, tmin, stop,
+                     at_tx: bool, at_rx: bool):
+    """One step of a path's confirmation for segments start -> end (their unmoved
+    ``length``): (good (S,) bool, triangle (S,) int32 or None).
+
+    With ``face`` (S,) the segment must reach that face (:func:`reaches_face`, the
+    triangle it meets there returned); without, nothing may block it between the
+    fractions ``tmin`` and 1 - ``stop`` (:func:`segments_clear`). The antenna ends are
+    decided in float64 (:func:`antenna_ends_blocked`)."""
+    if face is not None:
+        tri = reaches_face(caster, tri_face, start, end, face, stop, tmin)
+        good = tri >= 0
+    else:
+        tri = None
+        good = segments_clear(caster, tri_face, start, end, tmin, 1.0 - stop) & (length > 0)
+    good &= ~antenna_ends_blocked(caster, tri_face, start, end, at_tx=at_tx, at_rx=at_rx)
+    return good, tri
+
+
 def confirm_paths(caster: RayCaster, tri_face, face_normals, points: np.ndarray,
                   seqs: np.ndarray, ok: np.ndarray | None = None):
     """Mask of candidate paths whose every segment is confirmed by a ray cast.
@@ -362,14 +381,12 @@ def confirm_paths(caster: RayCaster, tri_face, face_normals, points: np.ndarray,
             tmin = 0.0
         else:  # leaving the transmitter
             tmin = antenna_slack(start, length)
-        slack = confirm_slack(end, length)
+        good, tri = confirm_segments(caster, tri_face, start, end, length,
+                                     face=seqs[idx, i] if i < k else None, tmin=tmin,
+                                     stop=confirm_slack(end, length), at_tx=i == 0,
+                                     at_rx=i == k)
         if i < k:
-            tri = reaches_face(caster, tri_face, start, end, seqs[idx, i], slack, tmin)
-            good = tri >= 0
             triangles[idx, i] = tri
-        else:
-            good = segments_clear(caster, tri_face, start, end, tmin, 1.0 - slack) & (length > 0)
-        good &= ~antenna_ends_blocked(caster, tri_face, start, end, at_tx=i == 0, at_rx=i == k)
         keep[idx[~good]] = False
         idx = idx[good]
     triangles[~keep] = -1

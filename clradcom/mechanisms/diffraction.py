@@ -39,13 +39,11 @@ from scipy.spatial import cKDTree
 
 from clradcom.device.raycast import make_rays, spawn_origins
 from clradcom.device.visibility import (
-    antenna_ends_blocked,
     antenna_slack,
+    confirm_segments,
     confirm_slack,
     containing_triangles,
     edge_distances,
-    reaches_face,
-    segments_clear,
 )
 from clradcom.errors import ArgumentError, BoundaryWarning, CausticWarning
 from clradcom.geometry.wedges import (
@@ -336,15 +334,15 @@ def confirm_chains(caster, tri_face, face_normal, chains: Chains, points, ok=Non
             tmin = EDGE_CLEARANCE_M / np.maximum(length, 1e-12)
         if i < K and pattern[i] == DIFFRACTION:
             end = end + EDGE_LIFT_M * lift_direction(wedges, elem[idx, i], -seg)
-        slack = confirm_slack(end, length)
-        if i < K and pattern[i] == REFLECTION:
-            tri = reaches_face(caster, tri_face, start, end, elem[idx, i], slack, tmin)
-            good = tri >= 0
+        to_face = i < K and pattern[i] == REFLECTION
+        to_edge = i < K and pattern[i] == DIFFRACTION
+        stop = (EDGE_CLEARANCE_M / np.maximum(length, 1e-12) if to_edge
+                else confirm_slack(end, length))
+        good, tri = confirm_segments(caster, tri_face, start, end, length,
+                                     face=elem[idx, i] if to_face else None, tmin=tmin,
+                                     stop=stop, at_tx=i == 0, at_rx=i == K)
+        if to_face:
             triangles[idx, i] = tri
-        else:
-            stop = EDGE_CLEARANCE_M / np.maximum(length, 1e-12) if i < K else slack
-            good = segments_clear(caster, tri_face, start, end, tmin, 1.0 - stop) & (length > 0)
-        good &= ~antenna_ends_blocked(caster, tri_face, start, end, at_tx=i == 0, at_rx=i == K)
         keep[idx[~good]] = False
         idx = idx[good]
     triangles[~keep] = -1
