@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from clradcom.paths import Paths
 from clradcom.radar import Waveform
 
 
@@ -43,3 +44,14 @@ def dirichlet(eps: float, n: int) -> complex:
         return 1.0 + 0j
     return np.exp(1j * np.pi * eps * (n - 1) / n) * np.sin(np.pi * eps) / (
         n * np.sin(np.pi * eps / n))
+
+
+def los_paths(gains, delays, dopplers) -> Paths:
+    """Paths with given gains, delays and Doppler shifts and no interactions (direct
+    paths), for feeding the radar chain without a tracer."""
+    p = len(gains)
+    return Paths(gain=np.asarray(gains, complex), matrix=np.zeros((p, 2, 2), complex),
+                 delay_s=np.asarray(delays, float), doppler_hz=np.asarray(dopplers, float),
+                 n_interactions=np.zeros(p, np.int16), interaction=np.zeros((p, 0), np.int8),
+                 points=np.zeros((p, 2, 3)), object_id=np.zeros((p, 0), np.int32),
+                 face_id=np.zeros((p, 0), np.int32))

@@ -24,7 +24,7 @@ from clradcom.radar import (
 from clradcom.radar import interference as itf
 from clradcom.radar.processing import get_window
 from clradcom.radar.waveform import SPEED_OF_LIGHT
-from tests.dsp_helpers import dirichlet
+from tests.dsp_helpers import dirichlet, los_paths
 
 N, M = 256, 64
 WF = Waveform(n_subcarriers=N, n_symbols=M)
@@ -419,23 +419,12 @@ def _tool():
     return load_tool("interference")
 
 
-def _los_paths(gains, delays, dopplers):
-    from clradcom.paths import Paths
-
-    p = len(gains)
-    return Paths(gain=np.asarray(gains, complex), matrix=np.zeros((p, 2, 2), complex),
-                 delay_s=np.asarray(delays, float), doppler_hz=np.asarray(dopplers, float),
-                 n_interactions=np.zeros(p, np.int16), interaction=np.zeros((p, 0), np.int8),
-                 points=np.zeros((p, 2, 3)), object_id=np.zeros((p, 0), np.int32),
-                 face_id=np.zeros((p, 0), np.int32))
-
-
 def test_tool_on_a_snapshot_writes_the_picture_and_recovers_the_detections(tmp_path, capsys):
     from clradcom.snapshot import Link, Snapshot, save_snapshot
 
     snap = Snapshot("two_radars", 24e9, "", links=(
-        Link("A", "A", 0, 0, _los_paths(OWN_G, OWN_T, OWN_F)),
-        Link("D", "A", 1, 0, _los_paths(D_G, D_T, D_F)),
+        Link("A", "A", 0, 0, los_paths(OWN_G, OWN_T, OWN_F)),
+        Link("D", "A", 1, 0, los_paths(D_G, D_T, D_F)),
     ))
     save_snapshot(tmp_path / "snapshot.npz", snap)
     out = tmp_path / "out"

@@ -10,8 +10,8 @@ import errno
 import os
 from pathlib import Path
 
-import numpy as np
 import pytest
+from dsp_helpers import los_paths
 from tool_helpers import ROOT, load_tool
 
 import clradcom.trace as trace_module
@@ -19,7 +19,6 @@ from clradcom.errors import ArgumentError, MemoryBudgetError
 from clradcom.evaluation import tradeoff as tr
 from clradcom.files import OutputError, staged_folder, write_csv
 from clradcom.memory import ENV_MEMORY_BUDGET, check_memory, memory_budget_bytes
-from clradcom.paths import Paths
 from clradcom.radar import Waveform
 from clradcom.radar.pipeline import check_frame_memory, frame_memory_bytes, process, radar_frame
 from clradcom.radar.plots import plot_radar_image, save_radar_image
@@ -341,7 +340,7 @@ def test_a_frame_too_large_is_refused_before_tracing(tradeoff_tool, tmp_path, mo
     assert "choose fewer --subcarriers or --symbols" in err
     wf = Waveform(n_symbols=100_000_000)
     with pytest.raises(MemoryBudgetError, match="N x M = 1024 x 100000000"):
-        radar_frame(paths_of([1e-3], [1e-7], [0.0]), wf)
+        radar_frame(los_paths([1e-3], [1e-7], [0.0]), wf)
 
 
 def test_memory_estimates_and_the_budget(monkeypatch):
@@ -367,8 +366,8 @@ def test_subcarriers_that_break_the_cyclic_prefix_name_the_option(interference_t
                                                                   capsys):
     snap = tmp_path / "s.npz"
     save_snapshot(snap, Snapshot("two", 24e9, "", links=(
-        Link("A", "A", 0, 0, paths_of([1e-4], [1e-7], [0.0])),
-        Link("D", "A", 1, 0, paths_of([1e-5], [2e-7], [100.0])))))
+        Link("A", "A", 0, 0, los_paths([1e-4], [1e-7], [0.0])),
+        Link("D", "A", 1, 0, los_paths([1e-5], [2e-7], [100.0])))))
     assert interference_tool.main(["--snapshot", str(snap), "--out", str(tmp_path / "o"),
                                    "--subcarriers", "100", "--symbols", "16"]) == 2
     err = capsys.readouterr().err
@@ -417,7 +416,7 @@ def test_a_noise_figure_below_0_db_is_refused_before_tracing(trace_tool, tmp_pat
     with pytest.raises(ArgumentError, match="noise_figure_db = -1"):
         thermal_noise_power(1e6, -1.0)
     with pytest.raises(ArgumentError, match="noise_figure_db = -0.5"):
-        radar_frame(paths_of([1e-3], [1e-7], [0.0]), Waveform(n_subcarriers=64, n_symbols=8),
+        radar_frame(los_paths([1e-3], [1e-7], [0.0]), Waveform(n_subcarriers=64, n_symbols=8),
                     tx_power_w=1.0, noise_figure_db=-0.5)
     assert thermal_noise_power(1e6, 0.0) > 0
 
@@ -446,18 +445,9 @@ def test_identical_trace_runs_write_identical_files(trace_tool, tmp_path):
     assert a == b
 
 
-def paths_of(gains, delays, dopplers) -> Paths:
-    p = len(gains)
-    return Paths(gain=np.asarray(gains, complex), matrix=np.zeros((p, 2, 2), complex),
-                 delay_s=np.asarray(delays, float), doppler_hz=np.asarray(dopplers, float),
-                 n_interactions=np.zeros(p, np.int16), interaction=np.zeros((p, 0), np.int8),
-                 points=np.zeros((p, 2, 3)), object_id=np.zeros((p, 0), np.int32),
-                 face_id=np.zeros((p, 0), np.int32))
-
-
 def test_radar_images_are_byte_identical_and_refuse_bad_limits(tmp_path):
     wf = Waveform(n_subcarriers=128, n_symbols=32)
-    D, Dr = radar_frame(paths_of([1e-3], [2e-7], [300.0]), wf, tx_power_w=0.01,
+    D, Dr = radar_frame(los_paths([1e-3], [2e-7], [300.0]), wf, tx_power_w=0.01,
                         noise_figure_db=10.0)
     image, dets = process(D, Dr, wf)
     for stem in ("a", "b"):
@@ -471,7 +461,7 @@ def test_radar_images_are_byte_identical_and_refuse_bad_limits(tmp_path):
     with pytest.raises(ArgumentError, match="carrier_hz = 1.0: must exceed half the bandwidth"):
         Waveform(carrier_hz=1.0)
     with pytest.raises(ArgumentError, match="method = 'slow'"):
-        radar_frame(paths_of([1e-3], [2e-7], [0.0]), wf, method="slow")
+        radar_frame(los_paths([1e-3], [2e-7], [0.0]), wf, method="slow")
 
 
 TWO_RADARS = """
