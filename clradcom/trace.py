@@ -28,7 +28,7 @@ from clradcom import __version__
 from clradcom.device.runtime import Runtime
 from clradcom.errors import ArgumentError, ArgumentTypeError
 from clradcom.mechanisms import diffraction, optics, scattering, specular
-from clradcom.mechanisms.common import build_geometry
+from clradcom.mechanisms.common import ENGINES, build_geometry
 from clradcom.mechanisms.diffraction import DiffractionSettings
 from clradcom.mechanisms.optics import OpticsSettings
 from clradcom.mechanisms.scattering import ScatteringSettings
@@ -55,8 +55,13 @@ class TraceSettings:
     diffraction: DiffractionSettings = field(default_factory=DiffractionSettings)
     optics: OpticsSettings = field(default_factory=OpticsSettings)
     scattering: ScatteringSettings = field(default_factory=ScatteringSettings)
+    #: "device": interactions resolved in OpenCL kernels; "host": the numpy reference
+    engine: str = "device"
 
     def __post_init__(self):
+        if self.engine not in ENGINES:
+            raise ArgumentError(f"must be one of {', '.join(ENGINES)}",
+                                argument="TraceSettings.engine", value=self.engine)
         for name, kind in (("specular", SpecularSettings),
                            ("diffraction", DiffractionSettings),
                            ("optics", OpticsSettings), ("scattering", ScatteringSettings)):
@@ -81,10 +86,14 @@ class TraceSettings:
         return dataclasses.replace(self.optics, max_bounces=self.specular.max_reflections)
 
     def replace(self, **changes) -> TraceSettings:
-        """A copy with fields of the nested settings changed, named ``mechanism__field``:
-        ``settings.replace(specular__rays=10_000, scattering__enabled=True)``."""
+        """A copy with fields of the nested settings changed, named ``mechanism__field``
+        (and ``engine``): ``settings.replace(specular__rays=10_000, engine="host")``."""
         parts: dict[str, dict] = {}
+        top = {}
         for key, value in changes.items():
+            if key == "engine":
+                top[key] = value
+                continue
             mechanism, sep, name = key.partition("__")
             if not sep or mechanism not in ("specular", "diffraction", "optics",
                                             "scattering"):
@@ -92,14 +101,17 @@ class TraceSettings:
                                         "(specular, diffraction, optics, scattering)",
                                         argument=key)
             parts.setdefault(mechanism, {})[name] = value
-        return dataclasses.replace(self, **{
+        return dataclasses.replace(self, **top, **{
             m: dataclasses.replace(getattr(self, m), **kw) for m, kw in parts.items()})
 
     def metadata(self) -> dict:
-        """Every setting as ``settings.<mechanism>.<field>`` -> value (None left out)."""
-        return {f"settings.{m}.{k}": v for m in ("specular", "diffraction", "optics",
-                                                 "scattering")
-                for k, v in dataclasses.asdict(getattr(self, m)).items() if v is not None}
+        """Every setting as ``settings.<mechanism>.<field>`` -> value (None left out), and
+        ``settings.engine``."""
+        out = {f"settings.{m}.{k}": v for m in ("specular", "diffraction", "optics",
+                                                "scattering")
+               for k, v in dataclasses.asdict(getattr(self, m)).items() if v is not None}
+        out["settings.engine"] = self.engine
+        return out
 
 
 @dataclass
@@ -203,7 +215,7 @@ def trace_scene(scene: Scene, settings: TraceSettings | None = None,
     diff = settings.diffraction_search
 
     with clock("geometry"):
-        geom = build_geometry(scene, runtime)
+        geom = build_geometry(scene, runtime, engine=settings.engine)
     with clock("wedges"):
         wedges = diffraction.prepare(geom, diff)
     use_optics = optics.active(scene, opt)

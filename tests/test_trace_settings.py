@@ -115,7 +115,8 @@ def test_metadata_names_every_setting_by_mechanism():
                                ("optics", OpticsSettings), ("scattering", ScatteringSettings))
                 for f in dataclasses.fields(cls)}
     # None means "follow another setting" and is left out
-    assert set(meta) == expected - {"settings.optics.max_bounces"}
+    assert set(meta) == (expected - {"settings.optics.max_bounces"}) | {"settings.engine"}
+    assert meta["settings.engine"] == "device"
     assert meta["settings.specular.rays"] == 10_000
     assert meta["settings.diffraction.max_reflections"] == 1
     assert meta["settings.optics.mode"] == "pec"
@@ -130,3 +131,10 @@ def test_optics_search_follows_the_specular_depth_unless_set():
     own = base.replace(optics__max_bounces=2)
     assert own.optics_search.max_bounces == 2
     assert own.optics_search is own.optics
+
+
+def test_engine_is_checked_and_replaceable():
+    assert BASE.replace(engine="host").engine == "host"
+    assert BASE.replace(engine="host").specular == BASE.specular
+    with pytest.raises(ValueError, match="TraceSettings.engine.*'gpu'"):
+        TraceSettings(engine="gpu")

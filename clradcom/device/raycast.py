@@ -122,6 +122,7 @@ class RayCaster:
         self._lock = threading.Lock()
         self._buffers: dict[str, tuple[int, object]] = {}
         self._bounds: tuple[np.ndarray, np.ndarray] | None = None
+        self._data64: dict | None = None
         # PoCL's CPU device uses USE_HOST_PTR memory in place (5% of the end-to-end
         # time saved on 500k rays); other devices get reused buffers and copies.
         self._zero_copy = rt.info.device_type == "CPU"
@@ -183,6 +184,46 @@ class RayCaster:
             else:
                 cl.enqueue_copy(rt.queue, out, out_buf, is_blocking=True)
         return out
+
+    def run_kernel(self, source: str, kernel_name: str, global_size: int, *args,
+                   defines=None, local_size: int | None = None) -> None:
+        """Launch ``kernel_name`` of ``kernels/<source>`` over ``global_size`` work items
+        (rounded up to whole work-groups: the kernel ignores the items past its own
+        count) with the BVH buffers first: ``(nodes, tri4, slot_prim, *args)``.
+
+        The driver for every kernel family that traverses this caster's BVH (SBR tubes,
+        scattering tiles, batched visibility): builds get :data:`KERNEL_DEFINES` plus
+        ``defines``; calls are serialised by the caster's lock and finish before return.
+        """
+        if global_size <= 0:
+            return
+        rt = self.runtime
+        kernel = rt.kernel(source, kernel_name, defines={**KERNEL_DEFINES, **(defines or {})})
+        local = local_size or self.LOCAL_SIZE
+        with self._lock:
+            kernel(rt.queue, (-(-int(global_size) // local) * local,), (local,), self._nodes,
+                   self._tri4, self._slot_prim, *args)
+            rt.queue.finish()
+
+    def scene_data64(self) -> dict:
+        """Device buffers of the triangles in float64, uploaded once: ``vertices`` (T*9
+        doubles, v0 v1 v2 per triangle) and ``normals`` (T*3 doubles, the host's
+        :func:`clradcom.geometry.triangles.triangle_normals`, so a kernel's exact plane
+        hits agree with the host's). Needs a device with fp64."""
+        if self._data64 is None:
+            from clradcom.geometry.triangles import triangle_normals
+
+            if not self.runtime.info.has_double:
+                raise ArgumentError("this OpenCL device has no fp64; float64 scene data "
+                                    "needs one", argument="device",
+                                    value=self.runtime.info.device_name.strip())
+            rt = self.runtime
+            self._data64 = {
+                "vertices": rt.to_device(np.ascontiguousarray(self.triangles, np.float64)),
+                "normals": rt.to_device(np.ascontiguousarray(
+                    triangle_normals(self.triangles), np.float64)),
+            }
+        return self._data64
 
     def triangle_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """(lo, hi): the (T, 3) float64 corners of every triangle's box, computed once."""

@@ -25,7 +25,11 @@ from clradcom.errors import ArgumentError
 from clradcom.geometry.faces import Faces, merge_coplanar
 from clradcom.scene.records import Radar, Scene
 
-__all__ = ["Geometry", "build_geometry", "check_number", "seen_by_antennas"]
+__all__ = ["ENGINES", "Geometry", "build_geometry", "check_number", "seen_by_antennas"]
+
+#: How the interactions are resolved: "device" in OpenCL kernels (the default), "host" in
+#: numpy over ray casts (the reference the device engine is tested against).
+ENGINES = ("device", "host")
 
 
 @dataclass
@@ -36,14 +40,19 @@ class Geometry:
     faces: Faces
     caster: RayCaster | None  # None for a scene without triangles (free space)
     runtime: Runtime
+    engine: str = "device"  # one of ENGINES
 
 
-def build_geometry(scene: Scene, runtime: Runtime | None = None) -> Geometry:
+def build_geometry(scene: Scene, runtime: Runtime | None = None,
+                   engine: str = "device") -> Geometry:
+    if engine not in ENGINES:
+        raise ArgumentError(f"must be one of {', '.join(ENGINES)}", argument="engine",
+                            value=engine)
     runtime = runtime or get_runtime()
     faces = merge_coplanar(scene.triangles, scene.tri_object, scene.tri_material)
     # a BVH needs triangles; a free-space scene has only line-of-sight paths
     caster = RayCaster(scene.triangles, runtime=runtime) if len(scene.triangles) else None
-    return Geometry(scene=scene, faces=faces, caster=caster, runtime=runtime)
+    return Geometry(scene=scene, faces=faces, caster=caster, runtime=runtime, engine=engine)
 
 
 def seen_by_antennas(tx: Radar, rx: Radar, k_dep, k_arr) -> np.ndarray:
