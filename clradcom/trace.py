@@ -242,7 +242,8 @@ def trace_scene(scene: Scene, settings: TraceSettings | None = None,
         if use_optics:
             with clock("physical optics"):
                 if t_idx not in shots:
-                    shots[t_idx] = optics.prepare(geom, tx, opt)
+                    shots[t_idx] = optics.prepare(geom, tx, opt, receivers=[
+                        scene.radars[r] for t, r in links if t == t_idx])
                 extra = optics.link_paths(geom, shots[t_idx], tx, rx, opt)
                 if extra:
                     kept = select_paths(paths, ~optics.replaced_paths(paths, shots[t_idx]))

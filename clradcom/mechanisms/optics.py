@@ -25,7 +25,7 @@ import numpy as np
 from clradcom.errors import ArgumentError
 from clradcom.mechanisms.common import Geometry, check_number
 from clradcom.mechanisms.physical_optics import po_paths
-from clradcom.mechanisms.sbr import sbr_paths, shoot_sbr
+from clradcom.mechanisms.sbr import SbrTubes, sbr_paths, shoot_sbr
 from clradcom.paths import InteractionType, Paths
 from clradcom.scene.records import OPTICS, Radar, Scene
 
@@ -93,20 +93,22 @@ class SbrShot:
     po_objects: np.ndarray  # objects whose first bounce is a PO facet integral
     sbr_objects: np.ndarray  # objects that also get SBR-PO for later bounces
     max_bounces: int
-    tubes: tuple | None  # shoot_sbr's (grid, hits), None without SBR objects
+    tubes: SbrTubes | None  # shoot_sbr's result, None without SBR objects
 
 
-def prepare(geom: Geometry, tx: Radar, settings: OpticsSettings) -> SbrShot:
-    """Sort the objects by optics and shoot tx's SBR tubes once for all its receivers.
-    ``settings.max_bounces`` None means no SBR bounces (TraceSettings.optics_search fills
-    it from the specular search)."""
+def prepare(geom: Geometry, tx: Radar, settings: OpticsSettings,
+            receivers=None) -> SbrShot:
+    """Sort the objects by optics and shoot tx's SBR tubes once for all its
+    ``receivers`` (radars; default: tx alone, monostatic).  ``settings.max_bounces`` None
+    means no SBR bounces (TraceSettings.optics_search fills it from the specular
+    search)."""
     max_bounces = settings.max_bounces or 0
     modes = np.array(object_optics(geom.scene, settings.mode))
     po_objects = np.flatnonzero(modes != "go")
     sbr_objects = np.flatnonzero(modes == "po")
     tubes = None
     if geom.caster is not None and len(sbr_objects) and max_bounces >= 2:
-        tubes = shoot_sbr(geom, tx, sbr_objects,
+        tubes = shoot_sbr(geom, tx, sbr_objects, [tx] if receivers is None else receivers,
                           spacing_wavelengths=settings.sbr_spacing_wavelengths,
                           max_bounces=max_bounces)
     return SbrShot(po_objects=po_objects, sbr_objects=sbr_objects, max_bounces=max_bounces,

@@ -4,11 +4,22 @@ The single-bounce PO facet term (:mod:`clradcom.mechanisms.physical_optics`) giv
 lit facet its true strength, but a dihedral or trihedral corner returns through two or three
 reflections.  SBR (Ling, Chou & Lee, IEEE TAP 37(2) 1989, "Shooting and bouncing
 rays: calculating the RCS of an arbitrarily shaped cavity") shoots a dense grid of
-ray tubes at the target and follows each tube with GO (the Fresnel reflection dyads
+ray tubes at the target and follows each tube with GO (the material reflection dyads
 of :mod:`clradcom.physics.em`, spreading of the spherical wave of the image source).  At
 every bounce it radiates the PO current of the tube's footprint toward the
 receiver, rather than over one exit aperture, since an open target such as a car has
 none.  docs/po.md gives the formulas and the measured accuracy.
+
+**Launch.** Tubes leave the transmitter through *windows* (:class:`TubeWindows`): square
+grids of pitch ``spacing`` on a plane perpendicular to the line of sight, one per SBR
+object (its silhouette) and one per mirror image of the object in a large planar face
+of the environment (the road, a facade: the tubes that reach the object through one
+reflection there), each covering only the blocks of cells that the object's (image's)
+projected triangles overlap (:func:`clradcom.geometry.silhouette.block_coverage`).  A
+direction that several windows cover belongs to the first of them, so every direction
+is shot once.  Tubes are enumerated by index and never held all at once: the device
+engine generates them in the kernel, batch by batch, so there is no cap on their number
+and the work grows with the lit area in square wavelengths.
 
 Here the tubes radiate from their 2nd bounce on (``first_bounce=2``): the first
 bounce is the exact facet integral of
@@ -28,7 +39,15 @@ of a parallelogram footprint with a linear phase.  This is :func:`clradcom.physi
 with the facet replaced by the footprint and 1/R_t by the image source's 1/L_in.  A footprint
 on a non-PEC facet radiates the currents of the incident plus reflected field instead,
 (I - s s^T)[n x (k_i x .)] -> K/2 of :func:`clradcom.physics.po.penetrable_po_operator` with
-the material's reflection dyad at the tube's incidence.
+the material's reflection dyad at the tube's incidence.  Every reflection in C is the
+material's full specular dyad: Fresnel x roughness x sqrt(1 - S^2)
+(:func:`clradcom.physics.em.material_reflection_dyad`).
+
+**Two engines, one result.**  ``geom.engine == "device"`` follows and radiates the tubes in
+``kernels/sbr.cl`` (:mod:`clradcom.device.sbr`); ``"host"`` does the same in numpy over
+ray casts (:func:`shoot_tubes`, :func:`host_contributions`), the reference the device is
+tested against.  Both give :class:`Contributions` (one row per tube, bounce and
+receiver), which :func:`contribution_paths` turns into paths the same way.
 """
 
 from __future__ import annotations
@@ -38,17 +57,29 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from clradcom.device import sbr as device_sbr
 from clradcom.device.raycast import make_rays, spawn_origins
-from clradcom.device.visibility import surface_sees
+from clradcom.device.visibility import antenna_blocked, confirm_margin_m, surface_sees
 from clradcom.errors import ArgumentError
-from clradcom.geometry.triangles import triangle_normals
+from clradcom.geometry.silhouette import BLOCK, block_coverage, project_to_plane
+from clradcom.geometry.triangles import triangle_normals, triangle_normals_and_double_areas
 from clradcom.paths import InteractionType, Paths
 from clradcom.physics import em
 from clradcom.physics.po import penetrable_po_operator, sinc
 from clradcom.physics.vectors import orthonormal_frame
 
-__all__ = ["TubeGrid", "TubeHits", "bounding_sphere", "launch_tubes", "shoot_tubes",
-           "sbr_paths", "shoot_sbr"]
+__all__ = ["Contributions", "SbrTubes", "TubeGrid", "TubeHits", "TubeWindows",
+           "bounding_sphere", "contribution_paths", "host_contributions", "launch_tubes",
+           "launch_windows", "sbr_paths", "shoot_sbr", "shoot_tubes", "window_tubes"]
+
+#: Planar faces of the environment at least this large (m^2) mirror an SBR object: tubes
+#: aimed at the object's image there reach it after one reflection off the face.
+MIRROR_MIN_AREA_M2 = 1.0
+#: A window's triangles must lie at least this fraction of the window's distance in front
+#: of the transmitter (a mirror image seen at grazing angles gets no window).
+MIN_DEPTH_FRACTION = 0.2
+#: Tubes per host batch of the reference engine (bounds its memory).
+HOST_BATCH_TUBES = 1 << 20
 
 @dataclass
 class TubeGrid:
@@ -127,15 +158,241 @@ def launch_tubes(tx_pos, spheres, spacing_m: float, max_rays: int = 4_000_000) -
 
 
 @dataclass
+class TubeWindows:
+    """Where one transmitter's SBR tubes leave through: W windows, B covered blocks.
+
+    Window w is the plane at ``distance[w]`` along the unit ``axis[w]`` from ``tx``, with
+    in-plane unit vectors ``u[w]``, ``v[w]`` and cell pitch ``spacing[w]``; cell (i, j)
+    is centred on x = i * spacing, y = j * spacing.  Its blocks of BLOCK x BLOCK cells
+    start at cell ``cell0[w]`` and span ``shape[w]`` blocks; ``masks[mask_offset[w]:...]``
+    (row-major over ``shape[w]``) marks the covered ones.  ``object_id[w]`` is the SBR
+    object it aims at, ``mirror_face[w]`` the face it is mirrored in (-1: direct).
+    Covered block b is (``block_window[b]``, ``block_i[b]``, ``block_j[b]``); tube
+    ``b * BLOCK**2 + cy * BLOCK + cx`` is cell (cx, cy) of block b.
+    """
+
+    tx: np.ndarray
+    axis: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    distance: np.ndarray
+    spacing: np.ndarray
+    cell0: np.ndarray
+    shape: np.ndarray
+    mask_offset: np.ndarray
+    masks: np.ndarray
+    object_id: np.ndarray
+    mirror_face: np.ndarray
+    block_window: np.ndarray
+    block_i: np.ndarray
+    block_j: np.ndarray
+
+    @property
+    def n_windows(self) -> int:
+        return len(self.distance)
+
+    @property
+    def n_tubes(self) -> int:
+        return len(self.block_window) * BLOCK * BLOCK
+
+    @staticmethod
+    def empty(tx) -> TubeWindows:
+        z3, zi = np.zeros((0, 3)), np.zeros(0, np.int32)
+        return TubeWindows(tx=np.asarray(tx, np.float64), axis=z3, u=z3, v=z3,
+                           distance=np.zeros(0), spacing=np.zeros(0),
+                           cell0=np.zeros((0, 2), np.int64), shape=np.zeros((0, 2), np.int64),
+                           mask_offset=np.zeros(0, np.int64), masks=np.zeros(0, np.uint8),
+                           object_id=zi, mirror_face=zi, block_window=zi, block_i=zi,
+                           block_j=zi)
+
+
+def _clip_near(tri, eye, axis, near):
+    """Triangles (T,3,3) clipped to the half-space (p - eye).axis >= near (0, 1 or 2
+    triangles each): a face that reaches behind the eye still projects."""
+    depth = (tri - eye) @ axis
+    front = depth >= near
+    out = [tri[front.all(axis=1)]]
+    for t, d in zip(tri[front.any(axis=1) & ~front.all(axis=1)],
+                    depth[front.any(axis=1) & ~front.all(axis=1)], strict=True):
+        poly = []
+        for k in range(3):
+            a, b, da, db = t[k], t[(k + 1) % 3], d[k], d[(k + 1) % 3]
+            if da >= near:
+                poly.append(a)
+            if (da >= near) != (db >= near):
+                poly.append(a + (near - da) / (db - da) * (b - a))
+        out.extend(np.array([[poly[0], poly[i], poly[i + 1]]])
+                   for i in range(1, len(poly) - 1))
+    return np.concatenate(out) if out else np.zeros((0, 3, 3))
+
+
+def _project(tri, tx, axis, u, v, distance):
+    x, y, depth = project_to_plane(tri, tx, axis, u, v, distance)
+    return np.stack([x, y], axis=-1), depth
+
+
+def _window(tx, centre, spacing, triangles, clip=None):
+    """One window aimed at ``centre`` covering ``triangles`` (and, when given, only
+    where the ``clip`` triangles also cover): (frame, cell0, shape, mask), or None when
+    the triangles do not lie well in front of tx."""
+    rel = centre - tx
+    D = float(np.linalg.norm(rel))
+    if D == 0.0:
+        return None
+    axis = rel / D
+    u, v = orthonormal_frame(axis)
+    xy, depth = _project(triangles, tx, axis, u, v, D)
+    if len(xy) == 0 or depth.min() < MIN_DEPTH_FRACTION * D:
+        return None
+    lo = np.floor(xy.reshape(-1, 2).min(axis=0) / spacing + 0.5).astype(np.int64) - 1
+    hi = np.floor(xy.reshape(-1, 2).max(axis=0) / spacing + 0.5).astype(np.int64) + 1
+    shape = -(-(hi - lo + 1) // BLOCK)
+    origin = (lo - 0.5) * spacing
+    mask = block_coverage(xy, BLOCK * spacing, origin, shape)
+    if clip is not None and mask.any():
+        clip = _clip_near(clip, tx, axis, MIN_DEPTH_FRACTION * D)
+        mask &= block_coverage(_project(clip, tx, axis, u, v, D)[0], BLOCK * spacing,
+                               origin, shape)
+    if not mask.any():
+        return None
+    return axis, u, v, D, lo, shape, mask
+
+
+def _mirror_faces(geom, objects, tx):
+    """Planar faces of the environment (objects not in ``objects``) of at least
+    MIRROR_MIN_AREA_M2 that tx lies in front of: (face ids, unit normals toward tx,
+    offsets)."""
+    scene, faces = geom.scene, geom.faces
+    _, area2 = triangle_normals_and_double_areas(scene.triangles)
+    area = np.bincount(faces.tri_face, 0.5 * np.nan_to_num(area2), faces.n_faces)
+    ids = np.flatnonzero((area >= MIRROR_MIN_AREA_M2) & ~np.isin(faces.object_id, objects))
+    n, d = faces.normal[ids], faces.offset[ids]
+    side = n @ tx - d
+    keep = np.abs(side) > 1e-9 * (1.0 + np.abs(tx).max())
+    sgn = np.sign(side[keep])
+    return ids[keep], n[keep] * sgn[:, None], d[keep] * sgn
+
+
+def launch_windows(geom, tx_pos, objects, spacing_m, *, mirrors: bool = True,
+                   tx_name: str = "tx") -> TubeWindows:
+    """The windows of tx's SBR tubes over ``objects`` (scene object ids) with per-object
+    pitch ``spacing_m`` (scalar or one per object): the silhouette of each object, then
+    (``mirrors``) its image in every large environment face that both tx and the object's
+    centre lie in front of, clipped to that face's own silhouette.  An object whose
+    bounding sphere holds tx (a radar riding on it) gets no window: a warning says so;
+    its PO facets stay."""
+    scene = geom.scene
+    tx = np.asarray(tx_pos, dtype=np.float64)
+    objects = np.asarray(list(objects), dtype=np.int64)
+    spacing = np.broadcast_to(np.asarray(spacing_m, dtype=np.float64), objects.shape)
+    if np.any(~np.isfinite(spacing) | (spacing <= 0)):
+        raise ArgumentError("must be positive numbers", argument="spacing_m",
+                            value=spacing_m)
+    direct, mirrored = [], []
+    face_ids, face_n, face_d = (_mirror_faces(geom, objects, tx) if mirrors
+                                else (np.zeros(0, np.int64), None, None))
+    for o, s in zip(objects, spacing, strict=True):
+        tris = scene.triangles[scene.tri_object == o]
+        if len(tris) == 0:
+            continue
+        c, r = bounding_sphere(tris)
+        if np.linalg.norm(c - tx) <= r * 1.001:
+            warnings.warn(f"SBR skips object {scene.objects[o].name!r}: transmitter "
+                          f"{tx_name!r} lies inside its bounding sphere", stacklevel=3)
+            continue
+        win = _window(tx, c, s, tris)
+        if win is not None:
+            direct.append((o, -1, s, win))
+        for f, n, d in zip(face_ids, face_n if len(face_ids) else [],
+                           face_d if len(face_ids) else [], strict=True):
+            if n @ c - d <= 0:
+                continue  # the object is not in front of the mirror
+            image = tris - 2.0 * ((tris @ n) - d)[..., None] * n
+            c_img = c - 2.0 * (n @ c - d) * n
+            if np.linalg.norm(c_img - tx) <= r * 1.001:
+                continue
+            win = _window(tx, c_img, s, image,
+                          clip=scene.triangles[geom.faces.tri_face == f])
+            if win is not None:
+                mirrored.append((o, int(f), s, win))
+    wins = direct + mirrored
+    if not wins:
+        return TubeWindows.empty(tx)
+    offsets = np.cumsum([0] + [int(w[3][6].size) for w in wins])
+    blocks = [np.argwhere(w[3][6]) for w in wins]
+    return TubeWindows(
+        tx=tx, axis=np.array([w[3][0] for w in wins]), u=np.array([w[3][1] for w in wins]),
+        v=np.array([w[3][2] for w in wins]), distance=np.array([w[3][3] for w in wins]),
+        spacing=np.array([w[2] for w in wins], dtype=np.float64),
+        cell0=np.array([w[3][4] for w in wins], dtype=np.int64),
+        shape=np.array([w[3][5] for w in wins], dtype=np.int64),
+        mask_offset=offsets[:-1].astype(np.int64),
+        masks=np.concatenate([w[3][6].ravel() for w in wins]).astype(np.uint8),
+        object_id=np.array([w[0] for w in wins], dtype=np.int32),
+        mirror_face=np.array([w[1] for w in wins], dtype=np.int32),
+        block_window=np.concatenate([np.full(len(b), i, np.int32)
+                                     for i, b in enumerate(blocks)]),
+        block_i=np.concatenate([b[:, 0] for b in blocks]).astype(np.int32),
+        block_j=np.concatenate([b[:, 1] for b in blocks]).astype(np.int32))
+
+
+def window_tubes(windows: TubeWindows, tubes) -> tuple[TubeGrid, np.ndarray]:
+    """The tubes ``tubes`` (indices, see :class:`TubeWindows`) as a :class:`TubeGrid`
+    (directions, solid angles spacing^2 cos^3(alpha)/D^2, edges), and which of them their
+    window owns (False: an earlier window covers the direction, or its cell lies outside
+    its own window's mask, never the case for enumerated tubes)."""
+    tubes = np.asarray(tubes, dtype=np.int64)
+    blk, cell = np.divmod(tubes, BLOCK * BLOCK)
+    w = windows.block_window[blk].astype(np.int64)
+    i = windows.cell0[w, 0] + windows.block_i[blk] * BLOCK + cell % BLOCK
+    j = windows.cell0[w, 1] + windows.block_j[blk] * BLOCK + cell // BLOCK
+    s, D = windows.spacing[w], windows.distance[w]
+    vec = (D[:, None] * windows.axis[w] + (i * s)[:, None] * windows.u[w]
+           + (j * s)[:, None] * windows.v[w])
+    dist = np.linalg.norm(vec, axis=1)
+    d = vec / dist[:, None]
+    cos_a = D / dist
+    a = windows.u[w]
+    e1 = a - np.einsum("ij,ij->i", d, a)[:, None] * d
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    owned = np.ones(len(tubes), dtype=bool)
+    for k in range(windows.n_windows - 1):
+        later = w > k
+        if not later.any():
+            continue
+        owned[later] &= ~_covers(windows, k, d[later])
+    grid = TubeGrid(directions=d, solid_angle=s * s * cos_a**3 / (D * D), edge1=e1,
+                    edge2=np.cross(d, e1))
+    return grid, owned
+
+
+def _covers(windows: TubeWindows, k: int, d) -> np.ndarray:
+    """Whether window k launches a tube whose cell holds each direction d (N,3)."""
+    depth = d @ windows.axis[k]
+    ok = depth > 0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x = windows.distance[k] * (d @ windows.u[k]) / depth
+        y = windows.distance[k] * (d @ windows.v[k]) / depth
+    s = windows.spacing[k]
+    ok &= np.isfinite(x) & np.isfinite(y)
+    ci = np.floor(np.where(ok, x, 0.0) / s + 0.5).astype(np.int64) - windows.cell0[k, 0]
+    cj = np.floor(np.where(ok, y, 0.0) / s + 0.5).astype(np.int64) - windows.cell0[k, 1]
+    bi, bj = np.floor_divide(ci, BLOCK), np.floor_divide(cj, BLOCK)
+    nx, ny = windows.shape[k]
+    ok &= (bi >= 0) & (bi < nx) & (bj >= 0) & (bj < ny)
+    flat = windows.mask_offset[k] + np.where(ok, bi * ny + bj, 0)
+    return ok & (windows.masks[flat] != 0)
+
+@dataclass
 class TubeHits:
     """Bounces of ray tubes (one row per tube and bounce at or after first_bounce).
 
-    ``tube`` (H,) launch index; ``bounce`` (H,) 1-based; ``point`` (H,3) exact hit
-    point (float64 plane intersection); ``k_in`` (H,3); ``normal`` (H,3) lit-side
-    unit normal; ``length`` (H,) unfolded tx -> point; ``chain`` (H,3,3) complex
-    transfer of the earlier reflections; ``edge1``/``edge2`` (H,3) unit cross-section
-    edges; ``triangle`` (H,) scene triangle; ``history`` (H, max_bounces, 3) bounce
-    points so far (NaN after), ``tri_history`` (H, max_bounces) their triangles (-1).
+    ``tube`` (H,) index into the grid shot; ``bounce`` (H,) 1-based; ``point`` (H,3)
+    exact hit point (float64 plane intersection); ``k_in`` (H,3); ``normal`` (H,3) lit-side
+    unit normal; ``length`` (H,) unfolded tx -> point; ``chain`` (H,3,3) complex transfer
+    of the earlier reflections; ``edge1``/``edge2`` (H,3) unit cross-section edges;
+    ``triangle`` (H,) scene triangle; ``history`` (H, max_bounces, 3) bounce points so far
+    (NaN after), ``tri_history`` (H, max_bounces) their triangles (-1).
     """
 
     tube: np.ndarray
@@ -154,37 +411,31 @@ class TubeHits:
 
 def _chains(scene, tri_history, k0_dir, m):
     """Transfer chains (H,3,3) of the first m-1 reflections of H recorded tubes:
-    C = D_{m-1} ... D_1 (I - k0 k0^T), replaying the mirrors of their triangles."""
+    C = D_{m-1} ... D_1 (I - k0 k0^T), replaying the mirrors of their triangles with
+    each material's full specular dyad (Fresnel x roughness x sqrt(1 - S^2))."""
     d = np.array(k0_dir, dtype=np.float64)
     chain = (np.eye(3)[None] - d[:, :, None] * d[:, None, :]).astype(np.complex128)
     if len(d) == 0:
         return chain
-    k = 2.0 * np.pi * scene.carrier_hz / em.C0
     for j in range(m - 1):
         tri = tri_history[:, j]
         n = triangle_normals(scene.triangles[tri])
-        mat = scene.tri_material[tri]
-        dn = np.einsum("ij,ij->i", d, n)
-        r_te, r_tm = em.fresnel_coefficients(scene.material_eps_r[mat], np.abs(dn),
-                                             scene.material_pec[mat])
-        rho = em.roughness_factor(scene.material_roughness_m[mat], np.abs(dn), k,
-                                  scene.material_roughness_model[mat])
-        chain = em.reflection_dyad(d, n, rho * r_te, rho * r_tm) @ chain
-        d = d - 2.0 * dn[:, None] * n
+        chain = em.material_reflection_dyad(scene, scene.tri_material[tri], d, n) @ chain
+        d = d - 2.0 * np.einsum("ij,ij->i", d, n)[:, None] * n
     return chain
 
 
 def shoot_tubes(geom, tx_pos, grid: TubeGrid, max_bounces: int, first_bounce: int = 2,
                 record_triangles=None) -> TubeHits:
-    """Follow every tube through up to ``max_bounces`` specular reflections.
+    """Follow every tube through up to ``max_bounces`` specular reflections (the host
+    reference engine).
 
     Closest hits come from the BVH caster (float32); each hit point is then the exact
     float64 intersection of the ray with the hit triangle's plane.  Bounces at or after
     ``first_bounce`` on triangles in ``record_triangles`` (bool mask over the scene's
     triangles; default all) are recorded for radiation, with the transfer chain of their
-    earlier reflections: the material's Fresnel coefficients and roughness factor
-    (:func:`clradcom.physics.em.reflection_dyad`), so tubes may pass over GO objects (the road)
-    on the way.  Chains are built for the recorded tubes only, from their bounce points.
+    earlier reflections (:func:`_chains`), so tubes may pass over GO objects (the road)
+    on the way.
     """
     scene = geom.scene
     tx = np.asarray(tx_pos, dtype=np.float64)
@@ -256,12 +507,49 @@ def bounding_sphere(points):
     return c, float(np.linalg.norm(pts - c, axis=1).max())
 
 
-def _radiate(geom, hits: TubeHits, grid: TubeGrid, tx, rx):
-    """Per recorded hit: T (H,3,3), L (H,), k_dep, k_arr and the hits kept (shadowing,
-    side).  See the module docstring for T."""
+@dataclass
+class Contributions:
+    """Radiated tube footprints of one transmitter, one row per (tube, bounce, receiver)
+    that sees its receiver: ``receiver`` (C,) index into the receivers shot for; ``tube``
+    (C,) int64 (see :class:`TubeWindows`); ``bounce`` (C,) int16; ``length`` (C,)
+    unfolded tx -> footprint -> rx (m); ``transfer`` (C,3,3) complex T (module docstring);
+    ``k_arr`` (C,3) unit direction footprint -> rx; ``point`` (C,3) footprint centre;
+    ``tri_history`` (C, max_bounces) the triangles hit up to this bounce (-1 after)."""
+
+    receiver: np.ndarray
+    tube: np.ndarray
+    bounce: np.ndarray
+    length: np.ndarray
+    transfer: np.ndarray
+    k_arr: np.ndarray
+    point: np.ndarray
+    tri_history: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.tube)
+
+    def select(self, rows) -> Contributions:
+        return Contributions(**{k: getattr(self, k)[rows]
+                                for k in self.__dataclass_fields__})
+
+    @staticmethod
+    def concat(parts, max_bounces: int) -> Contributions:
+        if not parts:
+            return Contributions(
+                receiver=np.zeros(0, np.int32), tube=np.zeros(0, np.int64),
+                bounce=np.zeros(0, np.int16), length=np.zeros(0),
+                transfer=np.zeros((0, 3, 3), np.complex128), k_arr=np.zeros((0, 3)),
+                point=np.zeros((0, 3)), tri_history=np.zeros((0, max_bounces), np.int32))
+        return Contributions(**{k: np.concatenate([getattr(p, k) for p in parts])
+                                for k in Contributions.__dataclass_fields__})
+
+
+def _radiate(geom, hits: TubeHits, grid: TubeGrid, rx_pos):
+    """Per recorded hit that sees rx: T (H,3,3), L (H,), k_arr and the hits kept
+    (side, shadowing).  See the module docstring for T."""
     scene = geom.scene
     k0 = 2.0 * np.pi * scene.carrier_hz / em.C0
-    rx_pos = np.asarray(rx.position, dtype=np.float64)
+    rx_pos = np.asarray(rx_pos, dtype=np.float64)
     p, n = hits.point, hits.normal
     dr = rx_pos - p
     R_r = np.linalg.norm(dr, axis=1)
@@ -290,90 +578,122 @@ def _radiate(geom, hits: TubeHits, grid: TubeGrid, tx, rx):
     eye = np.eye(3)
     cross2 = k_in[:, :, None] * n[:, None, :] - kn[:, None, None] * eye
     proj = eye - s[:, :, None] * s[:, None, :]
-    op = proj @ cross2
+    op = (proj @ cross2).astype(np.complex128)
     if not np.all(pec):
         # penetrable footprints: currents of the incident plus reflected field
         pen = np.flatnonzero(~pec)
-        op = op.astype(np.complex128)
         D = em.material_reflection_dyad(scene, mat[pen], k_in[pen], n[pen])
         op[pen] = 0.5 * penetrable_po_operator(n[pen], k_in[pen], s[pen], D)
     L = L_in + R_r
     scale = -1j * k0 / (2.0 * np.pi) * L / (L_in * R_r) * i_fp
     T = scale[:, None, None] * (op @ hits.chain[keep])
-    k_dep = grid.directions[hits.tube[keep]]
-    return T, L, k_dep, s, keep
+    return T, L, s, keep
 
 
-def shoot_sbr(geom, tx, objects, *, spacing_m: float | None = None,
-              spacing_wavelengths: float = 0.5, max_bounces: int = 3, first_bounce: int = 2,
-              grid: TubeGrid | None = None):
-    """(grid, hits) of tx's tubes over ``objects``: what every receiver of tx shares, so a
-    tracer computes it once per transmitter (see :func:`sbr_paths`)."""
-    scene = geom.scene
-    objects = np.asarray(list(objects), dtype=np.int64)
-    on = np.isin(scene.tri_object, objects)
-    if grid is None:
-        spacing = (float(spacing_m) if spacing_m is not None
-                   else float(spacing_wavelengths) * scene.wavelength_m)
-        spheres = []
-        for o in objects:
-            if not np.any(scene.tri_object == o):
+def host_contributions(geom, windows: TubeWindows, receivers, max_bounces: int,
+                       first_bounce: int, record_triangles) -> Contributions:
+    """The reference engine: every owned tube of ``windows`` shot with :func:`shoot_tubes`
+    and radiated toward each receiver position (R,3) with :func:`_radiate`, in batches of
+    HOST_BATCH_TUBES tubes."""
+    receivers = np.asarray(receivers, dtype=np.float64).reshape(-1, 3)
+    parts = []
+    for start in range(0, windows.n_tubes, HOST_BATCH_TUBES):
+        tubes = np.arange(start, min(start + HOST_BATCH_TUBES, windows.n_tubes))
+        grid, owned = window_tubes(windows, tubes)
+        tubes = tubes[owned]
+        grid = TubeGrid(grid.directions[owned], grid.solid_angle[owned],
+                        grid.edge1[owned], grid.edge2[owned])
+        hits = shoot_tubes(geom, windows.tx, grid, max_bounces, first_bounce,
+                           record_triangles)
+        if len(hits.tube) == 0:
+            continue
+        for r, rx_pos in enumerate(receivers):
+            T, L, s, keep = _radiate(geom, hits, grid, rx_pos)
+            if len(keep) == 0:
                 continue
-            c, r = bounding_sphere(scene.triangles[scene.tri_object == o])
-            if np.linalg.norm(c - np.asarray(tx.position, dtype=np.float64)) <= r * 1.001:
-                # a radar riding on the object: no tube grid can cover it from inside;
-                # its own multi-bounce echoes are left out, its PO facets stay
-                warnings.warn(f"SBR skips object {scene.objects[o].name!r}: transmitter "
-                              f"{tx.name!r} lies inside its bounding sphere", stacklevel=3)
-                continue
-            spheres.append((c, r))
-        grid = launch_tubes(tx.position, spheres, spacing)
-    return grid, shoot_tubes(geom, tx.position, grid, max_bounces, first_bounce, on)
+            parts.append(Contributions(
+                receiver=np.full(len(keep), r, np.int32), tube=tubes[hits.tube[keep]],
+                bounce=hits.bounce[keep], length=L, transfer=T, k_arr=s,
+                point=hits.point[keep], tri_history=np.where(
+                    np.arange(max_bounces)[None, :] < hits.bounce[keep, None],
+                    hits.tri_history[keep], -1).astype(np.int32)))
+    out = Contributions.concat(parts, max_bounces)
+    # the device engine's order, so both engines list the same rows alike
+    return out.select(np.lexsort((out.receiver, out.bounce, out.tube)))
 
 
-def sbr_paths(geom, tx, rx, *, objects, spacing_m: float | None = None,
-              spacing_wavelengths: float = 0.5, max_bounces: int = 3, first_bounce: int = 2,
-              min_relative_db: float = -80.0, grid: TubeGrid | None = None,
-              shot=None) -> Paths:
-    """SBR-PO multi-bounce returns of one tx -> rx link as :class:`Paths`.
+def device_contributions(geom, windows: TubeWindows, receivers, max_bounces: int,
+                         first_bounce: int, record_triangles) -> Contributions:
+    """The device engine (:func:`clradcom.device.sbr.shoot_and_radiate`), then the float64
+    check of the last millimetre before each receiver (:func:`antenna_blocked`), which
+    the host reference's :func:`surface_sees` makes as well."""
+    receivers = np.asarray(receivers, dtype=np.float64).reshape(-1, 3)
+    rec = device_sbr.shoot_and_radiate(geom.caster, geom.scene, windows, receivers,
+                                       wavenumber=2.0 * np.pi * geom.scene.carrier_hz / em.C0,
+                                       max_bounces=max_bounces, first_bounce=first_bounce,
+                                       record_triangles=record_triangles)
+    out = Contributions(receiver=rec["receiver"].astype(np.int32),
+                        tube=rec["tube"].astype(np.int64),
+                        bounce=rec["bounce"].astype(np.int16), length=rec["length"],
+                        transfer=rec["transfer"], k_arr=rec["k_arr"], point=rec["point"],
+                        tri_history=rec["tri_history"].astype(np.int32))
+    if len(out) == 0:
+        return out
+    sees = np.ones(len(out), dtype=bool)
+    spawn = spawn_origins(out.point, triangle_normals(geom.scene.triangles[
+        out.tri_history[np.arange(len(out)), out.bounce - 1]]), out.k_arr)
+    for r, rx_pos in enumerate(receivers):
+        rows = np.flatnonzero(out.receiver == r)
+        if len(rows):
+            sees[rows] = ~antenna_blocked(geom.caster, geom.faces.tri_face, rx_pos,
+                                          spawn[rows], 2.0 * confirm_margin_m(rx_pos[None]))
+    return out.select(np.flatnonzero(sees))
 
-    Tubes are shot from tx over the bounding sphere of each object in ``objects`` (pitch
-    ``spacing_m``, default ``spacing_wavelengths`` wavelengths, at the sphere's centre),
-    bounce off anything in the scene, and radiate (module docstring) from every bounce
-    >= ``first_bounce`` that lands on one of ``objects`` and sees rx unblocked.
+def _replay(geom, windows: TubeWindows, tubes, bounces, max_bounces: int):
+    """Bounce points (P, max_bounces, 3) and triangles (P, max_bounces) of tubes ``tubes``
+    up to their bounce ``bounces``, re-shot on the host (the engines are deterministic,
+    so a tube retraces its path)."""
+    tubes = np.asarray(tubes, dtype=np.int64)
+    uniq, inv = np.unique(tubes, return_inverse=True)
+    grid, _ = window_tubes(windows, uniq)
+    hits = shoot_tubes(geom, windows.tx, grid, max_bounces, first_bounce=1)
+    key = hits.tube.astype(np.int64) * (max_bounces + 1) + hits.bounce
+    order = np.argsort(key)
+    want = inv.reshape(-1) * (max_bounces + 1) + np.asarray(bounces, dtype=np.int64)
+    pos = np.searchsorted(key[order], want)
+    pos = np.minimum(pos, len(order) - 1)
+    found = key[order][pos] == want if len(order) else np.zeros(len(want), bool)
+    rows = order[pos]
+    P = len(tubes)
+    hist = np.full((P, max_bounces, 3), np.nan)
+    thist = np.full((P, max_bounces), -1, np.int32)
+    if len(order):
+        hist[found] = hits.history[rows[found]]
+        thist[found] = hits.tri_history[rows[found]]
+    return hist, thist, found
 
-    Tube contributions with the same sequence of planar faces (``geom.faces``) add up
-    coherently to one path: gain and matrix are the sums; points, delay, Doppler,
-    object and triangle ids are those of the tube whose unfolded length is closest to
-    the |gain|-weighted mean length of the group (so the delay is the group's and is
-    consistent with the points).  Groups more than |min_relative_db| below the
-    strongest of the link, and tubes outside either antenna's pattern, are dropped.
-    ``shot`` is :func:`shoot_sbr`'s (grid, hits) for this tx and these settings, when
-    the caller keeps it across receivers.
-    """
+
+def contribution_paths(geom, windows: TubeWindows, contributions: Contributions, tx, rx,
+                       *, max_bounces: int, min_relative_db: float = -80.0) -> Paths:
+    """One receiver's :class:`Contributions` as :class:`Paths`: contributions with the
+    same sequence of planar faces (``geom.faces``) add up coherently to one path (gain and
+    matrix summed); the points, delay, Doppler, object and triangle ids are those of the
+    tube whose unfolded length is closest to the |gain|-weighted mean length of the group
+    (so the delay is the group's and is consistent with the points).  Groups more than
+    |min_relative_db| below the strongest of the link, and tubes outside either antenna's
+    pattern, are dropped."""
     scene = geom.scene
-    objects = np.asarray(list(objects), dtype=np.int64)
-    if geom.caster is None or len(objects) == 0 or max_bounces < first_bounce:
-        return Paths.empty(max(first_bounce, 1))
-    if shot is None:
-        shot = shoot_sbr(geom, tx, objects, spacing_m=spacing_m,
-                         spacing_wavelengths=spacing_wavelengths, max_bounces=max_bounces,
-                         first_bounce=first_bounce, grid=grid)
-    grid, hits = shot
-    if len(hits.tube) == 0:
+    c = contributions
+    if len(c) == 0:
         return Paths.empty(max_bounces)
-    T, L, k_dep, k_arr, keep = _radiate(geom, hits, grid, tx, rx)
-    if len(keep) == 0:
-        return Paths.empty(max_bounces)
-    gain, M = em.path_gains(T, L, k_dep, k_arr, tx, rx, scene.carrier_hz)
+    k_dep = window_tubes(windows, c.tube)[0].directions
+    gain, M = em.path_gains(c.transfer, c.length, k_dep, c.k_arr, tx, rx, scene.carrier_hz)
     seen = (np.asarray(tx.pattern.gain(k_dep @ np.asarray(tx.orientation))) > 0) & (
-        np.asarray(rx.pattern.gain(-k_arr @ np.asarray(rx.orientation))) > 0)
-    gain, M, L = gain[seen], M[seen], L[seen]
-    keep = keep[seen]
-    if len(keep) == 0:
+        np.asarray(rx.pattern.gain(-c.k_arr @ np.asarray(rx.orientation))) > 0)
+    if not seen.any():
         return Paths.empty(max_bounces)
-    tri_hist = hits.tri_history[keep]
-    nb = hits.bounce[keep].astype(np.int64)
+    gain, M, L, c = gain[seen], M[seen], c.length[seen], c.select(np.flatnonzero(seen))
+    tri_hist = c.tri_history
     face_seq = np.where(tri_hist >= 0, geom.faces.tri_face[np.maximum(tri_hist, 0)], -1)
     _, group = np.unique(face_seq, axis=0, return_inverse=True)
     group = group.ravel()
@@ -396,18 +716,20 @@ def sbr_paths(geom, tx, rx, *, objects, spacing_m: float | None = None,
     strong &= mag > 0
     rep_s = rep[strong]
     P = len(rep_s)
-    k_max = max_bounces
-    nk = nb[rep_s]
-    pts = np.full((P, k_max + 2, 3), np.nan)
+    nk = c.bounce[rep_s].astype(np.int64)
+    hist, _, _ = _replay(geom, windows, c.tube[rep_s], nk, max_bounces)
+    pts = np.full((P, max_bounces + 2, 3), np.nan)
     pts[:, 0] = tx.position
-    pts[:, 1:k_max + 1] = hits.history[keep][rep_s]
+    pts[:, 1:max_bounces + 1] = hist
+    # the footprint itself as the engine computed it (the replay agrees to rounding)
+    pts[np.arange(P), nk] = c.point[rep_s]
     pts[np.arange(P), nk + 1] = rx.position
-    tri_ids = np.where(np.arange(k_max)[None, :] < nk[:, None], tri_hist[rep_s], -1)
+    tri_ids = tri_hist[rep_s]
     obj = np.where(tri_ids >= 0, scene.tri_object[np.maximum(tri_ids, 0)], -1)
     vel = np.zeros_like(pts)
     vel[:, 0] = tx.velocity
-    vel[:, 1:k_max + 1] = np.where((tri_ids >= 0)[..., None],
-                                   scene.object_velocity[np.maximum(obj, 0)], 0.0)
+    vel[:, 1:max_bounces + 1] = np.where((tri_ids >= 0)[..., None],
+                                         scene.object_velocity[np.maximum(obj, 0)], 0.0)
     vel[np.arange(P), nk + 1] = rx.velocity
     doppler = em.doppler_hz(pts, vel, scene.wavelength_m, num_interactions=nk)
     active = tri_ids >= 0
@@ -416,3 +738,78 @@ def sbr_paths(geom, tx, rx, *, objects, spacing_m: float | None = None,
                  interaction=np.where(active, int(InteractionType.SBR), 0
                                       ).astype(np.int8),
                  points=pts, object_id=obj.astype(np.int32), face_id=tri_ids.astype(np.int32))
+
+
+@dataclass
+class SbrTubes:
+    """One transmitter's SBR tubes, radiated toward all its receivers: the windows they
+    left through, the receivers' positions (R,3) and the :class:`Contributions`."""
+
+    windows: TubeWindows
+    receivers: np.ndarray
+    contributions: Contributions
+    max_bounces: int
+
+    def receiver_index(self, rx_pos) -> int:
+        hit = np.flatnonzero(np.all(self.receivers == np.asarray(rx_pos, np.float64),
+                                    axis=1))
+        if len(hit) == 0:
+            raise ArgumentError("was not among the receivers the tubes were shot for",
+                                argument="rx.position", value=list(map(float, rx_pos)))
+        return int(hit[0])
+
+
+def object_spacing_m(scene, objects, spacing_wavelengths: float) -> np.ndarray:
+    """Tube pitch (m) per object: its own ``sbr_spacing_wavelengths`` scene key where it
+    has one, else ``spacing_wavelengths``, in wavelengths of the scene's carrier."""
+    own = [getattr(scene.objects[o], "sbr_spacing_wavelengths", None) for o in objects]
+    return np.array([spacing_wavelengths if s is None else float(s) for s in own],
+                    dtype=np.float64) * scene.wavelength_m
+
+
+def shoot_sbr(geom, tx, objects, receivers, *, spacing_wavelengths: float = 0.5,
+              max_bounces: int = 3, first_bounce: int = 2, mirrors: bool = True) -> SbrTubes:
+    """Shoot tx's tubes over ``objects`` and radiate them toward every receiver
+    (:class:`clradcom.scene.Radar` objects or positions): what a tracer computes once per
+    transmitter, with the engine ``geom.engine``."""
+    scene = geom.scene
+    objects = np.asarray(list(objects), dtype=np.int64)
+    rx_pos = np.array([np.asarray(getattr(r, "position", r), dtype=np.float64)
+                       for r in receivers]).reshape(-1, 3)
+    windows = launch_windows(geom, tx.position, objects,
+                             object_spacing_m(scene, objects, spacing_wavelengths),
+                             mirrors=mirrors, tx_name=tx.name)
+    record = np.isin(scene.tri_object, objects)
+    engine = device_contributions if geom.engine == "device" else host_contributions
+    contributions = (engine(geom, windows, rx_pos, max_bounces, first_bounce, record)
+                     if windows.n_tubes and max_bounces >= first_bounce
+                     else Contributions.concat([], max_bounces))
+    return SbrTubes(windows=windows, receivers=rx_pos, contributions=contributions,
+                    max_bounces=max_bounces)
+
+
+def sbr_paths(geom, tx, rx, *, objects, spacing_wavelengths: float = 0.5,
+              max_bounces: int = 3, first_bounce: int = 2, min_relative_db: float = -80.0,
+              mirrors: bool = True, shot: SbrTubes | None = None) -> Paths:
+    """SBR-PO multi-bounce returns of one tx -> rx link as :class:`Paths`.
+
+    Tubes are shot from tx through the windows of :func:`launch_windows` (pitch
+    ``spacing_wavelengths`` wavelengths at each window, or the object's own), bounce off
+    anything in the scene, and radiate (module docstring) from every bounce
+    >= ``first_bounce`` that lands on one of ``objects`` and sees rx unblocked;
+    :func:`contribution_paths` groups them into paths.  ``shot`` is :func:`shoot_sbr`'s
+    result for tx when the caller keeps it across receivers (it must include rx).
+    """
+    objects = np.asarray(list(objects), dtype=np.int64)
+    if geom.caster is None or len(objects) == 0 or max_bounces < first_bounce:
+        return Paths.empty(max(first_bounce, 1))
+    if shot is None:
+        shot = shoot_sbr(geom, tx, objects, [rx], spacing_wavelengths=spacing_wavelengths,
+                         max_bounces=max_bounces, first_bounce=first_bounce, mirrors=mirrors)
+    c = shot.contributions
+    if len(c) == 0:
+        return Paths.empty(shot.max_bounces)
+    r = shot.receiver_index(rx.position)
+    return contribution_paths(geom, shot.windows, c.select(np.flatnonzero(c.receiver == r)),
+                              tx, rx, max_bounces=shot.max_bounces,
+                              min_relative_db=min_relative_db)
