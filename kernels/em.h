@@ -1,7 +1,7 @@
 /* Electromagnetics of a reflection in double precision: the device twin of
  * clradcom/physics/em.py (fresnel_coefficients, ament/boithias roughness factors,
- * reflection_dyad, material_reflection_dyad) and of physics/vectors.py's
- * perpendicular. The formulas, branches and tolerances are the host's, so a
+ * reflection_dyad and material_reflection_dyad applied to a field vector) and of
+ * physics/vectors.py's perpendicular. The formulas, branches and tolerances are the host's, so a
  * kernel's reflection dyad agrees with the host reference to rounding; see the
  * host functions for the physics and its sources. Needs cl_khr_fp64. */
 #ifndef CLRADCOM_EM_H
@@ -95,25 +95,42 @@ EM_INLINE double3 perpendicular(double3 n)
     return p / sqrt(dot(p, p));
 }
 
-/* A complex 3x3 matrix, row-major. */
-typedef struct { cplx m[9]; } cmat3;
+/* A complex 3-vector: a field. */
+typedef struct { cplx x, y, z; } cvec3;
 
-EM_INLINE cmat3 cmat3_mul(const cmat3 *a, const cmat3 *b)
+EM_INLINE cvec3 cv_real(double3 a)
 {
-    cmat3 r;
-    for (int i = 0; i < 3; ++i)
-        for (int j = 0; j < 3; ++j) {
-            cplx s = (cplx)(0.0, 0.0);
-            for (int k = 0; k < 3; ++k) s += c_mul(a->m[3 * i + k], b->m[3 * k + j]);
-            r.m[3 * i + j] = s;
-        }
+    cvec3 r = {(cplx)(a.x, 0.0), (cplx)(a.y, 0.0), (cplx)(a.z, 0.0)};
+    return r;
+}
+EM_INLINE cplx cv_dot_real(cvec3 a, double3 b)
+{
+    return c_scale(a.x, b.x) + c_scale(a.y, b.y) + c_scale(a.z, b.z);
+}
+EM_INLINE cvec3 cv_axpy(cplx s, double3 a, cvec3 y)   /* s a + y */
+{
+    cvec3 r = {y.x + c_scale(s, a.x), y.y + c_scale(s, a.y), y.z + c_scale(s, a.z)};
+    return r;
+}
+EM_INLINE cvec3 cv_scale_real(cvec3 a, double s)
+{
+    cvec3 r = {c_scale(a.x, s), c_scale(a.y, s), c_scale(a.z, s)};
+    return r;
+}
+EM_INLINE cvec3 cv_add(cvec3 a, cvec3 b)
+{
+    cvec3 r = {a.x + b.x, a.y + b.y, a.z + b.z};
+    return r;
+}
+EM_INLINE cvec3 cv_zero(void)
+{
+    cvec3 r = {(cplx)(0.0, 0.0), (cplx)(0.0, 0.0), (cplx)(0.0, 0.0)};
     return r;
 }
 
-EM_INLINE double comp3(double3 a, int i) { return (i == 0) ? a.x : ((i == 1) ? a.y : a.z); }
-
-/* em.py: reflection_dyad for unit k, n: r_te e_perp e_perp^T + r_tm e_par_r e_par_i^T */
-EM_INLINE cmat3 reflection_dyad(double3 k, double3 n, cplx r_te, cplx r_tm)
+/* D f for em.py: reflection_dyad D = r_te e_perp e_perp^T + r_tm e_par_r e_par_i^T
+ * at unit k, n, applied to a field f without forming the matrix */
+EM_INLINE cvec3 reflect_field(double3 k, double3 n, cplx r_te, cplx r_tm, cvec3 f)
 {
     double kn = dot(k, n);
     if (kn > 0.0) n = -n;
@@ -124,24 +141,21 @@ EM_INLINE cmat3 reflection_dyad(double3 k, double3 n, cplx r_te, cplx r_tm)
     double3 e_perp = (sx < EM_NORMAL_INCIDENCE_TOL) ? perpendicular(n) : x / sx;
     double3 e_par_i = cross(e_perp, k);
     double3 e_par_r = cross(e_perp, k_r);
-    cmat3 D;
-    for (int i = 0; i < 3; ++i)
-        for (int j = 0; j < 3; ++j)
-            D.m[3 * i + j] = c_scale(r_te, comp3(e_perp, i) * comp3(e_perp, j))
-                           + c_scale(r_tm, comp3(e_par_r, i) * comp3(e_par_i, j));
-    return D;
+    cvec3 r = cv_axpy(c_mul(r_te, cv_dot_real(f, e_perp)), e_perp, cv_zero());
+    return cv_axpy(c_mul(r_tm, cv_dot_real(f, e_par_i)), e_par_r, r);
 }
 
-/* em.py: material_reflection_dyad of one material for a unit k and unit n:
- * Fresnel x roughness x specular share sqrt(1 - S^2) (given as spec_share). */
-EM_INLINE cmat3 material_dyad(double3 k, double3 n, cplx eps, int pec, double sigma_h,
-                              int rough_model, double spec_share, double k0)
+/* em.py: material_reflection_dyad applied to f: Fresnel x roughness x specular share
+ * sqrt(1 - S^2). mf = (eps re, eps im, sigma_h, sqrt(1 - S^2)), mi = (pec, roughness
+ * model). */
+EM_INLINE cvec3 material_reflect_field(double3 k, double3 n, __global const double *mf,
+                                       __global const int *mi, double k0, cvec3 f)
 {
     double cos_t = fabs(dot(k, n));
     cplx r_te, r_tm;
-    fresnel(eps, cos_t, pec, &r_te, &r_tm);
-    double rho = roughness_factor(sigma_h, cos_t, k0, rough_model) * spec_share;
-    return reflection_dyad(k, n, c_scale(r_te, rho), c_scale(r_tm, rho));
+    fresnel((cplx)(mf[0], mf[1]), cos_t, mi[0], &r_te, &r_tm);
+    double rho = roughness_factor(mf[2], cos_t, k0, mi[1]) * mf[3];
+    return reflect_field(k, n, c_scale(r_te, rho), c_scale(r_tm, rho), f);
 }
 
 #endif

@@ -1,13 +1,16 @@
-/* SBR-PO on the device: each work item is one ray tube. It leaves the
- * transmitter through a launch window's cell (clradcom/mechanisms/sbr.py:
- * TubeWindows), is dropped when an earlier window owns its direction, follows
- * up to SBR_MAX_BOUNCES specular reflections (closest hits in float32 over the
- * BVH, each hit point the exact float64 intersection with the hit triangle's
- * plane, the transfer chain of the material reflection dyads in float64) and,
- * at every bounce from first_bounce on a recorded triangle, radiates its PO
- * footprint toward every receiver it sees: one SbrRecord each, appended with an
- * atomic counter. The formulas are the host reference's (clradcom/mechanisms/
- * sbr.py: shoot_tubes, _chains, _radiate), step for step. */
+/* SBR-PO on the device. Work item = one covered block of a launch window
+ * (clradcom/mechanisms/sbr.py: TubeWindows); it shoots the block's
+ * SBR_BLOCK x SBR_BLOCK tubes one after the other. A tube leaves the transmitter
+ * through its window cell, is dropped when an earlier window owns its direction,
+ * follows up to SBR_MAX_BOUNCES specular reflections (closest hits in float32 over
+ * the BVH; each hit point the exact float64 intersection with the hit triangle's
+ * plane; the field of each tx polarisation carried through the material
+ * reflections in float64) and, at every bounce from first_bounce on a recorded
+ * triangle, radiates its PO footprint toward every receiver it sees: a 2x2
+ * polarimetric matrix in the antennas' bases, summed per (bounce, receiver, face
+ * sequence) over the block and written as one SbrRecord. The formulas are the host
+ * reference's (clradcom/mechanisms/sbr.py: shoot_tubes, _chains, _radiate, and
+ * clradcom/physics/em.py: polarimetric_matrix), step for step. Needs fp64. */
 #include "intersect.h"
 #include "em.h"
 
@@ -23,8 +26,8 @@
 #ifndef SBR_BLOCK
 #error "SBR_BLOCK must be passed as -D by the host"
 #endif
-#if SBR_TRI_SLOTS < SBR_MAX_BOUNCES || (SBR_TRI_SLOTS % 2) != 1
-#error "SBR_TRI_SLOTS must be odd and at least SBR_MAX_BOUNCES (8-byte record size)"
+#if SBR_TRI_SLOTS < SBR_MAX_BOUNCES
+#error "SBR_TRI_SLOTS must be at least SBR_MAX_BOUNCES"
 #endif
 
 #define SBR_CELLS (SBR_BLOCK * SBR_BLOCK)
@@ -32,18 +35,6 @@
 #define WIN_F 12
 /* cell0 (2), shape (2), mask offset, pad */
 #define WIN_I 6
-
-/* Mirrored by clradcom/device/sbr.py: RECORD_DTYPE (a test checks the size). */
-typedef struct {
-    double length;         /* unfolded tx -> footprint -> rx */
-    double point[3];       /* footprint centre: the exact hit point */
-    double k_arr[3];       /* unit direction footprint -> rx */
-    float transfer[18];    /* T, complex 3x3 row-major, (re, im) pairs */
-    long tube;
-    short bounce;
-    short receiver;
-    int tri[SBR_TRI_SLOTS];   /* triangles hit up to this bounce, -1 after */
-} SbrRecord;
 
 inline double3 load3(__global const double *p) { return (double3)(p[0], p[1], p[2]); }
 
@@ -86,180 +77,311 @@ inline bool window_covers(__global const double *win_f, __global const int *win_
     return masks[wi[4] + bi * wi[3] + bj] != 0;
 }
 
-__kernel void sbr_shoot(__global const Bvh8Node *nodes,
-                        __global const float4 *tri4,
-                        __global const int *slot_prim,
-                        __global const double *tri_v,      /* T*9 */
-                        __global const double *tri_n,      /* T*3, unit */
-                        __global const int *tri_material,
-                        __global const uchar *tri_record,
-                        __global const double *mat_f,      /* per material: eps re, im, sigma_h, spec share */
-                        __global const int *mat_i,         /* per material: pec, roughness model */
-                        __global const double *win_f,
-                        __global const int *win_i,
-                        __global const uchar *masks,
-                        __global const int *blocks,        /* per covered block: window, i, j */
-                        __global const double *rx_pos,     /* R*3 */
-                        const int n_rx,
-                        const double tx_x, const double tx_y, const double tx_z,
-                        const double k0,
-                        const float sight_tmax,
-                        const int first_bounce,
-                        const int max_bounces,
-                        const long first_block,
-                        const int n_items,
-                        __global SbrRecord *out,
-                        __global volatile int *count,
-                        const int capacity)
+
+#ifndef SBR_GROUPS
+#error "SBR_GROUPS must be passed as -D by the host"
+#endif
+
+/* One face sequence of one block toward one receiver at one bounce: the sum of its
+ * tubes' polarimetric matrices. Mirrored by clradcom/device/sbr.py: record_dtype
+ * (a test checks the size). */
+typedef struct {
+    double M[8];             /* sum of 2x2 complex M (VV VH HV HH), (re, im) pairs */
+    double weight;           /* sum of |M|_F */
+    double weighted_length;  /* sum of |M|_F L */
+    double rep_weight;       /* the representative's |M|_F */
+    double length;           /* the representative's unfolded length tx -> rx */
+    double point[3];         /* the representative's footprint centre */
+    long tube;               /* the representative: largest |M|_F, the first of equals */
+    int ordinal;             /* emission order within the block */
+    int count;               /* tubes summed */
+    short bounce;
+    short receiver;
+    int pad;
+    int face[SBR_TRI_SLOTS]; /* the planar faces hit, -1 after the bounce */
+    int tri[SBR_TRI_SLOTS];  /* the representative's triangles */
+} SbrRecord;
+
+/* em.py: _antenna_basis_world - theta_hat, phi_hat of an antenna frame (columns of R
+ * are its local axes in world, row-major) at world direction d, in world */
+inline void antenna_basis(double3 d, __global const double *R, double3 *th, double3 *ph)
+{
+    double3 dl = (double3)(d.x * R[0] + d.y * R[3] + d.z * R[6],
+                           d.x * R[1] + d.y * R[4] + d.z * R[7],
+                           d.x * R[2] + d.y * R[5] + d.z * R[8]);
+    double nrm = sqrt(dot(dl, dl));
+    dl /= nrm;
+    double theta = acos(fmin(fmax(dl.z, -1.0), 1.0));
+    double phi = atan2(dl.y, dl.x);
+    double ct = cos(theta), st = sin(theta), cp = cos(phi), sp = sin(phi);
+    double3 t = (double3)(ct * cp, ct * sp, -st), p = (double3)(-sp, cp, 0.0);
+    *th = (double3)(dot((double3)(R[0], R[1], R[2]), t), dot((double3)(R[3], R[4], R[5]), t),
+                    dot((double3)(R[6], R[7], R[8]), t));
+    *ph = (double3)(dot((double3)(R[0], R[1], R[2]), p), dot((double3)(R[3], R[4], R[5]), p),
+                    dot((double3)(R[6], R[7], R[8]), p));
+}
+
+/* visibility.py: antenna_blocked for one segment antenna -> other: a triangle of the
+ * antenna's near list (those within reach of it and off its plane, chosen on the host)
+ * crossed strictly between the ends within `radius` of the antenna, in float64. The
+ * crossing counts as inside a triangle within on_tol of its edges. */
+inline bool antenna_end_blocked(double3 ant, double3 other, double radius,
+                                __global const int *near, int n_near,
+                                __global const double *tri_v, __global const double *tri_n,
+                                double on_tol_rel, double inside_tol_rel)
+{
+    double3 seg = other - ant;
+    double seg_len = sqrt(dot(seg, seg));
+    double3 ao = fabs(other);
+    double on_other = on_tol_rel * (1.0 + fmax(fmax(ao.x, ao.y), ao.z));
+    for (int k = 0; k < n_near; ++k) {
+        int tri = near[k];
+        double3 n = load3(tri_n + 3 * tri);
+        double3 v0 = load3(tri_v + 9 * tri);
+        double d_ant = dot(n, ant - v0);
+        double d_other = dot(other, n) - dot(n, v0);
+        if (fabs(d_other) <= on_other || !(d_ant * d_other < 0.0)) continue;
+        double t = d_ant / (d_ant - d_other);
+        if (t * seg_len > radius) continue;
+        double3 x = ant + t * seg;
+        double3 v1 = load3(tri_v + 9 * tri + 3), v2 = load3(tri_v + 9 * tri + 6);
+        double3 ax = fabs(x);
+        double tol = inside_tol_rel * (1.0 + fmax(fmax(ax.x, ax.y), ax.z));
+        /* signed distances inside each edge, in the triangle's plane */
+        double3 c0 = cross(n, v1 - v0), c1 = cross(n, v2 - v1), c2 = cross(n, v0 - v2);
+        bool inside = dot(x - v0, c0) >= -tol * sqrt(dot(c0, c0))
+                      && dot(x - v1, c1) >= -tol * sqrt(dot(c1, c1))
+                      && dot(x - v2, c2) >= -tol * sqrt(dot(c2, c2));
+        if (inside) return true;
+    }
+    return false;
+}
+
+inline void emit(__global SbrRecord *out, __global volatile int *count, int capacity,
+                 SbrRecord *rec, int *ordinal)
+{
+    rec->ordinal = (*ordinal)++;
+    int slot = atomic_inc(count);
+    if (slot < capacity) out[slot] = *rec;   /* else the host re-runs the batch with room */
+}
+
+/* One work item per covered block: its BLOCK x BLOCK tubes in order, their
+ * contributions summed per (bounce, receiver, face sequence) in a small table
+ * (the oldest entry is written out when it is full), so a block's records come
+ * out in an order fixed by the block alone. */
+__kernel void sbr_blocks(__global const Bvh8Node *nodes,
+                         __global const float4 *tri4,
+                         __global const int *slot_prim,
+                         __global const double *tri_v,      /* T*9 */
+                         __global const double *tri_n,      /* T*3, unit */
+                         __global const int *tri_material,
+                         __global const int *tri_face,
+                         __global const uchar *tri_record,
+                         __global const double *mat_f,      /* per material: eps re, im, sigma_h, spec share */
+                         __global const int *mat_i,         /* per material: pec, roughness model */
+                         __global const double *win_f,
+                         __global const int *win_i,
+                         __global const uchar *masks,
+                         __global const int *blocks,        /* per covered block: window, i, j */
+                         __global const double *rx_pos,     /* R*3 */
+                         __global const double *rx_frame,   /* R*9, row-major */
+                         __global const double *tx_frame,   /* 9 */
+                         __global const int *near_first,    /* R+1: receiver r's near triangles */
+                         __global const int *near_tri,
+                         const double on_face_tol_rel,   /* visibility.py: ON_FACE_TOL_REL */
+                         const double inside_tol_rel,    /* visibility.py: INSIDE_TOL_REL */
+                         const double confirm_tol_m,     /* visibility.py: CONFIRM_TOL_M */
+                         const int n_rx,
+                         const double tx_x, const double tx_y, const double tx_z,
+                         const double k0,
+                         const double wavelength,
+                         const float sight_tmax,
+                         const int first_bounce,
+                         const int max_bounces,
+                         const long first_block,
+                         const int n_blocks,
+                         __global SbrRecord *out,
+                         __global volatile int *count,
+                         const int capacity)
 {
     int gid = get_global_id(0);
-    if (gid >= n_items) return;
-    long blk = first_block + gid / SBR_CELLS;
-    int cell = gid % SBR_CELLS;
-    long tube = blk * SBR_CELLS + cell;
+    if (gid >= n_blocks) return;
+    long blk = first_block + gid;
     int w = blocks[3 * blk];
     __global const double *f = win_f + WIN_F * w;
     __global const int *wi = win_i + WIN_I * w;
-    long i = (long)wi[0] + (long)blocks[3 * blk + 1] * SBR_BLOCK + cell % SBR_BLOCK;
-    long j = (long)wi[1] + (long)blocks[3 * blk + 2] * SBR_BLOCK + cell / SBR_BLOCK;
     double3 axis = load3(f), u = load3(f + 3), v = load3(f + 6);
     double D = f[9], s = f[10];
-    double3 vec = D * axis + ((double)i * s) * u + ((double)j * s) * v;
-    double dist = sqrt(dot(vec, vec));
-    double3 d = vec / dist;
-    for (int k = 0; k < w; ++k)
-        if (window_covers(win_f, win_i, masks, k, d)) return;   /* an earlier window's tube */
-    double cos_a = D / dist;
-    double dom = s * s * cos_a * cos_a * cos_a / (D * D);
-    double3 e1 = u - dot(d, u) * d;
-    e1 /= sqrt(dot(e1, e1));
-    double3 e2 = cross(d, e1);
-    double3 k_launch = d;
-
     double3 tx = (double3)(tx_x, tx_y, tx_z);
-    double3 pos = tx, org = tx;
-    double L = 0.0;
-    int tri_hist[SBR_TRI_SLOTS];
-    for (int m = 0; m < SBR_TRI_SLOTS; ++m) tri_hist[m] = -1;
-    cmat3 chain;
-    for (int r = 0; r < 3; ++r)
-        for (int c = 0; c < 3; ++c)
-            chain.m[3 * r + c] = (cplx)(((r == c) ? 1.0 : 0.0)
-                                        - comp3(k_launch, r) * comp3(k_launch, c), 0.0);
+    /* (lambda / 4 pi) (-j k0 / 2 pi): the real factor; the -j is applied below */
+    double amp = wavelength / (4.0 * M_PI) * k0 / (2.0 * M_PI);
 
-    for (int m = 1; m <= max_bounces; ++m) {
-        PreparedRay pr = prepare_ray(to_float3(org), to_float3(d));
-        float t = INFINITY, hu = 0.0f, hv = 0.0f;
-        int slot = bvh_closest(nodes, tri4, slot_prim, &pr, 0.0f, &t, &hu, &hv, -1);
-        if (slot < 0) break;
-        int tri = slot_prim[slot];
-        double3 n = load3(tri_n + 3 * tri);
-        double dn = dot(d, n);
-        if (!(fabs(dn) > 1e-9)) break;   /* grazing: no footprint */
-        double tt = dot(load3(tri_v + 9 * tri) - pos, n) / dn;
-        double3 p = pos + tt * d;
-        double3 seg = p - pos;
-        L += sqrt(dot(seg, seg));
-        tri_hist[m - 1] = tri;
-        int mat = tri_material[tri];
-        if (m >= first_bounce && tri_record[tri]) {
-            double3 n_lit = (dn > 0.0) ? -n : n;   /* -sign(dn) n */
-            double kn = dot(d, n_lit);
-            double w_side = sqrt(dom) * L;
-            double3 a1 = w_side * e1, a2 = w_side * e2;
-            a1 -= d * (dot(n_lit, a1) / kn);
-            a2 -= d * (dot(n_lit, a2) / kn);
-            double area = w_side * w_side / fabs(kn);
-            int pec = mat_i[2 * mat];
-            cmat3 Dm;
-            if (!pec)
-                Dm = material_dyad(d, n_lit, (cplx)(mat_f[4 * mat], mat_f[4 * mat + 1]), 0,
-                                   mat_f[4 * mat + 2], mat_i[2 * mat + 1], mat_f[4 * mat + 3], k0);
-            for (int r = 0; r < n_rx; ++r) {
-                double3 rx = load3(rx_pos + 3 * r);
-                double3 dr = rx - p;
-                double R_r = sqrt(dot(dr, dr));
-                if (!(R_r > 0.0)) continue;
-                double3 sdir = dr / R_r;
-                if (!(dot(sdir, n_lit) > 0.0)) continue;
-                /* visibility.py: surface_sees - the sight line from just off the facet,
-                 * stopping SIGHT_STOP short of the antenna, the facet itself ignored */
-                double3 sorg = spawn64(p, n_lit, sdir);
-                PreparedRay sr = prepare_ray(to_float3(sorg), to_float3(rx - sorg));
-                if (bvh_any(nodes, tri4, slot_prim, &sr, 0.0f, sight_tmax, tri, -1)) continue;
-                double3 q = k0 * (sdir - d);
-                double i_fp = area * sinc_(0.5 * dot(q, a1)) * sinc_(0.5 * dot(q, a2));
-                /* the current operator: PEC (I - s s^T)(k_i n^T - (k_i.n) I), else
-                 * half of po.py: penetrable_po_operator */
-                cmat3 op;
-                for (int a = 0; a < 3; ++a)
-                    for (int b = 0; b < 3; ++b) {
-                        double acc = 0.0;
-                        for (int c = 0; c < 3; ++c) {
-                            double proj = ((a == c) ? 1.0 : 0.0) - comp3(sdir, a) * comp3(sdir, c);
-                            double cr = comp3(d, c) * comp3(n_lit, b) - ((c == b) ? kn : 0.0);
-                            acc += proj * cr;
-                        }
-                        op.m[3 * a + b] = (cplx)(acc, 0.0);
-                    }
+    SbrRecord table[SBR_GROUPS];
+    int n_groups = 0, ordinal = 0;
+
+    for (int cell = 0; cell < SBR_CELLS; ++cell) {
+        long tube = blk * SBR_CELLS + cell;
+        long i = (long)wi[0] + (long)blocks[3 * blk + 1] * SBR_BLOCK + cell % SBR_BLOCK;
+        long j = (long)wi[1] + (long)blocks[3 * blk + 2] * SBR_BLOCK + cell / SBR_BLOCK;
+        double3 vec = D * axis + ((double)i * s) * u + ((double)j * s) * v;
+        double dist = sqrt(dot(vec, vec));
+        double3 d = vec / dist;
+        bool owned = true;
+        for (int k = 0; k < w && owned; ++k)
+            owned = !window_covers(win_f, win_i, masks, k, d);   /* an earlier window's tube */
+        if (!owned) continue;
+        double cos_a = D / dist;
+        double dom = s * s * cos_a * cos_a * cos_a / (D * D);
+        double3 e1 = u - dot(d, u) * d;
+        e1 /= sqrt(dot(e1, e1));
+        double3 e2 = cross(d, e1);
+        /* the field leaving tx per unit tx-basis excitation: (I - k k^T) b_tx */
+        double3 bt, bp;
+        antenna_basis(d, tx_frame, &bt, &bp);
+        cvec3 f_t = cv_real(bt - dot(d, bt) * d), f_p = cv_real(bp - dot(d, bp) * d);
+
+        double3 pos = tx, org = tx;
+        double L = 0.0;
+        int tri_hist[SBR_TRI_SLOTS];
+        for (int m = 0; m < SBR_TRI_SLOTS; ++m) tri_hist[m] = -1;
+
+        for (int m = 1; m <= max_bounces; ++m) {
+            PreparedRay pr = prepare_ray(to_float3(org), to_float3(d));
+            float t = INFINITY, hu = 0.0f, hv = 0.0f;
+            int slot = bvh_closest(nodes, tri4, slot_prim, &pr, 0.0f, &t, &hu, &hv, -1);
+            if (slot < 0) break;
+            int tri = slot_prim[slot];
+            double3 n = load3(tri_n + 3 * tri);
+            double dn = dot(d, n);
+            if (!(fabs(dn) > 1e-9)) break;   /* grazing: no footprint */
+            double tt = dot(load3(tri_v + 9 * tri) - pos, n) / dn;
+            double3 p = pos + tt * d;
+            double3 seg = p - pos;
+            L += sqrt(dot(seg, seg));
+            tri_hist[m - 1] = tri;
+            int mat = tri_material[tri];
+            __global const double *mf = mat_f + 4 * mat;
+            __global const int *mi = mat_i + 2 * mat;
+            if (m >= first_bounce && tri_record[tri]) {
+                double3 n_lit = (dn > 0.0) ? -n : n;   /* -sign(dn) n */
+                double kn = dot(d, n_lit);
+                double w_side = sqrt(dom) * L;
+                double3 a1 = w_side * e1, a2 = w_side * e2;
+                a1 -= d * (dot(n_lit, a1) / kn);
+                a2 -= d * (dot(n_lit, a2) / kn);
+                double area = w_side * w_side / fabs(kn);
+                int pec = mi[0];
+                cvec3 Df_t = f_t, Df_p = f_p;
                 if (!pec) {
-                    double3 k_r = d - 2.0 * kn * n_lit;
-                    /* a_r = k_r n^T + kn I;  S N = [s]x [n]x */
-                    cmat3 K;
-                    for (int a = 0; a < 3; ++a)
-                        for (int b = 0; b < 3; ++b) {
-                            cplx acc = (cplx)(0.0, 0.0);
-                            for (int c = 0; c < 3; ++c) {
-                                double proj = ((a == c) ? 1.0 : 0.0) - comp3(sdir, a) * comp3(sdir, c);
-                                /* (a_r D)[c][b] */
-                                cplx arD = (cplx)(0.0, 0.0);
-                                for (int e = 0; e < 3; ++e) {
-                                    double ar = comp3(k_r, c) * comp3(n_lit, e) + ((c == e) ? kn : 0.0);
-                                    arD += c_scale(Dm.m[3 * e + b], ar);
-                                }
-                                acc += c_scale(arD, proj);
-                            }
-                            /* [s]x[n]x (I + D): [s]x[n]x = n s^T - (s.n) I */
-                            for (int c = 0; c < 3; ++c) {
-                                double sn = comp3(n_lit, a) * comp3(sdir, c)
-                                            - ((a == c) ? dot(sdir, n_lit) : 0.0);
-                                cplx ipd = Dm.m[3 * c + b] + (cplx)((c == b) ? 1.0 : 0.0, 0.0);
-                                acc += c_scale(ipd, sn);
-                            }
-                            K.m[3 * a + b] = c_scale(op.m[3 * a + b] + acc, 0.5);
+                    Df_t = material_reflect_field(d, n_lit, mf, mi, k0, f_t);
+                    Df_p = material_reflect_field(d, n_lit, mf, mi, k0, f_p);
+                }
+                for (int r = 0; r < n_rx; ++r) {
+                    double3 rx = load3(rx_pos + 3 * r);
+                    double3 dr = rx - p;
+                    double R_r = sqrt(dot(dr, dr));
+                    if (!(R_r > 0.0)) continue;
+                    double3 sdir = dr / R_r;
+                    if (!(dot(sdir, n_lit) > 0.0)) continue;
+                    /* visibility.py: surface_sees - the sight line from just off the
+                     * facet, stopping SIGHT_STOP short of the antenna, the facet ignored */
+                    double3 sorg = spawn64(p, n_lit, sdir);
+                    PreparedRay sr = prepare_ray(to_float3(sorg), to_float3(rx - sorg));
+                    if (bvh_any(nodes, tri4, slot_prim, &sr, 0.0f, sight_tmax, tri, -1)) continue;
+                    int n_near = near_first[r + 1] - near_first[r];
+                    if (n_near > 0) {
+                        double3 ar = fabs(rx);
+                        double radius = 2.0 * (confirm_tol_m + 1e-6 * fmax(fmax(ar.x, ar.y), ar.z));
+                        if (antenna_end_blocked(rx, sorg, radius, near_tri + near_first[r], n_near,
+                                                tri_v, tri_n, on_face_tol_rel, inside_tol_rel))
+                            continue;
+                    }
+                    double3 q = k0 * (sdir - d);
+                    double i_fp = area * sinc_(0.5 * dot(q, a1)) * sinc_(0.5 * dot(q, a2));
+                    double3 rt, rp;
+                    antenna_basis(-sdir, rx_frame + 9 * r, &rt, &rp);
+                    /* g = op f for f = f_t, f_p (PEC: k_i (n.f) - kn f, the projection
+                     * I - s s^T dropped as b_rx is transverse to s; penetrable: half of
+                     * po.py: penetrable_po_operator) */
+                    cvec3 g[2];
+                    for (int c = 0; c < 2; ++c) {
+                        cvec3 fc = (c == 0) ? f_t : f_p;
+                        cvec3 gc = cv_axpy(cv_dot_real(fc, n_lit), d, cv_scale_real(fc, -kn));
+                        if (!pec) {
+                            cvec3 Dfc = (c == 0) ? Df_t : Df_p;
+                            double3 k_r = d - 2.0 * kn * n_lit;
+                            /* a_r Df = k_r (n.Df) + kn Df */
+                            cvec3 ar = cv_axpy(cv_dot_real(Dfc, n_lit), k_r, cv_scale_real(Dfc, kn));
+                            /* [s]x[n]x (f + Df) = n (s.(f+Df)) - (f+Df)(s.n) */
+                            cvec3 y = cv_add(fc, Dfc);
+                            cvec3 sn = cv_axpy(cv_dot_real(y, sdir), n_lit,
+                                               cv_scale_real(y, -dot(sdir, n_lit)));
+                            /* P (a_i f + a_r Df): P drops against b_rx as well */
+                            gc = cv_scale_real(cv_add(cv_add(gc, ar), sn), 0.5);
                         }
-                    op = K;
+                        g[c] = gc;
+                    }
+                    double Ltot = L + R_r;
+                    double ph = k0 * Ltot;
+                    /* -j e^{-j k L} = (-sin kL, -cos kL) */
+                    cplx rot = (cplx)(-sin(ph), -cos(ph));
+                    double mag = amp * i_fp / (L * R_r);
+                    double M[8];
+                    double wsum = 0.0;
+                    for (int a = 0; a < 2; ++a)
+                        for (int c = 0; c < 2; ++c) {
+                            cplx val = c_scale(c_mul(rot, cv_dot_real(g[c], (a == 0) ? rt : rp)), mag);
+                            M[4 * a + 2 * c] = val.x;
+                            M[4 * a + 2 * c + 1] = val.y;
+                            wsum += val.x * val.x + val.y * val.y;
+                        }
+                    double wgt = sqrt(wsum);
+                    /* the group of (bounce, receiver, face sequence) */
+                    int g_idx = -1;
+                    for (int k = 0; k < n_groups && g_idx < 0; ++k) {
+                        bool same = table[k].bounce == m && table[k].receiver == r;
+                        for (int e = 0; e < m && same; ++e)
+                            same = table[k].face[e] == tri_face[tri_hist[e]];
+                        if (same) g_idx = k;
+                    }
+                    if (g_idx < 0) {
+                        if (n_groups == SBR_GROUPS) {
+                            emit(out, count, capacity, &table[0], &ordinal);
+                            for (int k = 1; k < n_groups; ++k) table[k - 1] = table[k];
+                            --n_groups;
+                        }
+                        g_idx = n_groups++;
+                        SbrRecord *e = &table[g_idx];
+                        for (int k = 0; k < 8; ++k) e->M[k] = 0.0;
+                        e->weight = 0.0; e->weighted_length = 0.0; e->rep_weight = 0.0; e->count = 0;
+                        e->bounce = (short)m; e->receiver = (short)r; e->pad = 0;
+                        e->tube = -1;
+                        for (int k = 0; k < SBR_TRI_SLOTS; ++k)
+                            e->face[k] = (k < m) ? tri_face[tri_hist[k]] : -1;
+                    }
+                    SbrRecord *e = &table[g_idx];
+                    for (int k = 0; k < 8; ++k) e->M[k] += M[k];
+                    e->weight += wgt;
+                    e->weighted_length += wgt * Ltot;
+                    e->count += 1;
+                    if (e->tube < 0 || wgt > e->rep_weight) {
+                        e->rep_weight = wgt;
+                        e->tube = tube;
+                        e->length = Ltot;
+                        e->point[0] = p.x; e->point[1] = p.y; e->point[2] = p.z;
+                        for (int k = 0; k < SBR_TRI_SLOTS; ++k) e->tri[k] = tri_hist[k];
+                    }
                 }
-                double Ltot = L + R_r;
-                /* scale = -j k0/(2 pi) L/(L_in R_r) I_fp */
-                double sc = -k0 / (2.0 * M_PI) * Ltot / (L * R_r) * i_fp;
-                cmat3 T = cmat3_mul(&op, &chain);
-                int slot_out = atomic_inc(count);
-                if (slot_out >= capacity) continue;   /* the host re-runs with room */
-                __global SbrRecord *rec = out + slot_out;
-                rec->length = Ltot;
-                rec->point[0] = p.x; rec->point[1] = p.y; rec->point[2] = p.z;
-                rec->k_arr[0] = sdir.x; rec->k_arr[1] = sdir.y; rec->k_arr[2] = sdir.z;
-                for (int e = 0; e < 9; ++e) {
-                    /* (0 + j sc) * T: (-sc T.im, sc T.re) */
-                    rec->transfer[2 * e] = (float)(-sc * T.m[e].y);
-                    rec->transfer[2 * e + 1] = (float)(sc * T.m[e].x);
-                }
-                rec->tube = tube;
-                rec->bounce = (short)m;
-                rec->receiver = (short)r;
-                for (int e = 0; e < SBR_TRI_SLOTS; ++e) rec->tri[e] = tri_hist[e];
             }
+            if (m == max_bounces) break;
+            f_t = material_reflect_field(d, n, mf, mi, k0, f_t);
+            f_p = material_reflect_field(d, n, mf, mi, k0, f_p);
+            d = d - 2.0 * dn * n;
+            e1 = e1 - 2.0 * dot(e1, n) * n;
+            e2 = e2 - 2.0 * dot(e2, n) * n;
+            pos = p;
+            org = spawn64(p, n, d);
         }
-        if (m == max_bounces) break;
-        cmat3 Dr = material_dyad(d, n, (cplx)(mat_f[4 * mat], mat_f[4 * mat + 1]),
-                                 mat_i[2 * mat], mat_f[4 * mat + 2], mat_i[2 * mat + 1],
-                                 mat_f[4 * mat + 3], k0);
-        chain = cmat3_mul(&Dr, &chain);
-        d = d - 2.0 * dn * n;
-        e1 = e1 - 2.0 * dot(e1, n) * n;
-        e2 = e2 - 2.0 * dot(e2, n) * n;
-        pos = p;
-        org = spawn64(p, n, d);
     }
+    for (int k = 0; k < n_groups; ++k) emit(out, count, capacity, &table[k], &ordinal);
 }

@@ -5,8 +5,9 @@ the snapshot the tracer wrote before the package was reorganised.
 layout, snapshot format 1) from ``tests/data/all_mechanisms.toml`` with the settings
 below, on PoCL's CPU device (1 m scattering tiles keep the file small: 814 paths,
 208 KiB). Gains, matrices, delays, Doppler shifts, points, object and face ids of every
-path but the SBR-PO ones (whose launch changed on purpose since) must match bit for bit; interaction codes too, once the physical-optics and SBR codes that
-format 2 added are read as the REFLECTION that format 1 wrote for them. Kernels on
+path but the SBR-PO ones (whose launch changed on purpose since) must match bit for bit;
+interaction codes too, once the physical-optics and SBR codes that format 2 added are
+read as the REFLECTION that format 1 wrote for them. Kernels on
 another OpenCL device may propose other candidates in float32; this reference holds for
 the PoCL CPU device the suite runs on.
 """

@@ -14,7 +14,13 @@ from __future__ import annotations
 import numpy as np
 
 from clradcom.device.raycast import RayCaster
-from clradcom.device.visibility import SIGHT_STOP
+from clradcom.device.visibility import (
+    CONFIRM_TOL_M,
+    INSIDE_TOL_REL,
+    ON_FACE_TOL_REL,
+    SIGHT_STOP,
+    confirm_margin_m,
+)
 from clradcom.errors import ArgumentError
 from clradcom.geometry.silhouette import BLOCK
 
@@ -22,26 +28,32 @@ __all__ = ["BATCH_TUBES", "record_dtype", "shoot_and_radiate"]
 
 #: Tubes per kernel launch (whole blocks): about 1 M, some 10 ms to a second of work.
 BATCH_TUBES = 1 << 20
+#: Face sequences a work item sums at once per block (the oldest is written out when a
+#: new one finds the table full: the sums stay exact, the block just yields more records).
+GROUPS = 16
 
 
 def tri_slots(max_bounces: int) -> int:
-    """Triangle slots per record: max_bounces rounded up to odd (8-byte record size)."""
-    return int(max_bounces) | 1
+    """Face and triangle slots per record."""
+    return max(1, int(max_bounces))
 
 
 def record_dtype(max_bounces: int) -> np.dtype:
     """numpy twin of ``SbrRecord`` in kernels/sbr.cl."""
-    return np.dtype([("length", "<f8"), ("point", "<f8", (3,)), ("k_arr", "<f8", (3,)),
-                     ("transfer", "<f4", (18,)), ("tube", "<i8"), ("bounce", "<i2"),
-                     ("receiver", "<i2"), ("tri", "<i4", (tri_slots(max_bounces),))])
+    k = tri_slots(max_bounces)
+    return np.dtype([("M", "<f8", (8,)), ("weight", "<f8"), ("weighted_length", "<f8"),
+                     ("rep_weight", "<f8"), ("length", "<f8"), ("point", "<f8", (3,)),
+                     ("tube", "<i8"), ("ordinal", "<i4"), ("count", "<i4"),
+                     ("bounce", "<i2"), ("receiver", "<i2"), ("pad", "<i4"),
+                     ("face", "<i4", (k,)), ("tri", "<i4", (k,))])
 
 
 def _tables(scene):
-    """Per-triangle material and per-material constants for the kernel."""
-    mats = np.arange(len(scene.material_pec))
+    """Per-material constants for the kernel: (eps re, eps im, roughness, sqrt(1 - S^2))
+    and (pec, roughness model)."""
     eps = np.asarray(scene.material_eps_r, dtype=np.complex128)
     pec = np.asarray(scene.material_pec, dtype=bool) | ~np.isfinite(eps)
-    mat_f = np.zeros((len(mats), 4))
+    mat_f = np.zeros((len(eps), 4))
     mat_f[:, 0] = np.where(pec, 0.0, eps.real)
     mat_f[:, 1] = np.where(pec, 0.0, eps.imag)
     mat_f[:, 2] = scene.material_roughness_m
@@ -60,20 +72,41 @@ def _windows(windows):
     win_i[:, 0:2], win_i[:, 2:4], win_i[:, 4] = windows.cell0, windows.shape, windows.mask_offset
     if np.abs(win_i).max(initial=0) >= 2**31:
         raise ArgumentError("a launch window is too large for 32-bit cell indices",
-                            argument="spacing", value=windows.spacing.min())
+                            argument="spacing", value=float(windows.spacing.min()))
     blocks = np.stack([windows.block_window, windows.block_i, windows.block_j], axis=1)
     return win_f, win_i.astype(np.int32), np.ascontiguousarray(blocks, dtype=np.int32)
 
 
-def shoot_and_radiate(caster: RayCaster, scene, windows, receivers, *, wavenumber: float,
-                      max_bounces: int, first_bounce: int, record_triangles,
-                      batch_tubes: int = BATCH_TUBES) -> dict:
-    """Every tube of ``windows`` that radiates toward a receiver (positions (R,3)) from a
-    bounce >= ``first_bounce`` on a triangle of ``record_triangles`` (bool per scene
-    triangle) at ``wavenumber`` (rad/m), as kernels/sbr.cl computes it: a dict of arrays, one row per record,
-    ``receiver``, ``tube``, ``bounce``, ``length``, ``point``, ``k_arr``, ``transfer``
-    (complex128 (C,3,3)) and ``tri_history`` (C, max_bounces), sorted by tube, bounce and
-    receiver.
+def near_triangles(caster: RayCaster, antennas) -> tuple[np.ndarray, np.ndarray]:
+    """Per antenna (R,3), the triangles that :func:`clradcom.device.visibility.
+    antenna_blocked` would test for its segments: boxes within twice the confirmation
+    margin of it, the antenna off their plane. (first (R+1,), triangles) as a CSR list."""
+    triangles = caster.triangles
+    lo, hi = caster.triangle_bounds()
+    normals = caster.normals64()
+    first, tris = [0], []
+    for ant in np.asarray(antennas, dtype=np.float64).reshape(-1, 3):
+        r = 2.0 * float(confirm_margin_m(ant[None])[0])
+        near = np.flatnonzero(np.all((ant >= lo - r) & (ant <= hi + r), axis=1))
+        d_ant = np.einsum("ij,ij->i", normals[near], ant - triangles[near, 0])
+        near = near[np.abs(d_ant) > ON_FACE_TOL_REL * (1.0 + np.abs(ant).max())]
+        tris.append(near)
+        first.append(first[-1] + len(near))
+    return (np.array(first, dtype=np.int32),
+            np.concatenate(tris).astype(np.int32) if tris else np.zeros(0, np.int32))
+
+
+def shoot_and_radiate(caster: RayCaster, scene, tri_face, windows, tx_frame, receivers,
+                      rx_frames, *, wavenumber: float, wavelength: float, max_bounces: int,
+                      first_bounce: int, record_triangles,
+                      batch_tubes: int = BATCH_TUBES) -> np.ndarray:
+    """Block sums (:func:`record_dtype`) of the tubes of ``windows`` as kernels/sbr.cl
+    computes them: per covered block, bounce >= ``first_bounce`` on a triangle of
+    ``record_triangles`` (bool per scene triangle), receiver (positions (R,3), antenna
+    frames (R,3,3); tx's frame ``tx_frame``) and sequence of planar faces ``tri_face``,
+    the sum of the tubes' 2x2 polarimetric matrices at ``wavenumber`` (rad/m) and
+    ``wavelength`` (m), with the representative tube.  Sorted by block and emission
+    order, so every run returns the same records in the same order.
     """
     import pyopencl as cl
 
@@ -88,45 +121,51 @@ def shoot_and_radiate(caster: RayCaster, scene, windows, receivers, *, wavenumbe
                             value=len(receivers))
     dtype = record_dtype(max_bounces)
     defines = {"SBR_MAX_BOUNCES": int(max_bounces), "SBR_TRI_SLOTS": tri_slots(max_bounces),
-               "SBR_BLOCK": BLOCK}
+               "SBR_BLOCK": BLOCK, "SBR_GROUPS": GROUPS}
     data64 = caster.scene_data64()
     mat_f, mat_i = _tables(scene)
     win_f, win_i, blocks = _windows(windows)
+    near_first, near_tri = near_triangles(caster, receivers)
     to_dev = rt.to_device
-    bufs = [data64["vertices"], data64["normals"],
-            to_dev(np.ascontiguousarray(scene.tri_material, dtype=np.int32)),
-            to_dev(np.ascontiguousarray(record_triangles, dtype=np.uint8)),
-            to_dev(np.ascontiguousarray(mat_f)), to_dev(np.ascontiguousarray(mat_i)),
-            to_dev(np.ascontiguousarray(win_f)), to_dev(np.ascontiguousarray(win_i)),
-            to_dev(np.ascontiguousarray(windows.masks, dtype=np.uint8)
-                   if len(windows.masks) else np.zeros(1, np.uint8)),
-            to_dev(blocks if len(blocks) else np.zeros((1, 3), np.int32)),
-            to_dev(receivers)]
+
+    def dev(a, dtype):
+        a = np.ascontiguousarray(a, dtype=dtype)
+        return to_dev(a if a.size else np.zeros(1, dtype))
+
+    bufs = [data64["vertices"], data64["normals"], dev(scene.tri_material, np.int32),
+            dev(tri_face, np.int32), dev(record_triangles, np.uint8), dev(mat_f, np.float64),
+            dev(mat_i, np.int32), dev(win_f, np.float64), dev(win_i, np.int32),
+            dev(windows.masks, np.uint8), dev(blocks, np.int32), dev(receivers, np.float64),
+            dev(np.asarray(rx_frames, np.float64).reshape(-1, 9), np.float64),
+            dev(np.asarray(tx_frame, np.float64).reshape(9), np.float64),
+            dev(near_first, np.int32), dev(near_tri, np.int32)]
     tx = np.asarray(windows.tx, dtype=np.float64)
-    k0 = float(wavenumber)
     sight_tmax = np.float32(1.0 - SIGHT_STOP)
     cells = BLOCK * BLOCK
     blocks_per_batch = max(1, int(batch_tubes) // cells)
     n_blocks = len(blocks)
     count = np.zeros(1, dtype=np.int32)
     count_buf = cl.Buffer(rt.context, cl.mem_flags.READ_WRITE, size=4)
-    capacity = 1 << 16
+    capacity = 1 << 14
     out_buf = cl.Buffer(rt.context, cl.mem_flags.READ_WRITE, size=capacity * dtype.itemsize)
     parts = []
     for first in range(0, n_blocks, blocks_per_batch):
         nb = min(blocks_per_batch, n_blocks - first)
         while True:
             cl.enqueue_copy(rt.queue, count_buf, np.zeros(1, np.int32))
-            caster.run_kernel("sbr.cl", "sbr_shoot", nb * cells, *bufs, np.int32(len(receivers)),
+            caster.run_kernel("sbr.cl", "sbr_blocks", nb, *bufs, np.float64(ON_FACE_TOL_REL),
+                              np.float64(INSIDE_TOL_REL), np.float64(CONFIRM_TOL_M),
+                              np.int32(len(receivers)),
                               np.float64(tx[0]), np.float64(tx[1]), np.float64(tx[2]),
-                              np.float64(k0), sight_tmax, np.int32(first_bounce),
-                              np.int32(max_bounces), np.int64(first), np.int32(nb * cells),
-                              out_buf, count_buf, np.int32(capacity), defines=defines)
+                              np.float64(wavenumber), np.float64(wavelength), sight_tmax,
+                              np.int32(first_bounce), np.int32(max_bounces), np.int64(first),
+                              np.int32(nb), out_buf, count_buf, np.int32(capacity),
+                              defines=defines)
             cl.enqueue_copy(rt.queue, count, count_buf)
             n = int(count[0])
             if n <= capacity:
                 break
-            # too many records for the buffer: grow it and shoot this batch again
+            # more records than the buffer holds: grow it and shoot this batch again
             capacity = max(n, 2 * capacity)
             out_buf = cl.Buffer(rt.context, cl.mem_flags.READ_WRITE,
                                 size=capacity * dtype.itemsize)
@@ -135,9 +174,4 @@ def shoot_and_radiate(caster: RayCaster, scene, windows, receivers, *, wavenumbe
             cl.enqueue_copy(rt.queue, rec, out_buf)
             parts.append(rec)
     rec = np.concatenate(parts) if parts else np.zeros(0, dtype=dtype)
-    rec = rec[np.lexsort((rec["receiver"], rec["bounce"], rec["tube"]))]
-    transfer = rec["transfer"].astype(np.float64).reshape(-1, 9, 2)
-    return {"receiver": rec["receiver"], "tube": rec["tube"], "bounce": rec["bounce"],
-            "length": rec["length"], "point": rec["point"], "k_arr": rec["k_arr"],
-            "transfer": (transfer[..., 0] + 1j * transfer[..., 1]).reshape(-1, 3, 3),
-            "tri_history": rec["tri"][:, :max_bounces]}
+    return rec[np.lexsort((rec["ordinal"], rec["tube"] // cells))]

@@ -59,7 +59,7 @@ import numpy as np
 
 from clradcom.device import sbr as device_sbr
 from clradcom.device.raycast import make_rays, spawn_origins
-from clradcom.device.visibility import antenna_blocked, confirm_margin_m, surface_sees
+from clradcom.device.visibility import surface_sees
 from clradcom.errors import ArgumentError
 from clradcom.geometry.silhouette import BLOCK, block_coverage, project_to_plane
 from clradcom.geometry.triangles import triangle_normals, triangle_normals_and_double_areas
@@ -68,8 +68,8 @@ from clradcom.physics import em
 from clradcom.physics.po import penetrable_po_operator, sinc
 from clradcom.physics.vectors import orthonormal_frame
 
-__all__ = ["Contributions", "SbrTubes", "TubeGrid", "TubeHits", "TubeWindows",
-           "bounding_sphere", "contribution_paths", "host_contributions", "launch_tubes",
+__all__ = ["BlockSums", "SbrTubes", "TubeGrid", "TubeHits", "TubeWindows", "block_paths",
+           "bounding_sphere", "device_block_sums", "host_block_sums", "launch_tubes",
            "launch_windows", "sbr_paths", "shoot_sbr", "shoot_tubes", "window_tubes"]
 
 #: Planar faces of the environment at least this large (m^2) mirror an SBR object: tubes
@@ -269,8 +269,18 @@ def _mirror_faces(geom, objects, tx):
     n, d = faces.normal[ids], faces.offset[ids]
     side = n @ tx - d
     keep = np.abs(side) > 1e-9 * (1.0 + np.abs(tx).max())
-    sgn = np.sign(side[keep])
-    return ids[keep], n[keep] * sgn[:, None], d[keep] * sgn
+    ids, n, d, side = ids[keep], n[keep], d[keep], side[keep]
+    sgn = np.sign(side)
+    # each face's bounding box, to skip the mirrors an image's line of sight misses
+    lo = np.full((len(ids), 3), np.inf)
+    hi = np.full((len(ids), 3), -np.inf)
+    slot = np.full(faces.n_faces, -1)
+    slot[ids] = np.arange(len(ids))
+    tri_slot = slot[faces.tri_face]
+    on = tri_slot >= 0
+    np.minimum.at(lo, tri_slot[on], scene.triangles[on].min(axis=1))
+    np.maximum.at(hi, tri_slot[on], scene.triangles[on].max(axis=1))
+    return ids, n * sgn[:, None], d * sgn, lo, hi
 
 
 def launch_windows(geom, tx_pos, objects, spacing_m, *, mirrors: bool = True,
@@ -289,8 +299,10 @@ def launch_windows(geom, tx_pos, objects, spacing_m, *, mirrors: bool = True,
         raise ArgumentError("must be positive numbers", argument="spacing_m",
                             value=spacing_m)
     direct, mirrored = [], []
-    face_ids, face_n, face_d = (_mirror_faces(geom, objects, tx) if mirrors
-                                else (np.zeros(0, np.int64), None, None))
+    face_ids, face_n, face_d, face_lo, face_hi = (
+        _mirror_faces(geom, objects, tx) if mirrors
+        else (np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3)),
+              np.zeros((0, 3))))
     for o, s in zip(objects, spacing, strict=True):
         tris = scene.triangles[scene.tri_object == o]
         if len(tris) == 0:
@@ -303,16 +315,19 @@ def launch_windows(geom, tx_pos, objects, spacing_m, *, mirrors: bool = True,
         win = _window(tx, c, s, tris)
         if win is not None:
             direct.append((o, -1, s, win))
-        for f, n, d in zip(face_ids, face_n if len(face_ids) else [],
-                           face_d if len(face_ids) else [], strict=True):
-            if n @ c - d <= 0:
-                continue  # the object is not in front of the mirror
+        # mirrors in front of which the object lies, whose box (grown by the object's
+        # radius) the line of sight to the object's image crosses
+        h_c = face_n @ c - face_d
+        c_img = c - 2.0 * h_c[:, None] * face_n
+        h_tx = face_n @ tx - face_d
+        with np.errstate(divide="ignore", invalid="ignore"):
+            cross_at = tx + (h_tx / (h_tx + h_c))[:, None] * (c_img - tx)
+        near = np.all((cross_at >= face_lo - r) & (cross_at <= face_hi + r), axis=1)
+        near &= (h_c > 0) & (np.linalg.norm(c_img - tx, axis=1) > r * 1.001)
+        for f, n, d, ci in zip(face_ids[near], face_n[near], face_d[near], c_img[near],
+                               strict=True):
             image = tris - 2.0 * ((tris @ n) - d)[..., None] * n
-            c_img = c - 2.0 * (n @ c - d) * n
-            if np.linalg.norm(c_img - tx) <= r * 1.001:
-                continue
-            win = _window(tx, c_img, s, image,
-                          clip=scene.triangles[geom.faces.tri_face == f])
+            win = _window(tx, ci, s, image, clip=scene.triangles[geom.faces.tri_face == f])
             if win is not None:
                 mirrored.append((o, int(f), s, win))
     wins = direct + mirrored
@@ -507,43 +522,6 @@ def bounding_sphere(points):
     return c, float(np.linalg.norm(pts - c, axis=1).max())
 
 
-@dataclass
-class Contributions:
-    """Radiated tube footprints of one transmitter, one row per (tube, bounce, receiver)
-    that sees its receiver: ``receiver`` (C,) index into the receivers shot for; ``tube``
-    (C,) int64 (see :class:`TubeWindows`); ``bounce`` (C,) int16; ``length`` (C,)
-    unfolded tx -> footprint -> rx (m); ``transfer`` (C,3,3) complex T (module docstring);
-    ``k_arr`` (C,3) unit direction footprint -> rx; ``point`` (C,3) footprint centre;
-    ``tri_history`` (C, max_bounces) the triangles hit up to this bounce (-1 after)."""
-
-    receiver: np.ndarray
-    tube: np.ndarray
-    bounce: np.ndarray
-    length: np.ndarray
-    transfer: np.ndarray
-    k_arr: np.ndarray
-    point: np.ndarray
-    tri_history: np.ndarray
-
-    def __len__(self) -> int:
-        return len(self.tube)
-
-    def select(self, rows) -> Contributions:
-        return Contributions(**{k: getattr(self, k)[rows]
-                                for k in self.__dataclass_fields__})
-
-    @staticmethod
-    def concat(parts, max_bounces: int) -> Contributions:
-        if not parts:
-            return Contributions(
-                receiver=np.zeros(0, np.int32), tube=np.zeros(0, np.int64),
-                bounce=np.zeros(0, np.int16), length=np.zeros(0),
-                transfer=np.zeros((0, 3, 3), np.complex128), k_arr=np.zeros((0, 3)),
-                point=np.zeros((0, 3)), tri_history=np.zeros((0, max_bounces), np.int32))
-        return Contributions(**{k: np.concatenate([getattr(p, k) for p in parts])
-                                for k in Contributions.__dataclass_fields__})
-
-
 def _radiate(geom, hits: TubeHits, grid: TubeGrid, rx_pos):
     """Per recorded hit that sees rx: T (H,3,3), L (H,), k_arr and the hits kept
     (side, shadowing).  See the module docstring for T."""
@@ -590,13 +568,90 @@ def _radiate(geom, hits: TubeHits, grid: TubeGrid, rx_pos):
     return T, L, s, keep
 
 
-def host_contributions(geom, windows: TubeWindows, receivers, max_bounces: int,
-                       first_bounce: int, record_triangles) -> Contributions:
+@dataclass
+class BlockSums:
+    """SBR-PO footprints of one transmitter summed per launch block, bounce, receiver
+    and sequence of planar faces: what both engines produce.  Per row: ``receiver`` (C,)
+    index into the receivers shot for; ``bounce`` (C,) int16; ``matrix`` (C,2,2) the sum
+    of the footprints' polarimetric matrices (:func:`clradcom.physics.em.
+    polarimetric_matrix`, in the antennas' bases of each tube's own directions);
+    ``weight`` (C,) the sum of their Frobenius norms and ``weighted_length`` (C,) of norm
+    x unfolded length; ``count`` (C,) footprints; ``face`` (C, max_bounces) the face
+    sequence (-1 after); and the representative footprint (largest norm, the first of
+    equals): ``tube`` (C,) int64, ``length`` (C,) unfolded tx -> footprint -> rx,
+    ``point`` (C,3) and ``tri`` (C, max_bounces) its triangles."""
+
+    receiver: np.ndarray
+    bounce: np.ndarray
+    matrix: np.ndarray
+    weight: np.ndarray
+    weighted_length: np.ndarray
+    count: np.ndarray
+    face: np.ndarray
+    tube: np.ndarray
+    length: np.ndarray
+    point: np.ndarray
+    tri: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.tube)
+
+    def select(self, rows) -> BlockSums:
+        return BlockSums(**{k: getattr(self, k)[rows] for k in self.__dataclass_fields__})
+
+    @staticmethod
+    def empty(max_bounces: int) -> BlockSums:
+        z = np.zeros(0)
+        k = np.zeros((0, max_bounces), np.int32)
+        return BlockSums(receiver=np.zeros(0, np.int32), bounce=np.zeros(0, np.int16),
+                         matrix=np.zeros((0, 2, 2), np.complex128), weight=z,
+                         weighted_length=z, count=np.zeros(0, np.int32), face=k,
+                         tube=np.zeros(0, np.int64), length=z, point=np.zeros((0, 3)), tri=k)
+
+
+def _sum_blocks(tube, bounce, receiver, M, L, point, tri, tri_face, max_bounces) -> BlockSums:
+    """Per-footprint rows (in tube, bounce, receiver order) summed as the device kernel
+    sums them: per block, bounce, receiver and face sequence, in the order each group
+    first appears, the representative the first footprint of the largest norm."""
+    if len(tube) == 0:
+        return BlockSums.empty(max_bounces)
+    face = np.where(tri >= 0, tri_face[np.maximum(tri, 0)], -1).astype(np.int32)
+    block = tube // (BLOCK * BLOCK)
+    keys = np.column_stack([block, bounce, receiver, face])
+    _, first, group = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    group = group.ravel()
+    # number the groups by first appearance (the kernel's emission order)
+    rank = np.empty(len(first), np.int64)
+    rank[np.argsort(first, kind="stable")] = np.arange(len(first))
+    group = rank[group]
+    G = len(first)
+    w = np.sqrt(np.sum(np.abs(M.reshape(len(M), 4)) ** 2, axis=1))
+    g_M = np.zeros((G, 2, 2), np.complex128)
+    np.add.at(g_M, group, M)
+    g_w = np.zeros(G)
+    np.add.at(g_w, group, w)
+    g_wl = np.zeros(G)
+    np.add.at(g_wl, group, w * L)
+    count = np.bincount(group, minlength=G).astype(np.int32)
+    order = np.lexsort((np.arange(len(group)), -w, group))
+    head = np.ones(len(order), bool)
+    head[1:] = group[order[1:]] != group[order[:-1]]
+    rep = order[head]
+    return BlockSums(receiver=receiver[rep].astype(np.int32), bounce=bounce[rep].astype(np.int16),
+                     matrix=g_M, weight=g_w, weighted_length=g_wl, count=count,
+                     face=face[rep], tube=tube[rep].astype(np.int64), length=L[rep],
+                     point=point[rep], tri=tri[rep].astype(np.int32))
+
+
+def host_block_sums(geom, windows: TubeWindows, tx, receivers, max_bounces: int,
+                    first_bounce: int, record_triangles) -> BlockSums:
     """The reference engine: every owned tube of ``windows`` shot with :func:`shoot_tubes`
-    and radiated toward each receiver position (R,3) with :func:`_radiate`, in batches of
-    HOST_BATCH_TUBES tubes."""
-    receivers = np.asarray(receivers, dtype=np.float64).reshape(-1, 3)
-    parts = []
+    and radiated toward each receiver (radars) with :func:`_radiate`, in batches of
+    HOST_BATCH_TUBES tubes; each footprint's polarimetric matrix by
+    :func:`clradcom.physics.em.polarimetric_matrix`, then summed by :func:`_sum_blocks`."""
+    scene = geom.scene
+    rows: dict[str, list] = {k: [] for k in ("tube", "bounce", "receiver", "M", "L", "point",
+                                             "tri")}
     for start in range(0, windows.n_tubes, HOST_BATCH_TUBES):
         tubes = np.arange(start, min(start + HOST_BATCH_TUBES, windows.n_tubes))
         grid, owned = window_tubes(windows, tubes)
@@ -607,108 +662,112 @@ def host_contributions(geom, windows: TubeWindows, receivers, max_bounces: int,
                            record_triangles)
         if len(hits.tube) == 0:
             continue
-        for r, rx_pos in enumerate(receivers):
-            T, L, s, keep = _radiate(geom, hits, grid, rx_pos)
+        for r, rx in enumerate(receivers):
+            T, L, s, keep = _radiate(geom, hits, grid, rx.position)
             if len(keep) == 0:
                 continue
-            parts.append(Contributions(
-                receiver=np.full(len(keep), r, np.int32), tube=tubes[hits.tube[keep]],
-                bounce=hits.bounce[keep], length=L, transfer=T, k_arr=s,
-                point=hits.point[keep], tri_history=np.where(
-                    np.arange(max_bounces)[None, :] < hits.bounce[keep, None],
-                    hits.tri_history[keep], -1).astype(np.int32)))
-    out = Contributions.concat(parts, max_bounces)
-    # the device engine's order, so both engines list the same rows alike
-    return out.select(np.lexsort((out.receiver, out.bounce, out.tube)))
+            rows["M"].append(em.polarimetric_matrix(
+                T, L, grid.directions[hits.tube[keep]], s, tx.orientation, rx.orientation,
+                scene.carrier_hz))
+            rows["tube"].append(tubes[hits.tube[keep]])
+            rows["bounce"].append(hits.bounce[keep])
+            rows["receiver"].append(np.full(len(keep), r, np.int32))
+            rows["L"].append(L)
+            rows["point"].append(hits.point[keep])
+            rows["tri"].append(np.where(np.arange(max_bounces)[None, :]
+                                        < hits.bounce[keep, None], hits.tri_history[keep], -1))
+    if not rows["tube"]:
+        return BlockSums.empty(max_bounces)
+    cat = {k: np.concatenate(v) for k, v in rows.items()}
+    order = np.lexsort((cat["receiver"], cat["bounce"], cat["tube"]))
+    cat = {k: v[order] for k, v in cat.items()}
+    return _sum_blocks(cat["tube"], cat["bounce"], cat["receiver"], cat["M"], cat["L"],
+                       cat["point"], cat["tri"], geom.faces.tri_face, max_bounces)
 
 
-def device_contributions(geom, windows: TubeWindows, receivers, max_bounces: int,
-                         first_bounce: int, record_triangles) -> Contributions:
-    """The device engine (:func:`clradcom.device.sbr.shoot_and_radiate`), then the float64
-    check of the last millimetre before each receiver (:func:`antenna_blocked`), which
-    the host reference's :func:`surface_sees` makes as well."""
-    receivers = np.asarray(receivers, dtype=np.float64).reshape(-1, 3)
-    rec = device_sbr.shoot_and_radiate(geom.caster, geom.scene, windows, receivers,
-                                       wavenumber=2.0 * np.pi * geom.scene.carrier_hz / em.C0,
-                                       max_bounces=max_bounces, first_bounce=first_bounce,
-                                       record_triangles=record_triangles)
-    out = Contributions(receiver=rec["receiver"].astype(np.int32),
-                        tube=rec["tube"].astype(np.int64),
-                        bounce=rec["bounce"].astype(np.int16), length=rec["length"],
-                        transfer=rec["transfer"], k_arr=rec["k_arr"], point=rec["point"],
-                        tri_history=rec["tri_history"].astype(np.int32))
-    if len(out) == 0:
-        return out
-    sees = np.ones(len(out), dtype=bool)
-    spawn = spawn_origins(out.point, triangle_normals(geom.scene.triangles[
-        out.tri_history[np.arange(len(out)), out.bounce - 1]]), out.k_arr)
-    for r, rx_pos in enumerate(receivers):
-        rows = np.flatnonzero(out.receiver == r)
-        if len(rows):
-            sees[rows] = ~antenna_blocked(geom.caster, geom.faces.tri_face, rx_pos,
-                                          spawn[rows], 2.0 * confirm_margin_m(rx_pos[None]))
-    return out.select(np.flatnonzero(sees))
+def device_block_sums(geom, windows: TubeWindows, tx, receivers, max_bounces: int,
+                      first_bounce: int, record_triangles) -> BlockSums:
+    """The device engine: :func:`clradcom.device.sbr.shoot_and_radiate`."""
+    scene = geom.scene
+    rec = device_sbr.shoot_and_radiate(
+        geom.caster, scene, geom.faces.tri_face, windows, tx.orientation,
+        [rx.position for rx in receivers], [rx.orientation for rx in receivers],
+        wavenumber=2.0 * np.pi * scene.carrier_hz / em.C0,
+        wavelength=em.C0 / scene.carrier_hz, max_bounces=max_bounces,
+        first_bounce=first_bounce, record_triangles=record_triangles)
+    M = rec["M"].reshape(-1, 2, 2, 2)
+    return BlockSums(receiver=rec["receiver"].astype(np.int32),
+                     bounce=rec["bounce"].astype(np.int16),
+                     matrix=M[..., 0] + 1j * M[..., 1], weight=rec["weight"],
+                     weighted_length=rec["weighted_length"],
+                     count=rec["count"].astype(np.int32),
+                     face=rec["face"][:, :max_bounces].astype(np.int32),
+                     tube=rec["tube"].astype(np.int64), length=rec["length"],
+                     point=rec["point"], tri=rec["tri"][:, :max_bounces].astype(np.int32))
+
 
 def _replay(geom, windows: TubeWindows, tubes, bounces, max_bounces: int):
-    """Bounce points (P, max_bounces, 3) and triangles (P, max_bounces) of tubes ``tubes``
-    up to their bounce ``bounces``, re-shot on the host (the engines are deterministic,
-    so a tube retraces its path)."""
+    """Bounce points (P, max_bounces, 3) of tubes ``tubes`` up to their bounce
+    ``bounces``, re-shot on the host (the engines are deterministic, so a tube retraces
+    its path; points past the bounce are NaN)."""
     tubes = np.asarray(tubes, dtype=np.int64)
+    bounces = np.asarray(bounces, dtype=np.int64)
     uniq, inv = np.unique(tubes, return_inverse=True)
     grid, _ = window_tubes(windows, uniq)
     hits = shoot_tubes(geom, windows.tx, grid, max_bounces, first_bounce=1)
+    hist = np.full((len(tubes), max_bounces, 3), np.nan)
+    if len(hits.tube) == 0:
+        return hist
     key = hits.tube.astype(np.int64) * (max_bounces + 1) + hits.bounce
     order = np.argsort(key)
-    want = inv.reshape(-1) * (max_bounces + 1) + np.asarray(bounces, dtype=np.int64)
-    pos = np.searchsorted(key[order], want)
-    pos = np.minimum(pos, len(order) - 1)
-    found = key[order][pos] == want if len(order) else np.zeros(len(want), bool)
-    rows = order[pos]
-    P = len(tubes)
-    hist = np.full((P, max_bounces, 3), np.nan)
-    thist = np.full((P, max_bounces), -1, np.int32)
-    if len(order):
-        hist[found] = hits.history[rows[found]]
-        thist[found] = hits.tri_history[rows[found]]
-    return hist, thist, found
+    want = inv.reshape(-1) * (max_bounces + 1) + bounces
+    pos = np.minimum(np.searchsorted(key[order], want), len(order) - 1)
+    found = key[order][pos] == want
+    hist[found] = hits.history[order[pos[found]]]
+    return hist
 
 
-def contribution_paths(geom, windows: TubeWindows, contributions: Contributions, tx, rx,
-                       *, max_bounces: int, min_relative_db: float = -80.0) -> Paths:
-    """One receiver's :class:`Contributions` as :class:`Paths`: contributions with the
-    same sequence of planar faces (``geom.faces``) add up coherently to one path (gain and
-    matrix summed); the points, delay, Doppler, object and triangle ids are those of the
-    tube whose unfolded length is closest to the |gain|-weighted mean length of the group
-    (so the delay is the group's and is consistent with the points).  Groups more than
-    |min_relative_db| below the strongest of the link, and tubes outside either antenna's
-    pattern, are dropped."""
+def block_paths(geom, windows: TubeWindows, sums: BlockSums, tx, rx, *, max_bounces: int,
+                min_relative_db: float = -80.0) -> Paths:
+    """One receiver's :class:`BlockSums` as :class:`Paths`.
+
+    Each row's gain applies the antenna patterns at its representative's directions (a
+    block spans a few tube pitches, over which a pattern does not change) to its matrix;
+    rows outside either pattern there are dropped.  Rows with the same face sequence add
+    up coherently to one path (gains and matrices summed); its delay, points, Doppler,
+    object and triangle ids are those of the representative whose unfolded length is
+    closest to the group's norm-weighted mean length, so the delay is the group's and
+    is consistent with the points.  Groups more than |min_relative_db| below the
+    strongest of the link are dropped.
+    """
     scene = geom.scene
-    c = contributions
-    if len(c) == 0:
+    if len(sums) == 0:
         return Paths.empty(max_bounces)
-    k_dep = window_tubes(windows, c.tube)[0].directions
-    gain, M = em.path_gains(c.transfer, c.length, k_dep, c.k_arr, tx, rx, scene.carrier_hz)
-    seen = (np.asarray(tx.pattern.gain(k_dep @ np.asarray(tx.orientation))) > 0) & (
-        np.asarray(rx.pattern.gain(-c.k_arr @ np.asarray(rx.orientation))) > 0)
+    k_dep = window_tubes(windows, sums.tube)[0].directions
+    k_arr = np.asarray(rx.position, np.float64) - sums.point
+    k_arr /= np.linalg.norm(k_arr, axis=1, keepdims=True)
+    d_tx = k_dep @ np.asarray(tx.orientation)
+    d_rx = -k_arr @ np.asarray(rx.orientation)
+    seen = (np.asarray(tx.pattern.gain(d_tx)) > 0) & (np.asarray(rx.pattern.gain(d_rx)) > 0)
     if not seen.any():
         return Paths.empty(max_bounces)
-    gain, M, L, c = gain[seen], M[seen], c.length[seen], c.select(np.flatnonzero(seen))
-    tri_hist = c.tri_history
-    face_seq = np.where(tri_hist >= 0, geom.faces.tri_face[np.maximum(tri_hist, 0)], -1)
-    _, group = np.unique(face_seq, axis=0, return_inverse=True)
+    c = sums.select(np.flatnonzero(seen))
+    c_tx = np.asarray(tx.pattern.field(d_tx[seen]), dtype=np.complex128)
+    c_rx = np.asarray(rx.pattern.field(d_rx[seen]), dtype=np.complex128)
+    gain = np.einsum("pi,pij,pj->p", c_rx, c.matrix, c_tx)
+    _, group = np.unique(c.face, axis=0, return_inverse=True)
     group = group.ravel()
     G = int(group.max()) + 1
     g_gain = np.zeros(G, np.complex128)
     np.add.at(g_gain, group, gain)
     g_M = np.zeros((G, 2, 2), np.complex128)
-    np.add.at(g_M, group, M)
-    w = np.abs(gain) + 1e-300
-    mean_L = np.bincount(group, w * L, G) / np.bincount(group, w, G)
-    # representative tube: unfolded length closest to the group's mean
-    order = np.lexsort((np.abs(L - mean_L[group]), group))
-    first = np.ones(len(order), dtype=bool)
-    first[1:] = group[order[1:]] != group[order[:-1]]
-    rep = order[first]  # one row per group, in group order
+    np.add.at(g_M, group, c.matrix)
+    w = np.bincount(group, c.weight, G)
+    mean_L = np.bincount(group, c.weighted_length, G) / np.where(w > 0, w, 1.0)
+    order = np.lexsort((np.arange(len(group)), np.abs(c.length - mean_L[group]), group))
+    head = np.ones(len(order), dtype=bool)
+    head[1:] = group[order[1:]] != group[order[:-1]]
+    rep = order[head]  # one row per group, in group order
     mag = np.abs(g_gain)
     if not np.any(mag > 0):
         mag = np.linalg.norm(g_M.reshape(G, -1), axis=1)
@@ -717,14 +776,13 @@ def contribution_paths(geom, windows: TubeWindows, contributions: Contributions,
     rep_s = rep[strong]
     P = len(rep_s)
     nk = c.bounce[rep_s].astype(np.int64)
-    hist, _, _ = _replay(geom, windows, c.tube[rep_s], nk, max_bounces)
     pts = np.full((P, max_bounces + 2, 3), np.nan)
     pts[:, 0] = tx.position
-    pts[:, 1:max_bounces + 1] = hist
+    pts[:, 1:max_bounces + 1] = _replay(geom, windows, c.tube[rep_s], nk, max_bounces)
     # the footprint itself as the engine computed it (the replay agrees to rounding)
     pts[np.arange(P), nk] = c.point[rep_s]
     pts[np.arange(P), nk + 1] = rx.position
-    tri_ids = tri_hist[rep_s]
+    tri_ids = c.tri[rep_s]
     obj = np.where(tri_ids >= 0, scene.tri_object[np.maximum(tri_ids, 0)], -1)
     vel = np.zeros_like(pts)
     vel[:, 0] = tx.velocity
@@ -733,7 +791,7 @@ def contribution_paths(geom, windows: TubeWindows, contributions: Contributions,
     vel[np.arange(P), nk + 1] = rx.velocity
     doppler = em.doppler_hz(pts, vel, scene.wavelength_m, num_interactions=nk)
     active = tri_ids >= 0
-    return Paths(gain=g_gain[strong], matrix=g_M[strong], delay_s=em.delay_s(L[rep_s]),
+    return Paths(gain=g_gain[strong], matrix=g_M[strong], delay_s=em.delay_s(c.length[rep_s]),
                  doppler_hz=doppler, n_interactions=nk.astype(np.int16),
                  interaction=np.where(active, int(InteractionType.SBR), 0
                                       ).astype(np.int8),
@@ -743,11 +801,11 @@ def contribution_paths(geom, windows: TubeWindows, contributions: Contributions,
 @dataclass
 class SbrTubes:
     """One transmitter's SBR tubes, radiated toward all its receivers: the windows they
-    left through, the receivers' positions (R,3) and the :class:`Contributions`."""
+    left through, the receivers' positions (R,3) and the :class:`BlockSums`."""
 
     windows: TubeWindows
     receivers: np.ndarray
-    contributions: Contributions
+    sums: BlockSums
     max_bounces: int
 
     def receiver_index(self, rx_pos) -> int:
@@ -769,23 +827,22 @@ def object_spacing_m(scene, objects, spacing_wavelengths: float) -> np.ndarray:
 
 def shoot_sbr(geom, tx, objects, receivers, *, spacing_wavelengths: float = 0.5,
               max_bounces: int = 3, first_bounce: int = 2, mirrors: bool = True) -> SbrTubes:
-    """Shoot tx's tubes over ``objects`` and radiate them toward every receiver
-    (:class:`clradcom.scene.Radar` objects or positions): what a tracer computes once per
-    transmitter, with the engine ``geom.engine``."""
+    """Shoot tx's tubes over ``objects`` and radiate them toward every receiver (radars):
+    what a tracer computes once per transmitter, with the engine ``geom.engine``."""
     scene = geom.scene
     objects = np.asarray(list(objects), dtype=np.int64)
-    rx_pos = np.array([np.asarray(getattr(r, "position", r), dtype=np.float64)
-                       for r in receivers]).reshape(-1, 3)
+    receivers = list(receivers)
+    rx_pos = np.array([np.asarray(r.position, dtype=np.float64) for r in receivers]
+                      ).reshape(-1, 3)
     windows = launch_windows(geom, tx.position, objects,
                              object_spacing_m(scene, objects, spacing_wavelengths),
                              mirrors=mirrors, tx_name=tx.name)
     record = np.isin(scene.tri_object, objects)
-    engine = device_contributions if geom.engine == "device" else host_contributions
-    contributions = (engine(geom, windows, rx_pos, max_bounces, first_bounce, record)
-                     if windows.n_tubes and max_bounces >= first_bounce
-                     else Contributions.concat([], max_bounces))
-    return SbrTubes(windows=windows, receivers=rx_pos, contributions=contributions,
-                    max_bounces=max_bounces)
+    engine = device_block_sums if geom.engine == "device" else host_block_sums
+    sums = (engine(geom, windows, tx, receivers, max_bounces, first_bounce, record)
+            if windows.n_tubes and receivers and max_bounces >= first_bounce
+            else BlockSums.empty(max_bounces))
+    return SbrTubes(windows=windows, receivers=rx_pos, sums=sums, max_bounces=max_bounces)
 
 
 def sbr_paths(geom, tx, rx, *, objects, spacing_wavelengths: float = 0.5,
@@ -797,8 +854,8 @@ def sbr_paths(geom, tx, rx, *, objects, spacing_wavelengths: float = 0.5,
     ``spacing_wavelengths`` wavelengths at each window, or the object's own), bounce off
     anything in the scene, and radiate (module docstring) from every bounce
     >= ``first_bounce`` that lands on one of ``objects`` and sees rx unblocked;
-    :func:`contribution_paths` groups them into paths.  ``shot`` is :func:`shoot_sbr`'s
-    result for tx when the caller keeps it across receivers (it must include rx).
+    :func:`block_paths` groups them into paths.  ``shot`` is :func:`shoot_sbr`'s result
+    for tx when the caller keeps it across receivers (it must include rx).
     """
     objects = np.asarray(list(objects), dtype=np.int64)
     if geom.caster is None or len(objects) == 0 or max_bounces < first_bounce:
@@ -806,10 +863,10 @@ def sbr_paths(geom, tx, rx, *, objects, spacing_wavelengths: float = 0.5,
     if shot is None:
         shot = shoot_sbr(geom, tx, objects, [rx], spacing_wavelengths=spacing_wavelengths,
                          max_bounces=max_bounces, first_bounce=first_bounce, mirrors=mirrors)
-    c = shot.contributions
-    if len(c) == 0:
+    sums = shot.sums
+    if len(sums) == 0:
         return Paths.empty(shot.max_bounces)
     r = shot.receiver_index(rx.position)
-    return contribution_paths(geom, shot.windows, c.select(np.flatnonzero(c.receiver == r)),
-                              tx, rx, max_bounces=shot.max_bounces,
-                              min_relative_db=min_relative_db)
+    return block_paths(geom, shot.windows, sums.select(np.flatnonzero(sums.receiver == r)),
+                       tx, rx, max_bounces=shot.max_bounces,
+                       min_relative_db=min_relative_db)
