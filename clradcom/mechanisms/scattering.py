@@ -442,18 +442,24 @@ def _device_tiles(geom, tris, tri_sel, size, seed, mask, tx_pos, rx_pos, mr, mon
 _PRECUT_ROWS = 64
 
 
-def _gain_bound(tx, rx, qt, tx_pos, rx_pos, power, cross_pol_share):
-    """Upper bounds of |a| of direct paths through tiles qt from their Lambertian power
-    (isotropic, Gamma = 1): Gamma <= 1 (passive materials), the polarisation map X
-    stretches a field by at most sqrt(1 - K) + sqrt(K), and |c_rx . T c_tx| <= |c_rx|
-    |T| |c_tx| with |c|^2 the directivities along the path; 1e-6 for rounding."""
+def _gain_bound(scene, tx, rx, qt, nt, tid, tx_pos, rx_pos, power):
+    """Upper bounds of |a| of direct paths through tiles qt (normals nt, triangles tid)
+    from their Lambertian power (isotropic antennas, Gamma = 1): Gamma is a mean of
+    |r_te|^2 and |r_tm|^2, so at most the larger; the polarisation map X stretches a field
+    by at most sqrt(1 - K) + sqrt(K); and |c_rx . T c_tx| <= |c_rx| |T| |c_tx| with |c|^2
+    the directivities along the path. 1e-6 covers rounding."""
+    mat = scene.tri_material[tid]
     k_dep = unit(qt - tx_pos)
     k_arr = unit(rx_pos - qt)
+    cos_i = np.abs(np.einsum("pi,pi->p", k_dep, nt))
+    r_te, r_tm = em.fresnel_coefficients(scene.material_eps_r[mat], cos_i,
+                                         scene.material_pec[mat])
+    gamma = np.maximum(np.abs(r_te), np.abs(r_tm))
     g_t = np.asarray(tx.pattern.gain(k_dep @ np.asarray(tx.orientation)), dtype=np.float64)
     g_r = np.asarray(rx.pattern.gain(-k_arr @ np.asarray(rx.orientation)), dtype=np.float64)
-    K = np.asarray(cross_pol_share, dtype=np.float64)
+    K = scene.material_cross_pol_share[mat]
     pol = (np.sqrt(1.0 - K) + np.sqrt(K)) ** 2
-    return np.sqrt(power * pol * g_t * g_r) * (1.0 + 1e-6)
+    return gamma * np.sqrt(power * pol * g_t * g_r) * (1.0 + 1e-6)
 
 
 def _mirror_dyads(scene, faces, face, k_in):
@@ -623,9 +629,8 @@ def scattering_paths(geom, tx, rx, *, tile_size_m=None, threshold_db=-60.0, seed
         # the device's Lambertian power bounds every direct path's |a| from above: rows
         # below the threshold of a lower bound of the strongest |a| (the exact gains of
         # the rows with the largest bounds) are never emitted, so their fields are skipped
-        bound = _gain_bound(tx, rx, q[cols[0]], tx_pos, rx_pos, power[cols[0]],
-                            scene.material_cross_pol_share[scene.tri_material[
-                                tri_ids[cols[0]]]])
+        t = cols[0]
+        bound = _gain_bound(scene, tx, rx, q[t], nrm[t], tri_ids[t], tx_pos, rx_pos, power[t])
         lower = top
         if lower is None:
             best = np.sort(np.argsort(-bound, kind="stable")[:_PRECUT_ROWS])
