@@ -540,6 +540,10 @@ def scattering_paths(geom, tx, rx, *, tile_size_m=None, threshold_db=-60.0, seed
     -(1/lambda) dL/dt with the tile and mirrors moving with their objects.
     Interactions SCATTERING, with REFLECTION before/after it; object_id/face_id
     the object and scene triangle at each interaction.
+
+    ``geom.engine`` "device" cuts the tiles and tests their sight of tx and rx in the
+    kernels of :mod:`clradcom.device.scatter` (the same numbers as the host's, bit for bit;
+    docs/scattering.md "On the device"); "host" is the numpy reference.
     """
     mr = max_reflections
     if not (isinstance(mr, (int, np.integer)) and not isinstance(mr, bool) and 0 <= mr <= 2):
