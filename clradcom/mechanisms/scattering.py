@@ -35,10 +35,13 @@ reflection dyad (Fresnel x roughness x sqrt(1 - S_mirror^2)) on that side.
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
+from clradcom.device import scatter as device_scatter
+from clradcom.device.raycast import spawn_origins
 from clradcom.device.visibility import (
     antenna_blocked,
     antenna_slack,
@@ -339,6 +342,126 @@ def _visible(geom, q, nrm, tri_ids, idx, end):
                         tri_face=geom.faces.tri_face)
 
 
+def _antenna_clear(geom, q, nrm, end):
+    """Mask over tiles q whose float32 sight line to the antenna ``end`` is clear: the
+    float64 part of :func:`clradcom.device.visibility.surface_sees` (the last
+    millimetres at the antenna, :func:`antenna_blocked`), from the same spawned origins."""
+    if len(q) == 0:
+        return np.zeros(0, dtype=bool)
+    end = np.asarray(end, dtype=np.float64)
+    org = spawn_origins(q, nrm, end - q)
+    t = np.broadcast_to(end, org.shape)
+    return ~antenna_blocked(geom.caster, geom.faces.tri_face, t, org, 2.0 * confirm_margin_m(t))
+
+
+def _host_tiles(geom, tris, tri_sel, size, seed, mask, tx_pos, rx_pos, mr, monostatic):
+    """The numpy reference: every tile, its sight of tx and rx (``engine="host"``)."""
+    q, area, nrm, local = make_tiles(tris, size)
+    tri_ids = tri_sel[local]
+    # phases drawn for every tile before any selection: fixed per tile for a seed
+    phases = np.random.default_rng(seed).uniform(0.0, 2.0 * np.pi, size=(len(q), 2))
+    if mask is not None:
+        traced = mask[tri_ids]
+        q, area, nrm, tri_ids, phases = (q[traced], area[traced], nrm[traced],
+                                         tri_ids[traced], phases[traced])
+    N = len(q)
+    front_t = np.einsum("pi,pi->p", nrm, tx_pos - q) > 0
+    front_r = np.einsum("pi,pi->p", nrm, rx_pos - q) > 0
+    vis_t = np.zeros(N, dtype=bool)
+    vis_r = np.zeros(N, dtype=bool)
+    if mr == 0:  # only direct paths: test the second end only where the first is seen
+        idx = np.flatnonzero(front_t & front_r)
+        vis_t[idx] = _visible(geom, q, nrm, tri_ids, idx, tx_pos)
+        idx = idx[vis_t[idx]]
+        vis_r[idx] = _visible(geom, q, nrm, tri_ids, idx, rx_pos)
+        vis_t &= vis_r
+    else:
+        idx = np.flatnonzero(front_t)
+        vis_t[idx] = _visible(geom, q, nrm, tri_ids, idx, tx_pos)
+        if monostatic:
+            vis_r = vis_t.copy()
+        else:
+            idx = np.flatnonzero(front_r)
+            vis_r[idx] = _visible(geom, q, nrm, tri_ids, idx, rx_pos)
+    return q, area, nrm, tri_ids, phases, vis_t, vis_r, np.flatnonzero(vis_t & vis_r), None
+
+
+def _device_tiles(geom, tris, tri_sel, size, seed, mask, tx_pos, rx_pos, mr, monostatic):
+    """The same as :func:`_host_tiles` from the kernels of :mod:`clradcom.device.scatter`.
+
+    Tiles, front sides and the float32 sight casts run on the device; the host keeps the
+    per-triangle numbers (subdivisions, normals, areas: O(triangles)), the random phases
+    and the float64 antenna ends of the tiles the casts let through. With
+    ``max_reflections`` 0 only the tiles both ends see come back, with their Lambertian
+    power (the last item, for the threshold's pre-cut); with 1 or 2 every tile's centre
+    and flags (the reflected legs start from any of them) and no power."""
+    scene = geom.scene
+    with np.errstate(invalid="ignore", divide="ignore"):  # such triangles are refused below
+        nrm_t, two_a = triangle_normals_and_double_areas(tris)
+    if np.any(two_a == 0) or not np.all(np.isfinite(two_a)):
+        raise ArgumentError("degenerate or non-finite triangle")
+    ns = _subdivisions(tris, size)
+    counts = ns * ns
+    first = np.concatenate([[0], np.cumsum(counts)])
+    # phases drawn for every tile before any selection, as on the host
+    phases_all = np.random.default_rng(seed).uniform(0.0, 2.0 * np.pi, size=(int(first[-1]), 2))
+    k = np.arange(len(tris)) if mask is None else np.flatnonzero(mask[tri_sel])
+    tile_area = 0.5 * two_a / (ns * ns)
+    S = scene.material_scattering[scene.tri_material[tri_sel]]
+    sight = device_scatter.tile_sight(geom.caster, tris[k], nrm_t[k], tile_area[k], S[k],
+                                      tri_sel[k], ns[k], tx_pos, rx_pos, scene.wavelength_m,
+                                      all_ends=mr >= 1, monostatic=monostatic)
+    first_k = np.concatenate([[0], np.cumsum(counts[k])])
+
+    def per_tile(t):
+        # traced tiles t -> their triangle (index into tris) and tile index among all tiles
+        j = np.searchsorted(first_k, t, side="right") - 1
+        return k[j], first[k[j]] + (t - first_k[j])
+
+    if mr == 0:
+        kk, glob = per_tile(sight.tile)
+        q, nrm = sight.centre, nrm_t[kk]
+        seen = _antenna_clear(geom, q, nrm, tx_pos)
+        seen[seen] = _antenna_clear(geom, q[seen], nrm[seen], rx_pos)
+        return (q, tile_area[kk], nrm, tri_sel[kk], phases_all[glob], seen, seen,
+                np.flatnonzero(seen), sight.power)
+    kk, glob = per_tile(np.arange(len(sight.flags)))
+    q, nrm = sight.centres, nrm_t[kk]
+    vis_t = (sight.flags & device_scatter.SEES_TX) != 0
+    vis_t[vis_t] = _antenna_clear(geom, q[vis_t], nrm[vis_t], tx_pos)
+    if monostatic:
+        vis_r = vis_t.copy()
+    else:
+        vis_r = (sight.flags & device_scatter.SEES_RX) != 0
+        vis_r[vis_r] = _antenna_clear(geom, q[vis_r], nrm[vis_r], rx_pos)
+    return (q, tile_area[kk], nrm, tri_sel[kk], phases_all[glob], vis_t, vis_r,
+            np.flatnonzero(vis_t & vis_r), None)
+
+
+#: rows whose exact gains give the lower bound of a link's strongest |a| (pre-cut)
+_PRECUT_ROWS = 64
+
+
+def _gain_bound(scene, tx, rx, qt, nt, tid, tx_pos, rx_pos, power):
+    """Upper bounds of |a| of direct paths through tiles qt (normals nt, triangles tid)
+    from their Lambertian power (isotropic antennas, Gamma = 1): Gamma is a mean of
+    |r_te|^2 and |r_tm|^2, so at most the larger; the polarisation map X stretches a field
+    by at most sqrt(1 - K) + sqrt(K); and |c_rx . T c_tx| <= |c_rx| |T| |c_tx| with |c|^2
+    the directivities along the path. 1e-6 covers rounding."""
+    mat = scene.tri_material[tid]
+    k_dep = unit(qt - tx_pos)
+    k_arr = unit(rx_pos - qt)
+    cos_i = np.abs(np.einsum("pi,pi->p", k_dep, nt))
+    r_te, r_tm = em.fresnel_coefficients(scene.material_eps_r[mat], cos_i,
+                                         scene.material_pec[mat])
+    gamma = np.maximum(np.abs(r_te), np.abs(r_tm))
+    g_t = np.asarray(tx.pattern.gain(k_dep @ np.asarray(tx.orientation)), dtype=np.float64)
+    g_r = np.asarray(rx.pattern.gain(-k_arr @ np.asarray(rx.orientation)), dtype=np.float64)
+    K = scene.material_cross_pol_share[mat]
+    pol = (np.sqrt(1.0 - K) + np.sqrt(K)) ** 2
+    return gamma * np.sqrt(power * pol * g_t * g_r) * (1.0 + 1e-6)
+
+
 def _mirror_dyads(scene, faces, face, k_in):
     """Reflection dyads at mirror faces (identity where face < 0): Fresnel x roughness
     x sqrt(1 - S^2), as :func:`clradcom.mechanisms.specular.path_fields` weighs specular paths."""
@@ -417,6 +540,10 @@ def scattering_paths(geom, tx, rx, *, tile_size_m=None, threshold_db=-60.0, seed
     -(1/lambda) dL/dt with the tile and mirrors moving with their objects.
     Interactions SCATTERING, with REFLECTION before/after it; object_id/face_id
     the object and scene triangle at each interaction.
+
+    ``geom.engine`` "device" cuts the tiles and tests their sight of tx and rx in the
+    kernels of :mod:`clradcom.device.scatter` (the same numbers as the host's, bit for bit;
+    docs/scattering.md "On the device"); "host" is the numpy reference.
     """
     mr = max_reflections
     if not (isinstance(mr, (int, np.integer)) and not isinstance(mr, bool) and 0 <= mr <= 2):
@@ -447,39 +574,26 @@ def scattering_paths(geom, tx, rx, *, tile_size_m=None, threshold_db=-60.0, seed
         cnt = _estimate_count(tris, size)
         if cnt > max_tiles:
             raise ArgumentError(f"tile_size_m={size} gives {cnt} tiles > max_tiles={max_tiles}")
-    q, area, nrm, local = make_tiles(tris, size)
-    tri_ids = tri_sel[local]
-    # phases drawn for every tile before any selection: fixed per tile for a seed
-    phases = np.random.default_rng(seed).uniform(0.0, 2.0 * np.pi, size=(len(q), 2))
+    mask = None
     if triangle_mask is not None:
         mask = np.asarray(triangle_mask, dtype=bool)
         if mask.shape != (len(scene.triangles),):
             raise ArgumentError(f"triangle_mask must have one entry per scene triangle "
                              f"({len(scene.triangles)}), got shape {mask.shape}")
-        traced = mask[tri_ids]
-        q, area, nrm, local = q[traced], area[traced], nrm[traced], local[traced]
-        tri_ids, phases = tri_ids[traced], phases[traced]
-    N = len(q)
     monostatic = bool(np.array_equal(tx_pos, rx_pos))
-
-    front_t = np.einsum("pi,pi->p", nrm, tx_pos - q) > 0
-    front_r = np.einsum("pi,pi->p", nrm, rx_pos - q) > 0
-    vis_t = np.zeros(N, dtype=bool)
-    vis_r = np.zeros(N, dtype=bool)
-    if mr == 0:  # only direct paths: test the second end only where the first is seen
-        idx = np.flatnonzero(front_t & front_r)
-        vis_t[idx] = _visible(geom, q, nrm, tri_ids, idx, tx_pos)
-        idx = idx[vis_t[idx]]
-        vis_r[idx] = _visible(geom, q, nrm, tri_ids, idx, rx_pos)
-        vis_t &= vis_r
+    on_device = geom.engine == "device"
+    if on_device and not device_scatter.has_fp64(geom.caster):
+        warnings.warn("scattering tiles: the OpenCL device has no fp64, so they are resolved "
+                      "by the host's numpy path (engine 'host')", RuntimeWarning, stacklevel=2)
+        on_device = False
+    if on_device:
+        tiles = _device_tiles(geom, tris, tri_sel, size, seed, mask, tx_pos, rx_pos, mr,
+                              monostatic)
     else:
-        idx = np.flatnonzero(front_t)
-        vis_t[idx] = _visible(geom, q, nrm, tri_ids, idx, tx_pos)
-        if monostatic:
-            vis_r = vis_t.copy()
-        else:
-            idx = np.flatnonzero(front_r)
-            vis_r[idx] = _visible(geom, q, nrm, tri_ids, idx, rx_pos)
+        tiles = _host_tiles(geom, tris, tri_sel, size, seed, mask, tx_pos, rx_pos, mr,
+                            monostatic)
+    q, area, nrm, tri_ids, phases, vis_t, vis_r, direct, power = tiles
+    N = len(q)
 
     def block(t, pre=None, suf=None):
         # rows of paths through tiles t: prefix and suffix legs (face, p, image, triangle),
@@ -490,7 +604,7 @@ def scattering_paths(geom, tx, rx, *, tile_size_m=None, threshold_db=-60.0, seed
         b = suf if suf is not None else (none, q[t], np.broadcast_to(rx_pos, (n, 3)), none)
         return (t, *a, *b)
 
-    blocks = [block(np.flatnonzero(vis_t & vis_r))]
+    blocks = [block(direct)]
     if mr >= 1:
         mirrors, lo, hi = mirror_faces(geom, min_face_area_m2)
         everywhere = np.arange(N)
@@ -508,12 +622,52 @@ def scattering_paths(geom, tx, rx, *, tile_size_m=None, threshold_db=-60.0, seed
             i, j = _join(lt[0], lr[0])
             blocks.append(block(lt[0][i], pre=[c[i] for c in lt[1:]],
                                 suf=[c[j] for c in lr[1:]]))
-    cols = (np.concatenate(c) for c in zip(*blocks, strict=True))
-    tile, f1, p1, im1, tr1, f2, p2, im2, tr2 = cols
-    P = len(tile)
+    cols = [np.concatenate(c) for c in zip(*blocks, strict=True)]
+    P = len(cols[0])
     if P == 0:
         return Paths.empty(1), 0
+    thr = 10.0 ** (-abs(float(threshold_db)) / 20.0)
+    top = float(np.abs(reference_gain)) if reference_gain is not None else None
+    rows = np.arange(P)
+    if power is not None and mr == 0:
+        # the device's Lambertian power bounds every direct path's |a| from above: rows
+        # below the threshold of a lower bound of the strongest |a| (the exact gains of
+        # the rows with the largest bounds) are never emitted, so their fields are skipped
+        t = cols[0]
+        bound = _gain_bound(scene, tx, rx, q[t], nrm[t], tri_ids[t], tx_pos, rx_pos, power[t])
+        lower = top
+        if lower is None:
+            best = np.sort(np.argsort(-bound, kind="stable")[:_PRECUT_ROWS])
+            lower = float(np.abs(_path_rows(geom, tx, rx, q, area, nrm, tri_ids, phases,
+                                            [c[best] for c in cols])[0]).max())
+        rows = np.flatnonzero(bound >= lower * thr)
+        if len(rows) == 0:
+            return Paths.empty(1), int(P)
+    gain, M, L, doppler, nk, code, pts, oid, fid = _path_rows(
+        geom, tx, rx, q, area, nrm, tri_ids, phases, [c[rows] for c in cols])
+    mag = np.abs(gain)
+    if top is None:
+        top = mag.max()
+    sel = (mag > 0) & (mag >= top * thr)
+    m = int(sel.sum())
+    K = max(1, int(nk[sel].max())) if m else 1
+    paths = Paths(gain=gain[sel], matrix=M[sel], delay_s=em.delay_s(L)[sel],
+                  doppler_hz=doppler[sel], n_interactions=nk[sel],
+                  interaction=code[sel, :K], points=pts[sel, :K + 2],
+                  object_id=oid[sel, :K], face_id=fid[sel, :K])
+    return paths, int(P - m)
 
+
+def _path_rows(geom, tx, rx, q, area, nrm, tri_ids, phases, cols):
+    """Fields and records of path rows ``cols`` = (tile, f1, p1, im1, tr1, f2, p2, im2,
+    tr2): (gain, matrix, L, doppler, n_interactions, codes, points, object ids, face ids)."""
+    tile, f1, p1, im1, tr1, f2, p2, im2, tr2 = cols
+    scene = geom.scene
+    S_mat = scene.material_scattering
+    lam = scene.wavelength_m
+    tx_pos = np.asarray(tx.position, dtype=np.float64)
+    rx_pos = np.asarray(rx.position, dtype=np.float64)
+    P = len(tile)
     qt, nt, tid = q[tile], nrm[tile], tri_ids[tile]
     mat = scene.tri_material[tid]
     obj = scene.tri_object[tid]
@@ -581,17 +735,7 @@ def scattering_paths(geom, tx, rx, *, tile_size_m=None, threshold_db=-60.0, seed
     pts[rows, nk + 1] = rx_pos
     vel[rows, nk + 1] = rx.velocity
     doppler = em.doppler_hz(pts, vel, lam, num_interactions=nk)
-
-    mag = np.abs(gain)
-    top = float(np.abs(reference_gain)) if reference_gain is not None else mag.max()
-    sel = (mag > 0) & (mag >= top * 10.0 ** (-abs(float(threshold_db)) / 20.0))
-    m = int(sel.sum())
-    K = max(1, int(nk[sel].max())) if m else 1
-    paths = Paths(gain=gain[sel], matrix=M[sel], delay_s=em.delay_s(L)[sel],
-                  doppler_hz=doppler[sel], n_interactions=nk[sel],
-                  interaction=code[sel, :K], points=pts[sel, :K + 2],
-                  object_id=oid[sel, :K], face_id=fid[sel, :K])
-    return paths, int(P - m)
+    return gain, M, L, doppler, nk, code, pts, oid, fid
 
 
 def scattering_triangle_bounds(scene, tx, rx, floor_power: float):

@@ -1,0 +1,253 @@
+"""Scattering tiles on the device (kernels/scatter.cl, clradcom/device/scatter.py) against
+the host's numpy reference (engine "host"): the same tiles, the same sight decisions, the
+same paths, the same channel."""
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from clradcom.device import scatter as device_scatter
+from clradcom.device.raycast import make_rays, spawn_origins
+from clradcom.device.visibility import SIGHT_STOP
+from clradcom.errors import ArgumentError
+from clradcom.evaluation.accuracy import channel_nmse_db
+from clradcom.geometry.triangles import triangle_normals_and_double_areas
+from clradcom.mechanisms import scattering
+from clradcom.mechanisms.common import build_geometry
+from clradcom.mechanisms.scattering import make_tiles, scattering_paths
+from clradcom.scene import load_scene
+from clradcom.scene.reader import scene_from_dict
+
+ROOT = Path(__file__).resolve().parent.parent
+N_SUB, DF = 1024, 90.909e3  # the paper's OFDM grid around 24 GHz
+
+
+def wall_scene():
+    """A leafy wall with a hedge box in front of it (shadows part of the wall from both
+    radars) over a concrete road (mirror for reflected legs), a monostatic radar and a
+    bistatic receiver."""
+    return scene_from_dict({
+        "scene": {"name": "wall", "carrier_hz": 24e9},
+        "materials": [{"name": "leaves", "eps_r": [10.0, -6.0], "scattering_coefficient": 0.5,
+                       "cross_pol_share": 0.3}],
+        "objects": [
+            {"name": "road", "material": "concrete_road", "shape": "plane",
+             "size": [30.0, 20.0], "position": [8.0, 0.0, 0.0]},
+            {"name": "wall", "material": "leaves", "shape": "box",
+             "extents": [12.0, 0.4, 3.0], "position": [8.0, 6.0, 1.5]},
+            {"name": "hedge", "material": "trees", "shape": "box",
+             "extents": [1.5, 1.0, 1.2], "position": [6.0, 3.0, 0.6],
+             "velocity": [0.0, 0.5, 0.0]}],
+        "radars": [{"name": "A", "position": [1.0, 0.0, 0.6], "velocity": [8.0, 0.0, 0.0],
+                    "polarization": "V"},
+                   {"name": "B", "role": "rx", "position": [15.0, 1.0, 0.8],
+                    "pattern": "isotropic", "polarization": "H"}]})
+
+
+def engines(scene, runtime):
+    device = build_geometry(scene, runtime)
+    host = build_geometry(scene, runtime, engine="host")
+    host.caster = device.caster  # one BVH: the comparison is about the tile stages only
+    return device, host
+
+
+def channel(paths):
+    f = np.arange(N_SUB) * DF
+    return np.exp(-2j * np.pi * f[:, None] * paths.delay_s[None, :]) @ paths.gain
+
+
+def assert_same_paths(dev, host, label):
+    (pd, nd), (ph, nh) = dev, host
+    assert ph.n_paths > 0, label
+    assert pd.n_paths == ph.n_paths and nd == nh, label
+    # the same tiles, reached the same way
+    for name in ("n_interactions", "interaction", "object_id", "face_id"):
+        np.testing.assert_array_equal(getattr(pd, name), getattr(ph, name), err_msg=label)
+    np.testing.assert_allclose(pd.points, ph.points, rtol=0, atol=1e-12, err_msg=label)
+    np.testing.assert_allclose(pd.gain, ph.gain, rtol=1e-5, atol=0, err_msg=label)
+    np.testing.assert_allclose(pd.matrix, ph.matrix, rtol=1e-5, atol=1e-5 * np.abs(ph.matrix).max(),
+                               err_msg=label)
+    np.testing.assert_allclose(pd.delay_s, ph.delay_s, rtol=0, atol=1e-15, err_msg=label)
+    np.testing.assert_array_equal(pd.doppler_hz, ph.doppler_hz, err_msg=label)
+    assert channel_nmse_db(channel(pd), channel(ph)) < -60.0, label
+
+
+def triangle_inputs(scene, size):
+    sel = np.flatnonzero(scene.material_scattering[scene.tri_material] > 0)
+    tris = scene.triangles[sel]
+    nrm, two_a = triangle_normals_and_double_areas(tris)
+    n = scattering._subdivisions(tris, size)
+    S = scene.material_scattering[scene.tri_material[sel]]
+    return sel, tris, nrm, 0.5 * two_a / (n * n), S, n
+
+
+# ---------------------------------------------------------------------------
+# the kernels on their own
+
+def test_device_tiles_are_the_hosts_bit_for_bit(runtime):
+    rng = np.random.default_rng(3)
+    tris = rng.uniform(-40.0, 40.0, size=(40, 3, 3))
+    caster = build_geometry(wall_scene(), runtime).caster
+    for size in (50.0, 7.0, 1.3):  # n = 1 up to tens of subdivisions per triangle
+        q, area, _, local = make_tiles(tris, size)
+        nrm, two_a = triangle_normals_and_double_areas(tris)
+        n = scattering._subdivisions(tris, size)
+        far = [500.0, 500.0, 500.0]
+        got = device_scatter.tile_sight(caster, tris, nrm, 0.5 * two_a / (n * n),
+                                        np.ones(len(tris)), np.zeros(len(tris)), n, far, far,
+                                        0.0125, all_ends=True, monostatic=True)
+        assert len(got.centres) == len(q) == int(np.sum(n * n))
+        np.testing.assert_array_equal(got.centres, q)  # same rule, order and rounding
+        assert np.array_equal(np.repeat(np.arange(len(tris)), n * n), local)
+
+
+@pytest.mark.parametrize("all_ends", [False, True])
+def test_sight_flags_and_lambertian_power_against_host_casts(runtime, all_ends):
+    sc = wall_scene()
+    geom = build_geometry(sc, runtime)
+    sel, tris, nrm_t, tile_area, S, n = triangle_inputs(sc, 0.4)
+    A, B = sc.radars
+    got = device_scatter.tile_sight(geom.caster, tris, nrm_t, tile_area, S, sel, n,
+                                    A.position, B.position, sc.wavelength_m, all_ends=all_ends,
+                                    monostatic=False, want_tiles=True)
+    q, area, nrm, local = make_tiles(tris, 0.4)
+    prim = sel[local].astype(np.int32)
+
+    def sees(end, idx):  # the float32 casts of visibility.surface_sees, done by the host
+        org = spawn_origins(q[idx], nrm[idx], end - q[idx])
+        rays = make_rays(org, end - org, 0.0, 1.0 - SIGHT_STOP)
+        return ~geom.caster.occluded(rays, ignore_prim=prim[idx])
+
+    front_t = np.einsum("pi,pi->p", nrm, A.position - q) > 0
+    front_r = np.einsum("pi,pi->p", nrm, B.position - q) > 0
+    vis_t, vis_r = np.zeros(len(q), bool), np.zeros(len(q), bool)
+    idx = np.flatnonzero(front_t if all_ends else front_t & front_r)
+    vis_t[idx] = sees(A.position, idx)
+    idx = np.flatnonzero(front_r) if all_ends else idx[vis_t[idx]]
+    vis_r[idx] = sees(B.position, idx)
+    want = vis_t.astype(np.uint8) | (vis_r.astype(np.uint8) << 1)
+    np.testing.assert_array_equal(got.flags, want)
+    both = np.flatnonzero(vis_t & vis_r)
+    assert 0 < len(both) < np.count_nonzero(front_t & front_r)  # the hedge shadows some
+    np.testing.assert_array_equal(got.tile, both)  # compacted, in tile order
+    np.testing.assert_array_equal(got.centre, q[both])
+    # closed form: lambda^2 S^2 A cos(theta_i) cos(theta_s) / (16 pi^3 r_i^2 r_s^2)
+    dt, dr = q[both] - A.position, B.position - q[both]
+    ri, rs = np.linalg.norm(dt, axis=1), np.linalg.norm(dr, axis=1)
+    cos_i = -np.einsum("pi,pi->p", dt, nrm[both]) / ri
+    cos_s = np.einsum("pi,pi->p", dr, nrm[both]) / rs
+    Sq = S[local[both]]
+    power = (sc.wavelength_m ** 2 * Sq ** 2 * area[both] * cos_i * cos_s
+             / (16 * math.pi ** 3 * ri ** 2 * rs ** 2))
+    np.testing.assert_allclose(got.power, power, rtol=1e-12)
+
+
+def test_bad_subdivisions_are_refused_by_name(runtime):
+    sc = wall_scene()
+    caster = build_geometry(sc, runtime).caster
+    sel, tris, nrm, area, S, n = triangle_inputs(sc, 1.0)
+    with pytest.raises(ArgumentError, match="subdivisions"):
+        device_scatter.tile_sight(caster, tris, nrm, area, S, sel, n * 0, [0, 0, 1], [0, 0, 1],
+                                  0.0125, all_ends=False, monostatic=True)
+    with pytest.raises(ArgumentError, match="tx_pos"):
+        device_scatter.tile_sight(caster, tris, nrm, area, S, sel, n, [0, np.nan, 1],
+                                  [0, 0, 1], 0.0125, all_ends=False, monostatic=False)
+
+
+# ---------------------------------------------------------------------------
+# whole scattering stage: device engine against the host reference
+
+@pytest.mark.parametrize("max_reflections", [0, 1, 2])
+def test_wall_paths_match_host(runtime, max_reflections):
+    sc = wall_scene()
+    device, host = engines(sc, runtime)
+    A, B = sc.radars
+    for tx, rx in ((A, A), (A, B), (B, A)):
+        kw = dict(tile_size_m=0.5, max_reflections=max_reflections, seed=7)
+        assert_same_paths(scattering_paths(device, tx, rx, **kw),
+                          scattering_paths(host, tx, rx, **kw),
+                          f"{tx.name}->{rx.name} mr={max_reflections}")
+
+
+@pytest.mark.parametrize("threshold_db, reference", [(-12.0, None), (-6.0, "strongest")])
+def test_threshold_pre_cut_keeps_the_hosts_paths_and_dropped_count(runtime, monkeypatch,
+                                                                     threshold_db, reference):
+    """The device's Lambertian power pre-cuts rows below the threshold before their fields
+    are computed; the emitted paths and the dropped count stay the host's."""
+    sc = wall_scene()
+    device, host = engines(sc, runtime)
+    A = sc.radars[0]
+    full, _ = scattering_paths(host, A, A, tile_size_m=0.3, threshold_db=-300.0)
+    ref = None if reference is None else full.gain[np.argmax(np.abs(full.gain))] * 0.7
+    kw = dict(tile_size_m=0.3, threshold_db=threshold_db, reference_gain=ref)
+    rows = []
+    path_rows = scattering._path_rows
+    monkeypatch.setattr(scattering, "_path_rows", lambda *a: rows.append(len(a[-1][0]))
+                        or path_rows(*a))
+    dev = scattering_paths(device, A, A, **kw)
+    assert 0 < max(rows) < full.n_paths  # fields only for the rows the bound lets through
+    hst = scattering_paths(host, A, A, **kw)
+    assert 0 < hst[0].n_paths < full.n_paths and hst[1] > 0
+    assert_same_paths(dev, hst, f"threshold {threshold_db}")
+
+
+def test_gain_bound_is_an_upper_bound(runtime):
+    sc = wall_scene()
+    device, host = engines(sc, runtime)
+    A, B = sc.radars
+    sel, tris, nrm_t, tile_area, S, n = triangle_inputs(sc, 0.3)
+    for rx in (A, B):
+        paths, _ = scattering_paths(host, A, rx, tile_size_m=0.3, threshold_db=-300.0)
+        got = device_scatter.tile_sight(device.caster, tris, nrm_t, tile_area, S, sel, n,
+                                        A.position, rx.position, sc.wavelength_m,
+                                        all_ends=False, monostatic=rx is A)
+        tid = sel[np.searchsorted(np.cumsum(n * n), got.tile, side="right")]
+        assert np.array_equal(got.centre, paths.points[:, 1])  # same tiles, same order
+        bound = scattering._gain_bound(sc, A, rx, got.centre, nrm_t[np.searchsorted(
+            np.cumsum(n * n), got.tile, side="right")], tid, A.position, rx.position, got.power)
+        assert np.all(bound >= np.abs(paths.gain))
+        assert np.max(np.abs(paths.gain) / bound) > 0.3  # and not a vacuous one
+
+
+def test_triangle_mask_keeps_phases_and_paths(runtime):
+    sc = wall_scene()
+    device, host = engines(sc, runtime)
+    A = sc.radars[0]
+    mask = np.ones(len(sc.triangles), dtype=bool)
+    mask[np.flatnonzero(sc.tri_object == 1)[::2]] = False  # every other wall triangle
+    kw = dict(tile_size_m=0.5, triangle_mask=mask)
+    assert_same_paths(scattering_paths(device, A, A, **kw), scattering_paths(host, A, A, **kw),
+                      "masked")
+
+
+def test_golden_scene_links_match_host(runtime):
+    sc = load_scene(ROOT / "tests" / "data" / "all_mechanisms.toml")
+    device, host = engines(sc, runtime)
+    A, B = sc.radars
+    for tx, rx in ((A, A), (A, B)):
+        kw = dict(tile_size_m=1.0, max_reflections=1)
+        assert_same_paths(scattering_paths(device, tx, rx, **kw),
+                          scattering_paths(host, tx, rx, **kw), f"golden {tx.name}->{rx.name}")
+
+
+def test_street_links_match_host(runtime):
+    sc = load_scene(ROOT / "scenes" / "street" / "street.toml")
+    device, host = engines(sc, runtime)
+    A, D = sc.radars
+    for tx, rx in ((A, A), (A, D)):
+        assert_same_paths(scattering_paths(device, tx, rx), scattering_paths(host, tx, rx),
+                          f"street {tx.name}->{rx.name}")
+
+
+def test_without_fp64_the_host_path_runs_and_says_so(runtime, monkeypatch):
+    sc = wall_scene()
+    device, host = engines(sc, runtime)
+    A = sc.radars[0]
+    monkeypatch.setattr(device_scatter, "has_fp64", lambda caster: False)
+    with pytest.warns(RuntimeWarning, match="no fp64"):
+        got = scattering_paths(device, A, A, tile_size_m=0.5)
+    want = scattering_paths(host, A, A, tile_size_m=0.5)
+    assert got[1] == want[1]
+    np.testing.assert_array_equal(got[0].gain, want[0].gain)
