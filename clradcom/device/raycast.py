@@ -15,6 +15,7 @@ from clradcom.errors import ArgumentError
 from clradcom.geometry import layout
 from clradcom.geometry.bvh import build_bvh
 from clradcom.geometry.layout import bvh8_nodes, tri4_groups
+from clradcom.geometry.triangles import triangle_normals
 
 RAY_DTYPE = np.dtype(
     [("org", "<f4", (3,)), ("tmin", "<f4"), ("dir", "<f4", (3,)), ("tmax", "<f4")]
@@ -213,8 +214,6 @@ class RayCaster:
         :func:`clradcom.geometry.triangles.triangle_normals`, so a kernel's exact plane
         hits agree with the host's). Needs a device with fp64."""
         if self._data64 is None:
-            from clradcom.geometry.triangles import triangle_normals
-
             if not self.runtime.info.has_double:
                 raise ArgumentError("this OpenCL device has no fp64; float64 scene data "
                                     "needs one", argument="device",
