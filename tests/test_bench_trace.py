@@ -15,6 +15,7 @@ from clradcom.evaluation.bench import (
     TraceTiming,
     child_main,
     median_timing,
+    peak_rss_bytes,
     plate_rcs,
     run_in_subprocess,
     settings_from_dict,
@@ -57,6 +58,9 @@ def test_bench_trace_tool_on_tiny_scenes(tmp_path, capsys):
     plate.write_text(FAR_PLATE)
     out = tmp_path / "bench"
     tool = load_tool("bench_trace")
+    # a large parent: the child's peak memory must be its own, not the parent's at fork
+    ballast = np.ones(2**26)  # 512 MiB, touched
+    parent_peak = peak_rss_bytes()
     assert tool.main(["--street", str(street), "--extra", str(plate), "--rays", "5000",
                       "--repeats", "1", "--out", str(out)]) == 0
     printed = capsys.readouterr().out
@@ -75,7 +79,9 @@ def test_bench_trace_tool_on_tiny_scenes(tmp_path, capsys):
         float(rows[("closing_plate", "host", "median:trace_s")]["value"])
         / float(rows[("closing_plate", "device", "median:trace_s")]["value"]), rel=1e-3)
     assert rows[("far_plate", "device", "ok")]["value"] == "1"
-    assert 0.05 < float(rows[("far_plate", "device", "peak_rss")]["value"]) < 4.0
+    child_peak = float(rows[("far_plate", "device", "peak_rss")]["value"]) * 2**30
+    assert 0.05 * 2**30 < child_peak < parent_peak - 0.4 * 2**30
+    del ballast
     # the plate's PO return against 4 pi A^2 / lambda^2, computed here on its own
     lam = C0 / 24e9
     expected = 10 * np.log10(4 * np.pi * 1.0**2 / lam**2)

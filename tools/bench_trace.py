@@ -17,7 +17,7 @@ and the scenes that the old SBR-PO could not trace.
 2. Extra scenes (default scenes/plate, scenes/truck77, scenes/guardrail), device engine,
    each traced once in a fresh process: trace time (kernel builds included, as in a
    user's first run), share in kernels, paths, and the process's peak resident memory
-   (ru_maxrss; on a CPU OpenCL device the device buffers are in it too). For a scene of
+   (VmHWM; on a CPU OpenCL device the device buffers are in it too). For a scene of
    one flat PEC plate and a monostatic radar (scenes/plate) also its RCS from the path sum
    by the radar range equation against 4 pi A^2 / lambda^2. A scene that fails is
    reported with its error and the run goes on.

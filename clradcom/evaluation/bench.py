@@ -10,7 +10,7 @@ broadside RCS of a flat plate against 4 pi A^2 / lambda^2.
   the engines in turn ``repeats`` times; :func:`median_timing` takes the medians.
 * :func:`run_in_subprocess` - one device trace of a scene file in a fresh Python
   process (:func:`child_main`), returning its timing, its peak resident memory
-  (``ru_maxrss`` of that process: the interpreter, numpy and pyopencl included, and on a
+  (:func:`peak_rss_bytes` of that process: the interpreter, numpy and pyopencl included, and on a
   CPU OpenCL device the device's buffers too) and the coherent path sums of its
   monostatic links; a failure comes back as the error's text, never as an exception.
 * :func:`plate_rcs` - for a scene of one flat PEC object and a monostatic radar: the
@@ -158,8 +158,17 @@ _PO_CODES = (int(InteractionType.PHYSICAL_OPTICS), int(InteractionType.SBR))
 
 
 def peak_rss_bytes() -> int:
-    """Peak resident memory of this process so far, bytes (``ru_maxrss``: KiB on Linux,
-    bytes on macOS)."""
+    """Peak resident memory of this process so far, bytes: ``VmHWM`` of
+    /proc/self/status where there is one (Linux), else ``ru_maxrss`` (KiB on Linux,
+    bytes on macOS). Linux keeps ``ru_maxrss`` across exec, so a child started from a
+    large parent would report the parent's size; ``VmHWM`` belongs to the new image."""
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     return int(peak) * (1 if sys.platform == "darwin" else 1024)
 
