@@ -79,6 +79,7 @@ def test_bench_trace_tool_on_tiny_scenes(tmp_path, capsys):
         float(rows[("closing_plate", "host", "median:trace_s")]["value"])
         / float(rows[("closing_plate", "device", "median:trace_s")]["value"]), rel=1e-3)
     assert rows[("far_plate", "device", "ok")]["value"] == "1"
+    assert rows[("far_plate", "device", "warnings")]["value"] == "0"
     child_peak = float(rows[("far_plate", "device", "peak_rss")]["value"]) * 2**30
     assert 0.05 * 2**30 < child_peak < parent_peak - 0.4 * 2**30
     del ballast
@@ -130,6 +131,21 @@ def test_a_child_that_fails_or_is_too_slow_is_reported_not_raised(tmp_path):
     plate.write_text(FAR_PLATE)
     run = run_in_subprocess(plate, TraceSettings(), timeout_s=0.01)
     assert not run.ok and "no result within" in run.error
+
+
+def test_a_childs_warnings_come_back_once_each(tmp_path):
+    """A carrier below 1 GHz is traced with a ValidityRangeWarning (docs/scene-format.md)."""
+    path = tmp_path / "low.toml"
+    path.write_text(FAR_PLATE.replace("carrier_hz = 24e9", "carrier_hz = 0.5e9"))
+    out = io.StringIO()
+    settings = TraceSettings().replace(specular__rays=2000)
+    child_main(io.StringIO(json.dumps({"scene": str(path), "device": None,
+                                       "settings": settings_to_dict(settings)})), out)
+    result = json.loads(out.getvalue())
+    assert result["ok"], result
+    hits = [w for w in result["warnings"] if w.startswith("ValidityRangeWarning: ")]
+    assert len(hits) == 1 and "carrier" in hits[0]
+    assert len(set(result["warnings"])) == len(result["warnings"])
 
 
 def test_median_timing():

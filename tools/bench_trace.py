@@ -197,6 +197,9 @@ def bench_extra(args, path) -> list[tuple]:
     rows = [(scene.name, "device", "ok", str(int(res.ok)), "1"),
             (scene.name, "device", "peak_rss", f"{gib:.4f}", "GiB"),
             (scene.name, "device", "process_s", f"{res.wall_seconds:.4f}", "s")]
+    for text in res.warnings:
+        print(f"  warning: {text}")
+    rows.append((scene.name, "device", "warnings", str(len(res.warnings)), "1"))
     if not res.ok:
         print(f"  FAILED after {res.wall_seconds:.1f} s: {res.error}")
         print(f"  peak memory {gib:.2f} GiB")

@@ -12,7 +12,8 @@ broadside RCS of a flat plate against 4 pi A^2 / lambda^2.
   process (:func:`child_main`), returning its timing, its peak resident memory
   (:func:`peak_rss_bytes` of that process: the interpreter, numpy and pyopencl included, and on a
   CPU OpenCL device the device's buffers too) and the coherent path sums of its
-  monostatic links; a failure comes back as the error's text, never as an exception.
+  monostatic links and the warnings it raised; a failure comes back as the error's
+  text, never as an exception.
 * :func:`plate_rcs` - for a scene of one flat PEC object and a monostatic radar: the
   object's RCS from the path sums by the radar range equation
   (sigma = |a|^2 (4 pi)^3 R^4 / lambda^2, :func:`clradcom.evaluation.rcs.dbsm`) beside the
@@ -31,6 +32,7 @@ import statistics
 import subprocess
 import sys
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -202,6 +204,8 @@ class SceneRun:
     rss_before_trace_bytes: int = 0  #: its peak before the trace (imports, device, scene)
     links: list[dict] = field(default_factory=list)  #: :func:`link_sums`
     wall_seconds: float = 0.0  #: the child process from start to exit
+    #: the distinct warnings the trace raised ("Category: message"), in order
+    warnings: list[str] = field(default_factory=list)
 
 
 def child_main(stdin=None, stdout=None) -> int:
@@ -210,15 +214,19 @@ def child_main(stdin=None, stdout=None) -> int:
     stdin, stdout = stdin or sys.stdin, stdout or sys.stdout
     job = json.loads(stdin.read())
     result: dict = {"ok": False}
-    try:
-        runtime = get_runtime(job.get("device"))
-        scene = load_scene(job["scene"])
-        settings = settings_from_dict(job["settings"])
-        result["rss_before_trace_bytes"] = peak_rss_bytes()
-        timing, snap = time_trace(scene, settings, runtime)
-        result.update(ok=True, timing=dataclasses.asdict(timing), links=link_sums(snap))
-    except Exception as exc:  # reported to the parent as text, never a traceback
-        result["error"] = f"{type(exc).__name__}: {exc}"
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            runtime = get_runtime(job.get("device"))
+            scene = load_scene(job["scene"])
+            settings = settings_from_dict(job["settings"])
+            result["rss_before_trace_bytes"] = peak_rss_bytes()
+            timing, snap = time_trace(scene, settings, runtime)
+            result.update(ok=True, timing=dataclasses.asdict(timing), links=link_sums(snap))
+        except Exception as exc:  # reported to the parent as text, never a traceback
+            result["error"] = f"{type(exc).__name__}: {exc}"
+    result["warnings"] = list(dict.fromkeys(f"{w.category.__name__}: {w.message}"
+                                            for w in caught))
     result["peak_rss_bytes"] = peak_rss_bytes()
     stdout.write(json.dumps(result) + "\n")
     stdout.flush()
@@ -257,7 +265,8 @@ def run_in_subprocess(scene_path, settings: TraceSettings, device: str | None = 
     return SceneRun(scene=str(scene_path), ok=bool(data["ok"]), error=data.get("error", ""),
                     timing=timing, peak_rss_bytes=int(data.get("peak_rss_bytes", 0)),
                     rss_before_trace_bytes=int(data.get("rss_before_trace_bytes", 0)),
-                    links=data.get("links", []), wall_seconds=wall)
+                    links=data.get("links", []), wall_seconds=wall,
+                    warnings=data.get("warnings", []))
 
 
 # ----------------------------------------------------------------------------------------
