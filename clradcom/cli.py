@@ -2,9 +2,9 @@
 what the command-line tools in tools/ share:
 
 * option types for argparse (:func:`positive_int`, :func:`seed`, :func:`finite_float`,
-  :func:`list_of`, :func:`output_folder`, ...): a value is refused where it is parsed,
-  with the option and the value in the message (``argument --rays: must be a positive
-  integer, got '-1'``);
+  :func:`float_in`, :func:`list_of`, :func:`output_folder`, ...): a value is refused where
+  it is parsed, with the option and the value in the message (``argument --rays: must be
+  a positive integer, got '-1'``);
 * :func:`run_tool`: the project's errors (:data:`TOOL_ERRORS`) become one line
   ``tool.py: <message>`` on stderr and exit code 2, never a traceback;
 * :func:`tool_waveform`: the radar waveform of a run, refusals naming what the user can
@@ -92,6 +92,17 @@ def int_in(low: int, high: int):
             _refuse(text, f"an integer in [{low}, {high}]")
         return value
     parse.__name__ = f"int_in_{low}_{high}"
+    return parse
+
+
+def float_in(low: float, high: float):
+    """A finite number in [low, high]."""
+    def parse(text) -> float:
+        value = _float(text)
+        if not low <= value <= high:
+            _refuse(text, f"a number in [{low:g}, {high:g}]")
+        return value
+    parse.__name__ = f"float_in_{low:g}_{high:g}"
     return parse
 
 
@@ -216,7 +227,7 @@ def tool_waveform(carrier_hz: float, *, subcarriers: int | None = None,
         raise
 
 
-__all__ = ["TOOL_ERRORS", "finite_float", "int_in", "list_of", "main",
+__all__ = ["TOOL_ERRORS", "finite_float", "float_in", "int_in", "list_of", "main",
            "noise_figure_db", "non_negative_float", "non_negative_int", "output_folder",
            "positive_float", "positive_int", "run_tool", "seed", "tool_waveform"]
 

@@ -49,6 +49,7 @@ from pathlib import Path
 import numpy as np
 
 from clradcom.cli import (
+    float_in,
     int_in,
     output_folder,
     positive_int,
@@ -59,6 +60,7 @@ from clradcom.cli import (
 from clradcom.device.runtime import get_runtime
 from clradcom.errors import ArgumentError, SceneError
 from clradcom.files import staged_folder
+from clradcom.mechanisms.common import ENGINES
 from clradcom.plots import plot_top_view
 from clradcom.radar.pipeline import (
     SYNTHESIS_METHODS,
@@ -84,6 +86,7 @@ from clradcom.radar.report import (
 from clradcom.radar.synthesis import check_noise_figure
 from clradcom.radar.truth import detection_truth, match_truth
 from clradcom.scene.reader import load_scene
+from clradcom.scene.records import SBR_SPACING_WAVELENGTHS
 from clradcom.snapshot import save_snapshot
 from clradcom.trace import (
     DiffractionSettings,
@@ -146,12 +149,21 @@ def build_parser() -> argparse.ArgumentParser:
                          "bouncing-ray PO for their multi-bounce returns (what puts car D "
                          "where the paper has it); pec: facets only; none: pure GO (an "
                          "object's own `optics` key always wins)")
+    ap.add_argument("--sbr-spacing", type=float_in(*SBR_SPACING_WAVELENGTHS), default=None,
+                    metavar="WAVELENGTHS",
+                    help="pitch of the SBR ray tubes at each object, in wavelengths "
+                         f"({SBR_SPACING_WAVELENGTHS[0]:g} to {SBR_SPACING_WAVELENGTHS[1]:g}; "
+                         f"default {OpticsSettings().sbr_spacing_wavelengths:g}); an "
+                         "object's own sbr_spacing_wavelengths key wins")
     ap.add_argument("--no-scattering", action="store_true",
                     help="leave out single Lambertian scattering from tiles of materials with "
                          "a scattering coefficient (the trees)")
     ap.add_argument("--scattering-reflections", type=int, choices=(0, 1, 2), default=0,
                     help="specular reflections around a scattering tile: 0 (default) direct "
                          "only, 1 one before or after it, 2 also one on each side")
+    ap.add_argument("--engine", choices=ENGINES, default="device",
+                    help="device (default): interactions resolved in OpenCL kernels; host: "
+                         "the numpy reference the device engine is tested against")
     ap.add_argument("--synthesis", choices=SYNTHESIS_METHODS, default="fast",
                     help="fast: frequency-domain model; exact: time-domain with ICI/ISI")
     ap.add_argument("--seed", type=seed, default=0,
@@ -162,14 +174,19 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def settings_from_args(args) -> TraceSettings:
-    """The tracer settings of a parsed command line (tests reuse the tool's defaults)."""
+    """The tracer settings of a parsed command line (tests and tools/bench_trace.py reuse
+    the tool's defaults)."""
+    spacing = args.sbr_spacing
+    optics = (OpticsSettings(mode=args.physical_optics) if spacing is None else
+              OpticsSettings(mode=args.physical_optics, sbr_spacing_wavelengths=spacing))
     return TraceSettings(
         specular=SpecularSettings(max_reflections=args.reflections, rays=args.rays),
         diffraction=DiffractionSettings(max_diffractions=args.diffractions,
                                         max_reflections=args.diffraction_reflections),
-        optics=OpticsSettings(mode=args.physical_optics),
+        optics=optics,
         scattering=ScatteringSettings(enabled=not args.no_scattering,
-                                      max_reflections=args.scattering_reflections))
+                                      max_reflections=args.scattering_reflections),
+        engine=args.engine)
 
 
 def radar_noise(scene, args) -> dict[int, float | None]:

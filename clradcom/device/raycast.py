@@ -98,7 +98,8 @@ class RayCaster:
     Tri4 groups and the scene id of every leaf slot (:func:`tri4_groups`). On a
     CPU device the kernels read the rays and write the results in the numpy
     arrays themselves (USE_HOST_PTR); elsewhere ray, ignore and result buffers
-    are kept between calls and grown as needed. Calls are serialised by a lock.
+    are kept between calls and grown as needed. Calls are serialised by a lock, and
+    each one's wall time (enqueue to finish) adds to ``runtime.kernel_seconds``.
     """
 
     # Work-group size: PoCL's CPU device runs a work-group's items one after the
@@ -155,7 +156,7 @@ class RayCaster:
         mf = cl.mem_flags
         kernel = rt.kernel("raycast.cl", kernel_name, defines=KERNEL_DEFINES)
         local = self.LOCAL_SIZE
-        with self._lock:
+        with self._lock, rt.kernel_clock():
             if self._zero_copy:
                 # A CPU device reads and writes the numpy arrays in place: no copies.
                 if not rays.flags.writeable:
@@ -195,14 +196,15 @@ class RayCaster:
 
         The driver for every kernel family that traverses this caster's BVH (SBR tubes,
         scattering tiles, batched visibility): builds get :data:`KERNEL_DEFINES` plus
-        ``defines``; calls are serialised by the caster's lock and finish before return.
+        ``defines``; calls are serialised by the caster's lock and finish before return,
+        their wall time counted in ``runtime.kernel_seconds``.
         """
         if global_size <= 0:
             return
         rt = self.runtime
         kernel = rt.kernel(source, kernel_name, defines={**KERNEL_DEFINES, **(defines or {})})
         local = local_size or self.LOCAL_SIZE
-        with self._lock:
+        with self._lock, rt.kernel_clock():
             kernel(rt.queue, (-(-int(global_size) // local) * local,), (local,), self._nodes,
                    self._tri4, self._slot_prim, *args)
             rt.queue.finish()
@@ -262,7 +264,7 @@ class RayCaster:
         kernel = rt.kernel("reflect.cl", "trace_reflections", defines=KERNEL_DEFINES)
         o = np.asarray(origin, dtype=np.float64)
         out = np.empty((len(directions), max_order), dtype=np.int32)
-        with self._lock:
+        with self._lock, rt.kernel_clock():
             face_buf = rt.to_device(np.asarray(tri_face, dtype=np.int32))
             for start in range(0, len(directions), batch):
                 # float4 rows: the kernel loads each direction as one aligned vector

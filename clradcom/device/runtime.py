@@ -27,7 +27,9 @@ import importlib.resources
 import os
 import re
 import threading
-from collections.abc import Mapping
+import time
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
@@ -230,7 +232,13 @@ def _format_build_log(name: str, log: str) -> str:
 
 
 class Runtime:
-    """One context and in-order queue on one device, with a program cache."""
+    """One context and in-order queue on one device, with a program cache.
+
+    :attr:`kernel_seconds` counts the wall time spent inside kernel launches on this
+    runtime, from enqueue to finish (the ray caster's :meth:`kernel_clock` blocks):
+    what a benchmark compares with a whole trace's time to see the share spent in
+    kernels.
+    """
 
     def __init__(self, spec: str | None = None):
         cl = _cl()
@@ -242,6 +250,26 @@ class Runtime:
         self._programs: dict[tuple[str, tuple[str, ...]], object] = {}
         self._kernels: dict[tuple, object] = {}
         self._lock = threading.Lock()
+        self._kernel_seconds = 0.0
+
+    @property
+    def kernel_seconds(self) -> float:
+        """Wall seconds spent inside :meth:`kernel_clock` blocks since this runtime was
+        made: read it before and after a piece of work for that work's share."""
+        return self._kernel_seconds
+
+    @contextmanager
+    def kernel_clock(self) -> Iterator[None]:
+        """Add the wall time of the block (enqueue to finish of a kernel launch, with its
+        transfers) to :attr:`kernel_seconds`. Blocks may run in several threads at once;
+        their times then add up (so the sum can exceed the wall time of the whole)."""
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            dt = time.perf_counter() - t0
+            with self._lock:
+                self._kernel_seconds += dt
 
     @property
     def has_double(self) -> bool:

@@ -208,3 +208,48 @@ def rounded_car(length=3.8, width=1.85, height=1.7, *, body_exponent=0.25,
             wheel.apply_translation([sx, sy, wheel_r])
             parts.append(wheel)
     return trimesh.util.concatenate(parts)
+
+
+#: W-beam cross-section (AASHTO M180 class A, simplified): (depth toward the road, height)
+#: in m, bottom flange to top flange; 83 mm deep, 312 mm tall
+W_BEAM_PROFILE = np.array([
+    [0.000, 0.000], [0.000, 0.025], [0.083, 0.075], [0.083, 0.105], [0.020, 0.156],
+    [0.083, 0.207], [0.083, 0.237], [0.000, 0.287], [0.000, 0.312]])
+
+
+def guardrail_meshes(length: float = 60.0, *, cell: float = 0.5, post_spacing: float = 2.0,
+                     beam_bottom: float = 0.45, post_size=(0.15, 0.10, 0.80),
+                     post_gap: float = 0.15, post_sink: float = 0.05
+                     ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """A metal road guard rail along +x from x = 0 to ``length``, its beam facing -y (the
+    road) with its back at y = 0: ``{"w_beam": (verts, faces), "posts": (verts, faces)}``.
+
+    The beam is one open sheet of the :data:`W_BEAM_PROFILE` swept along x in cells of
+    ``cell`` m (2 triangles per profile strip and cell, normals toward -y), its bottom
+    flange ``beam_bottom`` m above z = 0. The posts are closed boxes of ``post_size``
+    (x, y, z) m every ``post_spacing`` m from x = 0 to ``length``, sunk ``post_sink`` m
+    below z = 0 (so that no post face lies in the road's plane), their front ``post_gap``
+    m behind the beam's back (where a blockout would sit).
+    """
+    n_cells = max(1, int(round(length / cell)))
+    xs = np.linspace(0.0, length, n_cells + 1)
+    prof = W_BEAM_PROFILE
+    # vertex (i, j): x = xs[i], profile point j; the road is at -y
+    verts = np.stack(np.broadcast_arrays(
+        xs[:, None], -prof[None, :, 0], beam_bottom + prof[None, :, 1]), axis=-1)
+    idx = np.arange(verts.shape[0] * verts.shape[1]).reshape(verts.shape[:2])
+    p, q = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel()
+    r, s = idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    # (x step) x (z step) points to -y for a strip whose depth does not change
+    beam_faces = np.concatenate([np.stack([p, q, r], 1), np.stack([p, r, s], 1)])
+    beam = (verts.reshape(-1, 3), beam_faces)
+
+    box = trimesh.creation.box(extents=post_size)
+    bv, bf = np.asarray(box.vertices), np.asarray(box.faces)
+    n_posts = int(np.floor(length / post_spacing + 1e-9)) + 1
+    centres = [[i * post_spacing, post_gap + 0.5 * post_size[1],
+                0.5 * post_size[2] - post_sink]
+               for i in range(n_posts)]
+    posts = (np.concatenate([bv + c for c in centres]),
+             np.concatenate([bf + k * len(bv) for k in range(n_posts)]))
+    return {"w_beam": beam, "posts": posts}

@@ -1,6 +1,6 @@
 """The ``[[objects]]`` entries of a scene file -> :class:`SceneObject` records and their
-world triangles: material, pose (scale, then rotate, then translate), velocity, optics,
-and the refusal (or dropping) of degenerate triangles."""
+world triangles: material, pose (scale, then rotate, then translate), velocity, optics
+and its SBR ray-tube pitch, and the refusal (or dropping) of degenerate triangles."""
 
 from __future__ import annotations
 
@@ -16,13 +16,13 @@ from clradcom.scene.bounds import check_coordinates, check_speed
 from clradcom.scene.fields import FieldReader
 from clradcom.scene.read_geometry import MeshCache, read_object_geometry
 from clradcom.scene.read_materials import MaterialTable, material_index
-from clradcom.scene.records import OPTICS, SceneObject
+from clradcom.scene.records import OPTICS, SBR_SPACING_WAVELENGTHS, SceneObject
 
 __all__ = ["DEGENERATE_REL", "OBJECT_KEYS", "drop_or_refuse_degenerate", "read_objects"]
 
 OBJECT_KEYS = ("name", "material", "mesh", "shape", "extents", "size", "vertices", "faces",
                "position", "rotation_deg", "scale", "velocity", "drop_degenerate",
-               "optics", "description")
+               "optics", "sbr_spacing_wavelengths", "description")
 
 #: Relative area threshold for "degenerate": 2*area <= DEGENERATE_REL * longest_edge^2.
 DEGENERATE_REL = 1e-10
@@ -59,6 +59,7 @@ def _read_object(fields, kp, tbl, seen, materials, carrier, base_dir, mesh_cache
     scale = _read_scale(fields, tbl, kp)
     drop = fields.get_bool(tbl, "drop_degenerate", kp, default=False)
     optics = fields.get_str(tbl, "optics", kp, default=None, choices=OPTICS)
+    sbr_spacing = _read_sbr_spacing(fields, tbl, kp)
 
     verts, faces, label = read_object_geometry(fields, tbl, kp, base_dir, mesh_cache)
     rotation = euler_deg_to_matrix(rot_deg)
@@ -71,8 +72,22 @@ def _read_object(fields, kp, tbl, seen, materials, carrier, base_dir, mesh_cache
         name=name, mesh=label, material=mat, material_name=mat_name, position=position,
         rotation_deg=rot_deg, rotation=rotation, scale=scale, velocity=velocity,
         tri_start=start, tri_stop=start + tri.shape[0], optics=optics,
+        sbr_spacing_wavelengths=sbr_spacing,
     )
     return obj, tri
+
+
+def _read_sbr_spacing(fields, tbl, kp) -> float | None:
+    """``sbr_spacing_wavelengths``: the object's own SBR ray-tube pitch, a number of
+    wavelengths in :data:`SBR_SPACING_WAVELENGTHS`, or None when absent."""
+    value = fields.get_float(tbl, "sbr_spacing_wavelengths", kp, default=None,
+                             unit="wavelengths")
+    low, high = SBR_SPACING_WAVELENGTHS
+    if value is not None and not low <= value <= high:
+        raise fields.err(f"{kp}.sbr_spacing_wavelengths", tbl["sbr_spacing_wavelengths"],
+                         f"the SBR ray-tube pitch must be between {low:g} and {high:g} "
+                         "wavelengths")
+    return value
 
 
 def _read_scale(fields, tbl, kp) -> np.ndarray:

@@ -16,10 +16,13 @@ import numpy as np
 from clradcom.scene.antenna import Pattern
 from clradcom.scene.materials import C0, ROUGHNESS_MODELS, Material
 
-__all__ = ["OPTICS", "ROLES", "Radar", "Scene", "SceneObject"]
+__all__ = ["OPTICS", "ROLES", "SBR_SPACING_WAVELENGTHS", "Radar", "Scene", "SceneObject"]
 
 #: ``objects[].optics``: how the tracer models the object's returns (docs/po.md)
 OPTICS = ("go", "po", "both")
+#: ``objects[].sbr_spacing_wavelengths``: the range (inclusive, in wavelengths) of an
+#: object's own SBR ray-tube pitch, that of ``OpticsSettings.sbr_spacing_wavelengths``
+SBR_SPACING_WAVELENGTHS = (0.01, 100.0)
 #: What a radar does: transmit and receive, only transmit, only receive.
 ROLES = ("txrx", "tx", "rx")
 
@@ -41,6 +44,9 @@ class SceneObject:
     tri_stop: int  #: one past its last triangle
     #: "go" / "po" / "both", or None to follow TraceSettings.physical_optics
     optics: str | None = None
+    #: pitch of this object's SBR ray tubes in wavelengths, or None to follow
+    #: ``OpticsSettings.sbr_spacing_wavelengths``
+    sbr_spacing_wavelengths: float | None = None
 
     @property
     def tri_slice(self) -> slice:
@@ -182,9 +188,12 @@ class Scene:
             "format": "clradcom-scene-hash-1",
             "carrier_hz": f(self.carrier_hz),
             "materials": [m.hash_params() for m in self.materials],
-            # optics only when set, so scenes without it keep their hashes
+            # optics and the SBR pitch only when set, so scenes without them keep
+            # their hashes
             "objects": [[o.name, o.material, vec(o.velocity), o.tri_start, o.tri_stop]
                         + ([o.optics] if o.optics is not None else [])
+                        + ([["sbr_spacing_wavelengths", f(o.sbr_spacing_wavelengths)]]
+                           if o.sbr_spacing_wavelengths is not None else [])
                         for o in self.objects],
             "radars": [
                 [r.name, vec(r.position), r.rides_on, vec(r.orientation), r.pattern.params(),

@@ -1,0 +1,232 @@
+#!/usr/bin/env python3
+"""Trace benchmark: the whole street trace, device engine against the host reference,
+and the scenes that the old SBR-PO could not trace.
+
+    python tools/bench_trace.py                       # street x 3 per engine, then extras
+    python tools/bench_trace.py --repeats 5 --extra none
+    python tools/bench_trace.py --street none --extra plate,truck77 --out /tmp/bench
+
+1. The street (scenes/street/street.toml) at the main job's settings: the very
+   TraceSettings tools/trace.py builds from its defaults (1e6 rays, 5 reflections, one
+   diffraction, SBR-PO, scattering), with --rays and --sbr-spacing passed on to it. One
+   untimed warm-up trace per engine (kernel builds), then the device and host engines
+   take turns --repeats times in this process; printed are the medians per stage
+   (clradcom.trace.StageTimes), the whole trace, the ratio host/device and the share of
+   the device trace's wall time spent inside kernels (Runtime.kernel_seconds: enqueue to
+   finish of every kernel launch).
+2. Extra scenes (default scenes/plate, scenes/truck77, scenes/guardrail), device engine,
+   each traced once in a fresh process: trace time (kernel builds included, as in a
+   user's first run), share in kernels, paths, and the process's peak resident memory
+   (VmHWM; on a CPU OpenCL device the device buffers are in it too). For a scene of
+   one flat PEC plate and a monostatic radar (scenes/plate) also its RCS from the path sum
+   by the radar range equation against 4 pi A^2 / lambda^2. A scene that fails is
+   reported with its error and the run goes on.
+
+Every number goes to <out>/bench_trace.csv (scene, engine, quantity, value, unit); --out
+defaults to a new temporary folder, never the repository. The logic lives in
+clradcom.evaluation.bench. Errors in the options are one line on stderr, exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import sys
+import tempfile
+from pathlib import Path
+
+from clradcom.cli import float_in, output_folder, positive_float, positive_int, run_tool
+from clradcom.device.runtime import get_runtime
+from clradcom.evaluation.bench import (
+    CSV_HEADER,
+    compare_engines,
+    median_timing,
+    plate_rcs,
+    run_in_subprocess,
+    timing_rows,
+)
+from clradcom.files import write_csv
+from clradcom.scene.reader import load_scene
+from clradcom.scene.records import SBR_SPACING_WAVELENGTHS
+from clradcom.trace import check_launch_memory
+
+REPO = Path(__file__).resolve().parent.parent
+STREET = REPO / "scenes" / "street" / "street.toml"
+EXTRA = {name: REPO / "scenes" / name / f"{name}.toml"
+         for name in ("plate", "truck77", "guardrail")}
+#: targets printed beside the numbers (issue #16)
+TARGET_RATIO, TARGET_KERNEL_SHARE, TARGET_PEAK_GIB, TARGET_PLATE_DB = 5.0, 0.70, 4.0, 0.1
+
+
+def trace_tool():
+    """tools/trace.py as a module: its parser and settings are the main job's."""
+    spec = importlib.util.spec_from_file_location("trace_tool", Path(__file__).with_name(
+        "trace.py"))
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def main_job_settings(scene, rays=None, sbr_spacing=None):
+    """The TraceSettings tools/trace.py builds for ``scene`` from its defaults, with
+    ``--rays`` / ``--sbr-spacing`` when given."""
+    tool = trace_tool()
+    argv = [str(scene)]
+    if rays is not None:
+        argv += ["--rays", str(rays)]
+    if sbr_spacing is not None:
+        argv += ["--sbr-spacing", repr(sbr_spacing)]
+    return tool.settings_from_args(tool.build_parser().parse_args(argv))
+
+
+def scene_list(text):
+    """--extra: 'none', or comma-separated names of the extra scenes or scene files."""
+    if text.strip() == "none":
+        return []
+    out = []
+    for item in (t.strip() for t in text.split(",") if t.strip()):
+        path = EXTRA.get(item, Path(item))
+        if not path.is_file():
+            raise argparse.ArgumentTypeError(
+                f"{item!r} is neither one of {', '.join(EXTRA)} nor a scene file")
+        out.append(path)
+    if not out:
+        raise argparse.ArgumentTypeError(f"names no scene: {text!r}")
+    return out
+
+
+def street_file(text):
+    """--street: 'none', or a scene file."""
+    if text.strip() == "none":
+        return None
+    if not Path(text).is_file():
+        raise argparse.ArgumentTypeError(f"{text!r} is not a scene file")
+    return Path(text)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--street", type=street_file, default=STREET,
+                    help="scene timed with both engines (default scenes/street/street.toml; "
+                         "'none' skips it)")
+    ap.add_argument("--extra", type=scene_list, default=list(EXTRA.values()),
+                    help=f"extra scenes, device engine, one process each: names "
+                         f"({', '.join(EXTRA)}) or scene files, comma-separated (default "
+                         "all three; 'none' skips them)")
+    ap.add_argument("--repeats", type=positive_int, default=3,
+                    help="timed street traces per engine; medians are printed (default 3)")
+    ap.add_argument("--rays", type=positive_int, default=None,
+                    help="rays per transmitter (default: tools/trace.py's, 1e6)")
+    ap.add_argument("--sbr-spacing", type=float_in(*SBR_SPACING_WAVELENGTHS), default=None,
+                    metavar="WAVELENGTHS",
+                    help="SBR ray-tube pitch in wavelengths (default: tools/trace.py's)")
+    ap.add_argument("--timeout", type=positive_float, default=1800.0,
+                    help="seconds an extra scene may take before it is reported as failed "
+                         "(default 1800)")
+    ap.add_argument("--device", default=None,
+                    help="OpenCL device: 'gpu', 'cpu', 'P:D' or part of its name")
+    ap.add_argument("--out", type=output_folder, default=None,
+                    help="folder for bench_trace.csv (default: a new temporary folder)")
+    return ap
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    return run_tool("bench_trace.py", run, args)
+
+
+def settings_for(args, scene):
+    return main_job_settings(scene, args.rays, args.sbr_spacing)
+
+
+def run(args) -> int:
+    rows: list[tuple] = []
+    runtime = get_runtime(args.device)
+    print(f"device: {runtime.info.describe()}")
+    if args.street is not None:
+        rows += bench_street(args, runtime)
+    for path in args.extra:
+        rows += bench_extra(args, path)
+    out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="bench_trace-"))
+    out.mkdir(parents=True, exist_ok=True)
+    csv_path = write_csv(out / "bench_trace.csv", rows, CSV_HEADER)
+    print(f"\nnumbers in {csv_path}")
+    return 0
+
+
+def bench_street(args, runtime) -> list[tuple]:
+    scene = load_scene(args.street)
+    settings = settings_for(args, args.street)
+    check_launch_memory(settings, argument="--rays", value=settings.specular.rays)
+    print(f"\n{scene.name}: {len(scene.triangles)} triangles, {len(scene.radars)} radars, "
+          f"{settings.specular.rays} rays, {args.repeats} timed traces per engine")
+    runs = compare_engines(scene, settings, runtime, repeats=args.repeats,
+                           progress=lambda m: print(f"  {m}", flush=True))
+    med = {e: median_timing(t) for e, t in runs.items()}
+    dev, host = med["device"], med["host"]
+    print(f"\n  {'median seconds':<22} {'device':>9} {'host':>9} {'host/device':>12}")
+    for stage in dict.fromkeys([*dev.stages, *host.stages]):
+        d, h = dev.stages.get(stage, 0.0), host.stages.get(stage, 0.0)
+        print(f"  {stage:<22} {d:9.3f} {h:9.3f} {_ratio(h, d):>12}")
+    ratio = host.seconds / dev.seconds if dev.seconds > 0 else float("inf")
+    print(f"  {'whole trace':<22} {dev.seconds:9.3f} {host.seconds:9.3f} "
+          f"{_ratio(host.seconds, dev.seconds):>12}   (target >= {TARGET_RATIO:g})")
+    print(f"  {'inside kernels':<22} {dev.kernel_seconds:9.3f} {host.kernel_seconds:9.3f}")
+    print(f"  share in kernels: device {dev.kernel_share:.1%}, host {host.kernel_share:.1%}"
+          f"   (target >= {TARGET_KERNEL_SHARE:.0%} for the device)")
+    print(f"  paths: device {dev.n_paths}, host {host.n_paths}")
+    rows = []
+    for engine in runs:
+        for i, t in enumerate(runs[engine]):
+            rows += [(scene.name, engine, f"run{i + 1}:{q}", v, u)
+                     for _, _, q, v, u in timing_rows(scene.name, t)[:3]]
+        rows += [(s, e, f"median:{q}", v, u) for s, e, q, v, u in
+                 timing_rows(scene.name, med[engine])]
+    rows.append((scene.name, "", "host_over_device", f"{ratio:.4f}", "1"))
+    return rows
+
+
+def bench_extra(args, path) -> list[tuple]:
+    scene = load_scene(path)
+    settings = settings_for(args, path)
+    print(f"\n{scene.name}: {len(scene.triangles)} triangles, device engine, own process "
+          f"...", flush=True)
+    res = run_in_subprocess(path, settings, args.device, timeout_s=args.timeout)
+    gib = res.peak_rss_bytes / 2**30
+    rows = [(scene.name, "device", "ok", str(int(res.ok)), "1"),
+            (scene.name, "device", "peak_rss", f"{gib:.4f}", "GiB"),
+            (scene.name, "device", "process_s", f"{res.wall_seconds:.4f}", "s")]
+    for text in res.warnings:
+        print(f"  warning: {text}")
+    rows.append((scene.name, "device", "warnings", str(len(res.warnings)), "1"))
+    if not res.ok:
+        print(f"  FAILED after {res.wall_seconds:.1f} s: {res.error}")
+        print(f"  peak memory {gib:.2f} GiB")
+        return rows
+    t = res.timing
+    print(f"  trace {t.seconds:.2f} s ({t.kernel_share:.0%} in kernels), {t.n_paths} paths, "
+          f"peak memory {gib:.2f} GiB (target < {TARGET_PEAK_GIB:g}; "
+          f"{res.rss_before_trace_bytes / 2**30:.2f} GiB before the trace)")
+    print("  " + ", ".join(f"{k} {v:.2f} s" for k, v in t.stages.items()))
+    rows += timing_rows(scene.name, t)
+    check = plate_rcs(scene, res.links)
+    if check is not None:
+        d_all, d_po = check.all_dbsm - check.expected_dbsm, check.po_dbsm - check.expected_dbsm
+        print(f"  plate {check.area_m2:g} m^2 at {check.range_m:g} m, "
+              f"{check.incidence_deg:.2f} deg off broadside: 4 pi A^2/lambda^2 = "
+              f"{check.expected_dbsm:.3f} dBsm; all paths {check.all_dbsm:.3f} dBsm "
+              f"({d_all:+.3f} dB), PO/SBR paths {check.po_dbsm:.3f} dBsm ({d_po:+.3f} dB)"
+              f"   (target within {TARGET_PLATE_DB:g} dB)")
+        rows += [(scene.name, "device", "rcs_expected", f"{check.expected_dbsm:.4f}", "dBsm"),
+                 (scene.name, "device", "rcs_all_paths", f"{check.all_dbsm:.4f}", "dBsm"),
+                 (scene.name, "device", "rcs_po_paths", f"{check.po_dbsm:.4f}", "dBsm")]
+    return rows
+
+
+def _ratio(a: float, b: float) -> str:
+    return f"{a / b:.2f}" if b > 0 else "-"
+
+
+if __name__ == "__main__":
+    sys.exit(main())
