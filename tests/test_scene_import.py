@@ -464,3 +464,8 @@ def test_primitive_shapes_nested_and_held_materials_and_lookat(tmp_path):
     (tmp_path / "room.xml").write_text('<!DOCTYPE s [<!ENTITY a "aaaa">]>\n<scene/>')
     with pytest.raises(SceneError, match="entity declarations"):
         load_scene(path)
+
+
+def test_two_sided_sheet_is_closed_but_not_inward():
+    sheet = trimesh.creation.box(extents=[1, 1, 1]).triangles[:1]
+    assert inward_closed_shells(np.concatenate([sheet, sheet[:, ::-1]])) == (0, 1)

@@ -488,19 +488,47 @@ def _look_at(rd: _Reader, c: XmlNode, k: str) -> np.ndarray:
 
 
 def inward_closed_shells(triangles: np.ndarray) -> tuple[int, int]:
-    """(inward, closed): of the closed, consistently wound shells of a triangle soup
-    (vertices welded where they coincide), how many enclose a negative volume (their
-    normals point inwards), and how many there are."""
-    import trimesh
+    """(inward, closed): of the closed, consistently wound shells of a triangle soup, how
+    many enclose a negative volume (their normals point inwards), and how many there are.
 
-    tri = np.asarray(triangles, dtype=np.float64)
-    if len(tri) < 4:
+    Vertices are welded where they are bitwise equal (exporters repeat them per face).
+    A shell is a set of faces joined by shared edges; it is closed and consistently wound
+    when each of its edges is used by exactly two faces in opposite directions. Its
+    signed volume is sum (v0 . (v1 x v2)) / 6 about its centroid; a flat closed shell (a
+    two-sided sheet: |volume| <= 1e-9 d^3, d its bounding box's diagonal) counts as
+    closed, not inward."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    tri = np.asarray(triangles, dtype=np.float64).reshape(-1, 3, 3)
+    n = len(tri)
+    if n < 2:
         return 0, 0
-    mesh = trimesh.Trimesh(vertices=tri.reshape(-1, 3),
-                           faces=np.arange(3 * len(tri)).reshape(-1, 3), process=True)
+    verts, index = np.unique(tri.reshape(-1, 3), axis=0, return_inverse=True)
+    faces = index.reshape(n, 3)
+    a = faces.reshape(-1)
+    b = faces[:, [1, 2, 0]].reshape(-1)
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    edge_keys, edge = np.unique(lo * len(verts) + hi, return_inverse=True)
+    n_edges = len(edge_keys)
+    face_of = np.repeat(np.arange(n), 3)
+    graph = coo_matrix((np.ones(3 * n), (face_of, n + edge)), shape=(n + n_edges,) * 2)
+    _, label = connected_components(graph, directed=False)
+    uses = np.bincount(edge, minlength=n_edges)
+    turns = np.bincount(edge, weights=np.where(a < b, 1.0, -1.0), minlength=n_edges)
+    edge_ok = (uses == 2) & (turns == 0)
+    face_ok = edge_ok[edge].reshape(n, 3).all(axis=1)
+    shell = label[:n]
     inward = closed = 0
-    for part in mesh.split(only_watertight=False, repair=False):
-        if part.is_watertight and part.is_winding_consistent:
-            closed += 1
-            inward += int(part.volume < 0)
+    for s in np.unique(shell):
+        members = shell == s
+        if not face_ok[members].all():
+            continue
+        closed += 1
+        t = tri[members]
+        centre = t.reshape(-1, 3).mean(axis=0)
+        t = t - centre
+        volume = np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum() / 6.0
+        diagonal = float(np.linalg.norm(np.ptp(t.reshape(-1, 3), axis=0)))
+        inward += int(volume < -1e-9 * diagonal ** 3)
     return inward, closed
