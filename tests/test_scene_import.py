@@ -272,6 +272,19 @@ def test_bad_xml_is_refused_naming_file_element_and_value(tmp_path, old, new, ke
     assert str(err).startswith(f"{tmp_path / 'canyon.xml'}:{err.line}: {key} = ")
 
 
+def test_xml_material_never_takes_a_builtin_name(tmp_path):
+    xml = WALL_XML.replace('id="mat-custom" name="mat-custom"', 'id="mat-itu_brick"').replace(
+        '<ref id="mat-custom"/>', '<ref id="mat-itu_brick"/>')
+    toml = TOML + ('\n[[objects]]\nname = "shed"\nmaterial = "itu_brick"\nshape = "box"\n'
+                   'extents = [1.0, 1.0, 1.0]\nposition = [0.0, -20.0, 0.5]\n')
+    scene = load_scene(write_scene(tmp_path, xml, toml))
+    sign = scene.materials[scene.objects[scene.object_index("sign")].material]
+    shed = scene.materials[scene.objects[scene.object_index("shed")].material]
+    assert sign.name == "mat-itu_brick@canyon.xml" and sign.eps_r.real == 4.5
+    assert shed.name == "itu_brick" and shed.eps_r == pytest.approx(itu_eps(3.91, 0.0238,
+                                                                             0.16))
+
+
 def test_unknown_material_may_come_from_the_scene_file(tmp_path):
     xml = WALL_XML.replace('id="mat-itu_concrete" name="mat-itu_concrete"',
                            'id="mat-wet_concrete"').replace(

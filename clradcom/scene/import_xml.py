@@ -52,6 +52,7 @@ from clradcom.scene.materials import (
     ITU_P2040_TABLE3,
     ITU_PREFIX,
     Material,
+    builtin_material_names,
     conductivity_to_eps_imag,
     with_overrides,
 )
@@ -299,8 +300,8 @@ class _Materials:
         if kind == "itu-radio-material" and s == 0.0 and kx == 0.0:
             return self.table.index[base.name]
         own = name if name else f"xml-bsdf-line{node.line}"
-        if own in self.table.index:  # a built-in or [[materials]] name, taken
-            own = f"{bid}@{self.rd.path.name}"
+        if own in self.table.index or own in builtin_material_names():
+            own = f"{bid}@{self.rd.path.name}"  # never under a built-in or user name
         if own in self.table.index:
             raise rd.err(node, f"{key}.id", bid, "two materials of this name")
         mat = with_overrides(base, name=own, scattering_coefficient=s, cross_pol_share=kx,
