@@ -1,10 +1,16 @@
 """The ``[[objects]]`` entries of a scene file -> :class:`SceneObject` records and their
 world triangles: material, pose (scale, then rotate, then translate), velocity, optics
-and its SBR ray-tube pitch, and the refusal (or dropping) of degenerate triangles."""
+and its SBR ray-tube pitch, and the refusal (or dropping) of degenerate triangles.
+
+Objects that come whole from elsewhere (an imported Mitsuba/Sionna XML scene,
+:mod:`~clradcom.scene.import_xml`) arrive as :class:`PlacedMesh` records, already in world
+coordinates; an entry with ``geojson`` becomes one object per building footprint
+(:mod:`~clradcom.scene.geojson`)."""
 
 from __future__ import annotations
 
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -14,11 +20,13 @@ from clradcom.geometry.triangles import triangle_double_areas
 from clradcom.scene.antenna import euler_deg_to_matrix
 from clradcom.scene.bounds import check_coordinates, check_speed
 from clradcom.scene.fields import FieldReader
+from clradcom.scene.geojson import GEOJSON_KEYS, read_geojson_buildings
 from clradcom.scene.read_geometry import MeshCache, read_object_geometry
 from clradcom.scene.read_materials import MaterialTable, material_index
 from clradcom.scene.records import OPTICS, SBR_SPACING_WAVELENGTHS, SceneObject
 
-__all__ = ["DEGENERATE_REL", "OBJECT_KEYS", "drop_or_refuse_degenerate", "read_objects"]
+__all__ = ["DEGENERATE_REL", "OBJECT_KEYS", "PlacedMesh", "drop_or_refuse_degenerate",
+           "read_objects"]
 
 OBJECT_KEYS = ("name", "material", "mesh", "shape", "extents", "size", "vertices", "faces",
                "position", "rotation_deg", "scale", "velocity", "drop_degenerate",
@@ -28,22 +36,118 @@ OBJECT_KEYS = ("name", "material", "mesh", "shape", "extents", "size", "vertices
 DEGENERATE_REL = 1e-10
 
 
+@dataclass(eq=False)
+class PlacedMesh:
+    """An object whose world triangles were made elsewhere (an XML import, a GeoJSON
+    footprint): everything a :class:`SceneObject` needs but its triangle range."""
+
+    name: str
+    key: str  #: where it was defined, for messages (``shape[mesh-wall]``, ``objects[2]``)
+    mesh: str  #: label: the mesh file, or ``<geojson file>#<feature>``
+    triangles: np.ndarray  #: (F, 3, 3) float64 world coordinates
+    material: int
+    material_name: str
+    position: np.ndarray
+    rotation: np.ndarray
+    scale: np.ndarray
+    velocity: np.ndarray
+
+
 def read_objects(fields: FieldReader, entries: list, materials: MaterialTable,
-                 carrier: float, base_dir: Path) -> tuple[list[SceneObject], list[np.ndarray]]:
-    """Objects in file order and each one's world triangles (F, 3, 3); built-in materials
-    they name join ``materials``."""
+                 carrier: float, base_dir: Path, placed=()
+                 ) -> tuple[list[SceneObject], list[np.ndarray]]:
+    """Objects (``placed`` ones first, then the entries in file order) and each one's world
+    triangles (F, 3, 3); built-in materials they name join ``materials``."""
     objects: list[SceneObject] = []
     triangles: list[np.ndarray] = []
     seen: dict = {}
     mesh_cache: MeshCache = {}
     start = 0
-    for i, tbl in enumerate(entries):
-        obj, tri = _read_object(fields, f"objects[{i}]", tbl, seen, materials, carrier,
-                                base_dir, mesh_cache, start)
+
+    def add(obj: SceneObject, tri: np.ndarray) -> None:
+        nonlocal start
         objects.append(obj)
         triangles.append(tri)
         start += tri.shape[0]
+
+    for p in placed:
+        if p.name in seen:
+            raise fields.err(p.key, p.name, f"duplicate object name (already used by "
+                             f"{seen[p.name]})")
+        seen[p.name] = p.key
+        add(*_placed_object(p, start))
+    for i, tbl in enumerate(entries):
+        kp = f"objects[{i}]"
+        if isinstance(tbl, dict) and "geojson" in tbl:
+            for p in _read_geojson_entry(fields, kp, tbl, seen, materials, carrier,
+                                         base_dir):
+                add(*_placed_object(p, start))
+            continue
+        add(*_read_object(fields, kp, tbl, seen, materials, carrier, base_dir, mesh_cache,
+                          start))
     return objects, triangles
+
+
+def _placed_object(p: PlacedMesh, start: int) -> tuple[SceneObject, np.ndarray]:
+    obj = SceneObject(
+        name=p.name, mesh=p.mesh, material=p.material, material_name=p.material_name,
+        position=p.position, rotation_deg=matrix_to_euler_deg(p.rotation),
+        rotation=p.rotation, scale=p.scale, velocity=p.velocity, tri_start=start,
+        tri_stop=start + p.triangles.shape[0])
+    return obj, p.triangles
+
+
+def matrix_to_euler_deg(rotation: np.ndarray) -> np.ndarray:
+    """[roll, pitch, yaw] (deg) of ``R = Rz(yaw) Ry(pitch) Rx(roll)``, the inverse of
+    :func:`~clradcom.scene.antenna.euler_deg_to_matrix` (pitch in [-90, 90])."""
+    r = np.asarray(rotation, dtype=np.float64)
+    pitch = np.arcsin(np.clip(-r[2, 0], -1.0, 1.0))
+    if abs(r[2, 0]) < 1.0 - 1e-12:
+        roll = np.arctan2(r[2, 1], r[2, 2])
+        yaw = np.arctan2(r[1, 0], r[0, 0])
+    else:  # gimbal lock: only yaw - roll (or yaw + roll) is defined; put it all in yaw
+        roll = 0.0
+        yaw = np.arctan2(-r[0, 1], r[1, 1])
+    return np.degrees([roll, pitch, yaw]) + 0.0  # no -0.0
+
+
+def _read_geojson_entry(fields, kp, tbl, seen, materials, carrier, base_dir):
+    """One :class:`PlacedMesh` per building of an ``[[objects]]`` entry with ``geojson``:
+    named ``<name>/<feature id or index>``, standing on z = 0 plus ``position``."""
+    fields.check_keys(tbl, GEOJSON_KEYS, kp)
+    name = fields.unique_name(tbl, kp, seen, "object")
+    default_mat = fields.get_str(tbl, "material", kp, default=None)
+    position = fields.get_vec3(tbl, "position", kp, default=(0.0, 0.0, 0.0), unit="m")
+    velocity = fields.get_vec3(tbl, "velocity", kp, default=(0.0, 0.0, 0.0), unit="m/s")
+    if "velocity" in tbl:
+        check_speed(fields, velocity, tbl["velocity"], f"{kp}.velocity")
+    out = []
+    for b in read_geojson_buildings(fields, tbl, kp, base_dir):
+        bname = f"{name}/{b.label}"
+        if bname in seen:
+            raise fields.err(f"{kp}.geojson", tbl["geojson"],
+                             f"building '{bname}' (feature {b.index}) has the name of "
+                             f"{seen[bname]}; give the features unique ids")
+        seen[bname] = f"{kp} feature {b.index}"
+        mat_name = b.material if b.material is not None else default_mat
+        mat_key = (f"{kp}.geojson feature {b.index} material" if b.material is not None
+                   else f"{kp}.material")
+        if mat_name is None:
+            raise fields.err(f"{kp}.material", NOVALUE,
+                             f"feature {b.index} of {b.file} has no 'material' property: "
+                             "give a default material for the buildings")
+        mat = material_index(fields, materials, mat_name, mat_key, carrier)
+        world = b.vertices + position
+        check_coordinates(fields, world, f"{kp}.position", tbl.get("position", NOVALUE),
+                          f"position plus the buildings of {b.file}")
+        label = f"{b.file}#{b.index}"
+        tri = drop_or_refuse_degenerate(fields, world[b.faces], kp, label, True,
+                                        tbl["geojson"])
+        out.append(PlacedMesh(
+            name=bname, key=f"{kp} feature {b.index}", mesh=label, triangles=tri,
+            material=mat, material_name=mat_name, position=position.copy(),
+            rotation=np.eye(3), scale=np.ones(3), velocity=velocity.copy()))
+    return out
 
 
 def _read_object(fields, kp, tbl, seen, materials, carrier, base_dir, mesh_cache, start):

@@ -9,6 +9,10 @@ A scene file has four parts (docs/scene-format.md is the full reference)::
     [[radars]]     antennas: position, rides_on, orientation_deg, pattern,
                    polarization, role, tx_power_w, noise_figure_db
 
+``[scene] import = "canyon.xml"`` adds the shapes of a Mitsuba 3 / Sionna RT XML scene
+(:mod:`~clradcom.scene.import_xml`) before the ``[[objects]]``; an ``[[objects]]`` entry
+with ``geojson`` adds extruded building footprints (:mod:`~clradcom.scene.geojson`).
+
 Every refusal is a :class:`clradcom.errors.SceneError` naming the file, the key
 path (``objects[2].velocity``) and the offending value.
 
@@ -39,6 +43,7 @@ import numpy as np
 from clradcom.errors import ArgumentTypeError, SceneError
 from clradcom.scene.bounds import check_carrier, warn_far_geometry, warn_speeds
 from clradcom.scene.fields import REQUIRED, FieldReader, is_file
+from clradcom.scene.import_xml import read_xml_scene
 from clradcom.scene.read_geometry import MESH_SUFFIXES, SHAPES
 from clradcom.scene.read_materials import read_materials
 from clradcom.scene.read_objects import read_objects
@@ -48,7 +53,7 @@ from clradcom.scene.records import Radar, Scene, SceneObject
 __all__ = ["load_scene", "scene_from_dict", "SHAPES", "MESH_SUFFIXES"]
 
 TOP_KEYS = ("scene", "materials", "objects", "radars")
-SCENE_KEYS = ("name", "carrier_hz", "description")
+SCENE_KEYS = ("name", "carrier_hz", "description", "import")
 
 
 def load_scene(path) -> Scene:
@@ -58,6 +63,11 @@ def load_scene(path) -> Scene:
     path = _path_argument(path, "path")
     if not is_file(path):
         raise SceneError("scene file not found", file=path)
+    if path.suffix.lower() == ".xml":
+        raise SceneError("an XML (Mitsuba / Sionna RT) scene holds no carrier frequency "
+                         "and no radars: load a TOML scene file that imports it, "
+                         f"[scene] import = '{path.name}' with carrier_hz and [[radars]] "
+                         "(docs/scene-format.md)", file=path)
     try:
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
@@ -87,8 +97,12 @@ def scene_from_dict(data: dict, *, file="<dict>", base_dir=".") -> Scene:
     fields.check_keys(data, TOP_KEYS, "")
     name, description, carrier = _read_scene_table(fields, data)
     materials = read_materials(fields, fields.array_of_tables(data, "materials"), carrier)
+    placed = []
+    if "import" in data["scene"]:
+        rel = fields.get_str(data["scene"], "import", "scene")
+        placed = read_xml_scene(fields, rel, "scene.import", materials, carrier, base_dir)
     objects, triangles = read_objects(fields, fields.array_of_tables(data, "objects"),
-                                      materials, carrier, base_dir)
+                                      materials, carrier, base_dir, placed)
     radars = read_radars(fields, fields.array_of_tables(data, "radars"), objects, base_dir)
     _warn_out_of_range(fields, carrier, objects, triangles, radars)
     return _assemble_scene(file, name, description, carrier, materials.materials, objects,

@@ -1,0 +1,256 @@
+"""Building footprints from GeoJSON (what OpenStreetMap exports give), extruded into
+closed, outward-facing meshes with shapely and trimesh.
+
+A scene file names the GeoJSON file in an ``[[objects]]`` entry (docs/scene-format.md,
+"Buildings from GeoJSON")::
+
+    [[objects]]
+    name = "buildings"
+    geojson = "buildings.geojson"
+    material = "itu_concrete"        # for features without a "material" property
+    origin_lonlat = [11.5755, 48.1374]
+
+Every Polygon or MultiPolygon feature is one building: its footprint (holes kept) is
+extruded from ``min_height`` (or ``building:min_level`` levels; default 0) up to
+``height`` (metres; a number or a string such as ``"12"`` or ``"12.5 m"``), or to
+``building:levels`` times ``level_height_m``, or to the entry's ``height_m``.
+
+Coordinates are longitude/latitude in degrees on WGS 84 (RFC 7946, the default,
+``coordinates = "lonlat"``) or already projected metres (``coordinates = "metres"``).
+Longitude/latitude become local east/north metres on the tangent plane at
+``origin_lonlat`` (:func:`lonlat_to_local`).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from clradcom.errors import NOVALUE, SceneWarning
+from clradcom.scene.fields import FieldReader, is_file
+
+__all__ = ["COORDINATES", "DEFAULT_LEVEL_HEIGHT_M", "GEOJSON_KEYS", "WGS84_A", "WGS84_F",
+           "Building", "extrude_footprint", "lonlat_to_local", "read_geojson_buildings"]
+
+#: Keys of an ``[[objects]]`` entry that names a GeoJSON file.
+GEOJSON_KEYS = ("name", "geojson", "material", "coordinates", "origin_lonlat",
+                "level_height_m", "height_m", "position", "velocity", "description")
+#: ``coordinates``: longitude/latitude in degrees (RFC 7946), or projected metres.
+COORDINATES = ("lonlat", "metres")
+#: Storey height (m) that turns ``building:levels`` into a height, unless the entry says.
+DEFAULT_LEVEL_HEIGHT_M = 3.0
+#: WGS 84 ellipsoid: semi-major axis (m) and flattening.
+WGS84_A = 6378137.0
+WGS84_F = 1.0 / 298.257223563
+
+_HEIGHT_RE = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*(m)?\s*$")
+
+
+@dataclass(eq=False)
+class Building:
+    """One extruded footprint: local vertices (V, 3) in metres (x east, y north, z up),
+    outward-facing faces (F, 3), and where it came from."""
+
+    index: int  #: the feature's position in the file
+    label: str  #: the feature's ``id`` when it has one, else its index
+    file: str
+    material: str | None  #: the feature's ``material`` property, if any
+    vertices: np.ndarray
+    faces: np.ndarray
+
+
+def lonlat_to_local(lon_deg, lat_deg, origin_lonlat) -> tuple[np.ndarray, np.ndarray]:
+    """East and north metres of points (lon, lat) in degrees on the WGS 84 ellipsoid
+    (height 0), on the local tangent plane at ``origin_lonlat``: the east and north
+    components of the exact ECEF -> ENU rotation of the point's offset from the origin.
+    The up component (the Earth's curvature, about d^2 / (2 R): 8 cm at 1 km) is dropped,
+    so every footprint stands on z = 0."""
+    lon0, lat0 = (math.radians(float(v)) for v in origin_lonlat)
+    lon = np.radians(np.asarray(lon_deg, dtype=np.float64))
+    lat = np.radians(np.asarray(lat_deg, dtype=np.float64))
+    e2 = WGS84_F * (2.0 - WGS84_F)
+
+    def ecef(lo, la):
+        n = WGS84_A / np.sqrt(1.0 - e2 * np.sin(la) ** 2)
+        return (n * np.cos(la) * np.cos(lo), n * np.cos(la) * np.sin(lo),
+                n * (1.0 - e2) * np.sin(la))
+
+    x, y, z = ecef(lon, lat)
+    x0, y0, z0 = ecef(lon0, lat0)
+    dx, dy, dz = x - x0, y - y0, z - z0
+    east = -math.sin(lon0) * dx + math.cos(lon0) * dy
+    north = (-math.sin(lat0) * math.cos(lon0) * dx - math.sin(lat0) * math.sin(lon0) * dy
+             + math.cos(lat0) * dz)
+    return east, north
+
+
+def extrude_footprint(polygon, bottom: float, top: float) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices, faces) of a shapely Polygon or MultiPolygon (metres) extruded from
+    z = ``bottom`` to z = ``top``: closed, faces wound counter-clockwise seen from outside
+    (``trimesh.creation.extrude_polygon`` on each part, holes kept)."""
+    import shapely
+    import trimesh
+
+    parts = list(polygon.geoms) if polygon.geom_type == "MultiPolygon" else [polygon]
+    verts, faces, offset = [], [], 0
+    for part in parts:
+        part = shapely.geometry.polygon.orient(part, 1.0)
+        mesh = trimesh.creation.extrude_polygon(part, top - bottom)
+        if mesh.volume < 0:  # defensive: the extrusion is outward by construction
+            mesh.invert()
+        v = np.asarray(mesh.vertices, dtype=np.float64).copy()
+        v[:, 2] += bottom
+        verts.append(v)
+        faces.append(np.asarray(mesh.faces, dtype=np.int64) + offset)
+        offset += len(v)
+    return np.concatenate(verts), np.concatenate(faces)
+
+
+def read_geojson_buildings(fields: FieldReader, tbl: dict, kp: str,
+                           base_dir: Path) -> list[Building]:
+    """The buildings of the GeoJSON file an ``[[objects]]`` entry names, in file order.
+    Refusals name the scene file, the entry's key and the feature."""
+    import shapely
+
+    rel = fields.get_str(tbl, "geojson", kp)
+    key = f"{kp}.geojson"
+    path = base_dir / rel
+    if not is_file(path):
+        raise fields.err(key, rel, f"GeoJSON file not found (looked for {path})")
+    coords = fields.get_str(tbl, "coordinates", kp, default="lonlat", choices=COORDINATES)
+    level_h = fields.get_float(tbl, "level_height_m", kp, default=DEFAULT_LEVEL_HEIGHT_M,
+                               lo=0.0, lo_open=True, unit="m")
+    default_h = fields.get_float(tbl, "height_m", kp, default=None, lo=0.0, lo_open=True,
+                                 unit="m")
+    origin = None
+    if coords == "lonlat":
+        if "origin_lonlat" not in tbl:
+            raise fields.err(f"{kp}.origin_lonlat", NOVALUE,
+                             "required with coordinates = 'lonlat': the [longitude, "
+                             "latitude] (deg) that becomes x = y = 0 (radar positions are "
+                             "given in that frame)")
+        origin = fields.vector(tbl["origin_lonlat"], f"{kp}.origin_lonlat", 2, "deg")
+        if abs(origin[0]) > 180 or abs(origin[1]) > 90:
+            raise fields.err(f"{kp}.origin_lonlat", tbl["origin_lonlat"],
+                             "longitude must be in [-180, 180], latitude in [-90, 90]")
+    elif "origin_lonlat" in tbl:
+        raise fields.err(f"{kp}.origin_lonlat", tbl["origin_lonlat"],
+                         "only applies with coordinates = 'lonlat'")
+    features = _features(fields, path, key, rel)
+    out: list[Building] = []
+    skipped = []
+    for i, feat in enumerate(features):
+        where = f"feature {i}"
+        geom = feat.get("geometry")
+        gtype = geom.get("type") if isinstance(geom, dict) else None
+        if gtype not in ("Polygon", "MultiPolygon"):
+            skipped.append(i)
+            continue
+        props = feat.get("properties") or {}
+        if not isinstance(props, dict):
+            raise fields.err(key, rel, f"{where} of {path}: 'properties' is not an object")
+        try:
+            poly = shapely.geometry.shape(geom)
+        except Exception as exc:  # noqa: BLE001 - any shapely refusal is a bad geometry
+            raise fields.err(key, rel, f"{where} of {path}: unreadable {gtype} "
+                             f"({type(exc).__name__}: {exc})") from None
+        if poly.is_empty:
+            raise fields.err(key, rel, f"{where} of {path}: empty {gtype}")
+        if origin is not None:
+            xy = shapely.get_coordinates(poly)
+            if np.any(np.abs(xy[:, 0]) > 180) or np.any(np.abs(xy[:, 1]) > 90):
+                raise fields.err(key, rel, f"{where} of {path}: coordinates "
+                                 f"{xy[0].tolist()} are not longitude/latitude in degrees; "
+                                 "for projected metres write coordinates = 'metres'")
+            poly = shapely.transform(poly, lambda p: np.column_stack(
+                lonlat_to_local(p[:, 0], p[:, 1], origin)))
+        if not np.all(np.isfinite(shapely.get_coordinates(poly))):
+            raise fields.err(key, rel, f"{where} of {path}: NaN or inf coordinates")
+        if not poly.is_valid:
+            from shapely.validation import explain_validity
+            raise fields.err(key, rel, f"{where} of {path}: invalid footprint "
+                             f"({explain_validity(poly)})")
+        poly = poly.simplify(0.0)  # drop repeated and collinear corners
+        bottom, top = _heights(fields, key, rel, path, where, props, level_h, default_h)
+        material = props.get("material")
+        if material is not None and not isinstance(material, str):
+            raise fields.err(key, rel, f"{where} of {path}: property material = "
+                             f"{material!r} is not a string")
+        verts, faces = extrude_footprint(poly, bottom, top)
+        fid = feat.get("id")
+        label = str(fid) if isinstance(fid, str | int) and not isinstance(fid, bool) \
+            else str(i)
+        out.append(Building(i, label, str(path), material, verts, faces))
+    if skipped:
+        warnings.warn(f"{fields.file}: {key}: {len(skipped)} feature(s) of {path} are not "
+                      f"Polygon or MultiPolygon and were left out (first {skipped[:10]})",
+                      SceneWarning, stacklevel=3)
+    if not out:
+        raise fields.err(key, rel, f"{path} holds no Polygon or MultiPolygon features")
+    return out
+
+
+def _features(fields: FieldReader, path: Path, key: str, rel: str) -> list[dict]:
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError) as exc:
+        raise fields.err(key, rel, f"cannot read GeoJSON file {path} ({exc})") from None
+    except (json.JSONDecodeError, RecursionError) as exc:
+        raise fields.err(key, rel, f"{path} is not JSON ({exc})") from None
+    kind = data.get("type") if isinstance(data, dict) else None
+    if kind == "FeatureCollection":
+        feats = data.get("features")
+        if not isinstance(feats, list) or not all(isinstance(f, dict) for f in feats):
+            raise fields.err(key, rel, f"{path}: 'features' is not a list of objects")
+        return feats
+    if kind == "Feature":
+        return [data]
+    raise fields.err(key, rel, f"{path} is not a GeoJSON FeatureCollection or Feature "
+                     f"(type {kind!r})")
+
+
+def _metres(value, what: str) -> float:
+    """A height property: a number, or a string of one with an optional ``m``."""
+    if isinstance(value, bool):
+        raise ValueError(f"{what} = {value!r} is not a number of metres")
+    if isinstance(value, int | float):
+        x = float(value)
+    elif isinstance(value, str) and (m := _HEIGHT_RE.match(value)):
+        x = float(m.group(1))
+    else:
+        raise ValueError(f"{what} = {value!r} is not a number of metres (write e.g. 12 "
+                         "or '12 m')")
+    if not math.isfinite(x):
+        raise ValueError(f"{what} = {value!r} is not finite")
+    return x
+
+
+def _heights(fields, key, rel, path, where, props, level_h, default_h) -> tuple[float, float]:
+    """(bottom, top) of a building from its properties (docs/scene-format.md)."""
+    try:
+        if "height" in props:
+            top = _metres(props["height"], "height")
+        elif "building:levels" in props:
+            top = _metres(props["building:levels"], "building:levels") * level_h
+        elif default_h is not None:
+            top = default_h
+        else:
+            raise ValueError("has no height or building:levels property; give the entry "
+                             "a height_m for such buildings")
+        bottom = 0.0
+        if "min_height" in props:
+            bottom = _metres(props["min_height"], "min_height")
+        elif "building:min_level" in props:
+            bottom = _metres(props["building:min_level"], "building:min_level") * level_h
+    except ValueError as exc:
+        raise fields.err(key, rel, f"{where} of {path}: {exc}") from None
+    if not (top > bottom >= 0.0):
+        raise fields.err(key, rel, f"{where} of {path}: height {top:g} m must be above "
+                         f"its base {bottom:g} m (and the base >= 0)")
+    return bottom, top
