@@ -19,6 +19,7 @@ from clradcom.device.visibility import (
     dot3_order,
     face_tables,
     reaches_face,
+    segments_blocked_device,
     segments_clear,
     surface_sees,
     uses_device,
@@ -159,6 +160,10 @@ def test_engine_is_checked_and_no_fp64_means_the_host():
     assert not uses_device(caster, "device")
     with pytest.raises(ArgumentError, match="engine"):
         uses_device(caster, "gpu")
+    # the float64 rounds ignore no triangle: a surface's own triangle needs no rounds
+    with pytest.raises(ArgumentError, match="max_rounds"):
+        segments_blocked_device(caster, np.zeros(1, int), np.zeros((1, 3)), np.ones((1, 3)),
+                                0.0, 1.0, ignore_prim=np.zeros(1, int))
 
 
 def _same_paths(a, b):
