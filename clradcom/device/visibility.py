@@ -18,14 +18,32 @@ float32 answer may disagree with the float64 geometry the fields are computed fr
 * :func:`confirm_paths` - all three along a chain of reflection points;
 * :func:`surface_sees` - a point on a surface (a facet, a tile, a ray-tube hit) sees
   a target, the surface's own triangle ignored.
+
+Two engines give the same decisions.  ``engine="device"`` (the default, on a device
+with fp64) answers a whole batch of segments in one launch of ``kernels/visibility.cl``:
+the float32 cast and the float64 re-decision of every float32 "blocked" (or the float64
+"is the end inside its face") in the same work item, by the same rules and in the same
+operation order as the numpy functions here.  ``engine="host"`` is that numpy reference:
+float32 casts, then float64 rounds on the host (:func:`blocked_in_float64`,
+:func:`containing_triangles`); a device without fp64 always takes it.  The float64
+millimetre at an antenna (:func:`antenna_blocked`) is decided on the host for both.
 """
 
 from __future__ import annotations
 
+import functools
+import weakref
+
 import numpy as np
 
 from clradcom.device.raycast import RayCaster, make_rays, spawn_origins
+from clradcom.errors import ArgumentError
 from clradcom.geometry.triangles import triangle_cross_products, triangle_normals
+
+#: Where the visibility decisions are made: "device" (kernels/visibility.cl, float64 on
+#: the device) or "host" (numpy over float32 casts: the reference).  The same names as
+#: clradcom.mechanisms.common.ENGINES, which passes its Geometry.engine here.
+ENGINES = ("device", "host")
 
 #: A segment counts as reaching its reflection point when the first thing it
 #: meets is that face within this many metres (plus float32 resolution).
@@ -45,6 +63,12 @@ SIGHT_STOP = 1e-7
 #: float64 roundoffs: what rounding leaves of the plane distance of a point that is on the
 #: plane, not a length of the scene.
 ON_FACE_TOL_REL = 1e-13
+#: A float32 "blocked" whose blocker's face misses the float64 crossing is looked past
+#: for at most this many blockers; still undecided, it stays blocked.
+RESCUE_ROUNDS = 4
+#: Looking past a blocker, the next cast starts at this fraction of the blocker's float32
+#: distance (so a blocker just behind it is not skipped).
+LOOK_PAST = 1.0 - 1e-6
 
 
 def confirm_margin_m(end) -> np.ndarray:
@@ -226,8 +250,8 @@ def containing_triangles(points, faces, prims, triangles, tri_face):
     return out
 
 
-def blocked_in_float64(caster: RayCaster, tri_face, start, seg, tmax, max_rounds: int = 4,
-                       tmin=0.0):
+def blocked_in_float64(caster: RayCaster, tri_face, start, seg, tmax,
+                       max_rounds: int = RESCUE_ROUNDS, tmin=0.0):
     """Re-decide segments a float32 any-hit cast called blocked: (S,) bool.
 
     A segment that passes an edge closer than float32 resolution (tens of um at 1 km) may be
@@ -266,13 +290,183 @@ def blocked_in_float64(caster: RayCaster, tri_face, start, seg, tmax, max_rounds
                                           caster.triangles, tri_face) >= 0
         # inside: really blocked, decided; outside: look past this triangle
         todo, prim, t_hit = todo[~inside], prim[~inside], t_hit[~inside]
-        tmin[todo] = np.maximum(tmin[todo], t_hit.astype(np.float64) * (1.0 - 1e-6))
+        tmin[todo] = np.maximum(tmin[todo], t_hit.astype(np.float64) * LOOK_PAST)
         ignore[todo] = prim
     return blocked
 
 
+# --------------------------------------------------------------------------------------
+# the device engine: kernels/visibility.cl
+
+
+def _check_engine(engine) -> None:
+    if engine not in ENGINES:
+        raise ArgumentError(f"must be one of {', '.join(ENGINES)}", argument="engine",
+                            value=engine)
+
+
+@functools.cache
+def dot3_order() -> int | None:
+    """The order in which numpy's ``einsum("ij,ij->i")`` adds three products here: 0 for
+    (p0 + p1) + p2, 1 for (p0 + p2) + p1, 2 for (p1 + p2) + p0 (it depends on the CPU's
+    vector width); None if none of them.  kernels/visibility.cl adds in that order, so its
+    float64 distances are the host's bit for bit."""
+    e = 2.0 ** -53
+    probes = np.array([[1.0, e, -1.0], [e, 1.0, -1.0], [-1.0, 1.0, e]])
+    got = np.einsum("ij,ij->i", probes, np.ones_like(probes)).tolist()
+    for order, (i, j, k) in enumerate(((0, 1, 2), (0, 2, 1), (1, 2, 0))):
+        if got == [(p[i] + p[j]) + p[k] for p in probes.tolist()]:
+            return order
+    return None
+
+
+def uses_device(caster: RayCaster, engine: str = "device") -> bool:
+    """True where ``engine`` is "device" and the caster's device can take the float64
+    re-decision (fp64, and numpy's dot-product order known); otherwise the host decides."""
+    _check_engine(engine)
+    return (engine == "device" and bool(caster.runtime.info.has_double)
+            and dot3_order() is not None)
+
+
+def face_tables(triangles, tri_face) -> dict:
+    """What :func:`containing_triangles` reads of the faces, as flat arrays for a kernel:
+
+    * ``seam`` (T, 3) bool: edge j -> j+1 of each triangle is a seam (another triangle of
+      its face has both end vertices, bit for bit: :func:`_seam_edges` for every edge);
+    * ``face_first`` (F+1,), ``face_tris`` (T,): the triangles of face f in ascending id
+      at ``face_tris[face_first[f]:face_first[f + 1]]``;
+    * ``face_box`` (F, 6): each face's vertex minima and maxima (float64).
+    """
+    triangles = np.asarray(triangles, dtype=np.float64)
+    tri_face = np.asarray(tri_face).astype(np.int64)
+    T = len(triangles)
+    F = int(tri_face.max()) + 1 if T else 0
+    a = triangles + 0.0  # -0.0 -> 0.0: equal coordinates compare equal, as == does
+    b = a[:, [1, 2, 0]]
+    # an edge as (face, lesser end, greater end), the ends ordered lexicographically
+    a_first = ((a[..., 0] < b[..., 0]) | ((a[..., 0] == b[..., 0]) & (
+        (a[..., 1] < b[..., 1]) | ((a[..., 1] == b[..., 1]) & (a[..., 2] <= b[..., 2])))))
+    lo = np.where(a_first[..., None], a, b)
+    hi = np.where(a_first[..., None], b, a)
+    rows = np.concatenate([np.repeat(tri_face[:, None], 3, axis=1)[..., None].astype(np.float64),
+                           lo, hi], axis=2).reshape(-1, 7)
+    if T:
+        _, inverse, counts = np.unique(rows, axis=0, return_inverse=True, return_counts=True)
+        seam = (counts[inverse.reshape(-1)] >= 2).reshape(T, 3)
+    else:
+        seam = np.zeros((0, 3), dtype=bool)
+    order = np.argsort(tri_face, kind="stable")
+    face_first = np.searchsorted(tri_face[order], np.arange(F + 1)).astype(np.int32)
+    face_box = np.empty((F, 6))
+    face_box[:, :3] = np.inf
+    face_box[:, 3:] = -np.inf
+    if T:
+        np.minimum.at(face_box[:, :3], tri_face, triangles.min(axis=1))
+        np.maximum.at(face_box[:, 3:], tri_face, triangles.max(axis=1))
+    return {"seam": seam, "face_first": face_first, "face_tris": order.astype(np.int32),
+            "face_box": face_box}
+
+
+# per caster, per tri_face (its bytes): the device buffers of face_tables
+_DEVICE_TABLES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _scene64_args(caster: RayCaster, tri_face) -> tuple:
+    """The kernels' SCENE64_ARGS for ``tri_face``, uploaded once per caster and faces."""
+    tri_face = np.ascontiguousarray(tri_face, dtype=np.int32)
+    key = tri_face.tobytes()
+    cache = _DEVICE_TABLES.setdefault(caster, {})
+    if key not in cache:
+        if len(tri_face) != len(caster.triangles):
+            raise ArgumentError(f"has {len(tri_face)} entries for "
+                                f"{len(caster.triangles)} triangles", argument="tri_face",
+                                value=tri_face.shape)
+        tables = face_tables(caster.triangles, tri_face)
+        data64 = caster.scene_data64()
+        rt = caster.runtime
+        cache[key] = (data64["vertices"], data64["normals"], rt.to_device(tri_face),
+                      rt.to_device(tables["seam"].astype(np.uint8)),
+                      rt.to_device(tables["face_first"]), rt.to_device(tables["face_tris"]),
+                      rt.to_device(tables["face_box"]), np.int32(len(tables["face_box"])),
+                      np.float64(INSIDE_TOL_REL))
+    return cache[key]
+
+
+def _kernel_defines() -> dict:
+    return {"DOT3_ORDER": int(dot3_order())}
+
+
+def _download(caster: RayCaster, buf, n: int, dtype) -> np.ndarray:
+    import pyopencl as cl
+
+    out = np.empty(n, dtype=dtype)
+    cl.enqueue_copy(caster.runtime.queue, out, buf, is_blocking=True)
+    return out
+
+
+def _f64(a, n: int, shape=()) -> np.ndarray:
+    return np.ascontiguousarray(np.broadcast_to(np.asarray(a, dtype=np.float64),
+                                                (n, *shape)))
+
+
+def segments_blocked_device(caster: RayCaster, tri_face, start, seg, tmin, tmax,
+                            ignore_prim=None, max_rounds: int = RESCUE_ROUNDS) -> np.ndarray:
+    """(S,) bool, in one launch of ``segments_blocked`` (kernels/visibility.cl): something
+    blocks the segments start + t seg, t in (tmin, tmax) (scalars or (S,)).
+
+    A float32 "blocked" is re-decided on the device in float64 as
+    :func:`blocked_in_float64` does (up to ``max_rounds`` blockers; 0: the float32 answer
+    stands).  ``ignore_prim`` (S,) skips the surface a segment leaves (any-hit only: it
+    needs ``max_rounds`` = 0)."""
+    start = np.asarray(start, dtype=np.float64)
+    seg = np.asarray(seg, dtype=np.float64)
+    S = len(start)
+    if ignore_prim is not None and max_rounds:
+        raise ArgumentError("the float64 rounds ignore no triangle: pass max_rounds=0 "
+                            "with ignore_prim", argument="max_rounds", value=max_rounds)
+    rays = make_rays(start, seg, tmin=tmin, tmax=tmax)
+    if S == 0:
+        return np.zeros(0, dtype=bool)
+    rt = caster.runtime
+    ignore = None if ignore_prim is None else rt.to_device(
+        np.ascontiguousarray(np.broadcast_to(ignore_prim, (S,)), dtype=np.int32))
+    out = rt.empty(S)
+    caster.run_kernel("visibility.cl", "segments_blocked", S, *_scene64_args(caster, tri_face),
+                      rt.to_device(rays), rt.to_device(_f64(start, S, (3,))),
+                      rt.to_device(_f64(seg, S, (3,))), rt.to_device(_f64(tmin, S)),
+                      rt.to_device(_f64(tmax, S)), ignore, np.int32(max_rounds),
+                      np.float64(LOOK_PAST), out, np.int32(S), defines=_kernel_defines())
+    return _download(caster, out, S, np.uint8).astype(bool)
+
+
+def reaches_face_device(caster: RayCaster, tri_face, start, end, faces, slack,
+                        tmin=0.0) -> np.ndarray:
+    """:func:`reaches_face` in one launch of ``reach_faces`` (kernels/visibility.cl): the
+    closest float32 hit and the float64 "which triangle of the face holds the end" in the
+    same work item."""
+    start = np.asarray(start, dtype=np.float64)
+    end = np.asarray(end, dtype=np.float64)
+    S = len(start)
+    slack = _f64(slack, S)
+    rays = make_rays(start, end - start, tmin=tmin, tmax=1.0 + 2.0 * slack)
+    if S == 0:
+        return np.zeros(0, dtype=np.int32)
+    rt = caster.runtime
+    out = rt.empty(4 * S)
+    caster.run_kernel("visibility.cl", "reach_faces", S, *_scene64_args(caster, tri_face),
+                      rt.to_device(rays), rt.to_device(_f64(end, S, (3,))),
+                      rt.to_device(np.ascontiguousarray(np.broadcast_to(faces, (S,)),
+                                                        dtype=np.int32)),
+                      rt.to_device(slack), out, np.int32(S), defines=_kernel_defines())
+    return _download(caster, out, S, np.int32)
+
+
+# --------------------------------------------------------------------------------------
+# the decisions every mechanism calls
+
+
 def reaches_face(caster: RayCaster, tri_face, start, end, faces, slack,
-                 tmin=0.0) -> np.ndarray:
+                 tmin=0.0, engine: str = "device") -> np.ndarray:
     """(S,) int32: the scene triangle of face ``faces[s]`` holding ``end[s]``, where the
     segment start -> end first meets that face at ``end`` (within ``slack``, a fraction
     of the segment, and past ``tmin``); -1 where it does not.
@@ -280,11 +474,14 @@ def reaches_face(caster: RayCaster, tri_face, start, end, faces, slack,
     A float32 cast that slips past the face's rim and meets nothing also counts (that
     proves nothing stands in between); whether ``end`` lies inside the face is then
     decided in float64 (:func:`containing_triangles`), never by the float32 hit.
+    ``engine``: "device" (:func:`reaches_face_device`) or "host" (numpy).
     """
     tri_face = np.asarray(tri_face)
     start = np.asarray(start, dtype=np.float64)
     end = np.asarray(end, dtype=np.float64)
     faces = np.asarray(faces)
+    if uses_device(caster, engine):
+        return reaches_face_device(caster, tri_face, start, end, faces, slack, tmin)
     hits = caster.closest_hit(make_rays(start, end - start, tmin=tmin, tmax=1.0 + 2.0 * slack))
     prim = hits["prim"]
     hit_face = np.where(prim >= 0, tri_face[np.maximum(prim, 0)], -1)
@@ -295,15 +492,18 @@ def reaches_face(caster: RayCaster, tri_face, start, end, faces, slack,
     return tri
 
 
-def segments_clear(caster: RayCaster, tri_face, start, end, tmin, tmax) -> np.ndarray:
+def segments_clear(caster: RayCaster, tri_face, start, end, tmin, tmax,
+                   engine: str = "device") -> np.ndarray:
     """(S,) bool: nothing blocks the segments start -> end between the fractions
     ``tmin`` and ``tmax`` of their length (scalars or (S,)).
 
     A float32 "blocked" stands only if the blocker's face holds the crossing in
-    float64 (:func:`blocked_in_float64`).
+    float64 (:func:`blocked_in_float64`; on the device :func:`segments_blocked_device`).
     """
     start = np.asarray(start, dtype=np.float64)
     seg = np.asarray(end, dtype=np.float64) - start
+    if uses_device(caster, engine):
+        return ~segments_blocked_device(caster, tri_face, start, seg, tmin, tmax)
     blocked = caster.occluded(make_rays(start, seg, tmin=tmin, tmax=tmax))
     if blocked.any():
         tmin = np.broadcast_to(np.asarray(tmin, dtype=np.float64), (len(start),))
@@ -329,26 +529,28 @@ def antenna_ends_blocked(caster: RayCaster, tri_face, start, end, *, at_tx: bool
 
 
 def confirm_segments(caster: RayCaster, tri_face, start, end, length, *, face, tmin, stop,
-                     at_tx: bool, at_rx: bool):
+                     at_tx: bool, at_rx: bool, engine: str = "device"):
     """One step of a path's confirmation for segments start -> end (their unmoved
     ``length``): (good (S,) bool, triangle (S,) int32 or None).
 
     With ``face`` (S,) the segment must reach that face (:func:`reaches_face`, the
     triangle it meets there returned); without, nothing may block it between the
     fractions ``tmin`` and 1 - ``stop`` (:func:`segments_clear`). The antenna ends are
-    decided in float64 (:func:`antenna_ends_blocked`)."""
+    decided in float64 (:func:`antenna_ends_blocked`). ``engine``: see
+    :func:`segments_clear`."""
     if face is not None:
-        tri = reaches_face(caster, tri_face, start, end, face, stop, tmin)
+        tri = reaches_face(caster, tri_face, start, end, face, stop, tmin, engine=engine)
         good = tri >= 0
     else:
         tri = None
-        good = segments_clear(caster, tri_face, start, end, tmin, 1.0 - stop) & (length > 0)
+        good = segments_clear(caster, tri_face, start, end, tmin, 1.0 - stop,
+                              engine=engine) & (length > 0)
     good &= ~antenna_ends_blocked(caster, tri_face, start, end, at_tx=at_tx, at_rx=at_rx)
     return good, tri
 
 
 def confirm_paths(caster: RayCaster, tri_face, face_normals, points: np.ndarray,
-                  seqs: np.ndarray, ok: np.ndarray | None = None):
+                  seqs: np.ndarray, ok: np.ndarray | None = None, engine: str = "device"):
     """Mask of candidate paths whose every segment is confirmed by a ray cast.
 
     Returns (keep (C,) bool, triangles (C, k) int32): the scene triangle each
@@ -361,6 +563,7 @@ def confirm_paths(caster: RayCaster, tri_face, face_normals, points: np.ndarray,
     the face, on the side they leave into. The casts leave out the
     :func:`confirm_margin_m` next to the transmitter (points[:, 0]) and the
     receiver (points[:, -1]); :func:`antenna_blocked` decides those in float64.
+    ``engine``: see :func:`segments_clear`.
     """
     tri_face = np.asarray(tri_face)
     C, k2, _ = points.shape
@@ -384,7 +587,7 @@ def confirm_paths(caster: RayCaster, tri_face, face_normals, points: np.ndarray,
         good, tri = confirm_segments(caster, tri_face, start, end, length,
                                      face=seqs[idx, i] if i < k else None, tmin=tmin,
                                      stop=confirm_slack(end, length), at_tx=i == 0,
-                                     at_rx=i == k)
+                                     at_rx=i == k, engine=engine)
         if i < k:
             triangles[idx, i] = tri
         keep[idx[~good]] = False
@@ -394,7 +597,8 @@ def confirm_paths(caster: RayCaster, tri_face, face_normals, points: np.ndarray,
 
 
 def surface_sees(caster: RayCaster, points, normals, targets, ignore_prim, *,
-                 leave_direction=None, stop_short_m=None, tri_face=None) -> np.ndarray:
+                 leave_direction=None, stop_short_m=None, tri_face=None,
+                 engine: str = "device") -> np.ndarray:
     """(S,) bool: nothing but the surface's own triangle ``ignore_prim`` lies between
     the surface points (S,3) and their targets ((3,) or (S,3)).
 
@@ -404,6 +608,8 @@ def surface_sees(caster: RayCaster, points, normals, targets, ignore_prim, *,
     Otherwise the target is an antenna: the cast stops SIGHT_STOP of its length short
     and :func:`antenna_blocked` decides the last :func:`confirm_margin_m` in float64
     against the planar faces ``tri_face`` (default: every triangle its own face).
+    The cast is float32 on both engines (no float64 rescue yet: ``engine`` only picks
+    the kernel, :func:`segments_blocked_device` with no rounds, or the any-hit cast).
     """
     points = np.asarray(points, dtype=np.float64)
     targets = np.asarray(targets, dtype=np.float64)
@@ -413,13 +619,17 @@ def surface_sees(caster: RayCaster, points, normals, targets, ignore_prim, *,
     org = spawn_origins(points, normals, leave)
     sight = targets - org
     stop = SIGHT_STOP if stop_short_m is None else stop_short_m / np.linalg.norm(sight, axis=1)
-    rays = make_rays(org, sight, 0.0, 1.0 - stop)
-    sees = ~caster.occluded(rays, ignore_prim=np.asarray(ignore_prim).astype(np.int32))
+    if tri_face is None:
+        tri_face = np.arange(len(caster.triangles))
+    ignore = np.asarray(ignore_prim).astype(np.int32)
+    if uses_device(caster, engine):
+        sees = ~segments_blocked_device(caster, tri_face, org, sight, 0.0, 1.0 - stop,
+                                        ignore_prim=ignore, max_rounds=0)
+    else:
+        sees = ~caster.occluded(make_rays(org, sight, 0.0, 1.0 - stop), ignore_prim=ignore)
     if stop_short_m is None and sees.any():
         # the target is an antenna: what lies just before it is decided in float64
         t = np.broadcast_to(targets, org.shape)
-        if tri_face is None:
-            tri_face = np.arange(len(caster.triangles))
         sees[sees] = ~antenna_blocked(caster, tri_face, t[sees], org[sees],
                                       2.0 * confirm_margin_m(t[sees]))
     return sees

@@ -298,7 +298,7 @@ def lift_direction(wedges: Wedges, w, away) -> np.ndarray:
 
 
 def confirm_chains(caster, tri_face, face_normal, chains: Chains, points, ok=None,
-                   wedges: Wedges | None = None):
+                   wedges: Wedges | None = None, engine: str = "device"):
     """Mask of candidates whose every segment is confirmed by a ray cast, and the scene
     triangle of each reflection point ((C, K) int32, -1 at diffractions).
 
@@ -311,6 +311,7 @@ def confirm_chains(caster, tri_face, face_normal, chains: Chains, points, ok=Non
     from just off the face and diffraction points from EDGE_CLEARANCE_M along themselves.
     The millimetre next to each antenna is decided in float64
     (:func:`clradcom.device.visibility.antenna_blocked`), as for specular paths.
+    ``engine`` ("device" or "host") is where the float64 re-decisions are made.
     """
     pattern, elem = chains.pattern, chains.elements
     C, K = elem.shape
@@ -340,7 +341,7 @@ def confirm_chains(caster, tri_face, face_normal, chains: Chains, points, ok=Non
                 else confirm_slack(end, length))
         good, tri = confirm_segments(caster, tri_face, start, end, length,
                                      face=elem[idx, i] if to_face else None, tmin=tmin,
-                                     stop=stop, at_tx=i == 0, at_rx=i == K)
+                                     stop=stop, at_tx=i == 0, at_rx=i == K, engine=engine)
         if to_face:
             triangles[idx, i] = tri
         keep[idx[~good]] = False
@@ -928,7 +929,8 @@ def _chain_hop(wedges: Wedges, chain: np.ndarray) -> np.ndarray:
 
 def diffraction_link_paths(scene, faces, caster, wedges: Wedges, tx, rx, tx_sequences,
                            rx_sequences, budget: DiffractionSettings, keep_fn=None,
-                           go_sequences: set | None = None, seeing: dict | None = None):
+                           go_sequences: set | None = None, seeing: dict | None = None,
+                           engine: str = "device"):
     """All confirmed diffraction paths of one link: (list of Paths per pattern, stats).
 
     ``keep_fn(k_dep, k_arr)`` (optional) drops paths outside the antennas' patterns
@@ -948,7 +950,8 @@ def diffraction_link_paths(scene, faces, caster, wedges: Wedges, tx, rx, tx_sequ
         ch = Chains(ch.pattern, ch.elements[sel])
         pts = pts[sel]
         pp, p, b0, graze, ok = diffraction_angles(ch, pts, wedges)
-        keep, tris = confirm_chains(caster, faces.tri_face, faces.normal, ch, pts, ok, wedges)
+        keep, tris = confirm_chains(caster, faces.tri_face, faces.normal, ch, pts, ok, wedges,
+                                    engine=engine)
         if keep_fn is not None and keep.any():
             k_dep = pts[:, 1] - pts[:, 0]
             k_arr = pts[:, -1] - pts[:, -2]
@@ -994,7 +997,7 @@ def link_paths(geom: Geometry, wedges: Wedges, tx: Radar, rx: Radar,
     parts, counts = diffraction_link_paths(
         geom.scene, geom.faces, geom.caster, wedges, tx, rx, tx_sequences or {},
         rx_sequences or {}, settings, keep_fn=lambda d, a: seen_by_antennas(tx, rx, d, a),
-        go_sequences=go, seeing=seeing)
+        go_sequences=go, seeing=seeing, engine=geom.engine)
     if stats is not None:
         for key, value in counts.items():
             stats[key] = stats.get(key, 0) + value

@@ -262,7 +262,8 @@ def specular_paths(geom: Geometry, tx_pos, rx_pos, candidates, line_of_sight=Tru
             keep = np.ones(1, dtype=bool)
         else:
             keep, _ = confirm_paths(geom.caster, geom.faces.tri_face, geom.faces.normal,
-                                       pts, np.zeros((1, 0), dtype=np.int32))
+                                       pts, np.zeros((1, 0), dtype=np.int32),
+                                       engine=geom.engine)
         if keep[0]:
             blocks.append((pts, np.zeros((1, 0), np.int32), np.zeros((1, 0), np.int32)))
     for k in sorted(candidates):
@@ -271,7 +272,7 @@ def specular_paths(geom: Geometry, tx_pos, rx_pos, candidates, line_of_sight=Tru
             continue
         pts, ok = image_points(tx_pos, rx_pos, geom.faces.normal, geom.faces.offset, seqs)
         keep, tris = confirm_paths(geom.caster, geom.faces.tri_face, geom.faces.normal,
-                                      pts, seqs, ok)
+                                      pts, seqs, ok, engine=geom.engine)
         if keep.any():
             blocks.append((pts[keep], seqs[keep], tris[keep]))
     P = sum(len(b[0]) for b in blocks)

@@ -1,0 +1,213 @@
+/* Batched visibility for every mechanism: one work item per segment, the float32
+ * BVH cast and, where its answer could be a float32 artefact, the float64
+ * re-decision, all in one launch (clradcom/device/visibility.py drives it).
+ *
+ * The float64 part repeats the host reference of clradcom/device/visibility.py
+ * operation for operation, so the two decide every segment alike:
+ *
+ *   contains()         = containing_triangles for one point: the guessed
+ *                        triangle, else every triangle of the face in ascending
+ *                        id after the face's box cut; a point may lie up to
+ *                        inside_tol x (1 + max |p|) outside an edge only where
+ *                        that edge is a seam of the face (seam table), never a rim;
+ *   segments_blocked   = segments_clear: any hit in float32, then up to
+ *                        max_rounds closest hits, each crossed with its
+ *                        triangle's plane in float64 and kept as a blocker only
+ *                        where the face holds the crossing (blocked_in_float64);
+ *   reach_faces        = reaches_face: the closest float32 hit must be the face
+ *                        at the end (or nothing); the end's triangle in float64.
+ *
+ * Products are rounded one by one (FP_CONTRACT OFF, from intersect.h) and the
+ * three-term dot products add in numpy's order (DOT3_ORDER, probed on the host:
+ * numpy's einsum adds its lanes in an order that depends on the CPU). */
+#include "intersect.h"
+
+#ifndef CLRADCOM_HAS_FP64
+#error "kernels/visibility.cl needs fp64 (cl_khr_fp64); the host keeps its own float64 rescue without it"
+#endif
+#ifndef DOT3_ORDER
+#error "DOT3_ORDER must be passed as -D by the host (clradcom/device/visibility.py)"
+#endif
+
+/* x.y for three terms, added as numpy's einsum("ij,ij->i") adds them here. */
+CLR_INLINE double dot3(double a0, double a1, double a2, double b0, double b1, double b2)
+{
+    double p0 = a0 * b0, p1 = a1 * b1, p2 = a2 * b2;
+#if DOT3_ORDER == 0
+    return (p0 + p1) + p2;
+#elif DOT3_ORDER == 1
+    return (p0 + p2) + p1;
+#else
+    return (p1 + p2) + p0;
+#endif
+}
+
+/* The float64 scene: vertices (T*9, v0 v1 v2), unit normals (T*3,
+ * triangle_normals), the planar face of every triangle, the seam flag of every
+ * edge j -> j+1 (T*3), the triangles of face f at face_tris[face_first[f] ..
+ * face_first[f+1]) in ascending id, and each face's box (F*6: min xyz, max xyz). */
+typedef struct {
+    __global const double *vert;
+    __global const double *normal;
+    __global const int *tri_face;
+    __global const uchar *seam;
+    __global const int *face_first;
+    __global const int *face_tris;
+    __global const double *face_box;
+    int n_faces;
+    double inside_tol;
+} Scene64;
+
+/* Signed in-plane distance of p inside edge j of triangle t (edge_distances):
+ * ((b - a) x (p - a)) . n / |b - a|. */
+CLR_INLINE double edge_distance(const Scene64 *s, int t, int j, double px, double py, double pz)
+{
+    __global const double *a = s->vert + 9 * t + 3 * j;
+    __global const double *b = s->vert + 9 * t + 3 * ((j + 1) % 3);
+    __global const double *n = s->normal + 3 * t;
+    double e0 = b[0] - a[0], e1 = b[1] - a[1], e2 = b[2] - a[2];
+    double d0 = px - a[0], d1 = py - a[1], d2 = pz - a[2];
+    double c0 = e1 * d2 - e2 * d1;
+    double c1 = e2 * d0 - e0 * d2;
+    double c2 = e0 * d1 - e1 * d0;
+    double len = sqrt((e0 * e0 + e1 * e1) + e2 * e2);
+    return dot3(c0, c1, c2, n[0], n[1], n[2]) / len;
+}
+
+/* _inside for one point and triangle: no edge distance negative, or the
+ * negative ones no less than min_dist and all across seams. */
+CLR_INLINE bool inside_triangle(const Scene64 *s, int t, double px, double py, double pz,
+                                double min_dist)
+{
+    double d[3];
+    bool exact = true;
+    for (int j = 0; j < 3; ++j) {
+        d[j] = edge_distance(s, t, j, px, py, pz);
+        exact = exact && (d[j] >= 0.0);
+    }
+    if (exact)
+        return true;
+    for (int j = 0; j < 3; ++j)
+        if (!(d[j] >= min_dist))
+            return false;
+    for (int j = 0; j < 3; ++j)
+        if (d[j] < 0.0 && !s->seam[3 * t + j])
+            return false;
+    return true;
+}
+
+/* containing_triangles for one point: the triangle of face `face` holding p,
+ * `guess` first (the float32 hit, -1 for none), or -1. */
+CLR_INLINE int contains(const Scene64 *s, int face, int guess, double px, double py, double pz)
+{
+    double m = fmax(fmax(fabs(px), fabs(py)), fabs(pz));
+    double min_dist = -s->inside_tol * (1.0 + m);
+    if (guess >= 0 && s->tri_face[guess] == face && inside_triangle(s, guess, px, py, pz, min_dist))
+        return guess;
+    if (face < 0 || face >= s->n_faces)
+        return -1;
+    __global const double *box = s->face_box + 6 * face;
+    if (!(px >= box[0] + min_dist && px <= box[3] - min_dist &&
+          py >= box[1] + min_dist && py <= box[4] - min_dist &&
+          pz >= box[2] + min_dist && pz <= box[5] - min_dist))
+        return -1;
+    for (int i = s->face_first[face]; i < s->face_first[face + 1]; ++i) {
+        int c = s->face_tris[i];
+        if (inside_triangle(s, c, px, py, pz, min_dist))
+            return c;
+    }
+    return -1;
+}
+
+#define SCENE64_ARGS                                                                  \
+    __global const double *vert, __global const double *normal,                       \
+    __global const int *tri_face, __global const uchar *seam,                         \
+    __global const int *face_first, __global const int *face_tris,                    \
+    __global const double *face_box, const int n_faces, const double inside_tol
+
+#define SCENE64_INIT(s)                                                               \
+    Scene64 s;                                                                        \
+    s.vert = vert; s.normal = normal; s.tri_face = tri_face; s.seam = seam;           \
+    s.face_first = face_first; s.face_tris = face_tris; s.face_box = face_box;        \
+    s.n_faces = n_faces; s.inside_tol = inside_tol
+
+CLR_INLINE PreparedRay prepare_packed(const Ray *ray)
+{
+    return prepare_ray((float3)(ray->org[0], ray->org[1], ray->org[2]),
+                       (float3)(ray->dir[0], ray->dir[1], ray->dir[2]));
+}
+
+/* blocked[i] = 1 where something blocks segment i: rays[i] is its float32 cast
+ * (make_rays of start, seg, tmin, tmax), start/seg/tmin/tmax the same in float64.
+ * ignore_prim (NULL: none) is skipped by the any-hit; with max_rounds = 0 a
+ * float32 hit stands (surface_sees), otherwise it is re-decided in float64 as
+ * blocked_in_float64 does, looking past a triangle whose face misses the
+ * crossing, for at most max_rounds hits (then it stays blocked). */
+__kernel void segments_blocked(__global const Bvh8Node *nodes, __global const float4 *tri4,
+                               __global const int *slot_prim, SCENE64_ARGS,
+                               __global const Ray *rays, __global const double *start,
+                               __global const double *seg, __global const double *tmin,
+                               __global const double *tmax, __global const int *ignore_prim,
+                               const int max_rounds, const double look_past,
+                               __global uchar *blocked, const int n)
+{
+    int i = get_global_id(0);
+    if (i >= n) return;
+    SCENE64_INIT(s);
+    Ray ray = rays[i];
+    PreparedRay pr = prepare_packed(&ray);
+    if (!bvh_any(nodes, tri4, slot_prim, &pr, ray.tmin, ray.tmax,
+                 ignore_prim ? ignore_prim[i] : -1, -1)) {
+        blocked[i] = 0;
+        return;
+    }
+    double s0 = start[3 * i], s1 = start[3 * i + 1], s2 = start[3 * i + 2];
+    double g0 = seg[3 * i], g1 = seg[3 * i + 1], g2 = seg[3 * i + 2];
+    double lo = tmin[i], hi = tmax[i];
+    int skip = -1;
+    uchar out = 1;   /* undecided after max_rounds: blocked */
+    for (int round = 0; round < max_rounds; ++round) {
+        float t = ray.tmax, u, v;
+        int slot = bvh_closest(nodes, tri4, slot_prim, &pr, (float)lo, &t, &u, &v, skip);
+        if (slot < 0) {
+            out = 0;
+            break;
+        }
+        int prim = slot_prim[slot];
+        __global const double *w = vert + 9 * prim;
+        double a0 = w[3] - w[0], a1 = w[4] - w[1], a2 = w[5] - w[2];
+        double b0 = w[6] - w[0], b1 = w[7] - w[1], b2 = w[8] - w[2];
+        double n0 = a1 * b2 - a2 * b1, n1 = a2 * b0 - a0 * b2, n2 = a0 * b1 - a1 * b0;
+        double denom = dot3(n0, n1, n2, g0, g1, g2);
+        double tc = dot3(n0, n1, n2, w[0] - s0, w[1] - s1, w[2] - s2) / denom;
+        if (isfinite(tc) && tc >= lo && tc <= hi &&
+            contains(&s, tri_face[prim], prim, s0 + tc * g0, s1 + tc * g1, s2 + tc * g2) >= 0)
+            break;   /* the face holds the crossing: blocked */
+        lo = fmax(lo, (double)t * look_past);
+        skip = prim;
+    }
+    blocked[i] = out;
+}
+
+/* tri[i]: the triangle of face faces[i] holding end[i] where the segment
+ * start -> end first meets that face there (|t - 1| <= slack[i]) or meets
+ * nothing; else -1. rays[i] is its float32 cast (make_rays of start,
+ * end - start, tmin, 1 + 2 slack). */
+__kernel void reach_faces(__global const Bvh8Node *nodes, __global const float4 *tri4,
+                          __global const int *slot_prim, SCENE64_ARGS,
+                          __global const Ray *rays, __global const double *end,
+                          __global const int *faces, __global const double *slack,
+                          __global int *tri, const int n)
+{
+    int i = get_global_id(0);
+    if (i >= n) return;
+    SCENE64_INIT(s);
+    Ray ray = rays[i];
+    PreparedRay pr = prepare_packed(&ray);
+    float t = ray.tmax, u, v;
+    int slot = bvh_closest(nodes, tri4, slot_prim, &pr, ray.tmin, &t, &u, &v, -1);
+    int prim = (slot >= 0) ? slot_prim[slot] : -1;
+    int face = faces[i];
+    bool reached = prim < 0 || (tri_face[prim] == face && (double)fabs(t - 1.0f) <= slack[i]);
+    tri[i] = reached ? contains(&s, face, prim, end[3 * i], end[3 * i + 1], end[3 * i + 2]) : -1;
+}

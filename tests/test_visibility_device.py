@@ -1,0 +1,219 @@
+"""The device engine of clradcom.device.visibility (kernels/visibility.cl) against the host
+reference (engine="host": float32 casts re-decided in numpy float64): the same decisions
+on segment batches aimed at edges, seams and rims (at the origin and 1 km from it, where
+float32 cannot tell), on the golden scene's paths and on the street's specular
+confirmation."""
+
+import dataclasses
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from geometry_helpers import plate_tris
+
+from clradcom.device.raycast import RayCaster, make_rays
+from clradcom.device.visibility import (
+    _seam_edges,
+    confirm_slack,
+    dot3_order,
+    face_tables,
+    reaches_face,
+    segments_blocked_device,
+    segments_clear,
+    surface_sees,
+    uses_device,
+)
+from clradcom.errors import ArgumentError
+from clradcom.geometry.faces import merge_coplanar
+from clradcom.mechanisms import diffraction, specular
+from clradcom.mechanisms.common import build_geometry
+from clradcom.scene import load_scene
+
+ROOT = Path(__file__).resolve().parents[1]
+GOLDEN = ROOT / "tests" / "data" / "all_mechanisms.toml"
+STREET = ROOT / "scenes" / "street" / "street.toml"
+
+
+def wall_and_floor():
+    """A 4 x 4 m wall at x = 2 tessellated 3 x 3 (18 triangles: seams inside, rims
+    around; face 1) over a floor z = 0 of two triangles (face 0), a 1 m plate at x = 3
+    behind a gap (face 2)."""
+    verts, tris = plate_tris(3, 4.0, 2.0, centre=(0.0, 2.2))
+    wall = np.asarray(verts)[np.asarray(tris)]
+    floor = np.array([[[-3, -3, 0], [5, -3, 0], [5, 3, 0]], [[-3, -3, 0], [5, 3, 0], [-3, 3, 0]]],
+                     dtype=np.float64)
+    verts, tris = plate_tris(1, 1.0, 3.0, centre=(0.0, 2.2))
+    plate = np.asarray(verts)[np.asarray(tris)]
+    triangles = np.concatenate([floor, wall, plate])
+    tri_face = np.concatenate([[0, 0], np.ones(len(wall), int), [2, 2]])
+    return triangles, tri_face
+
+
+@pytest.fixture(scope="module")
+def device_ok(runtime):
+    if not runtime.info.has_double:
+        pytest.skip("the test device has no fp64: both engines are the host's numpy")
+    assert dot3_order() is not None
+    return runtime
+
+
+def edge_points(triangles, rng, n, offsets):
+    """n points on random edges of ``triangles`` moved in the triangle's plane across the
+    edge by a random one of ``offsets`` (m, either side)."""
+    t = rng.integers(0, len(triangles), n)
+    j = rng.integers(0, 3, n)
+    a, b, c = triangles[t, j], triangles[t, (j + 1) % 3], triangles[t, (j + 2) % 3]
+    s = rng.uniform(0.0, 1.0, n)
+    s[::7] = 0.0  # vertices too
+    p = a + s[:, None] * (b - a)
+    inward = (c - a) - np.einsum("ij,ij->i", c - a, b - a)[:, None] * (b - a) / np.einsum(
+        "ij,ij->i", b - a, b - a)[:, None]
+    inward /= np.linalg.norm(inward, axis=1, keepdims=True)
+    d = rng.choice(offsets, n) * rng.choice([-1.0, 1.0], n)
+    return p + d[:, None] * inward, t
+
+
+def test_face_tables_are_the_host_seams_faces_and_boxes():
+    triangles, tri_face = wall_and_floor()
+    T = len(triangles)
+    tab = face_tables(triangles, tri_face)
+    ref = _seam_edges(np.repeat(np.arange(T), 3), np.tile(np.arange(3), T), triangles,
+                      tri_face).reshape(T, 3)
+    assert np.array_equal(tab["seam"], ref)
+    assert 0 < ref.sum() < ref.size  # seams and rims both
+    for f in range(3):
+        tris = tab["face_tris"][tab["face_first"][f]:tab["face_first"][f + 1]]
+        assert tris.tolist() == np.flatnonzero(tri_face == f).tolist()
+        assert np.array_equal(tab["face_box"][f, :3], triangles[tris].min(axis=(0, 1)))
+        assert np.array_equal(tab["face_box"][f, 3:], triangles[tris].max(axis=(0, 1)))
+    # -0.0 and 0.0 are one coordinate to the host's == test: still a seam
+    neg = triangles.copy()
+    neg[neg == 0.0] = -0.0
+    neg[0, 0] = [-3.0, -3.0, 0.0]
+    assert np.array_equal(face_tables(neg, tri_face)["seam"], ref)
+
+
+@pytest.mark.parametrize("offset", [0.0, 1000.0])
+def test_segments_near_edges_seams_and_rims_decide_alike(device_ok, offset):
+    triangles, tri_face = wall_and_floor()
+    triangles = triangles + offset
+    caster = RayCaster(triangles, runtime=device_ok)
+    assert uses_device(caster)
+    rng = np.random.default_rng(7)
+    scale = 1.0 + offset
+    offsets = np.array([0.0, 1e-13, 1e-11, 1e-9, 3e-8, 1e-6, 3e-5]) * scale
+    p, _ = edge_points(triangles, rng, 6000, offsets)
+    d = rng.normal(size=p.shape)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    start, end = p - 3.0 * d, p + 3.0 * d
+    for tmin, tmax in ((0.0, 1.0), (0.3, 0.7), (rng.uniform(0, 0.5, len(p)), 1.0)):
+        host = segments_clear(caster, tri_face, start, end, tmin, tmax, engine="host")
+        dev = segments_clear(caster, tri_face, start, end, tmin, tmax, engine="device")
+        assert np.array_equal(host, dev)
+    # the batch holds float32 "blocked" that float64 clears, and ones it keeps
+    f32 = caster.occluded(make_rays(start, end - start, 0.0, 1.0))
+    host = segments_clear(caster, tri_face, start, end, 0.0, 1.0, engine="host")
+    assert (f32 & host).sum() > 20 and (f32 & ~host).sum() > 20
+
+
+@pytest.mark.parametrize("offset", [0.0, 1000.0])
+def test_reaching_a_face_at_its_rims_and_seams_decides_alike(device_ok, offset):
+    triangles, tri_face = wall_and_floor()
+    triangles = triangles + offset
+    caster = RayCaster(triangles, runtime=device_ok)
+    rng = np.random.default_rng(11)
+    scale = 1.0 + offset
+    end, t = edge_points(triangles, rng, 6000, np.array([0.0, 1e-12, 1e-9, 1e-7, 1e-5]) * scale)
+    n = np.cross(triangles[t, 1] - triangles[t, 0], triangles[t, 2] - triangles[t, 0])
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    away = rng.normal(size=end.shape)
+    away += 2.0 * n * np.where(rng.uniform(size=len(end)) < 0.8, 1.0, -1.0)[:, None]
+    start = end + 2.5 * away
+    slack = confirm_slack(end, np.linalg.norm(end - start, axis=1))
+    host = reaches_face(caster, tri_face, start, end, tri_face[t], slack, engine="host")
+    dev = reaches_face(caster, tri_face, start, end, tri_face[t], slack, engine="device")
+    assert np.array_equal(host, dev)
+    assert (host >= 0).sum() > 100 and (host < 0).sum() > 100
+    # the end's triangle is often not the one the point was put on (a seam's neighbour)
+    assert np.any((host >= 0) & (host != t))
+
+
+def test_surface_sight_lines_decide_alike(device_ok):
+    triangles, tri_face = wall_and_floor()
+    caster = RayCaster(triangles, runtime=device_ok)
+    rng = np.random.default_rng(3)
+    p = np.column_stack([rng.uniform(-3, 5, 500), rng.uniform(-3, 3, 500), np.zeros(500)])
+    ignore = np.where(p[:, 0] - p[:, 1] < 2.0, 0, 1)
+    normals = np.tile([0.0, 0.0, 1.0], (500, 1))
+    for target in ([4.0, 0.3, 1.5], [-1.0, 0.0, 3.0], [2.0, 0.1, 2.0]):
+        host = surface_sees(caster, p, normals, target, ignore, tri_face=tri_face,
+                            engine="host")
+        dev = surface_sees(caster, p, normals, target, ignore, tri_face=tri_face)
+        assert np.array_equal(host, dev)
+        if target[0] == 4.0:
+            assert 0 < host.sum() < len(host)
+
+
+def test_engine_is_checked_and_no_fp64_means_the_host():
+    caster = SimpleNamespace(runtime=SimpleNamespace(info=SimpleNamespace(has_double=False)))
+    assert not uses_device(caster, "device")
+    with pytest.raises(ArgumentError, match="engine"):
+        uses_device(caster, "gpu")
+    # the float64 rounds ignore no triangle: a surface's own triangle needs no rounds
+    with pytest.raises(ArgumentError, match="max_rounds"):
+        segments_blocked_device(caster, np.zeros(1, int), np.zeros((1, 3)), np.ones((1, 3)),
+                                0.0, 1.0, ignore_prim=np.zeros(1, int))
+
+
+def _same_paths(a, b):
+    assert a.n_paths == b.n_paths
+    for field in ("gain", "delay_s", "points", "face_id", "n_interactions"):
+        assert np.array_equal(np.asarray(getattr(a, field)), np.asarray(getattr(b, field)),
+                              equal_nan=True), field
+
+
+@pytest.mark.parametrize("edges, reflections", [(2, 0), (1, 1)])
+def test_golden_scene_specular_and_diffraction_paths_alike(device_ok, edges, reflections):
+    scene = load_scene(GOLDEN)
+    geom = build_geometry(scene, device_ok)
+    host = dataclasses.replace(geom, engine="host")
+    spec = specular.SpecularSettings(max_reflections=3, rays=20_000)
+    diff = diffraction.DiffractionSettings(max_diffractions=edges, max_reflections=reflections)
+    wedges = diffraction.prepare(geom, diff)
+    tx = scene.radars[0]
+    cands = specular.prepare(geom, tx, spec)
+    n_paths = 0
+    for rx in scene.radars:
+        a = specular.link_paths(geom, cands, tx, rx, spec)
+        b = specular.link_paths(host, cands, tx, rx, spec)
+        _same_paths(a, b)
+        a = diffraction.link_paths(geom, wedges, tx, rx, diff, cands, cands)
+        b = diffraction.link_paths(host, wedges, tx, rx, diff, cands, cands)
+        _same_paths(a, b)
+        n_paths += a.n_paths
+    assert n_paths > 20
+
+
+def test_street_specular_confirmation_alike(device_ok):
+    scene = load_scene(STREET)
+    faces = merge_coplanar(scene.triangles, scene.tri_object, scene.tri_material)
+    geom = build_geometry(scene, device_ok)
+    host = dataclasses.replace(geom, engine="host")
+    tx = scene.radars[0]
+    cands = specular.prepare(geom, tx, specular.SpecularSettings(max_reflections=3,
+                                                                 rays=30_000))
+    kept = 0
+    for rx in scene.radars:
+        a = specular.specular_paths(geom, tx.position, rx.position, cands)
+        b = specular.specular_paths(host, tx.position, rx.position, cands)
+        assert np.array_equal(a.triangles, b.triangles)
+        assert np.array_equal(a.points, b.points, equal_nan=True)
+        kept += a.n_paths
+    assert kept > 5
+    # the seam table on a sample of the street's triangles is the host's
+    T = len(scene.triangles)
+    t = np.random.default_rng(0).choice(T, 200, replace=False)
+    ref = _seam_edges(np.repeat(t, 3), np.tile(np.arange(3), len(t)), scene.triangles,
+                      faces.tri_face).reshape(-1, 3)
+    assert np.array_equal(face_tables(scene.triangles, faces.tri_face)["seam"][t], ref)
