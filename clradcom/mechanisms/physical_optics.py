@@ -116,7 +116,7 @@ def po_paths(geom, tx, rx, *, objects=None, min_relative_db=-80.0, two_sided=Fal
     vis = np.ones(len(tri_ids), dtype=bool)
     for end in (tx_pos, rx_pos):
         vis &= surface_sees(geom.caster, c, nrm, end, tri_ids,
-                            tri_face=geom.faces.tri_face)
+                            tri_face=geom.faces.tri_face, engine=geom.engine)
     if not vis.any():
         return Paths.empty(1)
     tri_ids, v, nrm, c = tri_ids[vis], v[vis], nrm[vis], c[vis]

@@ -537,7 +537,8 @@ def _radiate(geom, hits: TubeHits, grid: TubeGrid, rx_pos):
     keep = np.flatnonzero(ok)
     if len(keep):
         keep = keep[surface_sees(geom.caster, p[keep], n[keep], rx_pos, hits.triangle[keep],
-                                 leave_direction=s[keep], tri_face=geom.faces.tri_face)]
+                                 leave_direction=s[keep], tri_face=geom.faces.tri_face,
+                                 engine=geom.engine)]
     p, n, s, R_r = p[keep], n[keep], s[keep], R_r[keep]
     k_in, L_in = hits.k_in[keep], hits.length[keep]
     dom = grid.solid_angle[hits.tube[keep]]

@@ -324,7 +324,7 @@ def reflection_legs(geom, end, q, nrm, tri_ids, tiles, face_ids, lo, hi):
     length = np.linalg.norm(p - start, axis=1)
     slack = confirm_slack(p, length)
     prim = reaches_face(geom.caster, geom.faces.tri_face, start, p, face, slack,
-                        tmin=antenna_slack(start, length))
+                        tmin=antenna_slack(start, length), engine=geom.engine)
     good = prim >= 0
     good[good] = ~antenna_blocked(geom.caster, geom.faces.tri_face, end, p[good],
                                   2.0 * confirm_margin_m(start[good]))
@@ -332,14 +332,15 @@ def reflection_legs(geom, end, q, nrm, tri_ids, tiles, face_ids, lo, hi):
     idx = np.flatnonzero(good)
     if len(idx):
         good[idx] = surface_sees(geom.caster, q[tile[idx]], nrm[tile[idx]], p[idx],
-                                 tri_ids[tile[idx]], stop_short_m=confirm_margin_m(p[idx]))
+                                 tri_ids[tile[idx]], stop_short_m=confirm_margin_m(p[idx]),
+                                 engine=geom.engine)
     return tile[good], face[good], p[good], img[good], prim[good].astype(np.int64)
 
 
 def _visible(geom, q, nrm, tri_ids, idx, end):
     """Mask over ``idx``: nothing between tile q and ``end`` (tile's triangle ignored)."""
     return surface_sees(geom.caster, q[idx], nrm[idx], end, tri_ids[idx],
-                        tri_face=geom.faces.tri_face)
+                        tri_face=geom.faces.tri_face, engine=geom.engine)
 
 
 def _antenna_clear(geom, q, nrm, end):
