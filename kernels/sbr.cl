@@ -255,6 +255,7 @@ __kernel void sbr_blocks(__global const Bvh8Node *nodes,
             double dn = dot(d, n);
             if (!(fabs(dn) > 1e-9)) break;   /* grazing: no footprint */
             double tt = dot(load3(tri_v + 9 * tri) - pos, n) / dn;
+            if (!(tt > 0.0)) break;   /* on the plane it just left (a corner's edge) */
             double3 p = pos + tt * d;
             double3 seg = p - pos;
             L += sqrt(dot(seg, seg));

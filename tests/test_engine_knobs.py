@@ -71,7 +71,11 @@ def test_trace_tool_engine_and_sbr_spacing_flags():
     s = tool.settings_from_args(parse(["s.toml", "--engine", "host", "--sbr-spacing", "2"]))
     assert s.engine == "host" and s.optics.sbr_spacing_wavelengths == 2.0
     assert s.optics.mode == default.optics.mode == "sbr"
-    assert s.replace(engine="device", optics__sbr_spacing_wavelengths=0.5) == default
+    assert s.replace(engine="device", optics__sbr_spacing_wavelengths=None) == default
+    acc = tool.settings_from_args(parse(["s.toml", "--sbr-accuracy", "1.5",
+                                         "--no-sbr-mirrors"]))
+    assert acc.optics.sbr_accuracy_db == 1.5 and acc.optics.sbr_mirrors is False
+    assert default.optics.sbr_mirrors is True
 
 
 @pytest.mark.parametrize(("argv", "message"), [

@@ -115,7 +115,9 @@ def test_metadata_names_every_setting_by_mechanism():
                                ("optics", OpticsSettings), ("scattering", ScatteringSettings))
                 for f in dataclasses.fields(cls)}
     # None means "follow another setting" and is left out
-    assert set(meta) == (expected - {"settings.optics.max_bounces"}) | {"settings.engine"}
+    assert set(meta) == (expected - {"settings.optics.max_bounces",
+                                     "settings.optics.sbr_spacing_wavelengths"}
+                         ) | {"settings.engine"}
     assert meta["settings.engine"] == "device"
     assert meta["settings.specular.rays"] == 10_000
     assert meta["settings.diffraction.max_reflections"] == 1

@@ -183,7 +183,7 @@ def bench_street(args, runtime) -> list[tuple]:
                      for _, _, q, v, u in timing_rows(scene.name, t)[:3]]
         rows += [(s, e, f"median:{q}", v, u) for s, e, q, v, u in
                  timing_rows(scene.name, med[engine])]
-    rows.append((scene.name, "", "host_over_device", f"{ratio:.4f}", "1"))
+    rows.append((scene.name, "", "host_over_device", f"{ratio:.6g}", "1"))
     return rows
 
 

@@ -61,6 +61,7 @@ from clradcom.device.runtime import get_runtime
 from clradcom.errors import ArgumentError, SceneError
 from clradcom.files import staged_folder
 from clradcom.mechanisms.common import ENGINES
+from clradcom.mechanisms.sbr import ACCURACY_DB_RANGE
 from clradcom.plots import plot_top_view
 from clradcom.radar.pipeline import (
     SYNTHESIS_METHODS,
@@ -153,8 +154,17 @@ def build_parser() -> argparse.ArgumentParser:
                     metavar="WAVELENGTHS",
                     help="pitch of the SBR ray tubes at each object, in wavelengths "
                          f"({SBR_SPACING_WAVELENGTHS[0]:g} to {SBR_SPACING_WAVELENGTHS[1]:g}; "
-                         f"default {OpticsSettings().sbr_spacing_wavelengths:g}); an "
+                         "default: chosen per object for --sbr-accuracy); an "
                          "object's own sbr_spacing_wavelengths key wins")
+    ap.add_argument("--no-sbr-mirrors", action="store_true",
+                    help="launch SBR tubes at the objects only, not also at their mirror "
+                         "images in the road and facades (returns lit by one reflection "
+                         "there)")
+    ap.add_argument("--sbr-accuracy", type=float_in(*ACCURACY_DB_RANGE),
+                    default=OpticsSettings().sbr_accuracy_db, metavar="DB",
+                    help="the error (dB) the SBR tube grid may add to a corner's return, "
+                         "from which the pitch is chosen when --sbr-spacing is not given "
+                         f"(default {OpticsSettings().sbr_accuracy_db:g}; docs/po.md)")
     ap.add_argument("--no-scattering", action="store_true",
                     help="leave out single Lambertian scattering from tiles of materials with "
                          "a scattering coefficient (the trees)")
@@ -176,9 +186,10 @@ def build_parser() -> argparse.ArgumentParser:
 def settings_from_args(args) -> TraceSettings:
     """The tracer settings of a parsed command line (tests and tools/bench_trace.py reuse
     the tool's defaults)."""
-    spacing = args.sbr_spacing
-    optics = (OpticsSettings(mode=args.physical_optics) if spacing is None else
-              OpticsSettings(mode=args.physical_optics, sbr_spacing_wavelengths=spacing))
+    optics = OpticsSettings(mode=args.physical_optics,
+                            sbr_spacing_wavelengths=args.sbr_spacing,
+                            sbr_accuracy_db=args.sbr_accuracy,
+                            sbr_mirrors=not args.no_sbr_mirrors)
     return TraceSettings(
         specular=SpecularSettings(max_reflections=args.reflections, rays=args.rays),
         diffraction=DiffractionSettings(max_diffractions=args.diffractions,

@@ -322,9 +322,9 @@ def timing_rows(scene: str, timing: TraceTiming) -> list[tuple]:
     """CSV rows (:data:`CSV_HEADER`) of one timing: trace and kernel seconds, the kernel
     share, paths, and every stage's seconds."""
     e = timing.engine
-    rows = [(scene, e, "trace_s", f"{timing.seconds:.4f}", "s"),
-            (scene, e, "kernel_s", f"{timing.kernel_seconds:.4f}", "s"),
-            (scene, e, "kernel_share", f"{timing.kernel_share:.4f}", "1"),
+    rows = [(scene, e, "trace_s", f"{timing.seconds:.6f}", "s"),
+            (scene, e, "kernel_s", f"{timing.kernel_seconds:.6f}", "s"),
+            (scene, e, "kernel_share", f"{timing.kernel_share:.6f}", "1"),
             (scene, e, "paths", str(timing.n_paths), "1")]
-    rows += [(scene, e, f"stage:{k}", f"{v:.4f}", "s") for k, v in timing.stages.items()]
+    rows += [(scene, e, f"stage:{k}", f"{v:.6f}", "s") for k, v in timing.stages.items()]
     return rows

@@ -48,7 +48,7 @@ FLOOR_DBSM = -40.0  # plotted where a method returns nothing
 #: the car models: "car" car_mesh(); "rounded" rounded_car(face_centred=True), whose nose
 #: and side carry facets facing exactly +x and +y
 MODELS = ("car", "rounded")
-#: most ray tubes of one grid (the ``max_rays`` of
+#: most GO candidate rays of one grid (the ``max_rays`` of
 #: :func:`clradcom.mechanisms.sbr.launch_tubes`, which refuses more)
 MAX_TUBES = 4_000_000
 
@@ -97,8 +97,8 @@ def grid_tubes(radius_m: float, distance_m: float, spacing_m: float) -> int:
 def check_aspect_grids(scene: Scene, range_m: float, *, spacing_wavelengths: float = 0.5,
                        go_spacing_m: float = 0.01, names=None) -> None:
     """Refuse, before anything is traced, what :func:`aspect_rcs` cannot do: a radar
-    inside (or on) the model's bounding sphere, and a GO or SBR grid of more than
-    :data:`MAX_TUBES` tubes. :class:`~clradcom.errors.ArgumentError` names the argument
+    inside (or on) the model's bounding sphere, and a GO candidate grid of more than
+    :data:`MAX_TUBES` rays. :class:`~clradcom.errors.ArgumentError` names the argument
     (``names`` maps "range_m", "go_spacing_m", "spacing_wavelengths" to what the caller
     calls them, a command-line option say)."""
     names = {"range_m": "range_m", "go_spacing_m": "go_spacing_m",
@@ -113,16 +113,13 @@ def check_aspect_grids(scene: Scene, range_m: float, *, spacing_wavelengths: flo
         raise ArgumentError(f"puts a radar {dist:.3g} m from the centre of the model's "
                             f"bounding sphere (radius {radius:.3g} m): it must lie outside it",
                             argument=names["range_m"], value=range_m)
-    lam = C0 / scene.carrier_hz
-    for key, spacing in (("go_spacing_m", go_spacing_m),
-                         ("spacing_wavelengths", spacing_wavelengths * lam)):
-        n = grid_tubes(radius, dist, spacing)
-        if n > MAX_TUBES:
-            raise ArgumentError(f"needs {n} ray tubes over the model's bounding sphere "
-                                f"(radius {radius:.3g} m), more than {MAX_TUBES}; use a "
-                                f"coarser spacing", argument=names[key],
-                                value=go_spacing_m if key == "go_spacing_m"
-                                else spacing_wavelengths)
+    # the SBR tubes are streamed with no cap; the GO candidate rays are one grid in memory
+    n = grid_tubes(radius, dist, go_spacing_m)
+    if n > MAX_TUBES:
+        raise ArgumentError(f"needs {n} ray tubes over the model's bounding sphere "
+                            f"(radius {radius:.3g} m), more than {MAX_TUBES}; use a "
+                            f"coarser spacing", argument=names["go_spacing_m"],
+                            value=go_spacing_m)
 
 
 @dataclass

@@ -22,10 +22,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from clradcom.errors import ArgumentError
+from clradcom.errors import ArgumentError, ArgumentTypeError
 from clradcom.mechanisms.common import Geometry, check_number
 from clradcom.mechanisms.physical_optics import po_paths
-from clradcom.mechanisms.sbr import SbrTubes, sbr_paths, shoot_sbr
+from clradcom.mechanisms.sbr import ACCURACY_DB_RANGE, SbrTubes, sbr_paths, shoot_sbr
 from clradcom.paths import InteractionType, Paths
 from clradcom.scene.records import OPTICS, Radar, Scene
 
@@ -44,8 +44,15 @@ class OpticsSettings:
     """Which objects get physical optics, and how densely SBR tubes are shot."""
 
     mode: str = "none"
-    #: pitch of the SBR ray-tube grid at each target, in wavelengths
-    sbr_spacing_wavelengths: float = 0.5
+    #: pitch of the SBR ray-tube grid at every target, in wavelengths; None chooses it per
+    #: object from sbr_accuracy_db (:func:`clradcom.mechanisms.sbr.spacing_for_accuracy`);
+    #: an object's own ``sbr_spacing_wavelengths`` scene key wins over both
+    sbr_spacing_wavelengths: float | None = None
+    #: the error (dB) the tube grid may add to a corner's return when the pitch is chosen
+    sbr_accuracy_db: float = 0.5
+    #: also launch tubes at the objects' mirror images in large faces of the environment
+    #: (the road, facades): the returns lit through one reflection there
+    sbr_mirrors: bool = True
     #: most SBR bounces; None follows the specular search's max_reflections
     max_bounces: int | None = None
 
@@ -53,8 +60,15 @@ class OpticsSettings:
         if not isinstance(self.mode, str) or self.mode not in MODES:
             raise ArgumentError(f"must be one of {', '.join(map(repr, MODES))}",
                                 argument="OpticsSettings.mode", value=self.mode)
-        check_number("OpticsSettings", "sbr_spacing_wavelengths", self.sbr_spacing_wavelengths,
-                     low=0.01, high=100.0)
+        if self.sbr_spacing_wavelengths is not None:
+            check_number("OpticsSettings", "sbr_spacing_wavelengths",
+                         self.sbr_spacing_wavelengths, low=0.01, high=100.0)
+        check_number("OpticsSettings", "sbr_accuracy_db", self.sbr_accuracy_db,
+                     low=ACCURACY_DB_RANGE[0], high=ACCURACY_DB_RANGE[1])
+        if not isinstance(self.sbr_mirrors, bool):
+            raise ArgumentTypeError("must be True or False",
+                                    argument="OpticsSettings.sbr_mirrors",
+                                    value=self.sbr_mirrors)
         if self.max_bounces is not None:
             check_number("OpticsSettings", "max_bounces", self.max_bounces, low=0, high=16,
                          integer=True)
@@ -110,6 +124,8 @@ def prepare(geom: Geometry, tx: Radar, settings: OpticsSettings,
     if geom.caster is not None and len(sbr_objects) and max_bounces >= 2:
         tubes = shoot_sbr(geom, tx, sbr_objects, [tx] if receivers is None else receivers,
                           spacing_wavelengths=settings.sbr_spacing_wavelengths,
+                          accuracy_db=settings.sbr_accuracy_db,
+                          mirrors=settings.sbr_mirrors,
                           max_bounces=max_bounces)
     return SbrShot(po_objects=po_objects, sbr_objects=sbr_objects, max_bounces=max_bounces,
                    tubes=tubes)
@@ -141,6 +157,5 @@ def link_paths(geom: Geometry, shot: SbrShot, tx: Radar, rx: Radar,
     parts = [po_paths(geom, tx, rx, objects=shot.po_objects)]
     if shot.tubes is not None:
         parts.append(sbr_paths(geom, tx, rx, objects=shot.sbr_objects,
-                               spacing_wavelengths=settings.sbr_spacing_wavelengths,
                                max_bounces=shot.max_bounces, shot=shot.tubes))
     return parts

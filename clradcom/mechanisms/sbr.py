@@ -80,6 +80,20 @@ MIRROR_MIN_AREA_M2 = 1.0
 MIN_DEPTH_FRACTION = 0.2
 #: Tubes per host batch of the reference engine (bounds its memory).
 HOST_BATCH_TUBES = 1 << 20
+#: The spacing rule (:func:`spacing_for_accuracy`): dB of corner error per unit of
+#: pitch / feature size (the worst of the dihedral and trihedral closed-form checks,
+#: docs/po.md), calibrated for targets of ACCURACY_DB_RANGE...
+ERROR_DB_PER_PITCH = 18.0
+#: ... the share of an object's area in faces smaller than its feature size ...
+FEATURE_AREA_SHARE = 0.1
+#: ... and the pitch's bounds in wavelengths: finer buys nothing the footprint integral
+#: does not already give; coarser lets a tube straddle too much of a curved surface
+MIN_SPACING_WAVELENGTHS = 0.125
+MAX_SPACING_WAVELENGTHS = 4.0
+#: the accuracy targets (dB) the rule was calibrated for: below, the PO approximations'
+#: own 0.2 dB (plate sidelobes beating against a corner) dominate; above, pitch / feature
+#: passes 0.1, where the stair-stepping stops growing linearly
+ACCURACY_DB_RANGE = (0.25, 2.0)
 
 @dataclass
 class TubeGrid:
@@ -481,6 +495,14 @@ def shoot_tubes(geom, tx_pos, grid: TubeGrid, max_bounces: int, first_bounce: in
         if len(idx) == 0:
             break
         t = np.einsum("ij,ij->i", tris_all[tri, 0] - pos, n) / dn
+        # a hit on the plane the tube just left (a corner's edge) has no length to go:
+        # the tube ends there, as at a grazing hit
+        ahead = t > 0
+        if not ahead.all():
+            idx, pos, d, e1, e2, L, tri, n, dn, t = (
+                a[ahead] for a in (idx, pos, d, e1, e2, L, tri, n, dn, t))
+            if len(idx) == 0:
+                break
         p = pos + t[:, None] * d
         L = L + np.linalg.norm(p - pos, axis=1)
         hist[idx, m - 1] = p
@@ -818,16 +840,58 @@ class SbrTubes:
         return int(hit[0])
 
 
-def object_spacing_m(scene, objects, spacing_wavelengths: float) -> np.ndarray:
+def feature_size_m(geom, objects) -> np.ndarray:
+    """Per object, the side sqrt(A) of its planar faces (``geom.faces``) below which lies
+    FEATURE_AREA_SHARE of its area: the size of the small faces its corners are made of."""
+    _, area2 = triangle_normals_and_double_areas(geom.scene.triangles)
+    area = np.bincount(geom.faces.tri_face, 0.5 * np.nan_to_num(area2), geom.faces.n_faces)
+    out = []
+    for o in objects:
+        a = area[(geom.faces.object_id == o) & (area > 0)]
+        if len(a) == 0:
+            out.append(np.inf)
+            continue
+        order = np.argsort(a)
+        share = np.cumsum(a[order]) / a.sum()
+        out.append(float(np.sqrt(a[order][np.searchsorted(share, FEATURE_AREA_SHARE)])))
+    return np.array(out, dtype=np.float64)
+
+
+def spacing_for_accuracy(geom, objects, accuracy_db: float) -> np.ndarray:
+    """Tube pitch (m) per object for a corner error of at most ``accuracy_db``:
+    ``accuracy_db * feature / ERROR_DB_PER_PITCH``, between MIN_SPACING_WAVELENGTHS and
+    MAX_SPACING_WAVELENGTHS wavelengths.
+
+    The rule (docs/po.md): a tube grid of pitch s stair-steps the rim of a corner whose
+    faces are l across, and the corner's RCS errs by about ERROR_DB_PER_PITCH * s / l dB
+    at worst - the bound the 90 degree dihedral and the square trihedral show against
+    their closed forms for s = l/64 .. l/8 (tests/test_sbr_engines.py).  l is the
+    object's :func:`feature_size_m`; ``accuracy_db`` within ACCURACY_DB_RANGE.
+    """
+    lam = geom.scene.wavelength_m
+    s = float(accuracy_db) * feature_size_m(geom, objects) / ERROR_DB_PER_PITCH
+    return np.clip(s, MIN_SPACING_WAVELENGTHS * lam, MAX_SPACING_WAVELENGTHS * lam)
+
+
+def object_spacing_m(geom, objects, spacing_wavelengths: float | None,
+                     accuracy_db: float = 0.5) -> np.ndarray:
     """Tube pitch (m) per object: its own ``sbr_spacing_wavelengths`` scene key where it
-    has one, else ``spacing_wavelengths``, in wavelengths of the scene's carrier."""
+    has one, else ``spacing_wavelengths`` (wavelengths of the scene's carrier) where given,
+    else :func:`spacing_for_accuracy`."""
+    scene = geom.scene
+    objects = list(objects)
+    if spacing_wavelengths is None:
+        out = spacing_for_accuracy(geom, objects, accuracy_db)
+    else:
+        out = np.full(len(objects), float(spacing_wavelengths) * scene.wavelength_m)
     own = [getattr(scene.objects[o], "sbr_spacing_wavelengths", None) for o in objects]
-    return np.array([spacing_wavelengths if s is None else float(s) for s in own],
-                    dtype=np.float64) * scene.wavelength_m
+    return np.array([s if w is None else float(w) * scene.wavelength_m
+                     for s, w in zip(out, own, strict=True)], dtype=np.float64)
 
 
-def shoot_sbr(geom, tx, objects, receivers, *, spacing_wavelengths: float = 0.5,
-              max_bounces: int = 3, first_bounce: int = 2, mirrors: bool = True) -> SbrTubes:
+def shoot_sbr(geom, tx, objects, receivers, *, spacing_wavelengths: float | None = None,
+              accuracy_db: float = 0.5, max_bounces: int = 3, first_bounce: int = 2,
+              mirrors: bool = True) -> SbrTubes:
     """Shoot tx's tubes over ``objects`` and radiate them toward every receiver (radars):
     what a tracer computes once per transmitter, with the engine ``geom.engine``."""
     scene = geom.scene
@@ -836,7 +900,7 @@ def shoot_sbr(geom, tx, objects, receivers, *, spacing_wavelengths: float = 0.5,
     rx_pos = np.array([np.asarray(r.position, dtype=np.float64) for r in receivers]
                       ).reshape(-1, 3)
     windows = launch_windows(geom, tx.position, objects,
-                             object_spacing_m(scene, objects, spacing_wavelengths),
+                             object_spacing_m(geom, objects, spacing_wavelengths, accuracy_db),
                              mirrors=mirrors, tx_name=tx.name)
     record = np.isin(scene.tri_object, objects)
     engine = device_block_sums if geom.engine == "device" else host_block_sums
@@ -846,13 +910,15 @@ def shoot_sbr(geom, tx, objects, receivers, *, spacing_wavelengths: float = 0.5,
     return SbrTubes(windows=windows, receivers=rx_pos, sums=sums, max_bounces=max_bounces)
 
 
-def sbr_paths(geom, tx, rx, *, objects, spacing_wavelengths: float = 0.5,
-              max_bounces: int = 3, first_bounce: int = 2, min_relative_db: float = -80.0,
-              mirrors: bool = True, shot: SbrTubes | None = None) -> Paths:
+def sbr_paths(geom, tx, rx, *, objects, spacing_wavelengths: float | None = None,
+              accuracy_db: float = 0.5, max_bounces: int = 3, first_bounce: int = 2,
+              min_relative_db: float = -80.0, mirrors: bool = True,
+              shot: SbrTubes | None = None) -> Paths:
     """SBR-PO multi-bounce returns of one tx -> rx link as :class:`Paths`.
 
     Tubes are shot from tx through the windows of :func:`launch_windows` (pitch
-    ``spacing_wavelengths`` wavelengths at each window, or the object's own), bounce off
+    :func:`object_spacing_m`: the object's own, else ``spacing_wavelengths`` wavelengths,
+    else chosen for ``accuracy_db``), bounce off
     anything in the scene, and radiate (module docstring) from every bounce
     >= ``first_bounce`` that lands on one of ``objects`` and sees rx unblocked;
     :func:`block_paths` groups them into paths.  ``shot`` is :func:`shoot_sbr`'s result
@@ -863,7 +929,8 @@ def sbr_paths(geom, tx, rx, *, objects, spacing_wavelengths: float = 0.5,
         return Paths.empty(max(first_bounce, 1))
     if shot is None:
         shot = shoot_sbr(geom, tx, objects, [rx], spacing_wavelengths=spacing_wavelengths,
-                         max_bounces=max_bounces, first_bounce=first_bounce, mirrors=mirrors)
+                         accuracy_db=accuracy_db, max_bounces=max_bounces,
+                         first_bounce=first_bounce, mirrors=mirrors)
     sums = shot.sums
     if len(sums) == 0:
         return Paths.empty(shot.max_bounces)

@@ -1,0 +1,311 @@
+"""SBR-PO's device engine (kernels/sbr.cl) against the host reference, its launch windows
+over silhouettes and mirror images, its unbounded tube count, and the pitch rule.
+
+The host engine (clradcom.mechanisms.sbr: shoot_tubes, _radiate, em.polarimetric_matrix,
+then _sum_blocks) and the device kernel sum the same footprints per launch block; they
+must agree block for block, and the paths built from them path for path.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+from test_po_sbr import LAM, dihedral, scene_of, sigma, trihedral
+
+from clradcom.device import sbr as device_sbr
+from clradcom.geometry.silhouette import BLOCK, block_coverage
+from clradcom.mechanisms import sbr
+from clradcom.mechanisms.common import build_geometry
+from clradcom.mechanisms.optics import OpticsSettings
+from clradcom.mechanisms.physical_optics import po_paths
+from clradcom.scene import load_scene
+from clradcom.scene.reader import scene_from_dict
+
+DATA = "tests/data/all_mechanisms.toml"
+STREET = "scenes/street/street.toml"
+
+
+def both_engines(scene, runtime):
+    return {e: build_geometry(scene, runtime, engine=e) for e in ("host", "device")}
+
+
+def shots(geoms, tx, objects, receivers, **kw):
+    return {e: sbr.shoot_sbr(g, tx, objects, receivers, **kw) for e, g in geoms.items()}
+
+
+def assert_same_sums(a: sbr.BlockSums, b: sbr.BlockSums):
+    assert len(a) == len(b) > 0
+    for key in ("receiver", "bounce", "count", "face", "tube", "tri"):
+        np.testing.assert_array_equal(getattr(a, key), getattr(b, key), err_msg=key)
+    scale = np.abs(a.matrix).max()
+    assert np.abs(a.matrix - b.matrix).max() <= 1e-9 * scale
+    np.testing.assert_allclose(a.length, b.length, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(a.weight, b.weight, rtol=1e-9)
+
+
+def assert_same_paths(p, q):
+    assert p.n_paths == q.n_paths > 0
+    np.testing.assert_array_equal(p.n_interactions, q.n_interactions)
+    np.testing.assert_array_equal(p.face_id, q.face_id)
+    assert np.abs(p.gain - q.gain).max() <= 1e-9 * np.abs(p.gain).max()
+    np.testing.assert_allclose(p.delay_s, q.delay_s, rtol=0, atol=1e-18)
+    np.testing.assert_allclose(p.doppler_hz, q.doppler_hz, rtol=1e-12, atol=1e-9)
+
+
+def channel(paths, n=1024, df=90.909e3):
+    """The channel at the radar's subcarriers, one symbol: H(n) = sum a e^{-j 2 pi n df tau}."""
+    k = np.arange(n)[:, None]
+    return np.exp(-2j * np.pi * k * df * paths.delay_s[None, :]) @ paths.gain
+
+
+def nmse_db(h, ref):
+    return 10 * np.log10(np.sum(np.abs(h - ref) ** 2) / np.sum(np.abs(ref) ** 2))
+
+
+# ---------------------------------------------------------------------------
+# device == host
+
+
+@pytest.mark.parametrize("case", ["golden", "dihedral", "trihedral"])
+def test_device_engine_equals_the_host_reference(runtime, case):
+    if case == "golden":
+        scene = load_scene(DATA)
+        objects, tx, receivers = [2], scene.radars[0], list(scene.radars)
+        kw = {"spacing_wavelengths": 1.0}
+    else:
+        obj = dihedral(0.12, 0.08) if case == "dihedral" else trihedral(0.1)
+        pos = [(3.0, 0.4, 0.3), (2.5, -0.6, 1.0)]
+        scene = scene_of([obj], pos)
+        objects, tx, receivers = [0], scene.radars[0], list(scene.radars)
+        kw = {"spacing_wavelengths": 0.25}
+    geoms = both_engines(scene, runtime)
+    got = shots(geoms, tx, objects, receivers, max_bounces=3, **kw)
+    assert_same_sums(got["host"].sums, got["device"].sums)
+    for rx in receivers:
+        p = {e: sbr.sbr_paths(geoms[e], tx, rx, objects=objects, max_bounces=3,
+                              shot=got[e], min_relative_db=-300) for e in geoms}
+        assert_same_paths(p["host"], p["device"])
+
+
+def test_street_channel_device_against_host(runtime):
+    """Radar A's SBR returns on the paper's street (every car, road and facade mirror):
+    path for path, and the channel at the radar's 1024 subcarriers within -60 dB."""
+    scene = load_scene(STREET)
+    a = scene.radar_index("A")
+    tx = scene.radars[a]
+    cars = [i for i, o in enumerate(scene.objects) if o.name.startswith("car")]
+    geoms = both_engines(scene, runtime)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # carA holds the radar: skipped, and said so
+        got = shots(geoms, tx, cars, [tx], spacing_wavelengths=1.5, max_bounces=3)
+    assert_same_sums(got["host"].sums, got["device"].sums)
+    p = {e: sbr.sbr_paths(geoms[e], tx, tx, objects=cars, max_bounces=3, shot=got[e])
+         for e in geoms}
+    assert_same_paths(p["host"], p["device"])
+    assert nmse_db(channel(p["device"]), channel(p["host"])) < -60.0
+    # the mirrors are there: returns lit through the road
+    road = next(i for i, o in enumerate(scene.objects) if o.name == "road")
+    assert np.any(p["device"].object_id[:, 0] == road)
+
+
+def test_batches_and_runs_give_the_same_records(runtime):
+    scene = scene_of([trihedral(0.1)], [(2.0, 1.5, 1.0)])
+    geom = build_geometry(scene, runtime)
+    r = scene.radars[0]
+    windows = sbr.launch_windows(geom, r.position, [0], 0.05 * LAM)
+    assert windows.n_tubes > 4 * 4096
+
+    def run(batch):
+        return device_sbr.shoot_and_radiate(
+            geom.caster, scene, geom.faces.tri_face, windows, r.orientation, [r.position],
+            [r.orientation], wavenumber=2 * np.pi / LAM, wavelength=LAM, max_bounces=3,
+            first_bounce=2, record_triangles=np.ones(len(scene.triangles), bool),
+            batch_tubes=batch)
+
+    whole = run(device_sbr.BATCH_TUBES)
+    assert len(whole) > 0
+    assert whole.tobytes() == run(4096).tobytes() == run(device_sbr.BATCH_TUBES).tobytes()
+
+
+# ---------------------------------------------------------------------------
+# launch windows
+
+
+def test_window_covers_the_silhouette_and_little_else(runtime):
+    """Every direction toward a point of the box's visible faces lies in a launched cell of
+    its window, and the window's area is the silhouette's, grown by at most a block."""
+    box = {"name": "box", "material": "metal", "shape": "box", "extents": [2.0, 1.0, 0.5],
+           "position": [0.0, 0.0, 0.0], "rotation_deg": [10.0, 20.0, 30.0]}
+    tx = np.array([12.0, 3.0, 2.0])
+    scene = scene_from_dict({"scene": {"name": "w", "carrier_hz": 24e9}, "objects": [box],
+                             "radars": [{"name": "r", "position": tx.tolist()}]})
+    geom = build_geometry(scene, runtime)
+    s = 0.02
+    w = sbr.launch_windows(geom, tx, [0], s, mirrors=False)
+    assert w.n_windows == 1 and w.mirror_face[0] == -1
+    rng = np.random.default_rng(1)
+    tri = scene.triangles
+    pick = rng.integers(0, len(tri), 20_000)
+    uv = rng.random((len(pick), 2))
+    uv = np.where(uv.sum(1, keepdims=True) > 1, 1 - uv, uv)
+    pts = tri[pick, 0] + uv[:, :1] * (tri[pick, 1] - tri[pick, 0]) + uv[:, 1:] * (
+        tri[pick, 2] - tri[pick, 0])
+    d = pts - tx
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    assert np.all(sbr._covers(w, 0, d))
+    # the box's silhouette area on the window plane, by rasterising finely
+    from clradcom.geometry.silhouette import project_to_plane
+    x, y, _ = project_to_plane(tri, tx, w.axis[0], w.u[0], w.v[0], w.distance[0])
+    xy = np.stack([x, y], axis=-1)
+    fine = 0.002
+    lo = xy.reshape(-1, 2).min(0)
+    shape = np.ceil((xy.reshape(-1, 2).max(0) - lo) / fine).astype(int) + 1
+    silhouette = block_coverage(xy, fine, lo, shape).sum() * fine**2
+    launched = w.n_tubes * s * s
+    assert silhouette < launched < silhouette * 1.35
+
+
+def test_mirror_windows_reach_the_object_through_the_road(runtime):
+    """A PEC box on a road: with mirrors, tubes aimed at the box's image under the road
+    hit the road first and then the box; without, no SBR path starts on the road."""
+    road = {"name": "road", "material": "concrete_road", "shape": "plane",
+            "size": [60.0, 20.0], "position": [10.0, 0.0, 0.0]}
+    car = {"name": "car", "material": "metal", "shape": "box", "extents": [3.8, 1.8, 1.5],
+           "position": [15.0, 0.5, 0.75], "rotation_deg": [0.0, 0.0, 20.0]}
+    scene = scene_from_dict({"scene": {"name": "m", "carrier_hz": 24e9},
+                             "objects": [road, car],
+                             "radars": [{"name": "r", "position": [0.0, 0.0, 0.6]}]})
+    geom = build_geometry(scene, runtime)
+    r = scene.radars[0]
+    with_m = sbr.shoot_sbr(geom, r, [1], [r], spacing_wavelengths=2.0, max_bounces=3)
+    without = sbr.shoot_sbr(geom, r, [1], [r], spacing_wavelengths=2.0, max_bounces=3,
+                            mirrors=False)
+    assert set(with_m.windows.mirror_face.tolist()) > {-1}
+    assert np.all(without.windows.mirror_face == -1)
+    p = sbr.sbr_paths(geom, r, r, objects=[1], max_bounces=3, shot=with_m)
+    q = sbr.sbr_paths(geom, r, r, objects=[1], max_bounces=3, shot=without)
+    # the car's own window brushes the road beside it; its mirror window brings the rest
+    road_first = [np.abs(x.gain[x.object_id[:, 0] == 0]).sum() for x in (p, q)]
+    assert road_first[0] > 2 * road_first[1]
+    # a road-then-car path is longer than the direct distance to the car's near side
+    first = p.object_id[:, 0] == 0
+    assert np.all(p.delay_s[first] * 299_792_458.0 > 2 * 12.0)
+
+
+# ---------------------------------------------------------------------------
+# no cap, and the materials along the chain
+
+
+def test_a_10_m_plate_needs_no_tube_cap(runtime):
+    """The old launch (bounding sphere, 4 M tubes at most) refused a 10 m plate at
+    lambda/2; the silhouette launch streams its 2.6 M tubes in batches."""
+    plate = {"name": "plate", "material": "metal", "shape": "plane", "size": [10.0, 10.0],
+             "position": [0.0, 0.0, 0.0], "rotation_deg": [0.0, 90.0, 0.0]}
+    scene = scene_from_dict({"scene": {"name": "p", "carrier_hz": 24e9}, "objects": [plate],
+                             "radars": [{"name": "r", "position": [60.0, 0.0, 0.0]}]})
+    geom = build_geometry(scene, runtime)
+    r = scene.radars[0]
+    shot = sbr.shoot_sbr(geom, r, [0], [r], spacing_wavelengths=0.5, max_bounces=2)
+    assert shot.windows.n_tubes > 2 * device_sbr.BATCH_TUBES
+    assert 2.5e6 < shot.windows.n_tubes < 2.9e6
+    assert len(shot.sums) == 0  # a flat plate has no second bounce
+
+
+def test_chain_carries_the_specular_share_of_a_scattering_face(runtime):
+    """A dihedral whose faces scatter S = 0.6 of the field diffusely: its double bounce
+    is sqrt(1 - S^2)^2 = 0.64 of the same smooth material's (the first face's dyad in the
+    chain, the second face's in its penetrable currents), on both engines."""
+    from test_po_dielectric import CONCRETE
+
+    out = {}
+    for s_coef in (0.0, 0.6):
+        mat = {"name": "rough", "eps_r": [CONCRETE.real, CONCRETE.imag],
+               "scattering_coefficient": s_coef}
+        obj = dihedral(0.12, 0.08)
+        obj["material"] = "rough"
+        scene = scene_from_dict({"scene": {"name": "s", "carrier_hz": 24e9},
+                                 "materials": [mat], "objects": [obj],
+                                 "radars": [{"name": "r", "position": [100.0, 0.0, 0.0]}]})
+        for engine in ("host", "device"):
+            geom = build_geometry(scene, runtime, engine=engine)
+            r = scene.radars[0]
+            p = sbr.sbr_paths(geom, r, r, objects=[0], spacing_wavelengths=0.25,
+                              max_bounces=2, min_relative_db=-300)
+            out[s_coef, engine] = p.matrix.sum(axis=0)
+    for engine in ("host", "device"):
+        ratio = np.diag(out[0.6, engine]) / np.diag(out[0.0, engine])
+        # exactly 1 - S^2 at the specular direction, where the second face's currents
+        # are linear in its dyad; the tubes fan out by a milliradian around it
+        np.testing.assert_allclose(ratio, 1 - 0.6**2, rtol=1e-3)
+    np.testing.assert_allclose(out[0.6, "device"], out[0.6, "host"], rtol=1e-9)
+
+
+# ---------------------------------------------------------------------------
+# the pitch rule
+
+
+@pytest.mark.parametrize("accuracy_db", [0.5, 1.5])
+@pytest.mark.parametrize("corner", ["dihedral", "trihedral"])
+def test_pitch_rule_meets_its_accuracy_on_the_closed_forms(runtime, corner, accuracy_db):
+    """At the pitch sbr.spacing_for_accuracy chooses, the corner's monostatic RCS (PO
+    facets + SBR) lies within accuracy_db of the closed form (Knott, table 6.1)."""
+    if corner == "dihedral":
+        a, b, R = 0.2, 0.15, 200.0
+        scene = scene_of([dihedral(a, b)], [(R, 0.0, 0.0)])
+        want = 8 * np.pi * a**2 * b**2 / LAM**2
+    else:
+        a, R = 0.15, 200.0
+        scene = scene_of([trihedral(a)], [R * np.ones(3) / np.sqrt(3)])
+        want = 12 * np.pi * a**4 / LAM**2
+    geom = build_geometry(scene, runtime)
+    s = sbr.spacing_for_accuracy(geom, [0], accuracy_db)[0]
+    feature = sbr.feature_size_m(geom, [0])[0]
+    assert s == pytest.approx(max(accuracy_db * feature / sbr.ERROR_DB_PER_PITCH,
+                                  sbr.MIN_SPACING_WAVELENGTHS * LAM))
+    r = scene.radars[0]
+    p1 = po_paths(geom, r, r, min_relative_db=-300)
+    p2 = sbr.sbr_paths(geom, r, r, objects=[0], accuracy_db=accuracy_db, max_bounces=3,
+                       min_relative_db=-300)
+    M = p1.matrix.sum(axis=0) + p2.matrix.sum(axis=0)
+    for pol in (0, 1):
+        assert abs(10 * np.log10(sigma(M[pol, pol], R) / want)) < accuracy_db
+
+
+def test_pitch_precedence_object_key_then_setting_then_rule(runtime):
+    obj = trihedral(0.1)
+    obj["sbr_spacing_wavelengths"] = 0.75
+    scene = scene_of([obj, {**dihedral(0.1, 0.1), "name": "d"}], [(3.0, 2.0, 1.0)])
+    geom = build_geometry(scene, runtime)
+    lam = scene.wavelength_m
+    np.testing.assert_allclose(sbr.object_spacing_m(geom, [0, 1], None, 0.5),
+                               [0.75 * lam, sbr.spacing_for_accuracy(geom, [1], 0.5)[0]])
+    np.testing.assert_allclose(sbr.object_spacing_m(geom, [0, 1], 2.0), [0.75 * lam, 2 * lam])
+    with pytest.raises(ValueError, match="OpticsSettings.sbr_accuracy_db"):
+        OpticsSettings(sbr_accuracy_db=0.1)
+    with pytest.raises(TypeError, match="OpticsSettings.sbr_mirrors"):
+        OpticsSettings(sbr_mirrors="yes")
+
+
+def test_block_coverage_is_conservative():
+    """A thin sliver and a big triangle: every block a triangle touches is marked, none
+    that it misses by more than a block."""
+    rng = np.random.default_rng(7)
+    for _ in range(20):
+        tri = rng.uniform(-3, 3, (1, 3, 2))
+        mask = block_coverage(tri, 0.25, (-4.0, -4.0), (32, 32))
+        # points inside the triangle
+        uv = rng.random((4000, 2))
+        uv = np.where(uv.sum(1, keepdims=True) > 1, 1 - uv, uv)
+        t = tri[0]
+        p = t[0] + uv[:, :1] * (t[1] - t[0]) + uv[:, 1:] * (t[2] - t[0])
+        ij = np.floor((p + 4.0) / 0.25).astype(int)
+        assert np.all(mask[ij[:, 0], ij[:, 1]])
+        # a marked block's centre lies within a block diagonal of the triangle
+        centres = (np.argwhere(mask) + 0.5) * 0.25 - 4.0
+        from clradcom.geometry.triangles import point_triangle_distance
+        t3 = np.concatenate([t, np.zeros((3, 1))], axis=1)[None]
+        far = [point_triangle_distance(np.append(c, 0.0), t3)[0] for c in centres]
+        assert max(far) <= 0.25 * np.sqrt(2) / 2 + 1e-12
+    assert BLOCK == 8
