@@ -142,12 +142,13 @@ def _moments(f, u, v, nc, mc):
             (0, 2): np.einsum("km,km->k", b0, v * mc**2)}
 
 
-def _grams(u, v, nc, mc, wn, wm):
+def _grams(u, v, nc, mc, wn, wm, rows):
     """Cross terms of the fitted sinusoids: G_pq[k, j] = (Σ_n (n−n_c)^p w_n u_k u_j*)·
     (Σ_μ (μ−μ_c)^q w_μ v_k v_j*), the moment A_pq at detection k of a unit sinusoid placed
-    at detection j."""
-    ur = [(u * (wn * nc**p)) @ u.conj().T for p in range(3)]
-    vr = [(v * (wm * mc**q)) @ v.conj().T for q in range(3)]
+    at detection j; k over ``rows`` (a boolean mask), j over all."""
+    ua, va = u[rows], v[rows]
+    ur = np.split(np.concatenate([ua * (wn * nc**p) for p in range(3)]) @ u.conj().T, 3)
+    vr = np.split(np.concatenate([va * (wm * mc**q) for q in range(3)]) @ v.conj().T, 3)
     return {(p, q): ur[p] * vr[q] for p, q in ((0, 0), (1, 0), (2, 0), (0, 1), (1, 1), (0, 2))}
 
 
@@ -220,13 +221,23 @@ def refine_peaks(spectral, range_bin, doppler_bin, *, window_range=None,
     rect = window_range is None and window_doppler is None
     fw = f if rect else f * wn[:, None] * wm[None, :]
     x, y = x0.copy(), y0.copy()
-    amp = None
+    amp = _start_amplitudes(fw, x, y, wn, wm, joint)
+    # detections still moving; a settled one is held while the others move, and every
+    # time none is left moving one step over all confirms it (or wakes the ones that moved)
+    active = np.ones(k, bool)
+    settled = np.zeros(k, bool)
     for _ in range(max_iterations):
-        amp, dx, dy = _newton_step(fw, x, y, amp, wn, wm, joint)
-        x, y = x + dx, y + dy
-        settled = (np.abs(dx) < STEP_TOLERANCE) & (np.abs(dy) < STEP_TOLERANCE)
+        dx, dy, da = _newton_step(fw, x, y, amp, wn, wm, joint, active)
+        x[active] += dx
+        y[active] += dy
+        amp[active] += da
+        settled[active] = (np.abs(dx) < STEP_TOLERANCE) & (np.abs(dy) < STEP_TOLERANCE)
         if settled.all():
-            break
+            if active.all():
+                break
+            active[:] = True
+        else:
+            active = ~settled
     converged = settled & (np.abs(x - x0) <= 1.0) & (np.abs(y - y0) <= 1.0)
     x, y = np.where(converged, x, x0), np.where(converged, y, y0)
     # the steering rows are centred: refer the amplitudes back to cell (0, 0), F's model
@@ -234,22 +245,42 @@ def refine_peaks(spectral, range_bin, doppler_bin, *, window_range=None,
     return Refined(x, y, amp, converged)
 
 
-def _newton_step(fw, x, y, amp, wn, wm, joint):
-    """One Newton step (Gauss–Newton where the Hessian is not positive definite) of the
-    weighted NLS over (x, y, Re b, Im b) of every detection; ``amp`` None: start from
-    the linear least-squares amplitudes.  Returns the updated amplitudes (centred phase
-    reference) and the position steps."""
+def _start_amplitudes(fw, x, y, wn, wm, joint):
+    """Linear (weighted) least-squares amplitudes of all sinusoids at the start
+    positions (centred phase reference); each alone without ``joint``."""
     n, m = fw.shape
-    k = x.size
     u, v, nc, mc = _steering(x, y, n, m)
-    mom = _moments(fw, u, v, nc, mc)
-    gr = _grams(u, v, nc, mc, wn, wm)
+    a00 = np.einsum("km,km->k", u @ fw, v)
+    g00 = _grams(u, v, nc, mc, wn, wm, np.ones(x.size, bool))[0, 0]
+    if not joint:
+        return a00 / np.diag(g00)
+    return np.linalg.lstsq(g00, a00, rcond=None)[0]
+
+
+def _only(g, own):
+    """Keep each row's own column (a detection fitted alone)."""
+    out = np.zeros_like(g)
+    rows = np.arange(own.size)
+    out[rows, own] = g[rows, own]
+    return out
+
+
+def _newton_step(fw, x, y, amp, wn, wm, joint, active):
+    """One Newton step (Gauss–Newton where the Hessian is not positive definite) of the
+    weighted NLS over (x, y, Re b, Im b) of the ``active`` detections, the others held.
+    Returns the steps of their positions and amplitudes (centred phase reference)."""
+    n, m = fw.shape
+    k = int(active.sum())
+    u, v, nc, mc = _steering(x, y, n, m)
+    mom = _moments(fw, u[active], v[active], nc, mc)
+    gr = _grams(u, v, nc, mc, wn, wm, active)  # (active, all)
     if not joint:  # each detection alone: no cross terms
-        gr = {pq: np.diag(np.diag(g)) for pq, g in gr.items()}
-    if amp is None:
-        amp = np.linalg.lstsq(gr[0, 0], mom[0, 0], rcond=None)[0]
+        own = np.nonzero(active)[0]
+        gr = {pq: _only(g, own) for pq, g in gr.items()}
     # residual moments R_pq[k] = Σ (n−n_c)^p (μ−μ_c)^q u_k v_k (F − model)
     res = {pq: mom[pq] - g @ amp for pq, g in gr.items()}
+    gr = {pq: g[:, active] for pq, g in gr.items()}  # the system: active with active
+    amp = amp[active]
     kx, ky = 2 * np.pi / n, 2 * np.pi / m
     ac = np.conj(amp)[:, None]
     aj = amp[None, :]
@@ -292,7 +323,7 @@ def _newton_step(fw, x, y, amp, wn, wm, joint):
     step = np.linalg.lstsq(hess, grad, rcond=None)[0]
     dx = np.clip(step[:k], -MAX_STEP, MAX_STEP)
     dy = np.clip(step[k:2 * k], -MAX_STEP, MAX_STEP)
-    return amp + step[2 * k:3 * k] + 1j * step[3 * k:], dx, dy
+    return dx, dy, step[2 * k:3 * k] + 1j * step[3 * k:]
 
 
 def estimate_detections(detections, spectral, waveform: Waveform, *, zero_pad=(1, 1),
