@@ -16,6 +16,13 @@ from clradcom.radar.cfar import (
     parabolic_offset,
     training_footprint,
 )
+from clradcom.radar.estimation import (
+    CramerRaoBound,
+    cramer_rao_bound,
+    estimate_detections,
+    periodogram_at,
+    refine_peaks,
+)
 from clradcom.radar.processing import (
     RadarImage,
     get_window,
@@ -44,7 +51,8 @@ from clradcom.radar.waveform import (
 )
 
 __all__ = [
-    "DETECTION_DTYPE", "SPEED_OF_LIGHT", "RadarImage", "Waveform", "add_noise",
+    "DETECTION_DTYPE", "SPEED_OF_LIGHT", "CramerRaoBound", "RadarImage", "Waveform",
+    "add_noise", "cramer_rao_bound", "estimate_detections", "periodogram_at", "refine_peaks",
     "add_thermal_noise", "ca_cfar_alpha", "cfar_false_alarms", "cfar_threshold",
     "channel_transfer_function", "check_paths", "constellation", "detect", "get_window",
     "interpolate_peaks", "ofdm_demodulate", "ofdm_modulate", "os_cfar_alpha", "os_cfar_pfa",

@@ -10,8 +10,18 @@
   so the map is periodic).  Sizes are in image bins: with zero padding, scale them by the
   padding factor, and note that padded cells are correlated, so the design P_fa no longer
   holds exactly (it does for an unpadded rectangular-window image).
+- Training sums are sums of non-negative cells (two separable correlations over disjoint
+  bands), never a running sum or an outer-minus-inner difference: those cancel, and beside
+  a strong peak their rounding error (~1e-16 of the peak) exceeds, or turns negative, the
+  training mean of a noiseless image's empty cells.
+- Numerical floor: an image computed from data of relative accuracy ε (L2 norm; the
+  synthesis tolerance, or floating-point rounding) has an error of total energy at most
+  ~ε² times its own, so no cell's noise estimate is taken below ε²·Σ power
+  (:func:`numerical_floor`): a noiseless frame's rounding and NUFFT residue never counts
+  as a detection, and any real noise (σ² ≫ ε²·NM·σ²) is never touched.
 - Peaks: cells above threshold that are the maximum of their neighbourhood; their position
-  is refined by a 3-point parabola on the dB values along each axis (docs/dsp.md §5).
+  is refined by a 3-point parabola on the dB values along each axis (docs/dsp.md §5), and
+  to the periodogram maximum by ``clradcom.radar.estimation`` in ``pipeline.process``.
 """
 
 from __future__ import annotations
@@ -86,14 +96,60 @@ def training_footprint(guard=(2, 2), train=(4, 4)) -> np.ndarray:
     return fp
 
 
+def _ring(half: int, guard: int) -> np.ndarray:
+    """1-D 0/1 kernel of length 2·half + 1 with the central 2·guard + 1 taps zero."""
+    k = np.ones(2 * half + 1)
+    k[half - guard:half + guard + 1] = 0.0
+    return k
+
+
+def training_sums(power, guard=(2, 2), train=(4, 4)) -> np.ndarray:
+    """Sum of the training cells around every cell (wrapping), computed without
+    cancellation: the rows outside the guard band over the full width, plus the guard
+    rows outside the guard columns, each a separable correlation of non-negative cells
+    with 0/1 kernels (relative error ~1e-15 of the sum itself, whatever lies in the
+    guard)."""
+    g, t = _pair("guard", guard), _pair("train", train)
+    h = (g[0] + t[0], g[1] + t[1])
+    pw = np.asarray(power, dtype=float)
+    bands = ndimage.correlate1d(pw, _ring(h[0], g[0]), axis=0, mode="wrap")
+    bands = ndimage.correlate1d(bands, np.ones(2 * h[1] + 1), axis=1, mode="wrap")
+    sides = ndimage.correlate1d(pw, np.ones(2 * g[0] + 1), axis=0, mode="wrap")
+    sides = ndimage.correlate1d(sides, _ring(h[1], g[1]), axis=1, mode="wrap")
+    return bands + sides
+
+
+def rounding_accuracy(cells: int) -> float:
+    """Relative L2 accuracy of a float64 FFT image of ``cells`` cells: log2(cells)·u,
+    u = 2⁻⁵³ (Higham, *Accuracy and Stability of Numerical Algorithms*, 2nd ed., §24.1,
+    Theorem 24.2: ‖ŷ − y‖/‖y‖ ≲ log2(n)·u for the radix-2 Cooley–Tukey FFT)."""
+    return float(max(math.log2(max(int(cells), 2)), 1.0) * np.finfo(float).eps / 2)
+
+
+def numerical_floor(power, accuracy: float | None = None) -> float:
+    """Lowest noise power a cell of ``power`` can be told apart from: ε²·Σ power, where ε
+    is the relative L2 accuracy of the data (default :func:`rounding_accuracy`).  The
+    image's error has total energy ≤ ~ε²·Σ power, so this bounds the error of any single
+    cell, even if all of it fell there."""
+    pw = np.asarray(power, dtype=float)
+    eps = rounding_accuracy(pw.size) if accuracy is None else float(accuracy)
+    if not (math.isfinite(eps) and 0.0 <= eps < 1.0):
+        raise ArgumentError("must lie in [0, 1)", argument="accuracy", value=accuracy)
+    eps = max(eps, rounding_accuracy(pw.size))
+    return float(eps**2 * np.sum(pw))
+
+
 def cfar_threshold(power, guard=(2, 2), train=(4, 4), p_fa: float = 1e-6,
-                   method: str = "ca", rank: int | None = None):
+                   method: str = "ca", rank: int | None = None,
+                   accuracy: float | None = None):
     """CFAR threshold and noise-power estimate for every cell of a square-law map.
 
     Returns (threshold, noise, alpha): arrays shaped like ``power`` and the scale α.
     ``noise`` is the per-cell noise estimate (CA: training mean; OS: x_(k)/E[x_(k)/σ²],
     E[x_(k)/σ²] = Σ_{i=N_T−k+1}^{N_T} 1/i for exponential noise).  ``rank`` (OS only) is k,
-    default round(0.75·N_T) (Rohling).
+    default round(0.75·N_T) (Rohling).  ``accuracy`` is the relative accuracy of the
+    data (:func:`numerical_floor`; default float64 rounding): no noise estimate is taken
+    below the floor it sets.
     """
     pw = np.asarray(power, dtype=float)
     if pw.ndim != 2:
@@ -106,13 +162,9 @@ def cfar_threshold(power, guard=(2, 2), train=(4, 4), p_fa: float = 1e-6,
         raise ArgumentError(f"train={train!r} leaves no training cells")
     if fp.shape[0] > pw.shape[0] or fp.shape[1] > pw.shape[1]:
         raise ArgumentError(f"CFAR window {fp.shape} is larger than the map {pw.shape}")
+    floor = numerical_floor(pw, accuracy)
     if method == "ca":
-        g, t = _pair("guard", guard), _pair("train", train)
-        outer = (2 * (g[0] + t[0]) + 1, 2 * (g[1] + t[1]) + 1)
-        inner = (2 * g[0] + 1, 2 * g[1] + 1)
-        s_out = ndimage.uniform_filter(pw, size=outer, mode="wrap") * (outer[0] * outer[1])
-        s_in = ndimage.uniform_filter(pw, size=inner, mode="wrap") * (inner[0] * inner[1])
-        noise = np.maximum(s_out - s_in, 0.0) / n_t
+        noise = np.maximum(training_sums(pw, guard, train) / n_t, floor)
         alpha = ca_cfar_alpha(n_t, p_fa)
         return alpha * noise, noise, alpha
     if method == "os":
@@ -120,7 +172,8 @@ def cfar_threshold(power, guard=(2, 2), train=(4, 4), p_fa: float = 1e-6,
         alpha = os_cfar_alpha(n_t, k, p_fa)
         xk = ndimage.rank_filter(pw, rank=k - 1, footprint=fp, mode="wrap")
         mean_ratio = float(np.sum(1.0 / np.arange(n_t - k + 1, n_t + 1)))
-        return alpha * xk, xk / mean_ratio, alpha
+        noise = np.maximum(xk / mean_ratio, floor)
+        return alpha * mean_ratio * noise, noise, alpha
     raise ArgumentError(f"method must be 'ca' or 'os', got {method!r}")
 
 
@@ -148,15 +201,18 @@ def interpolate_peaks(power, rows, cols):
 
 def detect(image: RadarImage, guard=(2, 2), train=(4, 4), p_fa: float = 1e-6,
            method: str = "ca", rank: int | None = None, neighbourhood=(3, 3),
-           max_detections: int | None = None) -> np.ndarray:
+           max_detections: int | None = None, accuracy: float | None = None) -> np.ndarray:
     """CFAR detections with local-maximum suppression and sub-bin interpolation.
+
+    ``accuracy``: relative accuracy of the data behind the image (see
+    :func:`numerical_floor`; default float64 rounding).
 
     Returns a structured array (``DETECTION_DTYPE``): range_m, velocity_mps, power_db
     (interpolated peak, image units), snr_db (peak over the CFAR noise estimate), range_bin,
     doppler_bin (fractional indices into ``image.power``), strongest first.
     """
     power, _, r_axis, v_axis = image
-    thr, noise, _ = cfar_threshold(power, guard, train, p_fa, method, rank)
+    thr, noise, _ = cfar_threshold(power, guard, train, p_fa, method, rank, accuracy)
     nb = _pair("neighbourhood", neighbourhood)
     local_max = power >= ndimage.maximum_filter(power, size=nb, mode="wrap")
     rows, cols = np.nonzero((power > thr) & local_max)

@@ -27,6 +27,9 @@ from clradcom.errors import AliasingWarning, ArgumentError, CyclicPrefixWarning
 from clradcom.radar.waveform import Waveform, check_symbols
 
 BOLTZMANN = 1.380649e-23
+#: default relative accuracy of the synthesised frames (NUFFT ``eps``, Chebyshev ``tol``):
+#: what a noiseless frame's empty cells hold instead of zero (cfar.numerical_floor)
+SYNTHESIS_ACCURACY = 1e-10
 
 
 # ----------------------------------------------------------------------------------------
@@ -161,7 +164,7 @@ def _channel_grid(weights, delays_s, dopplers_hz, n_sub, n_sym, df, t_sym, t0,
 
 def channel_transfer_function(gains, delays_s, dopplers_hz, waveform: Waveform,
                               time_origin_s: float = 0.0, method: str = "nufft",
-                              eps: float = 1e-10) -> np.ndarray:
+                              eps: float = SYNTHESIS_ACCURACY) -> np.ndarray:
     """Time-variant transfer function H(n, μ), shape (N, M), of the frequency-domain model.
 
     H(n, μ) = Σ_k a_k e^{−j2π nΔf τ_k} e^{j2π f_D,k (μ T_sym + t_0)}  (paper eq. (3),
@@ -191,7 +194,7 @@ def _transfer(gains, delays_s, dopplers_hz, waveform, time_origin_s, method, eps
 
 def synthesize_frequency_domain(symbols, gains, delays_s, dopplers_hz, waveform: Waveform,
                                 time_origin_s: float = 0.0, method: str = "nufft",
-                                eps: float = 1e-10) -> np.ndarray:
+                                eps: float = SYNTHESIS_ACCURACY) -> np.ndarray:
     """Received symbols D_r = D ⊙ H (paper eq. (3)); shape (N, M).  See
     ``channel_transfer_function`` for the parameters."""
     d = check_symbols(symbols, waveform)
@@ -239,7 +242,8 @@ def _lagrange_weights(x, nodes):
 
 
 def synthesize_time_domain(symbols, gains, delays_s, dopplers_hz, waveform: Waveform,
-                           tol: float = 1e-10, eps: float | None = None) -> np.ndarray:
+                           tol: float = SYNTHESIS_ACCURACY,
+                           eps: float | None = None) -> np.ndarray:
     """Exact received baseband frame, 1-D, M·(N+N_cp) samples at f_s = NΔf.
 
     Sample i (t_i = i/f_s) is y_i = Σ_k a_k e^{j2π f_D,k t_i} x(t_i − τ_k), with x(t) the
