@@ -216,9 +216,10 @@ def trace_scene(scene: Scene, settings: TraceSettings | None = None,
 
     with clock("geometry"):
         geom = build_geometry(scene, runtime, engine=settings.engine)
-    with clock("wedges"):
-        wedges = diffraction.prepare(geom, diff)
     use_optics = optics.active(scene, opt)
+    with clock("wedges"):
+        wedges = diffraction.prepare(geom, diff, optics.po_object_ids(scene, opt)
+                                     if use_optics else ())
     candidates: dict[int, specular.Candidates] = {}  # per radar, as tx (or as rx for edges)
     shots: dict[int, optics.SbrShot] = {}  # per transmitter
     stats: dict[str, dict[str, int]] = {"diffraction": {}, "scattering": {}}

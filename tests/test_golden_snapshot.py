@@ -32,7 +32,9 @@ from clradcom.trace import (
 DATA = Path(__file__).parent / "data"
 SETTINGS = TraceSettings(
     specular=SpecularSettings(max_reflections=3, rays=20_000),
-    diffraction=DiffractionSettings(max_diffractions=2, max_reflections=1),
+    # the reference was traced when UTD still ran at the PO car's edges
+    diffraction=DiffractionSettings(max_diffractions=2, max_reflections=1,
+                                    po_object_edges=True),
     optics=OpticsSettings(mode="sbr"),
     scattering=ScatteringSettings(enabled=True, max_reflections=1, tile_size_m=1.0,
                                   floor=1e-11),

@@ -309,3 +309,62 @@ def test_block_coverage_is_conservative():
         far = [point_triangle_distance(np.append(c, 0.0), t3)[0] for c in centres]
         assert max(far) <= 0.25 * np.sqrt(2) / 2 + 1e-12
     assert BLOCK == 8
+
+
+def test_an_object_around_the_radar_is_split_not_skipped(runtime):
+    """A 60 m rail beside the radar: no single window plane can hold it (the radar lies
+    inside its bounding sphere), so it is split into groups that each can, and its
+    corner returns come back; the old launch skipped it with a warning."""
+    scene = load_scene("scenes/guardrail/guardrail.toml")
+    geom = build_geometry(scene, runtime)
+    r = scene.radars[0]
+    rail = [i for i, o in enumerate(scene.objects) if scene.material_pec[o.material]]
+    c, rad = sbr.bounding_sphere(scene.triangles[np.isin(scene.tri_object, rail)])
+    assert np.linalg.norm(c - r.position) < rad
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # nothing dropped, nothing skipped
+        w = sbr.launch_windows(geom, r.position, rail, 0.5 * scene.wavelength_m)
+    assert w.n_windows > len(rail) and w.n_tubes > 0
+    p = sbr.sbr_paths(geom, r, r, objects=rail, spacing_wavelengths=2.0, max_bounces=2)
+    assert p.n_paths > 0 and set(p.n_interactions.tolist()) == {2}
+
+
+def test_blocks_outside_the_antenna_pattern_are_not_launched(runtime):
+    """The street's radar A (a 90 deg sector on its own bumper): tubes toward its own car
+    and behind it would radiate nothing, so their blocks are dropped before launch."""
+    scene = load_scene(STREET)
+    geom = build_geometry(scene, runtime)
+    tx = scene.radars[scene.radar_index("A")]
+    cars = [i for i, o in enumerate(scene.objects) if o.name.startswith("car")]
+    with pytest.warns(UserWarning, match="carA"):
+        w = sbr.launch_windows(geom, tx.position, cars, 2 * scene.wavelength_m)
+    kept = sbr.blocks_in_pattern(w, tx)
+    assert 0 < kept.n_tubes < 0.6 * w.n_tubes
+    grid, _ = sbr.window_tubes(kept, np.arange(0, kept.n_tubes, 7))
+    centre = sbr.window_tubes(w, np.arange(0, w.n_tubes, 7))[0]
+    gain = lambda d: np.asarray(tx.pattern.gain(d @ np.asarray(tx.orientation)))  # noqa: E731
+    # every dropped tube was outside the pattern; most kept ones are inside
+    assert np.mean(gain(grid.directions) > 0) > 0.95
+    assert np.sum(gain(centre.directions) > 0) <= len(grid.directions) * 1.01 + 64
+
+
+def test_utd_leaves_the_edges_of_po_objects_to_po(runtime):
+    """A 1 m PEC plate at broadside: with physical optics its RCS is 4 pi A^2/lambda^2
+    from the facet integrals alone; UTD at its rim on top would add the edge field a second
+    time (po_object_edges=True shows it)."""
+    from clradcom.trace import DiffractionSettings, OpticsSettings, TraceSettings, trace_scene
+
+    plate = {"name": "plate", "material": "metal", "shape": "plane", "size": [1.0, 1.0],
+             "position": [0.0, 0.0, 0.0], "rotation_deg": [0.0, 90.0, 0.0]}
+    R = 3000.0
+    scene = scene_from_dict({"scene": {"name": "p", "carrier_hz": 24e9}, "objects": [plate],
+                             "radars": [{"name": "r", "position": [R, 0.0, 0.0]}]})
+    want = 4 * np.pi * 1.0 / LAM**2
+    out = {}
+    for edges in (False, True):
+        settings = TraceSettings(optics=OpticsSettings(mode="pec"),
+                                 diffraction=DiffractionSettings(po_object_edges=edges))
+        snap = trace_scene(scene, settings.replace(specular__rays=2000), runtime=runtime)
+        out[edges] = 10 * np.log10(sigma(snap.links[0].paths.gain.sum(), R) / want)
+    assert abs(out[False]) < 0.1
+    assert out[True] > 3.0

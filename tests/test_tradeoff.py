@@ -309,8 +309,11 @@ def test_tradeoff_tool_writes_a_consistent_sweep(sweep):
     # pruning drops exactly the diffractions (below the raised floor), nothing else
     assert np.all(f["paths_traced"] - f["paths_used"] == f["pruned_diffraction"])
     assert np.all(f["pruned_diffraction"][~prune] == 0)
+    go = np.array([r["physical_optics"] == "none" for r in rows])
     with_d = prune & (f["max_diffractions"] == 1)
-    assert with_d.any() and np.all(f["pruned_diffraction"][with_d] > 0)
+    assert (with_d & go).any() and np.all(f["pruned_diffraction"][with_d & go] > 0)
+    # with PO on the plate its edges diffract no UTD (the facet integral carries them)
+    assert np.all(f["pruned_diffraction"][~go] == 0)
     # the setting equal to the reference (r1 d1 pec, fast, nothing pruned)
     ref = [i for i, r in enumerate(rows) if r["max_reflections"] == "1"
            and r["max_diffractions"] == "1" and r["physical_optics"] == "pec"

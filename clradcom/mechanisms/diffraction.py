@@ -45,7 +45,7 @@ from clradcom.device.visibility import (
     containing_triangles,
     edge_distances,
 )
-from clradcom.errors import ArgumentError, BoundaryWarning, CausticWarning
+from clradcom.errors import ArgumentError, ArgumentTypeError, BoundaryWarning, CausticWarning
 from clradcom.geometry.wedges import (
     Wedges,
     diffraction_point,
@@ -776,8 +776,16 @@ class DiffractionSettings:
     max_hop_m: float = 20.0
     #: cap on chains of 2-3 edges per link; beyond it the nearest chains are kept
     max_chains: int = 20_000
+    #: UTD at the edges of objects that physical optics handles too: their facet integrals
+    #: already carry the edge field (a plate's PO lobe is its edges' doing), so UTD there
+    #: counts it twice - a 10 m plate at broadside returns 13 dB too much (docs/po.md)
+    po_object_edges: bool = False
 
     def __post_init__(self):
+        if not isinstance(self.po_object_edges, bool):
+            raise ArgumentTypeError("must be True or False",
+                                    argument="DiffractionSettings.po_object_edges",
+                                    value=self.po_object_edges)
         check_number("DiffractionSettings", "max_diffractions", self.max_diffractions,
                      low=0, high=3, integer=True)
         check_number("DiffractionSettings", "wedge_angle_deg", self.wedge_angle_deg, low=0.0,
@@ -972,14 +980,20 @@ def diffraction_link_paths(scene, faces, caster, wedges: Wedges, tx, rx, tx_sequ
 # the mechanism: wedges once per scene, paths of a link
 
 
-def prepare(geom: Geometry, settings: DiffractionSettings) -> Wedges | None:
+def prepare(geom: Geometry, settings: DiffractionSettings,
+            po_objects=()) -> Wedges | None:
     """The scene's wedges (edges between faces turning by more than wedge_angle_deg); one
-    set serves every transmitter. None when diffraction is off or nothing can diffract."""
+    set serves every transmitter. None when diffraction is off or nothing can diffract.
+    Wedges of ``po_objects`` (those physical optics handles) are left out unless
+    ``settings.po_object_edges``."""
     if not settings.max_diffractions or not len(geom.scene.triangles):
         return None
     scene = geom.scene
-    return extract_wedges(scene.triangles, scene.tri_object, scene.tri_material,
-                          settings.wedge_angle_deg)
+    wedges = extract_wedges(scene.triangles, scene.tri_object, scene.tri_material,
+                            settings.wedge_angle_deg)
+    if len(po_objects) and not settings.po_object_edges:
+        wedges = wedges.select(~np.isin(wedges.object_id, np.asarray(po_objects)))
+    return wedges
 
 
 def link_paths(geom: Geometry, wedges: Wedges, tx: Radar, rx: Radar,

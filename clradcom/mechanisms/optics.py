@@ -95,6 +95,11 @@ def object_optics(scene: Scene, mode: str) -> list[str]:
     return out
 
 
+def po_object_ids(scene: Scene, settings: OpticsSettings) -> np.ndarray:
+    """The objects whose first bounce is a PO facet integral (optics "both" or "po")."""
+    return np.flatnonzero(np.array(object_optics(scene, settings.mode)) != "go")
+
+
 def active(scene: Scene, settings: OpticsSettings) -> bool:
     """Whether any object of the scene gets physical optics."""
     return settings.mode != "none" or any(o.optics for o in scene.objects)
@@ -118,7 +123,7 @@ def prepare(geom: Geometry, tx: Radar, settings: OpticsSettings,
     search)."""
     max_bounces = settings.max_bounces or 0
     modes = np.array(object_optics(geom.scene, settings.mode))
-    po_objects = np.flatnonzero(modes != "go")
+    po_objects = po_object_ids(geom.scene, settings)
     sbr_objects = np.flatnonzero(modes == "po")
     tubes = None
     if geom.caster is not None and len(sbr_objects) and max_bounces >= 2:

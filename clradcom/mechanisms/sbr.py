@@ -52,6 +52,7 @@ receiver), which :func:`contribution_paths` turns into paths the same way.
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 from dataclasses import dataclass
 
@@ -78,6 +79,9 @@ MIRROR_MIN_AREA_M2 = 1.0
 #: A window's triangles must lie at least this fraction of the window's distance in front
 #: of the transmitter (a mirror image seen at grazing angles gets no window).
 MIN_DEPTH_FRACTION = 0.2
+#: A window covers triangles whose bounding sphere keeps tx this many radii from its
+#: centre (so all of them lie at least MIN_DEPTH_FRACTION in front); larger groups split.
+CHUNK_CLEARANCE = 1.25
 #: Tubes per host batch of the reference engine (bounds its memory).
 HOST_BATCH_TUBES = 1 << 20
 #: The spacing rule (:func:`spacing_for_accuracy`): dB of corner error per unit of
@@ -297,14 +301,36 @@ def _mirror_faces(geom, objects, tx):
     return ids, n * sgn[:, None], d * sgn, lo, hi
 
 
+def _chunks(tris, tx) -> tuple[list[np.ndarray], int]:
+    """The triangles (T,3,3) in groups whose bounding spheres keep tx CHUNK_CLEARANCE radii
+    away, so each projects onto one window plane well in front of tx: the whole set when
+    it does, else halves split at the median centroid along the longest axis, and so on.
+    A single triangle that still holds tx that close is dropped: (groups, dropped)."""
+    if len(tris) == 0:
+        return [], 0
+    c, r = bounding_sphere(tris)
+    if np.linalg.norm(c - tx) >= CHUNK_CLEARANCE * r:
+        return [tris], 0
+    if len(tris) == 1:
+        return [], 1
+    cen = tris.mean(axis=1)
+    axis = int(np.argmax(np.ptp(cen, axis=0)))
+    order = np.argsort(cen[:, axis], kind="stable")
+    half = len(tris) // 2
+    a, da = _chunks(tris[order[:half]], tx)
+    b, db = _chunks(tris[order[half:]], tx)
+    return a + b, da + db
+
+
 def launch_windows(geom, tx_pos, objects, spacing_m, *, mirrors: bool = True,
                    tx_name: str = "tx") -> TubeWindows:
     """The windows of tx's SBR tubes over ``objects`` (scene object ids) with per-object
     pitch ``spacing_m`` (scalar or one per object): the silhouette of each object, then
     (``mirrors``) its image in every large environment face that both tx and the object's
-    centre lie in front of, clipped to that face's own silhouette.  An object whose
-    bounding sphere holds tx (a radar riding on it) gets no window: a warning says so;
-    its PO facets stay."""
+    centre lie in front of, clipped to that face's own silhouette.  An object too close to
+    tx for one window (a guard rail beside the radar, the radar's own car) is split into
+    groups of triangles (:func:`_chunks`) with a window each; triangles within their own
+    size of tx get none (a warning counts them), their PO facets stay."""
     scene = geom.scene
     tx = np.asarray(tx_pos, dtype=np.float64)
     objects = np.asarray(list(objects), dtype=np.int64)
@@ -318,32 +344,33 @@ def launch_windows(geom, tx_pos, objects, spacing_m, *, mirrors: bool = True,
         else (np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3)),
               np.zeros((0, 3))))
     for o, s in zip(objects, spacing, strict=True):
-        tris = scene.triangles[scene.tri_object == o]
-        if len(tris) == 0:
-            continue
-        c, r = bounding_sphere(tris)
-        if np.linalg.norm(c - tx) <= r * 1.001:
-            warnings.warn(f"SBR skips object {scene.objects[o].name!r}: transmitter "
-                          f"{tx_name!r} lies inside its bounding sphere", stacklevel=3)
-            continue
-        win = _window(tx, c, s, tris)
-        if win is not None:
-            direct.append((o, -1, s, win))
-        # mirrors in front of which the object lies, whose box (grown by the object's
-        # radius) the line of sight to the object's image crosses
-        h_c = face_n @ c - face_d
-        c_img = c - 2.0 * h_c[:, None] * face_n
-        h_tx = face_n @ tx - face_d
-        with np.errstate(divide="ignore", invalid="ignore"):
-            cross_at = tx + (h_tx / (h_tx + h_c))[:, None] * (c_img - tx)
-        near = np.all((cross_at >= face_lo - r) & (cross_at <= face_hi + r), axis=1)
-        near &= (h_c > 0) & (np.linalg.norm(c_img - tx, axis=1) > r * 1.001)
-        for f, n, d, ci in zip(face_ids[near], face_n[near], face_d[near], c_img[near],
-                               strict=True):
-            image = tris - 2.0 * ((tris @ n) - d)[..., None] * n
-            win = _window(tx, ci, s, image, clip=scene.triangles[geom.faces.tri_face == f])
+        chunks, dropped = _chunks(scene.triangles[scene.tri_object == o], tx)
+        if dropped:
+            warnings.warn(f"SBR launches no tubes at {dropped} triangle(s) of object "
+                          f"{scene.objects[o].name!r}: transmitter {tx_name!r} lies within "
+                          f"their own size of them (a radar mounted on it); their PO facet "
+                          f"returns stay", stacklevel=3)
+        for tris in chunks:
+            c, r = bounding_sphere(tris)
+            win = _window(tx, c, s, tris)
             if win is not None:
-                mirrored.append((o, int(f), s, win))
+                direct.append((o, -1, s, win))
+            # mirrors in front of which the chunk lies, whose box (grown by the chunk's
+            # radius) the line of sight to the chunk's image crosses
+            h_c = face_n @ c - face_d
+            c_img = c - 2.0 * h_c[:, None] * face_n
+            h_tx = face_n @ tx - face_d
+            with np.errstate(divide="ignore", invalid="ignore"):
+                cross_at = tx + (h_tx / (h_tx + h_c))[:, None] * (c_img - tx)
+            near = np.all((cross_at >= face_lo - r) & (cross_at <= face_hi + r), axis=1)
+            near &= (h_c > 0) & (np.linalg.norm(c_img - tx, axis=1) > CHUNK_CLEARANCE * r)
+            for f, n, d, ci in zip(face_ids[near], face_n[near], face_d[near], c_img[near],
+                                   strict=True):
+                image = tris - 2.0 * ((tris @ n) - d)[..., None] * n
+                win = _window(tx, ci, s, image,
+                              clip=scene.triangles[geom.faces.tri_face == f])
+                if win is not None:
+                    mirrored.append((o, int(f), s, win))
     wins = direct + mirrored
     if not wins:
         return TubeWindows.empty(tx)
@@ -363,6 +390,28 @@ def launch_windows(geom, tx_pos, objects, spacing_m, *, mirrors: bool = True,
                                      for i, b in enumerate(blocks)]),
         block_i=np.concatenate([b[:, 0] for b in blocks]).astype(np.int32),
         block_j=np.concatenate([b[:, 1] for b in blocks]).astype(np.int32))
+
+
+def blocks_in_pattern(windows: TubeWindows, tx) -> TubeWindows:
+    """``windows`` without the blocks that lie wholly outside tx's antenna pattern (zero
+    gain at their four corners and centre): tubes there would radiate nothing.  The
+    masks stay, so which window owns a direction does not change."""
+    if len(windows.block_window) == 0:
+        return windows
+    w = windows.block_window.astype(np.int64)
+    s = windows.spacing[w]
+    keep = np.zeros(len(w), dtype=bool)
+    for fx, fy in ((0.0, 0.0), (0.0, 1.0), (1.0, 0.0), (1.0, 1.0), (0.5, 0.5)):
+        x = (windows.cell0[w, 0] + windows.block_i * BLOCK - 0.5 + fx * BLOCK) * s
+        y = (windows.cell0[w, 1] + windows.block_j * BLOCK - 0.5 + fy * BLOCK) * s
+        d = (windows.distance[w, None] * windows.axis[w] + x[:, None] * windows.u[w]
+             + y[:, None] * windows.v[w])
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        keep |= np.asarray(tx.pattern.gain(d @ np.asarray(tx.orientation))) > 0
+    if keep.all():
+        return windows
+    return dataclasses.replace(windows, block_window=windows.block_window[keep],
+                               block_i=windows.block_i[keep], block_j=windows.block_j[keep])
 
 
 def window_tubes(windows: TubeWindows, tubes) -> tuple[TubeGrid, np.ndarray]:
@@ -899,9 +948,10 @@ def shoot_sbr(geom, tx, objects, receivers, *, spacing_wavelengths: float | None
     receivers = list(receivers)
     rx_pos = np.array([np.asarray(r.position, dtype=np.float64) for r in receivers]
                       ).reshape(-1, 3)
-    windows = launch_windows(geom, tx.position, objects,
-                             object_spacing_m(geom, objects, spacing_wavelengths, accuracy_db),
-                             mirrors=mirrors, tx_name=tx.name)
+    windows = blocks_in_pattern(launch_windows(
+        geom, tx.position, objects,
+        object_spacing_m(geom, objects, spacing_wavelengths, accuracy_db), mirrors=mirrors,
+        tx_name=tx.name), tx)
     record = np.isin(scene.tri_object, objects)
     engine = device_block_sums if geom.engine == "device" else host_block_sums
     sums = (engine(geom, windows, tx, receivers, max_bounces, first_bounce, record)
