@@ -185,7 +185,7 @@ def _warn_surface_contact(point, what, normals, offsets, faces, dropped):
                       f"{np.unique(faces[on]).tolist()}: the reflection off it coincides with "
                       "the line of sight and the image method cannot place it; the tracer "
                       "adds it as the limit of the merging rays where the line of sight "
-                      "exists (tracer.surface_contact_paths)", SurfaceContactWarning,
+                      "exists (specular.surface_contact_paths)", SurfaceContactWarning,
                       stacklevel=5)
 
 
