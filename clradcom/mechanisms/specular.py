@@ -25,6 +25,7 @@ is exact, and the set stops growing once the lattice is dense enough.
 
 from __future__ import annotations
 
+import json
 import warnings
 from dataclasses import dataclass
 
@@ -74,6 +75,14 @@ def launch_directions(n_rays: int, gain_fn=None, orientation=None) -> np.ndarray
     """
     if gain_fn is None:
         return fibonacci_sphere(n_rays)
+    local = _pattern_lattice(n_rays, gain_fn)
+    if orientation is None:
+        return local
+    return local @ np.asarray(orientation, dtype=np.float64).T
+
+
+def _pattern_lattice(n_rays: int, gain_fn) -> np.ndarray:
+    """The local lattice of :func:`launch_directions` (before the antenna's rotation)."""
     probe = fibonacci_sphere(1 << 16)
     inside = np.asarray(gain_fn(probe)) > 0
     if not inside.any():
@@ -84,16 +93,33 @@ def launch_directions(n_rays: int, gain_fn=None, orientation=None) -> np.ndarray
     in_cap = probe[:, 0] >= np.cos(half_angle)
     share = float(inside[in_cap].mean())
     local = fibonacci_cap(int(np.ceil(n_rays / share)), half_angle)
-    local = local[np.asarray(gain_fn(local)) > 0]
-    if orientation is None:
-        return local
-    return local @ np.asarray(orientation, dtype=np.float64).T
+    return local[np.asarray(gain_fn(local)) > 0]
 
 
 def reflection_sequences(caster: RayCaster, tri_face, origin, directions, max_order: int,
                          batch: int = 1 << 20) -> np.ndarray:
     """(R, max_order) int32 face ids of each ray's specular bounces, -1 after it escapes."""
     return caster.specular_sequences(origin, directions, tri_face, max_order, batch)
+
+
+def _unique_rows(seq: np.ndarray) -> np.ndarray:
+    """The distinct rows of an int32 array, in the order of np.unique's lexicographic
+    sort: rows are hashed to one uint64 each (a cheap 1-D sort of a million keys), and
+    the hash is trusted only once every row is checked equal to its key's first row;
+    any collision falls back to the exact row sort."""
+    h = np.zeros(len(seq), dtype=np.uint64)
+    with np.errstate(over="ignore"):
+        for k in range(seq.shape[1]):
+            h = h * np.uint64(0x100000001B3) ^ (seq[:, k].astype(np.int64).astype(np.uint64)
+                                                + np.uint64(0x9E3779B97F4A7C15))
+    _, first, inverse = np.unique(h, return_index=True, return_inverse=True)
+    if np.array_equal(seq, seq[first[inverse.ravel()]]):
+        rows = seq[first]
+    else:  # a hash collision: the exact (slower) sort decides
+        rows = seq
+    void = np.ascontiguousarray(rows).view(
+        np.dtype((np.void, rows.dtype.itemsize * rows.shape[1]))).ravel()
+    return rows[np.unique(void, return_index=True)[1]]
 
 
 def unique_candidates(face_seq: np.ndarray) -> dict[int, np.ndarray]:
@@ -113,8 +139,7 @@ def unique_candidates(face_seq: np.ndarray) -> dict[int, np.ndarray]:
         cut = np.cumsum(repeat, axis=1) > 0
         seq = np.where(cut, -1, seq)
     if len(seq):
-        rows = seq.view(np.dtype((np.void, seq.dtype.itemsize * k_max))).ravel()
-        seq = seq[np.unique(rows, return_index=True)[1]]
+        seq = _unique_rows(seq)
     out: dict[int, np.ndarray] = {}
     for k in range(1, k_max + 1):
         pref = seq[seq[:, k - 1] >= 0, :k]
@@ -214,11 +239,30 @@ class SpecularSettings:
 Candidates = dict[int, np.ndarray]
 
 
+#: the last few local launch lattices, by ray count and pattern: radars that share an
+#: antenna (the street's two) share it, rotated to each one's orientation
+_LATTICES: dict = {}
+
+
+def _lattice_of(n_rays: int, pattern) -> np.ndarray:
+    key = (int(n_rays), json.dumps(pattern.params(), sort_keys=True))
+    if key not in _LATTICES:
+        if len(_LATTICES) >= 2:
+            _LATTICES.pop(next(iter(_LATTICES)))
+        lattice = _pattern_lattice(n_rays, pattern.gain)
+        lattice.flags.writeable = False
+        _LATTICES[key] = lattice
+    return _LATTICES[key]
+
+
 def prepare(geom: Geometry, tx: Radar, settings: SpecularSettings) -> Candidates:
     """Unique face sequences proposed by tx's rays (shared by all of tx's receivers)."""
     if settings.max_reflections == 0 or geom.caster is None:
         return {}
-    dirs = launch_directions(settings.rays, tx.pattern.gain, tx.orientation)
+    local = _lattice_of(settings.rays, tx.pattern)
+    rot = np.asarray(tx.orientation, dtype=np.float64)
+    # local @ rot.T by columns: a (n,3) x (3,3) product that BLAS threads only slow down
+    dirs = local[:, :1] * rot[:, 0] + local[:, 1:2] * rot[:, 1] + local[:, 2:] * rot[:, 2]
     seqs = reflection_sequences(geom.caster, geom.faces.tri_face, tx.position, dirs,
                                 settings.max_reflections)
     return unique_candidates(seqs)
