@@ -113,7 +113,13 @@ def build_parser() -> argparse.ArgumentParser:
     p_pre.add_argument("-v", "--verbose", action="store_true",
                        help="every setting of every preset")
     p_pre.set_defaults(run=_cmd_presets, check=None, parser=p_pre)
-    p_dev = sub.add_parser("devices", help="list the OpenCL devices and the one chosen")
+    p_dev = sub.add_parser(
+        "devices", help="list the OpenCL devices and the one chosen",
+        description="The OpenCL devices clradcom sees, and the one a run uses: --device "
+                    f"of a command, else the environment variable {ENV_DEVICE}, else the "
+                    "first GPU, else PoCL's CPU device (pip install 'clradcom[pocl]'). "
+                    "Every command that traces takes --device ('gpu', 'cpu', 'P:D' or "
+                    "part of the device's name).")
     p_dev.add_argument("--device", default=None, help="device spec to test the choice of")
     p_dev.set_defaults(run=_cmd_devices, check=None, parser=p_dev)
     return parser

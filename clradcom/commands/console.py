@@ -26,8 +26,10 @@ def progress_bar(total: int | None, desc: str, *, quiet: bool = False, unit: str
                  stream=None) -> tqdm:
     """A tqdm bar on ``stream`` (stderr); disabled with ``quiet`` or when the stream is no
     terminal (tqdm's ``disable=None``). Close it (or use it in ``with``)."""
-    return tqdm(total=total, desc=desc, unit=unit, file=stream or sys.stderr, leave=False,
-                disable=True if quiet else None, dynamic_ncols=True)
+    stream = stream or sys.stderr
+    terminal = bool(getattr(stream, "isatty", lambda: False)())
+    return tqdm(total=total, desc=desc, unit=unit, file=stream, leave=False,
+                disable=quiet or not terminal, dynamic_ncols=True)
 
 
 def trace_steps(bar: tqdm):
