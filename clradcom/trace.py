@@ -35,12 +35,13 @@ from clradcom.mechanisms.scattering import ScatteringSettings
 from clradcom.mechanisms.specular import SpecularSettings
 from clradcom.memory import check_memory
 from clradcom.paths import concat_paths, select_paths
+from clradcom.presets import DEFAULT_PRESET, PRESETS
 from clradcom.scene.records import Scene
 from clradcom.snapshot import Link, Snapshot
 
-__all__ = ["DiffractionSettings", "OpticsSettings", "ScatteringSettings", "SpecularSettings",
-           "StageTimes", "TraceSettings", "check_launch_memory", "launch_memory_bytes",
-           "trace_scene"]
+__all__ = ["DEFAULT_PRESET", "DiffractionSettings", "OpticsSettings", "ScatteringSettings",
+           "SpecularSettings", "StageTimes", "TraceSettings", "check_launch_memory",
+           "launch_memory_bytes", "trace_scene"]
 
 
 @dataclass(frozen=True)
@@ -84,6 +85,18 @@ class TraceSettings:
         if self.optics.max_bounces is not None:
             return self.optics
         return dataclasses.replace(self.optics, max_bounces=self.specular.max_reflections)
+
+    @classmethod
+    def preset(cls, name: str = DEFAULT_PRESET, **changes) -> TraceSettings:
+        """The named preset of :mod:`clradcom.presets` (``paper``, ``fast``, ``accurate``,
+        ``go``), with further ``mechanism__field`` changes:
+        ``TraceSettings.preset("paper", specular__rays=10_000)``. The dataclass
+        defaults (``TraceSettings()``) are the ``go`` preset; ``trace_scene(scene)``
+        without settings traces with ``paper``, as ``clradcom trace`` does."""
+        if name not in PRESETS:
+            raise ArgumentError(f"is no preset (presets: {', '.join(PRESETS)})",
+                                argument="preset", value=name)
+        return cls().replace(**{**PRESETS[name].changes, **changes})
 
     def replace(self, **changes) -> TraceSettings:
         """A copy with fields of the nested settings changed, named ``mechanism__field``
@@ -196,13 +209,21 @@ def _check_links(scene: Scene, links) -> list[tuple[int, int]]:
 def trace_scene(scene: Scene, settings: TraceSettings | None = None,
                 runtime: Runtime | None = None, links=None,
                 progress: Callable[[str], None] | None = None,
-                times: StageTimes | None = None) -> Snapshot:
-    """Trace the links of a scene (default: every transmitter to every receiver)."""
+                times: StageTimes | None = None,
+                steps: Callable[[int, int, str], None] | None = None) -> Snapshot:
+    """Trace the links of a scene (default: every transmitter to every receiver).
+
+    ``settings`` None traces with the ``paper`` preset (``TraceSettings.preset()``: PO +
+    SBR, scattering, 1e6 rays, 5 reflections, 1 diffraction), the same physics as
+    ``clradcom trace`` without options; ``TraceSettings()`` is pure GO with diffraction.
+    ``progress(message)`` hears each stage as it starts; ``steps(done, total, label)``
+    is called before every mechanism of every link (``done`` links of ``total``
+    finished), for a progress bar."""
     if not isinstance(scene, Scene):
         raise ArgumentTypeError("must be a Scene: load a scene file with "
                                 "clradcom.scene.load_scene(path) first", argument="scene",
                                 value=scene)
-    settings = settings or TraceSettings()
+    settings = TraceSettings.preset(DEFAULT_PRESET) if settings is None else settings
     if not isinstance(settings, TraceSettings):
         raise ArgumentTypeError("must be a TraceSettings", argument="settings", value=settings)
     check_launch_memory(settings)
@@ -211,6 +232,7 @@ def trace_scene(scene: Scene, settings: TraceSettings | None = None,
     links = [(t, r) for t in txs for r in rxs] if links is None else _check_links(scene, links)
     clock = _Clock(times if times is not None else StageTimes())
     say = progress or (lambda msg: None)
+    step = steps or (lambda done, total, label: None)
     spec, opt, scat = settings.specular, settings.optics_search, settings.scattering
     diff = settings.diffraction_search
 
@@ -233,14 +255,18 @@ def trace_scene(scene: Scene, settings: TraceSettings | None = None,
         return candidates[index]
 
     out = []
-    for t_idx, r_idx in links:
+    for done, (t_idx, r_idx) in enumerate(links):
         tx, rx = scene.radars[t_idx], scene.radars[r_idx]
+        link_name = f"{tx.name} -> {rx.name}"
+        step(done, len(links), f"{link_name}: specular candidates")
         tx_candidates = candidates_of(t_idx)
-        say(f"paths {tx.name} -> {rx.name}")
+        say(f"paths {link_name}")
+        step(done, len(links), f"{link_name}: specular")
         with clock("specular"):
             paths = specular.link_paths(geom, tx_candidates, tx, rx, spec)
         go_paths = paths  # the GO decisions the UTD terms follow at their boundaries
         if use_optics:
+            step(done, len(links), f"{link_name}: physical optics")
             with clock("physical optics"):
                 if t_idx not in shots:
                     shots[t_idx] = optics.prepare(geom, tx, opt, receivers=[
@@ -250,18 +276,21 @@ def trace_scene(scene: Scene, settings: TraceSettings | None = None,
                     kept = select_paths(paths, ~optics.replaced_paths(paths, shots[t_idx]))
                     paths = concat_paths([kept, *extra])
         if scat.enabled and geom.caster is not None:
+            step(done, len(links), f"{link_name}: scattering")
             with clock("scattering"):
                 paths = concat_paths([paths, scattering.link_paths(
                     geom, scattering.prepare(geom, tx, scat), tx, rx, scat,
                     stats["scattering"])])
         if wedges is not None:
             rx_candidates = candidates_of(r_idx) if diff.max_reflections else {}
+            step(done, len(links), f"{link_name}: diffraction")
             with clock("diffraction"):
                 paths = concat_paths([paths, diffraction.link_paths(
                     geom, wedges, tx, rx, diff, tx_candidates, rx_candidates,
                     stats["diffraction"], go_paths=go_paths, seeing=seeing)])
         out.append(Link(tx_name=tx.name, rx_name=rx.name, tx_index=t_idx, rx_index=r_idx,
                         paths=paths))
+    step(len(links), len(links), "done")
 
     meta = settings.metadata()
     meta["clradcom_version"] = __version__

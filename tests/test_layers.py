@@ -11,10 +11,10 @@ Layers, low to high (a module may import its own layer and those below):
     physics                Fresnel/roughness dyads, UTD, PO integrals
     mechanisms             specular, diffraction, physical optics/SBR, scattering
     snapshot               the file
-    trace                  the orchestrator
+    trace, presets         the orchestrator, its named settings
     radar                  waveform, synthesis, processing, CFAR, interference, truth
     evaluation             accuracy, budget, trade-off (nothing imports it)
-    plots, cli, __main__   what users run
+    plots, commands, cli   what users run (and __main__)
 """
 
 from __future__ import annotations
@@ -34,10 +34,10 @@ LAYERS = [
     {"clradcom.physics"},
     {"clradcom.mechanisms"},
     {"clradcom.snapshot"},
-    {"clradcom.trace"},
+    {"clradcom.trace", "clradcom.presets"},
     {"clradcom.radar"},
     {"clradcom.evaluation"},
-    {"clradcom.plots", "clradcom.cli", "clradcom.__main__"},
+    {"clradcom.plots", "clradcom.commands", "clradcom.cli", "clradcom.__main__"},
 ]
 
 

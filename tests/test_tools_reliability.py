@@ -14,6 +14,8 @@ import pytest
 from dsp_helpers import los_paths
 from tool_helpers import ROOT, load_tool
 
+import clradcom.commands.trace as trace_command
+import clradcom.commands.tradeoff as tradeoff_command
 import clradcom.trace as trace_module
 from clradcom.errors import ArgumentError, MemoryBudgetError
 from clradcom.evaluation import tradeoff as tr
@@ -123,7 +125,7 @@ def test_an_interrupted_or_failed_trace_leaves_the_old_folder_as_it_was(trace_to
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(trace_tool, "save_radar_image", interrupted)
+    monkeypatch.setattr(trace_command, "save_radar_image", interrupted)
     assert run_trace(trace_tool, out, "--seed", "5") == 130
     assert "interrupted" in capsys.readouterr().err
     assert folder_bytes(out) == before
@@ -151,7 +153,7 @@ def test_a_read_only_output_place_is_one_line_before_any_work(trace_tool, tmp_pa
         raise OSError(errno.EROFS, "Read-only file system")
 
     monkeypatch.setattr(Path, "mkdir", read_only)
-    monkeypatch.setattr(trace_tool, "trace_scene", never)
+    monkeypatch.setattr(trace_command, "trace_scene", never)
     assert run_trace(trace_tool, tmp_path / "ro" / "run") == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1
@@ -331,7 +333,7 @@ def test_too_many_rays_are_refused_before_tracing_with_the_estimate(trace_tool, 
 
 def test_a_frame_too_large_is_refused_before_tracing(tradeoff_tool, tmp_path, monkeypatch,
                                                      capsys):
-    monkeypatch.setattr(tradeoff_tool, "get_runtime", never)
+    monkeypatch.setattr(tradeoff_command, "get_runtime", never)
     assert tradeoff_tool.main([str(PLATE), "--out", str(tmp_path / "o"),
                                "--symbols", "100000000"]) == 2
     err = capsys.readouterr().err
@@ -384,7 +386,7 @@ def test_subcarriers_that_break_the_cyclic_prefix_name_the_option(interference_t
 def test_a_carrier_the_radar_cannot_use_is_refused_before_tracing(trace_tool, tmp_path,
                                                                   monkeypatch, capsys):
     scene = plate_with(tmp_path, "carrier_hz = 1.0")
-    monkeypatch.setattr(trace_tool, "trace_scene", never)
+    monkeypatch.setattr(trace_command, "trace_scene", never)
     assert run_trace(trace_tool, tmp_path / "o", scene=scene) == 2
     err = capsys.readouterr().err
     # the scene loader already refuses a carrier no radio ray tracer can mean
@@ -397,18 +399,22 @@ def test_a_carrier_below_half_the_bandwidth_is_refused_before_tracing(
     """10 MHz is a radio carrier the scene accepts (with a warning), but the paper's frame
     spans 93 MHz: the radar stage refuses it before anything is traced."""
     scene = plate_with(tmp_path, "carrier_hz = 1e7")
-    monkeypatch.setattr(trace_tool, "trace_scene", never)
-    with pytest.warns(UserWarning, match="carrier"):
-        assert run_trace(trace_tool, tmp_path / "o", scene=scene) == 2
+    monkeypatch.setattr(trace_command, "trace_scene", never)
+    assert run_trace(trace_tool, tmp_path / "o", scene=scene) == 2
     err = capsys.readouterr().err
     assert "carrier_hz = 10000000.0: the radar's carrier must exceed half the bandwidth" in err
+    # the scene's warning is one clean line (no Python source prefix), counted at the end
+    warning = [ln for ln in err.splitlines() if ln.startswith("trace.py: warning:")]
+    assert len(warning) == 1 and "carrier" in warning[0]
+    assert warning[0].endswith("[ValidityRangeWarning]")
+    assert "trace.py: 1 warning (1 kind, each shown once above): ValidityRangeWarning x1" in err
     assert not (tmp_path / "o").exists()
 
 
 def test_a_noise_figure_below_0_db_is_refused_before_tracing(trace_tool, tmp_path,
                                                              monkeypatch, capsys):
     scene = plate_with(tmp_path, "noise_figure_db = -1.0")
-    monkeypatch.setattr(trace_tool, "trace_scene", never)
+    monkeypatch.setattr(trace_command, "trace_scene", never)
     assert run_trace(trace_tool, tmp_path / "o", scene=scene) == 2
     err = capsys.readouterr().err
     assert "radars[0].noise_figure_db = -1.0: must be >= 0 dB" in err

@@ -1,0 +1,308 @@
+"""Two radars on one street: what radar D does to radar A's image, and how A removes it.
+
+    clradcom interference scenes/street/street.toml --out out/interference
+    clradcom interference --snapshot out/street/snapshot.npz --out out/interference
+
+(``python tools/interference.py ...`` runs the same.)
+
+The paper's Fig. 4 (A's radar image with car D's radar as interferer) and Fig. 5 (after
+cancellation).  Both radars send the paper's OFDM frame (24 GHz, N = 1024, M = 256, QPSK)
+with their own random data.  A receives its own echoes (link A->A) plus D's signal
+through the one-way link D->A, shifted by D's symbol timing offset (--timing-offset-us,
+beyond the cyclic prefix by default, so it is synthesised exactly in the time domain)
+and D's carrier offset (--cfo-hz), plus thermal noise.  Four images of A, same noise:
+
+  without D    A alone
+  with D       D's data turns into a white floor; a target stands NM x input SIR over it
+  genie        D removed with its true data and channel (the upper bound)
+  realistic    D removed by A alone: sync to D from its cyclic prefix, decide D's symbols
+               blind, fit D's channel, rebuild D's signal, subtract (docs/interference.md)
+
+Printed: the floor rise measured against the prediction from the D->A paths, the floors
+after cancellation, the realistic receiver's channel error (NMSE) and symbol-error rate
+and the residual they predict, and which detections of the interference-free image are
+found again.  Written into --out:
+
+  interference.png / .svg     the four images side by side, one colour scale
+  interference_summary.csv    the numbers above
+  snapshot.npz                (only when tracing a scene) every link of the scene
+
+With a scene the links are traced first, with the physics of --preset (default "paper",
+as clradcom trace; about as long); with
+--snapshot the existing snapshot's links are used and the noise comes from
+--tx-power-w / --noise-figure-db.
+
+Everything is checked before anything is traced: the options, the radars' names, their
+transmit powers (a radar transmitting nothing, 0 W, has no echoes to image or no
+interference to cause: refused) and noise figure (>= 0 dB), the waveform (--subcarriers a
+multiple of 8, so that the cyclic prefix is a whole number of samples), D's timing and
+carrier offsets, and the memory the rays and the frames need (refused over the budget:
+half the machine's memory, or CLRADCOM_MEMORY_BUDGET, e.g. "24G"). The output folder is
+built beside the old one and swapped in when the run is done (an interrupted or failed
+run leaves the old one as it was; other files in it are kept; a traced scene whose radar
+run fails after all, e.g. --cfo-hz with the D->A Doppler beyond ±0.4 Δf, keeps the
+traced snapshot.npz and nothing else). Errors are one line on stderr, exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from pathlib import Path
+
+from clradcom.commands.console import progress_bar, trace_steps
+from clradcom.commands.options import (
+    finite_float,
+    noise_figure_db,
+    non_negative_float,
+    output_folder,
+    positive_float,
+    positive_int,
+    run_tool,
+    seed,
+    tool_waveform,
+)
+from clradcom.device.runtime import get_runtime
+from clradcom.errors import ArgumentError, SceneError, SnapshotError
+from clradcom.files import staged_folder
+from clradcom.presets import DEFAULT_PRESET, PRESETS
+from clradcom.radar.interference import MAX_FREQUENCY_OFFSET, two_radar_run
+from clradcom.radar.pipeline import check_frame_memory
+from clradcom.radar.plots import save_interference_images
+from clradcom.radar.report import (
+    INTERFERENCE_IMAGES,
+    interference_detections,
+    interference_summary,
+    recovered_detections,
+    write_table,
+)
+from clradcom.radar.synthesis import check_noise_figure
+from clradcom.scene.reader import load_scene
+from clradcom.snapshot import load_snapshot, save_snapshot
+from clradcom.trace import TraceSettings, check_launch_memory, trace_scene
+
+#: the names this tool writes into its output folder (clradcom.files.staged_folder); the
+#: snapshot only when it traces a scene
+OUTPUTS = ("interference.png", "interference.svg", "interference_summary.csv")
+
+
+def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(
+        prog=prog, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_arguments(ap)
+    return ap
+
+
+def parse_args(argv, prog: str | None = None):
+    ap = build_parser(prog)
+    args = ap.parse_args(argv)
+    check_args(ap, args)
+    return args
+
+
+def add_arguments(ap: argparse.ArgumentParser) -> None:
+    """The options of ``clradcom interference`` / tools/interference.py."""
+    ap.add_argument("scene", nargs="?", help="scene file (TOML) to trace, e.g. "
+                    "scenes/street/street.toml; leave out when giving --snapshot")
+    ap.add_argument("--snapshot", help="an existing snapshot.npz (from tools/trace.py)")
+    ap.add_argument("--out", type=output_folder, default="out/interference",
+                    help="output folder (default out/interference)")
+    ap.add_argument("--victim", default="A", help="the radar whose image is shown (default A)")
+    ap.add_argument("--interferer", default="D", help="the interfering radar (default D)")
+    ap.add_argument("--timing-offset-us", type=non_negative_float, default=4.2,
+                    help="D's symbol boundaries after A's, in µs, in [0, T_sym = 12.375 µs) "
+                         "(default 4.2: far beyond the 1.375 µs cyclic prefix)")
+    ap.add_argument("--cfo-hz", type=finite_float, default=2400.0,
+                    help="D's carrier offset from A's in Hz (default 2400 = 0.1 ppm at "
+                         "24 GHz); with the Doppler it must stay within ±0.4 Δf")
+    ap.add_argument("--phase-deg", type=finite_float, default=37.0,
+                    help="D's oscillator phase relative to A's (default 37)")
+    ap.add_argument("--own-synthesis", choices=("fast", "exact"), default="fast",
+                    help="A's own echoes: fast (default) = those within 40 dB of the "
+                         "strongest exactly, the rest by the frequency-domain model (seconds); "
+                         "exact = all in the time domain (many minutes for the street). "
+                         "D's signal is always synthesised exactly")
+    ap.add_argument("--seed", type=seed, default=0, help="seed of A's data, D's data and "
+                    "the noise (an integer >= 0, default 0)")
+    ap.add_argument("--tx-power-w", type=positive_float, default=0.01,
+                    help="with --snapshot: both radars' transmit power (default 0.01 W)")
+    ap.add_argument("--noise-figure-db", type=noise_figure_db, default=10.0,
+                    help="with --snapshot: A's noise figure (>= 0 dB, default 10 dB)")
+    ap.add_argument("--device", default=None, help="OpenCL device for tracing a scene")
+    ap.add_argument("--preset", choices=tuple(PRESETS), default=DEFAULT_PRESET,
+                    help=f"the tracer's physics when tracing a scene (default "
+                         f"{DEFAULT_PRESET}, as clradcom trace; see clradcom presets)")
+    ap.add_argument("--rays", type=positive_int, default=None,
+                    help="rays per transmitter when tracing a scene (default: the "
+                         "preset's, 1e6 for paper)")
+    ap.add_argument("--subcarriers", type=positive_int, default=1024,
+                    help="N (default 1024, the paper's; a multiple of 8, so that the cyclic "
+                         "prefix is a whole number of samples); fewer for a quick look")
+    ap.add_argument("--symbols", type=positive_int, default=256,
+                    help="M (default 256, the paper's); fewer for a quick look")
+    ap.add_argument("--range-max", type=positive_float, default=60.0,
+                    help="range shown in the pictures, m (default 60)")
+    ap.add_argument("-q", "--quiet", action="store_true",
+                    help="no progress bar (it is shown only when stderr is a terminal)")
+
+
+def check_args(ap: argparse.ArgumentParser, args) -> None:
+    """What argparse alone cannot refuse: the scene or a snapshot, two different radars."""
+    if (args.scene is None) == (args.snapshot is None):
+        ap.error("give either a scene file or --snapshot (exactly one)")
+    if args.victim == args.interferer:
+        ap.error(f"--interferer must be another radar than --victim ({args.victim!r})")
+
+
+def settings(args) -> TraceSettings:
+    """The preset (--preset) with --rays when given."""
+    changes = {} if args.rays is None else {"specular__rays": args.rays}
+    return TraceSettings.preset(getattr(args, "preset", DEFAULT_PRESET), **changes)
+
+
+def scene_radars(args, scene):
+    """(victim's power, interferer's power, victim's noise figure) from the scene, each
+    refused by its scene key where the run could not use it."""
+    names = [r.name for r in scene.radars]
+    for option, name in (("--victim", args.victim), ("--interferer", args.interferer)):
+        if name not in names:
+            raise ArgumentError(f"{args.scene} has no radar of that name (radars: "
+                                f"{sorted(names)})", argument=option, value=name)
+    iv, id_ = names.index(args.victim), names.index(args.interferer)
+    va, vd = scene.radars[iv], scene.radars[id_]
+    if va.tx_power_w == 0:
+        raise SceneError("the victim radar transmits nothing, so it has no echoes to image",
+                         file=scene.source, key=f"radars[{iv}].tx_power_w", value=0.0)
+    if vd.tx_power_w == 0:
+        raise SceneError("the interfering radar transmits nothing, so there is no "
+                         "interference to show", file=scene.source,
+                         key=f"radars[{id_}].tx_power_w", value=0.0)
+    nf = va.noise_figure_db if va.noise_figure_db is not None else args.noise_figure_db
+    try:
+        check_noise_figure(nf)
+    except ArgumentError as exc:
+        raise SceneError(exc.reason, file=scene.source, key=f"radars[{iv}].noise_figure_db",
+                         value=nf) from None
+    return va.tx_power_w, vd.tx_power_w, nf
+
+
+def check_offsets(args, wf) -> None:
+    """D's timing offset within a symbol and carrier offset within the cyclic-prefix
+    estimate's range, named by their options."""
+    t_sym_us = wf.symbol_duration * 1e6
+    if not args.timing_offset_us < t_sym_us:
+        raise ArgumentError(f"must lie in [0, T_sym = {t_sym_us:.6g} µs): a whole symbol more "
+                            "only changes which random symbols fall into A's frame",
+                            argument="--timing-offset-us", value=args.timing_offset_us)
+    limit = MAX_FREQUENCY_OFFSET * wf.subcarrier_spacing_hz
+    if abs(args.cfo_hz) > limit:
+        raise ArgumentError(f"must stay within ±{MAX_FREQUENCY_OFFSET}·Δf = ±{limit:.6g} Hz "
+                            "(with the D->A Doppler): the cyclic-prefix frequency estimate is "
+                            "ambiguous beyond", argument="--cfo-hz", value=args.cfo_hz)
+
+
+def link_paths(snap, args, source):
+    """A's own echoes and D's signal at A from the snapshot, a missing link named."""
+    try:
+        return (snap.link(args.victim, args.victim).paths,
+                snap.link(args.interferer, args.victim).paths)
+    except KeyError as exc:
+        raise SnapshotError(f"{exc.args[0]}; check --victim and --interferer",
+                            file=source) from None
+
+
+def main(argv=None, prog: str = "interference.py") -> int:
+    args = parse_args(argv, prog)
+    args.prog = prog
+    return run_tool(prog, run, args)
+
+
+def run(args) -> int:
+    out = Path(args.out)
+    t0 = time.perf_counter()
+    # everything the run will refuse, before it traces
+    if args.scene is not None:
+        check_launch_memory(settings(args), argument="--rays",
+                            value=settings(args).specular.rays)
+        scene = load_scene(args.scene)
+        p_a, p_d, nf = scene_radars(args, scene)
+        wf = tool_waveform(scene.carrier_hz, subcarriers=args.subcarriers,
+                           symbols=args.symbols, scene=scene)
+        source, owned = args.scene, (*OUTPUTS, "snapshot.npz")
+    else:
+        try:
+            snap = load_snapshot(args.snapshot)
+        except OSError as exc:
+            raise SnapshotError(f"cannot read it ({exc.strerror or exc})",
+                                file=args.snapshot) from None
+        p_a = p_d = args.tx_power_w
+        nf = args.noise_figure_db
+        wf = tool_waveform(snap.carrier_hz, subcarriers=args.subcarriers,
+                           symbols=args.symbols, snapshot=args.snapshot)
+        source, owned = args.snapshot, OUTPUTS
+        own, dl = link_paths(snap, args, args.snapshot)
+    check_offsets(args, wf)
+    check_frame_memory(wf, "exact", copies=2, argument="--subcarriers x --symbols",
+                       value=f"{args.subcarriers} x {args.symbols}",
+                       advice="choose fewer --subcarriers or --symbols")
+    with staged_folder(out, inputs=[source], owned=owned) as stage:
+        if args.scene is not None:
+            runtime = get_runtime(args.device)
+            print(f"tracing {args.scene} on {runtime.info.describe()} ...", flush=True)
+            with progress_bar(None, "trace", quiet=getattr(args, "quiet", False),
+                              unit="link") as bar:
+                snap = trace_scene(scene, settings(args), runtime=runtime,
+                                   steps=trace_steps(bar))
+            save_snapshot(stage / "snapshot.npz", snap)
+            own, dl = link_paths(snap, args, args.scene)
+        try:
+            res = two_radar_run(
+                own, dl, wf, tx_power_w=p_a, interferer_tx_power_w=p_d, noise_figure_db=nf,
+                timing_offset_s=args.timing_offset_us * 1e-6, cfo_hz=args.cfo_hz,
+                phase_rad=math.radians(args.phase_deg), seed=args.seed,
+                own_synthesis=args.own_synthesis,
+                progress=lambda msg: print(f"[{time.perf_counter() - t0:6.1f} s] {msg} ...",
+                                           flush=True))
+        except ValueError as exc:  # e.g. --cfo-hz with the D->A Doppler beyond the limit
+            if args.scene is None:
+                if isinstance(exc, ArgumentError):
+                    raise
+                raise ArgumentError(str(exc)) from None
+            # the trace is kept: the folder holds this run's snapshot and nothing else
+            failure = exc
+        else:
+            failure = None
+            dets = interference_detections(res.images)
+            save_interference_images(res.images, stage / "interference", dets,
+                                     res.floors["clean"], args.range_max)
+            rows = interference_summary(res, wf)
+            print()
+            for name, val in rows:
+                if isinstance(val, int):
+                    print(f"  {name:<68} {val:10d}")
+                elif 0 < abs(val) < 1e-2:
+                    print(f"  {name:<68} {val:10.2e}")
+                else:
+                    print(f"  {name:<68} {val:10.3f}")
+            write_table(stage / "interference_summary.csv", rows, ["quantity", "value"])
+    if failure is not None:
+        print(f"{getattr(args, 'prog', 'interference.py')}: {failure}; the traced links "
+              "are kept in "
+              f"{out / 'snapshot.npz'} (rerun with --snapshot)", file=sys.stderr)
+        return 2
+    ref = dets["clean"]
+    print(f"\n  detections without D: {len(ref)}; with D: {len(dets['interfered'])}; "
+          f"genie: {len(dets['genie'])}; realistic: {len(dets['realistic'])}")
+    found = {k: recovered_detections(ref, dets[k], wf) for k in INTERFERENCE_IMAGES[1:]}
+    print(f"  {'range m':>8} {'v m/s':>7} {'SNR dB':>7}   with D  genie  realistic")
+    for i, d in enumerate(ref):
+        marks = "  ".join(f"{'yes' if found[k][i] else 'NO':>6}" for k in INTERFERENCE_IMAGES[1:])
+        print(f"  {d['range_m']:8.2f} {d['velocity_mps']:7.2f} {d['snr_db']:7.1f}   {marks}")
+    for k in INTERFERENCE_IMAGES[1:]:
+        print(f"  {k}: {sum(found[k])} of {len(ref)} interference-free detections found")
+    print(f"\n[{time.perf_counter() - t0:6.1f} s] wrote {out}/interference.png, .svg, "
+          "interference_summary.csv")
+    return 0
+
