@@ -339,7 +339,11 @@ def test_tradeoff_tool_writes_a_consistent_sweep(sweep):
     tol = tr.PARETO_TOLERANCES
     front = acc.pareto_front(f["seconds"], f["channel_nmse_db"], tolerances=tol[:1])
     assert list(front) == [r["pareto_channel"] == "True" for r in rows]
-    assert front[ref[0]]
+    # the reference's accuracy is on the front: itself, or a faster setting as exact (with
+    # PO on the plate, diffraction adds nothing there, so d0 pec equals d1 pec)
+    assert front[ref[0]] or np.any(
+        front & (f["channel_nmse_db"] <= f["channel_nmse_db"][ref[0]] + tol[0])
+        & (f["seconds"] <= f["seconds"][ref[0]]))
     image = acc.pareto_front(f["seconds"], [float(r["image_error_db"]) for r in rows],
                              tolerances=tol[1:2])
     assert list(image) == [r["pareto_image"] == "True" for r in rows]
