@@ -58,6 +58,7 @@ __all__ = [
     "assert_snapshot_equal",
     "load_snapshot",
     "save_snapshot",
+    "write_npz",
 ]
 
 #: Value of the ``meta/format`` key: marks a file as a clradcom snapshot.
@@ -459,10 +460,18 @@ def _write_member(zf: zipfile.ZipFile, key: str, array: np.ndarray,
         np.lib.format.write_array(member, arr, allow_pickle=False)
 
 
-def _write_zip(fileobj, snapshot: Snapshot, compress: bool = False) -> None:
+def write_npz(fileobj, entries, compress: bool = False) -> None:
+    """Write ``(key, array)`` pairs as an ``.npz`` that plain ``numpy.load`` reads, the
+    way snapshots are written: members in the given order, fixed timestamps, little-endian
+    C-order arrays, stored (or deflated at :data:`COMPRESS_LEVEL`): identical arrays give
+    identical bytes."""
     with zipfile.ZipFile(fileobj, "w", compression=zipfile.ZIP_STORED) as zf:
-        for key, array in _entries(snapshot):
+        for key, array in entries:
             _write_member(zf, key, array, compress)
+
+
+def _write_zip(fileobj, snapshot: Snapshot, compress: bool = False) -> None:
+    write_npz(fileobj, _entries(snapshot), compress)
 
 
 def save_snapshot(path: str | os.PathLike, snapshot: Snapshot, *,
