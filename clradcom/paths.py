@@ -11,14 +11,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from enum import IntEnum
+from typing import NamedTuple
 
 import numpy as np
 
 from clradcom.errors import SnapshotError
 
-__all__ = ["INTERACTION_LETTERS", "PATH_FIELDS", "PATH_FIELD_NAMES", "InteractionType", "Paths",
-           "concat_paths", "interaction_patterns", "paths_difference", "pattern_counts",
-           "select_paths"]
+__all__ = ["INTERACTION_LETTERS", "PATH_FIELDS", "PATH_FIELD_NAMES", "InteractionType",
+           "PathAngles", "Paths", "concat_paths", "interaction_patterns", "path_angles",
+           "paths_difference", "pattern_counts", "select_paths"]
 
 
 class InteractionType(IntEnum):
@@ -279,12 +280,60 @@ class Paths:
     def __len__(self) -> int:
         return self.n_paths
 
+    @property
+    def angles(self) -> PathAngles:
+        """Angles of departure and arrival of every path (:func:`path_angles`)."""
+        return path_angles(self)
+
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, Paths):
             return NotImplemented
         return paths_difference(self, other) is None
 
     __hash__ = None  # mutable-looking arrays inside: not hashable
+
+
+class PathAngles(NamedTuple):
+    """Zenith and azimuth (rad) of the departure and arrival directions of ``P`` paths,
+    each float64 (P,), in the world frame (Sionna RT's ``theta_t, phi_t, theta_r, phi_r``).
+    """
+
+    theta_t: np.ndarray
+    phi_t: np.ndarray
+    theta_r: np.ndarray
+    phi_r: np.ndarray
+
+
+def _theta_phi(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Zenith theta in [0, pi] and azimuth phi in [-pi, pi] of the vectors v (P, 3), NaN
+    for a zero or non-finite vector (no direction). atan2 of (|v_xy|, v_z) needs no
+    normalisation and keeps full precision near the poles, where arccos(z) does not."""
+    with np.errstate(all="ignore"):
+        theta = np.arctan2(np.hypot(v[:, 0], v[:, 1]), v[:, 2])
+        phi = np.arctan2(v[:, 1], v[:, 0])
+    undefined = ~np.all(np.isfinite(v), axis=1) | ~np.any(v != 0, axis=1)
+    theta[undefined] = np.nan
+    phi[undefined] = np.nan
+    return theta, phi
+
+
+def path_angles(paths: Paths) -> PathAngles:
+    """Angles of departure and arrival of every path, from its points (world frame, rad).
+
+    Departure: the direction k_t from the tx point to the path's first interaction point
+    (the rx point for line of sight). Arrival: the direction from the rx point back to
+    the last interaction point (the tx point for line of sight), i.e. where the wave
+    arrives from, minus its propagation direction -- Sionna RT's convention. For a unit
+    vector (x, y, z): theta = arccos(z) (zenith, 0 is +z), phi = atan2(y, x) (azimuth from
+    +x towards +y). A segment of zero length has no direction: both angles NaN.
+    """
+    n = paths.n_interactions.astype(np.intp)
+    rows = np.arange(paths.n_paths)
+    pts = paths.points
+    with np.errstate(all="ignore"):  # differences of huge coordinates may overflow
+        k_t = pts[rows, 1] - pts[rows, 0]
+        k_r = pts[rows, n] - pts[rows, n + 1]
+    return PathAngles(*_theta_phi(k_t), *_theta_phi(k_r))
 
 
 def _array_difference(a: np.ndarray, b: np.ndarray) -> str | None:

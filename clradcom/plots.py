@@ -1,38 +1,72 @@
-"""Scene pictures: the street from above with the strongest paths drawn."""
+"""Scene pictures: the street from above, coloured by material, with the strongest paths
+drawn; the colours every scene view shares (:func:`material_colors`)."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from clradcom.errors import ArgumentError
+from clradcom.figures import new_figure
 from clradcom.files import save_figure
+
+__all__ = ["MATERIAL_PALETTE", "material_colors", "plot_top_view"]
+
+#: Colours (RGB, 0-1) of the scene's materials in their scene order, repeating after the
+#: last: muted, told apart from one another and from the paths' viridis colours.
+MATERIAL_PALETTE = (
+    (0.62, 0.62, 0.60),  # grey
+    (0.80, 0.47, 0.35),  # brick
+    (0.42, 0.60, 0.80),  # steel blue
+    (0.55, 0.72, 0.45),  # leaf green
+    (0.85, 0.75, 0.45),  # sand
+    (0.65, 0.50, 0.75),  # lilac
+    (0.45, 0.75, 0.75),  # teal
+    (0.90, 0.60, 0.70),  # pink
+    (0.50, 0.40, 0.30),  # umber
+    (0.30, 0.30, 0.35),  # slate
+)
+
+
+def material_colors(n_materials: int) -> np.ndarray:
+    """(n_materials, 3) float RGB in 0..1: material i gets MATERIAL_PALETTE[i mod 10]."""
+    palette = np.asarray(MATERIAL_PALETTE, dtype=np.float64)
+    return palette[np.arange(int(n_materials)) % len(palette)]
 
 
 def plot_top_view(scene, snapshot, link=None, n_paths: int = 20, path=None, *, inputs=()):
-    """Top view (x-y) of the scene's triangles, radars and a link's strongest paths.
+    """Top view (x-y) of the scene's triangles coloured by material (legend with the
+    material names), radars and a link's strongest paths.
 
-    Returns the matplotlib Figure; writes it to ``path`` when given, atomically and
-    byte-identically for identical input (:func:`clradcom.files.save_figure`).
+    Triangles are drawn lowest first, so roofs and car bodies lie over the road they
+    stand on. Returns the matplotlib Figure (shown inline in Jupyter); writes it to
+    ``path`` when given, atomically and byte-identically for identical input
+    (:func:`clradcom.files.save_figure`).
     """
     from matplotlib.collections import LineCollection, PolyCollection
-    from matplotlib.figure import Figure
+    from matplotlib.patches import Patch
 
     if isinstance(n_paths, bool) or not isinstance(n_paths, int | np.integer) or n_paths < 1:
         raise ArgumentError("must be a positive integer", argument="n_paths", value=n_paths)
 
-    fig = Figure(figsize=(11, 5), layout="constrained")
+    fig = new_figure(figsize=(11, 5), layout="constrained")
     ax = fig.add_subplot()
     tri = scene.triangles
-    # vertical faces project to lines; draw every triangle's outline faintly
-    ax.add_collection(PolyCollection(tri[:, :, :2], facecolors="0.85", edgecolors="0.6",
-                                     linewidths=0.2))
+    colors = material_colors(len(scene.materials))
+    order = np.argsort(tri[:, :, 2].max(axis=1), kind="stable")  # lowest first
+    mat = np.asarray(scene.tri_material)[order]
+    # vertical faces project to lines: their darker outline still shows them
+    ax.add_collection(PolyCollection(tri[order, :, :2], facecolors=colors[mat],
+                                     edgecolors=colors[mat] * 0.7, linewidths=0.2))
+    used = sorted(set(np.unique(scene.tri_material).tolist()))
+    handles = [Patch(facecolor=colors[m], edgecolor=colors[m] * 0.7,
+                     label=scene.materials[m].name) for m in used]
     if link is None and len(snapshot.links):
         link = snapshot.links[0]
     if link is not None and link.paths.n_paths:
         p = link.paths
-        order = np.argsort(-np.abs(p.gain))[:n_paths]
-        db = 20.0 * np.log10(np.abs(p.gain[order]))
-        segs = [p.points[i, :p.n_interactions[i] + 2, :2] for i in order]
+        strongest = np.argsort(-np.abs(p.gain), kind="stable")[:n_paths]
+        db = 20.0 * np.log10(np.abs(p.gain[strongest]))
+        segs = [p.points[i, :p.n_interactions[i] + 2, :2] for i in strongest]
         lc = LineCollection(segs, array=db, cmap="viridis", linewidths=1.2)
         ax.add_collection(lc)
         fig.colorbar(lc, ax=ax, label=f"path gain (dB), {link.tx_name}->{link.rx_name}")
@@ -48,6 +82,9 @@ def plot_top_view(scene, snapshot, link=None, n_paths: int = 20, path=None, *, i
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     ax.set_title(f"{scene.name}: top view, {n_paths} strongest paths")
+    if handles:
+        fig.legend(handles=handles, title="material", loc="outside lower center",
+                   ncols=min(len(handles), 6), fontsize="small")
     if path is not None:
         save_figure(fig, path, inputs=inputs, dpi=150)
     return fig

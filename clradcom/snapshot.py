@@ -1,7 +1,7 @@
 """Snapshots: the propagation paths of every tx -> rx link of a scene, as one file.
 
 The tracer writes a :class:`Snapshot`; the radar back end reads it. On disk a snapshot is
-an uncompressed ``.npz`` archive (a zip of ``.npy`` members) that plain
+an ``.npz`` archive (a zip of ``.npy`` members, stored or, on request, deflated) that plain
 ``numpy.load(path, allow_pickle=False)`` reads; ``docs/snapshot-format.md`` describes every
 key. In memory:
 
@@ -9,12 +9,16 @@ key. In memory:
   (complex gain, 2x2 polarimetric matrix, delay, Doppler, interaction codes, points,
   object and face ids);
 * :class:`Link` -- tx name/index, rx name/index and its :class:`Paths`;
-* :class:`Snapshot` -- scene name, carrier, scene hash, scene time, a metadata dict of
-  scalars and the list of links.
+* :class:`Snapshot` -- scene name, carrier, scene hash, scene time, the scene's object
+  names, a metadata dict of scalars and the list of links.
+
+The file also holds every path's angles of departure and arrival (computed from its
+points by :func:`clradcom.paths.path_angles`), so that a reader with numpy alone has them.
 
 :func:`save_snapshot` writes atomically (temporary file in the same directory, fsync,
 ``os.replace``) and deterministically: the same snapshot always gives the same bytes
-(fixed member order, fixed zip timestamps, little-endian arrays, no compression).
+(fixed member order, fixed zip timestamps, little-endian arrays, no compression unless
+asked for, then a fixed deflate level).
 :func:`load_snapshot` checks the format version, every key, dtype, shape and value, and
 names the file and key of anything it refuses.
 """
@@ -37,7 +41,9 @@ from clradcom.paths import (
     PATH_FIELD_NAMES,
     PATH_FIELDS,
     InteractionType,
+    PathAngles,
     Paths,
+    path_angles,
     paths_difference,
 )
 
@@ -52,15 +58,24 @@ __all__ = [
     "assert_snapshot_equal",
     "load_snapshot",
     "save_snapshot",
+    "write_npz",
 ]
 
 #: Value of the ``meta/format`` key: marks a file as a clradcom snapshot.
 FORMAT_NAME = "clradcom-snapshot"
 #: The format version this module writes (and the newest it reads).
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3
 #: Older versions load_snapshot still reads, converting them to FORMAT_VERSION: version 1
-#: tagged physical-optics facet and SBR returns as REFLECTION (codes 4 and 5 came with 2).
-READABLE_VERSIONS = (1, 2)
+#: tagged physical-optics facet and SBR returns as REFLECTION (codes 4 and 5 came with 2);
+#: versions 1 and 2 have no object names (read as none: unknown), an optional time
+#: (read as 0 s when absent) and no angles (computed from the points on reading).
+READABLE_VERSIONS = (1, 2, 3)
+#: Per-path angle keys of a version-3 file (radians, world frame), in file order.
+ANGLE_FIELD_NAMES = PathAngles._fields
+#: Largest difference (rad) between a file's stored angles and those its points give.
+ANGLE_TOLERANCE_RAD = 1e-9
+#: zlib level of a compressed snapshot (fixed, so that one zlib gives one byte stream).
+COMPRESS_LEVEL = 6
 
 #: Fixed timestamp of every zip member, so identical snapshots give identical bytes.
 _ZIP_DATE_TIME = (1980, 1, 1, 0, 0, 0)
@@ -168,11 +183,16 @@ class Snapshot:
         snapshot not made from a scene (synthetic test data).
     links : tuple of Link
         At most one link per (tx_name, rx_name); a name always has the same index.
-    time_s : float or None
-        Scene time of the snapshot (s), or None when the scene is static/unspecified.
+    time_s : float
+        Scene time of the snapshot (s), finite; 0 by default (a static scene, or the
+        instant the scene file describes).
     metadata : dict of str -> bool | int | float | str
         Tracer settings and provenance (``max_reflections``, ``rays``,
         ``clradcom_version`` ...). Stored sorted by key.
+    object_names : tuple of str
+        The scene's object names in scene order: ``object_id`` of a path indexes it.
+        Empty when unknown (a synthetic snapshot, or a file of format 1 or 2); when given,
+        every ``object_id`` of every link must index it.
     version : int
         Format version; only :data:`FORMAT_VERSION` can be built.
     """
@@ -181,8 +201,9 @@ class Snapshot:
     carrier_hz: float
     scene_hash: str
     links: tuple[Link, ...] = ()
-    time_s: float | None = None
+    time_s: float = 0.0
     metadata: dict[str, MetaValue] = field(default_factory=dict)
+    object_names: tuple[str, ...] = ()
     version: int = FORMAT_VERSION
 
     def __post_init__(self) -> None:
@@ -201,13 +222,18 @@ class Snapshot:
         h = _check_name(self.scene_hash, "scene_hash")
         if not _HEX.fullmatch(h):
             raise SnapshotError(f"must be a hex digest (or ''), got {h!r}", key="scene_hash")
-        if self.time_s is not None:
-            t = _real_scalar(self.time_s, "time_s")
-            if not math.isfinite(t):
-                raise SnapshotError(f"must be finite or None, got {self.time_s!r}",
-                                    key="time_s")
-            object.__setattr__(self, "time_s", t)
+        t = _real_scalar(self.time_s, "time_s")
+        if not math.isfinite(t):
+            raise SnapshotError(f"must be finite (s), got {self.time_s!r}", key="time_s")
+        object.__setattr__(self, "time_s", t)
         object.__setattr__(self, "metadata", _check_metadata(self.metadata))
+        if isinstance(self.object_names, str) or not isinstance(
+                self.object_names, (list, tuple, np.ndarray)):
+            raise SnapshotError(f"must be a list of str, got "
+                                f"{type(self.object_names).__name__}", key="object_names")
+        object.__setattr__(self, "object_names", tuple(
+            _check_name(name, f"object_names[{i}]")
+            for i, name in enumerate(self.object_names)))
 
         links = tuple(self.links)
         seen: dict[tuple[str, str], int] = {}
@@ -223,6 +249,12 @@ class Snapshot:
                     f"link {link.label} appears twice (links[{seen[pair]}] and links[{i}])",
                     key=f"links[{i}]")
             seen[pair] = i
+            ids = link.paths.object_id
+            if self.object_names and ids.size and int(ids.max()) >= len(self.object_names):
+                j = np.unravel_index(int(np.argmax(ids)), ids.shape)
+                raise SnapshotError(
+                    f"object id {int(ids[j])} at [{j[0]}, {j[1]}] has no name: the snapshot "
+                    f"names {len(self.object_names)} objects", key=f"links[{i}].object_id")
             for name, idx, what in ((link.tx_name, link.tx_index, "tx"),
                                     (link.rx_name, link.rx_index, "rx")):
                 if name_to_index.setdefault(name, idx) != idx:
@@ -261,14 +293,22 @@ class Snapshot:
         """Number of paths over all links."""
         return sum(link.paths.n_paths for link in self.links)
 
+    def object_name(self, object_id: int) -> str:
+        """The name of scene object ``object_id``, or ``"object <id>"`` when the snapshot
+        has no names (format 1 or 2, synthetic)."""
+        if self.object_names and 0 <= int(object_id) < len(self.object_names):
+            return self.object_names[int(object_id)]
+        return f"object {int(object_id)}"
+
     def summary(self) -> str:
         """A few lines for humans: links, path counts, strongest path (dB), delay span."""
-        t = "static" if self.time_s is None else f"t = {self.time_s:g} s"
         h = self.scene_hash[:12] if self.scene_hash else "none"
+        names = (f"{len(self.object_names)} named objects" if self.object_names
+                 else "object names unknown")
         lines = [
             f"snapshot of {self.scene_name!r} (v{self.version}, scene hash {h}), "
-            f"carrier {self.carrier_hz / 1e9:.6g} GHz, {t}",
-            f"{len(self.links)} links, {self.total_paths} paths",
+            f"carrier {self.carrier_hz / 1e9:.6g} GHz, t = {self.time_s:g} s",
+            f"{len(self.links)} links, {self.total_paths} paths, {names}",
         ]
         if self.links:
             width = max(len(lk.label) for lk in self.links)
@@ -331,6 +371,8 @@ def _snapshot_difference(a: Snapshot, b: Snapshot) -> str | None:
     for name in ("version", "scene_name", "carrier_hz", "scene_hash", "time_s"):
         if not _same_scalar(getattr(a, name), getattr(b, name)):
             return f"{name}: {getattr(a, name)!r} != {getattr(b, name)!r}"
+    if a.object_names != b.object_names:
+        return f"object_names: {a.object_names!r} != {b.object_names!r}"
     if list(a.metadata) != list(b.metadata):
         return f"metadata keys: {sorted(a.metadata)} != {sorted(b.metadata)}"
     for key in a.metadata:
@@ -382,9 +424,9 @@ def _entries(snapshot: Snapshot) -> list[tuple[str, np.ndarray]]:
         ("meta/scene_name", np.array(snapshot.scene_name, dtype=np.str_)),
         ("meta/carrier_hz", np.array(snapshot.carrier_hz, dtype=np.float64)),
         ("meta/scene_hash", np.array(snapshot.scene_hash, dtype=np.str_)),
+        ("meta/time_s", np.array(snapshot.time_s, dtype=np.float64)),
+        ("meta/object_names", _str_array(list(snapshot.object_names))),
     ]
-    if snapshot.time_s is not None:
-        out.append(("meta/time_s", np.array(snapshot.time_s, dtype=np.float64)))
     for key in sorted(snapshot.metadata):
         out.append((f"metadata/{key}", _scalar_array(snapshot.metadata[key])))
     links = snapshot.links
@@ -397,29 +439,49 @@ def _entries(snapshot: Snapshot) -> list[tuple[str, np.ndarray]]:
     for i, lk in enumerate(links):
         for name in PATH_FIELD_NAMES:
             out.append((f"link{i}/{name}", getattr(lk.paths, name)))
+        for name, values in zip(ANGLE_FIELD_NAMES, path_angles(lk.paths), strict=True):
+            out.append((f"link{i}/{name}", values))
     return out
 
 
-def _write_member(zf: zipfile.ZipFile, key: str, array: np.ndarray) -> None:
+def _write_member(zf: zipfile.ZipFile, key: str, array: np.ndarray,
+                  compress: bool = False) -> None:
     """One ``key.npy`` member: fixed timestamp and attributes, little-endian, C order."""
     arr = np.asarray(array, order="C")  # (ascontiguousarray would make 0-d arrays 1-d)
     arr = arr.astype(arr.dtype.newbyteorder("<"), copy=False)
     info = zipfile.ZipInfo(key + ".npy", date_time=_ZIP_DATE_TIME)
-    info.compress_type = zipfile.ZIP_STORED
+    info.compress_type = zipfile.ZIP_DEFLATED if compress else zipfile.ZIP_STORED
+    if compress:  # ZipInfo.compress_level from Python 3.13, _compresslevel before
+        setattr(info, "compress_level" if hasattr(info, "compress_level")
+                else "_compresslevel", COMPRESS_LEVEL)
     info.create_system = 3  # "unix", whatever the writing OS, for identical bytes
     info.external_attr = _ZIP_EXTERNAL_ATTR
     with zf.open(info, "w", force_zip64=True) as member:
         np.lib.format.write_array(member, arr, allow_pickle=False)
 
 
-def _write_zip(fileobj, snapshot: Snapshot) -> None:
+def write_npz(fileobj, entries, compress: bool = False) -> None:
+    """Write ``(key, array)`` pairs as an ``.npz`` that plain ``numpy.load`` reads, the
+    way snapshots are written: members in the given order, fixed timestamps, little-endian
+    C-order arrays, stored (or deflated at :data:`COMPRESS_LEVEL`): identical arrays give
+    identical bytes."""
     with zipfile.ZipFile(fileobj, "w", compression=zipfile.ZIP_STORED) as zf:
-        for key, array in _entries(snapshot):
-            _write_member(zf, key, array)
+        for key, array in entries:
+            _write_member(zf, key, array, compress)
 
 
-def save_snapshot(path: str | os.PathLike, snapshot: Snapshot) -> Path:
+def _write_zip(fileobj, snapshot: Snapshot, compress: bool = False) -> None:
+    write_npz(fileobj, _entries(snapshot), compress)
+
+
+def save_snapshot(path: str | os.PathLike, snapshot: Snapshot, *,
+                  compress: bool = False) -> Path:
     """Write ``snapshot`` to ``path`` (an ``.npz`` zip; the name is used as given).
+
+    ``compress=True`` deflates every member (zlib level :data:`COMPRESS_LEVEL`, what
+    ``numpy.savez_compressed`` does): plain ``numpy.load`` still reads it; the bytes are
+    then identical for identical snapshots on one zlib build (other zlib builds may
+    deflate differently).
 
     Atomic (:func:`clradcom.files.atomic_write`): the data go to an unnamed temporary
     file in the same directory, which is fsynced, takes the permissions of the file it
@@ -430,7 +492,10 @@ def save_snapshot(path: str | os.PathLike, snapshot: Snapshot) -> Path:
     """
     if not isinstance(snapshot, Snapshot):
         raise TypeError(f"save_snapshot needs a Snapshot, got {type(snapshot).__name__}")
-    return atomic_write(path, lambda fh: _write_zip(fh, snapshot))
+    if not isinstance(compress, bool | np.bool_):
+        raise ArgumentTypeError(f"must be True or False, got {type(compress).__name__}",
+                                argument="compress", value=compress)
+    return atomic_write(path, lambda fh: _write_zip(fh, snapshot, bool(compress)))
 
 
 # ---------------------------------------------------------------------------
@@ -485,13 +550,28 @@ MAX_SNAPSHOT_BYTES = 4 * 2**30
 
 
 def _check_member_sizes(path: Path, max_bytes: int) -> None:
-    """Refuse, before anything is unpacked, an archive whose arrays would take more than
-    ``max_bytes`` or whose members claim more data than they hold (a zip bomb: a few MB
-    of deflated zeros that numpy would unpack into gigabytes)."""
+    """Refuse, before anything is unpacked, an archive whose members or arrays would take
+    more than ``max_bytes`` or whose members claim more data than they hold (a zip bomb:
+    a few MB of deflated zeros that numpy would unpack into gigabytes).
+
+    For a compressed (deflated) file the limit holds for the uncompressed sizes the
+    archive declares, member by member as they add up; zipfile never inflates a member
+    past its declared size, so nothing read later can exceed them."""
     total = 0
+    declared = 0
     try:
         with zipfile.ZipFile(path) as zf:
             for info in zf.infolist():
+                declared += info.file_size
+                if declared > max_bytes:
+                    what = ("compressed members" if info.compress_type != zipfile.ZIP_STORED
+                            else "members")
+                    raise SnapshotError(
+                        f"its {what} unpack to more than {max_bytes} bytes (max_bytes; "
+                        f"{declared} bytes declared up to this member, "
+                        f"{path.stat().st_size} on disk); pass a larger max_bytes to "
+                        f"load_snapshot to read it", file=path,
+                        key=info.filename.removesuffix(".npy"))
                 with zf.open(info) as member:
                     try:
                         version = np.lib.format.read_magic(member)
@@ -577,7 +657,13 @@ def _read(r: _Reader) -> Snapshot:
     scene_name = r.scalar("meta/scene_name", "U")
     carrier_hz = r.scalar("meta/carrier_hz", "f", 8)
     scene_hash = r.scalar("meta/scene_hash", "U")
-    time_s = r.scalar("meta/time_s", "f", 8) if "meta/time_s" in r.keys else None
+    if version >= 3 or "meta/time_s" in r.keys:
+        time_s = r.scalar("meta/time_s", "f", 8)
+    else:  # optional before version 3: a file without it was of a static scene
+        time_s = 0.0
+    object_names: tuple[str, ...] = ()
+    if version >= 3:
+        object_names = tuple(str(n) for n in r.get("meta/object_names", "U", 1))
     metadata: dict[str, MetaValue] = {}
     for key in sorted(k for k in r.keys if k.startswith("metadata/")):
         arr = r.get(key, "bifU", 0)
@@ -624,6 +710,8 @@ def _read(r: _Reader) -> Snapshot:
             else:  # a Link field: tx_name, rx_index, ...
                 key = f"links/{key}[{i}]"
             raise r.err(key, exc.reason) from None
+        if version >= 3:
+            _check_angles(r, i, link.paths)
         links.append(link)
 
     unknown = sorted(r.keys - r.used)
@@ -632,10 +720,36 @@ def _read(r: _Reader) -> Snapshot:
                                 f"({len(unknown)} unknown in all)")
     try:
         return Snapshot(scene_name=scene_name, carrier_hz=carrier_hz, scene_hash=scene_hash,
-                        links=tuple(links), time_s=time_s, metadata=metadata)
+                        links=tuple(links), time_s=time_s, metadata=metadata,
+                        object_names=object_names)
     except SnapshotError as exc:
         key = {"scene_name": "meta/scene_name", "carrier_hz": "meta/carrier_hz",
                "scene_hash": "meta/scene_hash", "time_s": "meta/time_s",
                "version": "meta/version"}.get(exc.key or "", exc.key)
+        m = re.fullmatch(r"links\[(\d+)\]\.object_id", key or "")
+        if m:
+            key = f"link{m.group(1)}/object_id"
+        elif (key or "").startswith("object_names"):
+            key = "meta/object_names"
         raise r.err(key, exc.reason) from None
+
+
+def _check_angles(r: _Reader, i: int, paths: Paths) -> None:
+    """A version-3 file's stored angles of link ``i``: float64 (P,), NaN exactly where the
+    points give no direction, else within :data:`ANGLE_TOLERANCE_RAD` of the angles the
+    points give (azimuths compared around the circle)."""
+    for name, want in zip(ANGLE_FIELD_NAMES, path_angles(paths), strict=True):
+        key = f"link{i}/{name}"
+        got = r.get(key, "f", 1, 8)
+        if got.shape != want.shape:
+            raise r.err(key, f"shape {got.shape}, want (P,) = {want.shape}")
+        nan_got, nan_want = np.isnan(got), np.isnan(want)
+        with np.errstate(all="ignore"):
+            diff = np.abs(np.angle(np.exp(1j * (got - want)))) if name.startswith("phi") \
+                else np.abs(got - want)
+        bad = (nan_got != nan_want) | (~nan_want & ~(diff <= ANGLE_TOLERANCE_RAD))
+        if np.any(bad):
+            k = int(np.argmax(bad))
+            raise r.err(f"{key}[{k}]", f"stored angle {got[k]!r} rad, but the path's points "
+                                       f"give {want[k]!r} rad: the file is inconsistent")
 

@@ -302,4 +302,5 @@ def trace_scene(scene: Scene, settings: TraceSettings | None = None,
         meta[f"diffraction.{key}"] = int(value)
     meta["device"] = geom.runtime.info.device_name.strip()
     return Snapshot(scene_name=scene.name, carrier_hz=float(scene.carrier_hz),
-                    scene_hash=scene.content_hash(), links=tuple(out), metadata=meta)
+                    scene_hash=scene.content_hash(), links=tuple(out), metadata=meta,
+                    object_names=tuple(obj.name for obj in scene.objects))

@@ -3,18 +3,18 @@ cycle, and no clradcom import hidden inside a function to get around either.
 
 Layers, low to high (a module may import its own layer and those below):
 
-    errors, files, memory, the package root
+    errors, files, memory, figures, the package root
     geometry, paths        plain numpy: triangles, faces, wedges, BVH and kernel layouts;
                            the in-memory paths
     scene                  records, reader, materials, antennas, procedural models
     device                 OpenCL runtime, ray caster, visibility
     physics                Fresnel/roughness dyads, UTD, PO integrals
     mechanisms             specular, diffraction, physical optics/SBR, scattering
-    snapshot               the file
+    snapshot, export       the file; .mat and Sionna-style exports
     trace, presets         the orchestrator, its named settings
     radar                  waveform, synthesis, processing, CFAR, interference, truth
     evaluation             accuracy, budget, trade-off (nothing imports it)
-    plots, commands, cli   what users run (and __main__)
+    plots, views, commands, cli   what users run (and __main__)
 """
 
 from __future__ import annotations
@@ -27,17 +27,18 @@ import pytest
 PACKAGE = Path(__file__).resolve().parents[1] / "clradcom"
 
 LAYERS = [
-    {"clradcom", "clradcom.errors", "clradcom.files", "clradcom.memory"},
+    {"clradcom", "clradcom.errors", "clradcom.files", "clradcom.memory", "clradcom.figures"},
     {"clradcom.geometry", "clradcom.paths"},
     {"clradcom.scene"},
     {"clradcom.device"},
     {"clradcom.physics"},
     {"clradcom.mechanisms"},
-    {"clradcom.snapshot"},
+    {"clradcom.snapshot", "clradcom.export"},
     {"clradcom.trace", "clradcom.presets"},
     {"clradcom.radar"},
     {"clradcom.evaluation"},
-    {"clradcom.plots", "clradcom.commands", "clradcom.cli", "clradcom.__main__"},
+    {"clradcom.plots", "clradcom.views", "clradcom.commands", "clradcom.cli",
+     "clradcom.__main__"},
 ]
 
 

@@ -65,6 +65,8 @@ def make_snapshot(**overrides):
         time_s=0.125,
         metadata={"max_reflections": 3, "rays": 1e6, "clradcom_version": "0.1.0",
                   "diffraction": True},
+        object_names=["road", "car B", "car C", "car D", "tree", "house 1", "house 2",
+                      "guard rail", "sign", "lamp"],  # make_paths's object ids are 0..9
     )
     kw.update(overrides)
     return Snapshot(**kw)
@@ -136,7 +138,7 @@ def snapshot_strategy(draw):
         carrier_hz=draw(st.floats(1.0, 1e12)),
         scene_hash=draw(st.from_regex(r"[0-9a-f]{0,64}", fullmatch=True)),
         links=links,
-        time_s=draw(st.one_of(st.none(), finite)),
+        time_s=draw(finite),
         metadata=metadata,
     )
 
@@ -177,7 +179,8 @@ def test_round_trip_fixed_snapshot_keeps_types_and_edge_cases(tmp_path):
     assert back.metadata == {"clradcom_version": "0.1.0", "diffraction": True,
                              "max_reflections": 3, "rays": 1e6}
     assert [type(v) for v in back.metadata.values()] == [str, bool, int, float]
-    assert back.time_s == 0.125 and back.version == FORMAT_VERSION == 2
+    assert back.time_s == 0.125 and back.version == FORMAT_VERSION == 3
+    assert back.object_names[1] == "car B" and back.object_name(1) == "car B"
     empty = back.link("D", "D").paths
     assert empty.n_paths == 0 and empty.k_max == 3 and empty.points.shape == (0, 5, 3)
     los = back.link("D", "A").paths
@@ -188,12 +191,13 @@ def test_round_trip_fixed_snapshot_keeps_types_and_edge_cases(tmp_path):
     assert np.isfinite(aa.points[4]).all()  # 3 interactions of K = 3: no padding
 
 
-def test_round_trip_without_time_and_links(tmp_path):
+def test_round_trip_without_time_names_and_links(tmp_path):
     snap = Snapshot("nothing", 77e9, "", links=[])
     back = load_snapshot(save_snapshot(tmp_path / "s.npz", snap))
-    assert back == snap and back.time_s is None and len(back) == 0 and back.total_paths == 0
+    assert back == snap and back.time_s == 0.0 and len(back) == 0 and back.total_paths == 0
+    assert back.object_names == () and back.object_name(3) == "object 3"
     with np.load(tmp_path / "s.npz", allow_pickle=False) as f:
-        assert "meta/time_s" not in f.files
+        assert float(f["meta/time_s"]) == 0.0 and f["meta/object_names"].shape == (0,)
 
 
 def test_loaded_arrays_have_documented_dtypes_and_are_read_only(tmp_path):
@@ -251,8 +255,10 @@ def test_bare_numpy_reads_the_file(tmp_path):
     path = save_snapshot(tmp_path / "s.npz", snap)
     with np.load(path, allow_pickle=False) as f:
         assert str(f["meta/format"]) == "clradcom-snapshot"
-        assert int(f["meta/version"]) == 2
+        assert int(f["meta/version"]) == 3
         assert float(f["meta/carrier_hz"]) == 24e9
+        assert float(f["meta/time_s"]) == 0.125
+        assert list(f["meta/object_names"])[:2] == ["road", "car B"]
         assert list(f["links/tx_name"]) == ["A", "A", "D", "D"]
         assert list(f["links/rx_name"]) == ["A", "D", "D", "A"]
         i = list(zip(f["links/tx_name"], f["links/rx_name"], strict=True)).index(("A", "D"))
@@ -273,11 +279,11 @@ def _fail_after(monkeypatch, n_ok, exc):
     real = snapmod._write_member
     calls = {"n": 0}
 
-    def flaky(zf, key, array):
+    def flaky(zf, key, array, compress=False):
         calls["n"] += 1
         if calls["n"] > n_ok:
             raise exc
-        real(zf, key, array)
+        real(zf, key, array, compress)
 
     monkeypatch.setattr(snapmod, "_write_member", flaky)
     return calls
@@ -333,12 +339,12 @@ def good(tmp_path):
 
 
 def test_future_version_is_refused_naming_file_and_version(good, tmp_path):
-    bad = rewrite(good, tmp_path / "future.npz", {"meta/version": np.array(3)})
+    bad = rewrite(good, tmp_path / "future.npz", {"meta/version": np.array(4)})
     with pytest.raises(SnapshotError) as ei:
         load_snapshot(bad)
     msg = str(ei.value)
-    assert str(bad) in msg and "version 3" in msg and "upgrade clradcom" in msg
-    assert "up to version 2" in msg
+    assert str(bad) in msg and "version 4" in msg and "upgrade clradcom" in msg
+    assert "up to version 3" in msg
     assert ei.value.file == str(bad) and ei.value.key == "meta/version"
 
 
@@ -349,16 +355,18 @@ def test_future_version_is_refused_naming_file_and_version(good, tmp_path):
 V1_FILE = Path(__file__).parent / "data" / "all_mechanisms_v1.npz"
 
 
-def test_format_1_file_of_the_old_tracer_loads_as_format_2(tmp_path):
-    """A file the format-1 tracer wrote reads as a format-2 snapshot that says where it
+def test_format_1_file_of_the_old_tracer_loads_as_format_3(tmp_path):
+    """A file the format-1 tracer wrote reads as a format-3 snapshot that says where it
     came from; every array is the file's own (format 1 differs only in tagging PO facet
-    and SBR returns REFLECTION), and it saves back as format 2."""
+    and SBR returns REFLECTION), object names unknown, time 0, angles from the points,
+    and it saves back as format 3."""
     with np.load(V1_FILE, allow_pickle=False) as f:
         assert int(f["meta/version"]) == 1
         raw = {k: f[k] for k in f.files if k.startswith("link")}
     snap = load_snapshot(V1_FILE)
-    assert snap.version == FORMAT_VERSION == 2
+    assert snap.version == FORMAT_VERSION == 3
     assert snap.metadata["snapshot.converted_from_version"] == 1
+    assert snap.object_names == () and snap.time_s == 0.0
     # the old flat settings keys are kept as written
     assert snap.metadata["settings.physical_optics"] == "sbr"
     assert snap.metadata["settings.diffraction_reflections"] == 1
@@ -372,19 +380,66 @@ def test_format_1_file_of_the_old_tracer_loads_as_format_2(tmp_path):
                                           err_msg=f"{lk.label} {name}")
         codes |= set(np.unique(lk.paths.interaction).tolist())
     assert codes == {0, 1, 2, 3}  # no PO or SBR codes in format 1
-    again = load_snapshot(save_snapshot(tmp_path / "v2.npz", snap))
+    again = load_snapshot(save_snapshot(tmp_path / "v3.npz", snap))
     assert_snapshot_equal(again, snap)
     assert again.metadata["snapshot.converted_from_version"] == 1
-    with np.load(tmp_path / "v2.npz", allow_pickle=False) as f:
-        assert int(f["meta/version"]) == 2
+    with np.load(tmp_path / "v3.npz", allow_pickle=False) as f:
+        assert int(f["meta/version"]) == 3
+        # the angles written for the converted file are those of its points
+        ang = snap.links[0].paths.angles
+        np.testing.assert_array_equal(f["link0/theta_r"], ang.theta_r)
 
 
-def test_format_1_rewritten_file_is_converted(good, tmp_path):
-    old = rewrite(good, tmp_path / "v1.npz", {"meta/version": np.array(1)})
-    snap = load_snapshot(old)
-    assert snap.version == 2 and snap.metadata["snapshot.converted_from_version"] == 1
+def as_old_format(good, dst, version, *, keep_time=True):
+    """``good`` (format 3) rewritten as a file of format 1 or 2: no object names, no
+    angles, and (keep_time=False) no time."""
+    with np.load(good) as f:
+        v3_only = [k for k in f.files if k == "meta/object_names"
+                   or k.split("/")[-1] in snapmod.ANGLE_FIELD_NAMES]
+    change = {"meta/version": np.array(version), **dict.fromkeys(v3_only)}
+    if not keep_time:
+        change["meta/time_s"] = None
+    return rewrite(good, dst, change)
+
+
+@pytest.mark.parametrize("version", [1, 2])
+def test_older_format_rewritten_file_is_converted(good, tmp_path, version):
+    snap = load_snapshot(as_old_format(good, tmp_path / "old.npz", version))
+    assert snap.version == 3 and snap.metadata["snapshot.converted_from_version"] == version
     assert "snapshot.converted_from_version" not in load_snapshot(good).metadata
     assert snap.links == load_snapshot(good).links
+    assert snap.object_names == () and snap.time_s == 0.125
+    untimed = load_snapshot(as_old_format(good, tmp_path / "untimed.npz", version,
+                                          keep_time=False))
+    assert untimed.time_s == 0.0
+    assert "object names unknown" in untimed.summary()
+
+
+def test_version_3_needs_time_names_and_angles(good, tmp_path):
+    for key in ("meta/time_s", "meta/object_names", "link0/phi_t", "link3/theta_r"):
+        with pytest.raises(SnapshotError, match="missing key") as ei:
+            load_snapshot(rewrite(good, tmp_path / "x.npz", {key: None}))
+        assert ei.value.key == key
+
+
+def test_stored_angles_must_match_the_points(good, tmp_path):
+    with np.load(good) as f:
+        phi = f["link0/phi_r"].copy()
+    phi[2] += 1e-6
+    bad = rewrite(good, tmp_path / "ang.npz", {"link0/phi_r": phi})
+    with pytest.raises(SnapshotError, match=r"link0/phi_r\[2\]: stored angle .*inconsistent"):
+        load_snapshot(bad)
+    phi[2] -= 1e-6 - 2 * np.pi  # the same azimuth one turn on: accepted
+    assert load_snapshot(rewrite(good, tmp_path / "turn.npz", {"link0/phi_r": phi})) \
+        == load_snapshot(good)
+
+
+def test_object_ids_must_have_names(good, tmp_path):
+    with pytest.raises(SnapshotError, match=r"link0/object_id: object id \d+ .* names 2 "
+                                            "objects") as ei:
+        load_snapshot(rewrite(good, tmp_path / "n.npz",
+                              {"meta/object_names": np.array(["road", "car"])}))
+    assert str(tmp_path / "n.npz") in str(ei.value)
 
 
 def test_invalid_version_is_refused(good, tmp_path):
@@ -580,11 +635,15 @@ def test_interaction_type_codes():
     ({"scene_name": 3}, "scene_name.*str"),
     ({"scene_name": "a\x00b"}, "scene_name.*NUL"),
     ({"time_s": float("inf")}, "time_s"),
+    ({"time_s": None}, "time_s.*real number"),
+    ({"object_names": "road"}, "object_names.*list of str"),
+    ({"object_names": ["road", 3]}, r"object_names\[1\].*str"),
+    ({"object_names": ["road"]}, r"links\[0\].object_id.*names 1 objects"),
     ({"metadata": {"rays": [1, 2]}}, "metadata.rays.*only bool, int, float and str"),
     ({"metadata": {"bad key": 1}}, "metadata.*'bad key'"),
     ({"metadata": {"big": 2**64}}, "metadata.big.*int64"),
-    ({"version": 1}, "only format version 2 can be built, got 1"),
-    ({"version": 3}, "only format version 2 can be built, got 3"),
+    ({"version": 2}, "only format version 3 can be built, got 2"),
+    ({"version": 4}, "only format version 3 can be built, got 4"),
     ({"links": [Link("A", "A", 0, 0, Paths.empty()), Link("A", "A", 0, 0, Paths.empty())]},
      r"links\[1\].*A->A appears twice"),
     ({"links": [Link("A", "A", 0, 0, Paths.empty()), Link("A", "D", 1, 1, Paths.empty())]},
@@ -637,7 +696,9 @@ def test_summary_reports_counts_power_and_delays():
 
 def test_equality_is_exact_and_names_the_difference():
     a = make_snapshot()
-    assert a == make_snapshot() and a != make_snapshot(time_s=None)
+    assert a == make_snapshot() and a != make_snapshot(time_s=0.0)
+    with pytest.raises(AssertionError, match="object_names"):
+        assert_snapshot_equal(a, make_snapshot(object_names=[*a.object_names, "extra"]))
     kw = {n: np.array(getattr(a.links[0].paths, n)) for n in PATH_FIELD_NAMES}
     kw["doppler_hz"][4] = np.nextafter(kw["doppler_hz"][4], np.inf)  # one ulp
     b = make_snapshot(links=[Link("A", "A", 0, 0, Paths(**kw)), *a.links[1:]])

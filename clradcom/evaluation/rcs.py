@@ -29,6 +29,7 @@ from matplotlib.figure import Figure
 
 from clradcom.device.runtime import Runtime
 from clradcom.errors import ArgumentError
+from clradcom.figures import new_figure
 from clradcom.files import save_figure, write_csv
 from clradcom.mechanisms import specular as sp
 from clradcom.mechanisms.common import build_geometry
@@ -195,7 +196,7 @@ def plot_rcs(rows, *, model: str, range_m: float, height_m: float, bounces: int,
     times in the legend, nothing returned drawn at :data:`FLOOR_DBSM`. Written to ``path``
     when given, atomically and byte-identically (:func:`clradcom.files.save_figure`)."""
     a = np.array([r["aspect_deg"] for r in rows])
-    fig = Figure(figsize=(9, 5.5), layout="constrained")
+    fig = new_figure(figsize=(9, 5.5), layout="constrained")
     ax = fig.add_subplot()
     for key, style, label in (
             ("go_vv_dbsm", dict(color="tab:red", lw=1.0, marker="o", ms=3),

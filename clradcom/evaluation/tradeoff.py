@@ -28,6 +28,7 @@ from matplotlib.figure import Figure
 from clradcom.errors import ArgumentError
 from clradcom.evaluation import accuracy as acc
 from clradcom.evaluation import budget
+from clradcom.figures import new_figure
 from clradcom.files import save_figure, write_csv
 from clradcom.radar import (
     Waveform,
@@ -567,7 +568,7 @@ def plot_tradeoff(records, ref_seconds: float | None = None, path=None, *,
          det_plot,
          "pareto_detection"),
     ]
-    fig = Figure(figsize=(15, 10))
+    fig = new_figure(figsize=(15, 10))
     FigureCanvasAgg(fig)
     axes = fig.subplots(2, 2).ravel()
     for ax, (title, y, key) in zip(axes, panels, strict=True):

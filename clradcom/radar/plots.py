@@ -15,6 +15,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from clradcom.errors import ArgumentError
+from clradcom.figures import new_figure
 from clradcom.files import save_figure
 from clradcom.radar.processing import RadarImage
 from clradcom.radar.report import INTERFERENCE_TITLES
@@ -55,7 +56,7 @@ def plot_radar_image(image: RadarImage, detections=None, range_lim_m=(0.0, 100.0
     top = np.max(crop[np.isfinite(crop)]) if np.isfinite(crop).any() else 0.0
     dr = r[1] - r[0] if r.size > 1 else 1.0
     dv = v[1] - v[0] if v.size > 1 else 1.0
-    fig = Figure(figsize=figsize)
+    fig = new_figure(figsize=figsize)
     FigureCanvasAgg(fig)
     ax = fig.add_subplot()
     im = ax.imshow(
@@ -126,7 +127,7 @@ def plot_interference_images(images: dict, detections: dict, floor_clean: float,
     top = float(ref.power_db[np.ix_(ri, vi)].max())  # one colour scale: A's strongest echo
     # down to 3 dB under the interference-free floor, so the rise of the floor shows
     dyn_db = max(30.0, top - 10 * math.log10(floor_clean) + 3.0)
-    fig = Figure(figsize=(17.0, 4.4), layout="constrained")
+    fig = new_figure(figsize=(17.0, 4.4), layout="constrained")
     FigureCanvasAgg(fig)
     axes = np.atleast_1d(fig.subplots(1, len(keys), sharey=True))
     ext = (r[ri[0]], r[ri[-1]], v[vi[0]], v[vi[-1]])

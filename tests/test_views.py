@@ -1,0 +1,172 @@
+"""Scene views: the top view coloured by material, the GLB and the self-contained HTML
+page (data inline, no network), and figures that Jupyter shows inline."""
+
+import base64
+import io
+import json
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from clradcom.errors import ArgumentError
+from clradcom.plots import material_colors, plot_top_view
+from clradcom.scene import load_scene
+from clradcom.snapshot import load_snapshot
+from clradcom.views import Y_UP, glb_bytes, html_page, page_payload, save_glb, save_html
+
+DATA = Path(__file__).parent / "data"
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return load_scene(DATA / "all_mechanisms.toml")
+
+
+@pytest.fixture(scope="module")
+def snap():
+    return load_snapshot(DATA / "all_mechanisms_v1.npz")
+
+
+def test_top_view_colours_each_material_and_names_it(scene, snap, tmp_path):
+    fig = plot_top_view(scene, snap, path=tmp_path / "top.png")
+    ax = fig.axes[0]
+    faces = ax.collections[0]
+    rgb = faces.get_facecolors()[:, :3]
+    z_top = scene.triangles[:, :, 2].max(axis=1)
+    order = np.argsort(z_top, kind="stable")
+    want = material_colors(len(scene.materials))[scene.tri_material[order]]
+    np.testing.assert_allclose(rgb, want)
+    assert len({tuple(c) for c in np.round(rgb, 6)}) == len(scene.materials) == 4
+    # lowest first: the car's roof is drawn after the road under it
+    assert np.all(np.diff(z_top[order]) >= 0)
+    legend = [t.get_text() for t in fig.legends[0].get_texts()]
+    assert legend == [m.name for m in scene.materials]
+    again = plot_top_view(scene, snap, path=tmp_path / "again.png")
+    assert again is not fig
+    assert (tmp_path / "again.png").read_bytes() == (tmp_path / "top.png").read_bytes()
+
+
+def test_figures_show_inline_in_jupyter(scene, snap):
+    """IPython displays an object through its _repr_png_: real PNG bytes of the figure."""
+    fig = plot_top_view(scene, snap)
+    png = fig._repr_png_()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n"
+    import matplotlib.image as mpimg
+
+    img = mpimg.imread(io.BytesIO(png))
+    w, h = fig.get_size_inches() * 100
+    assert img.shape[:2] == (round(h), round(w))
+    assert img[..., :3].std() > 0.05  # a picture, not a blank canvas
+
+
+def test_glb_loads_back_with_materials_paths_and_radars(scene, snap, tmp_path):
+    path = save_glb(tmp_path / "s.glb", scene, snap, n_paths=7)
+    assert path.read_bytes()[:4] == b"glTF"
+    back = trimesh.load(path, file_type="glb")
+    meshes = {k: g for k, g in back.geometry.items() if k.startswith("material ")}
+    assert sorted(meshes) == sorted(f"material {m.name}" for m in scene.materials)
+    assert sum(len(g.faces) for g in meshes.values()) == len(scene.triangles)
+    for m, mat in enumerate(scene.materials):
+        g = meshes[f"material {mat.name}"]
+        want = scene.triangles[scene.tri_material == m].reshape(-1, 3)
+        np.testing.assert_allclose(np.sort(g.vertices, axis=0), np.sort(want, axis=0),
+                                   atol=1e-5)  # glTF stores float32
+        assert g.visual.material.name == mat.name
+        rgba = np.asarray(g.visual.material.baseColorFactor, dtype=float)
+        np.testing.assert_allclose(rgba[:3] / 255, material_colors(4)[m], atol=1 / 255)
+    lines = [g for k, g in back.geometry.items() if k.startswith("path ")]
+    assert len(lines) == 7 and all(isinstance(g, trimesh.path.Path3D) for g in lines)
+    strongest = snap.links[0].paths
+    i = int(np.argmax(np.abs(strongest.gain)))
+    label = next(k for k in back.geometry if k.startswith(f"path {i} "))
+    want = strongest.points[i, :strongest.n_interactions[i] + 2]
+    np.testing.assert_allclose(np.unique(back.geometry[label].vertices, axis=0),
+                               np.unique(want, axis=0), atol=1e-5)
+    assert {k for k in back.geometry if k.startswith("radar ")} == {"radar A", "radar B"}
+    # every node is turned z-up -> y-up
+    node = back.graph.nodes_geometry[0]
+    np.testing.assert_allclose(back.graph[node][0], Y_UP, atol=1e-12)
+    assert glb_bytes(scene, snap, n_paths=7) == path.read_bytes()
+
+
+def decode(payload, key, dtype, width):
+    return np.frombuffer(base64.b64decode(payload[key]), dtype=dtype).reshape(-1, width)
+
+
+def test_html_is_self_contained_and_holds_the_data(scene, snap, tmp_path):
+    page = save_html(tmp_path / "s.html", scene, snap, n_paths=5).read_text("utf-8")
+    assert not re.search(r"https?://|//cdn|<link|\bsrc=|import\(|fetch\(", page)
+    data = json.loads(re.search(r'<script type="application/json" id="data">(.*?)</script>',
+                                page, re.S).group(1))
+    assert data == page_payload(scene, snap, n_paths=5)
+    np.testing.assert_array_equal(decode(data, "tri", "<f4", 9),
+                                  scene.triangles.reshape(-1, 9).astype(np.float32))
+    np.testing.assert_array_equal(
+        decode(data, "tri_rgb", np.uint8, 3),
+        np.round(material_colors(4)[scene.tri_material] * 255).astype(np.uint8))
+    p = snap.links[0].paths
+    order = np.argsort(-np.abs(p.gain), kind="stable")[:5]
+    n_segments = int(np.sum(p.n_interactions[order] + 1))
+    seg = decode(data, "seg", "<f4", 6)
+    assert len(seg) == n_segments
+    first = p.points[order[0], :p.n_interactions[order[0]] + 2]
+    np.testing.assert_allclose(seg[0], np.concatenate(first[:2]), rtol=1e-6)
+    assert [name for name, _ in data["legend"]] == [m.name for m in scene.materials]
+    assert data["radar_names"] == ["A", "B"] and data["link"] == "A->A"
+    assert len(page) < 60_000
+
+
+def test_html_script_runs_and_draws_everything(scene, snap, tmp_path):
+    """The page's own script, run by node against a recording stand-in for the browser's
+    WebGL context: it decodes the inline data and draws every triangle, path segment and
+    radar. (No headless browser is installed here; node runs the same JavaScript.)"""
+    node = shutil.which("node")
+    if node is None:
+        pytest.skip("node is not installed: the page's script is checked where it is")
+    page = html_page(scene, snap, n_paths=5)
+    script = page.rsplit("<script>", 1)[1].split("</script>", 1)[0]
+    data = re.search(r'id="data">(.*?)</script>', page, re.S).group(1)
+    harness = """
+const calls=[]; const consts={TRIANGLES:4,LINES:1,POINTS:0,ARRAY_BUFFER:34962,
+STATIC_DRAW:35044,FLOAT:5126,VERTEX_SHADER:35633,FRAGMENT_SHADER:35632,DEPTH_TEST:2929,
+COLOR_BUFFER_BIT:16384,DEPTH_BUFFER_BIT:256};
+const fakeGl=new Proxy({}, {get:(t,k)=>k in consts?consts[k]:(...a)=>{calls.push([k,a]);
+  return k==="getAttribLocation"?0:{};}});
+const els={data:{textContent:DATA},legend:{innerHTML:""},
+  view:{clientWidth:640,clientHeight:480,width:0,height:0,getContext:()=>fakeGl,
+        addEventListener(){}}};
+globalThis.document={getElementById:id=>els[id]};
+globalThis.window={addEventListener(){}}; globalThis.devicePixelRatio=1;
+""".replace("DATA", json.dumps(data)) + script + """
+const draws=calls.filter(c=>c[0]==="drawArrays").map(c=>[c[1][0],c[1][2]]);
+const m=calls.find(c=>c[0]==="uniformMatrix4fv")[1][2];
+console.log(JSON.stringify({draws, legend:els.legend.innerHTML, finite:m.every(isFinite)}));
+"""
+    (tmp_path / "page.js").write_text(harness)
+    run = subprocess.run([node, str(tmp_path / "page.js")], capture_output=True, text=True,
+                         timeout=60)
+    assert run.returncode == 0, run.stderr
+    out = json.loads(run.stdout)
+    p = snap.links[0].paths
+    order = np.argsort(-np.abs(p.gain), kind="stable")[:5]
+    assert out["draws"] == [[4, 3 * len(scene.triangles)],
+                            [1, 2 * int(np.sum(p.n_interactions[order] + 1))],
+                            [0, len(scene.radars)]]
+    assert out["finite"]
+    for m in scene.materials:
+        assert m.name in out["legend"]
+
+
+def test_views_refuse_bad_arguments(scene, snap):
+    with pytest.raises(ArgumentError, match="n_paths"):
+        html_page(scene, snap, n_paths=-1)
+    with pytest.raises(ArgumentError, match="link.*TX->RX"):
+        html_page(scene, snap, link="AB")
+    with pytest.raises(ArgumentError, match="link.*no link 'B' -> 'B'"):
+        glb_bytes(scene, snap, link="B->B")
+    assert page_payload(scene, None)["paths"] == 0  # the scene alone
