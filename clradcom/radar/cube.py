@@ -110,22 +110,35 @@ def _angle_bins(requested, extent, name):
     return int(requested)
 
 
+def _array_window(window, n):
+    """An array taper of ``n`` elements: the DFT-even window of n + 1 points without its
+    leading zero (symmetric, no element switched off: a 2-element Hann is [0.75, 0.75]);
+    an explicit array of n weights as given."""
+    if n == 1:
+        return np.ones(1)
+    if isinstance(window, np.ndarray | list):
+        return get_window(window, n)
+    return get_window(window, n + 1)[1:]
+
+
 def radar_cube(rd: RangeDoppler, virtual_positions_local, wavelength_m, *, window="hann",
                n_azimuth: int | None = None, n_elevation: int | None = None,
                workers: int | None = None) -> Cube:
     """Range × Doppler × azimuth × elevation power by FFT over the virtual array grid
     (module docstring). ``n_azimuth``/``n_elevation``: FFT sizes (default: the next power
     of two at or above the grid's extent, 1 for an axis without extent)."""
-    s = np.asarray(rd.spectra)
     idx, spacing = angle_grid(virtual_positions_local, wavelength_m)
+    if not isinstance(rd, RangeDoppler):
+        raise ArgumentError("must be a clradcom.radar.mimo.RangeDoppler", argument="rd",
+                            value=type(rd).__name__)
+    s = np.asarray(rd.spectra)
     if s.ndim != 3 or s.shape[2] != idx.shape[0]:
         raise ArgumentError(f"must be (N, M, {idx.shape[0]}) spectra, one per virtual element",
                             argument="rd", value=f"shape {s.shape}")
     ny, nz = idx[:, 0].max() + 1, idx[:, 1].max() + 1
     ay = _angle_bins(n_azimuth, ny, "n_azimuth")
     az = _angle_bins(n_elevation, nz, "n_elevation")
-    wy = get_window(window, ny) if ny > 1 else np.ones(1)
-    wz = get_window(window, nz) if nz > 1 else np.ones(1)
+    wy, wz = _array_window(window, ny), _array_window(window, nz)
     w = wy[idx[:, 0]] * wz[idx[:, 1]]
     w = w / np.sqrt(np.sum(w**2))
     grid = np.zeros(s.shape[:2] + (ny, nz), complex)
