@@ -24,7 +24,6 @@ from typing import NamedTuple
 
 import numpy as np
 from scipy import fft as sfft
-from scipy import ndimage
 
 from clradcom.errors import ArgumentError
 from clradcom.radar.cfar import (
@@ -154,19 +153,37 @@ def radar_cube(rd: RangeDoppler, virtual_positions_local, wavelength_m, *, windo
     return Cube(power, np.asarray(rd.range_m), np.asarray(rd.velocity_mps), u_y, u_z)
 
 
-def _interp(pdb, cells, axis, n):
-    """Parabolic offset and height along one axis (wrapping) at the cells."""
+def _db(power, cells):
+    return 10.0 * np.log10(np.maximum(power[tuple(cells)], 1e-300))
+
+
+def _interp(power, cells, axis, n):
+    """Parabolic offset and height (on dB) along one axis (wrapping) at the cells."""
     lo = list(cells)
     hi = list(cells)
     lo[axis] = (cells[axis] - 1) % n
     hi[axis] = (cells[axis] + 1) % n
-    return parabolic_offset(pdb[tuple(lo)], pdb[tuple(cells)], pdb[tuple(hi)])
+    return parabolic_offset(_db(power, lo), _db(power, cells), _db(power, hi))
 
 
 def _axis_value(axis_values, frac):
     if axis_values.size < 2:
         return np.full(frac.shape, axis_values[0] if axis_values.size else 0.0)
     return axis_values[0] + frac * (axis_values[1] - axis_values[0])
+
+
+def _local_maxima(power, cells):
+    """The cells (index arrays) that are at least every neighbour of their 3 × 3 × 3 (× 3)
+    neighbourhood (wrapping); only the cells above threshold are looked at."""
+    keep = np.ones(cells[0].size, bool)
+    steps = [(-1, 0, 1) if k > 1 else (0,) for k in power.shape]
+    p0 = power[cells]
+    for offset in np.stack(np.meshgrid(*steps, indexing="ij"), -1).reshape(-1, 4):
+        if not offset.any():
+            continue
+        nb = tuple((c + o) % k for c, o, k in zip(cells, offset, power.shape, strict=True))
+        keep &= p0 >= power[nb]
+    return tuple(c[keep] for c in cells)
 
 
 def detect_cube(cube: Cube, guard=(2, 1), train=(4, 2), p_fa: float = 1e-6,
@@ -189,20 +206,15 @@ def detect_cube(cube: Cube, guard=(2, 1), train=(4, 2), p_fa: float = 1e-6,
     alpha = ca_cfar_alpha(n_t, p_fa)
     floor = numerical_floor(power, accuracy)
     noise = np.maximum(training_sums(power, guard, train) / n_t, floor)
-    size = tuple(3 if k > 1 else 1 for k in power.shape)
-    hit = power > alpha * noise
-    hit &= power >= ndimage.maximum_filter(power, size=size, mode="wrap")
-    cells = np.nonzero(hit)
+    cells = _local_maxima(power, np.nonzero(power > alpha * noise))
     out = np.zeros(cells[0].size, CUBE_DETECTION_DTYPE)
     if out.size == 0:
         return out
-    with np.errstate(divide="ignore"):
-        pdb = 10.0 * np.log10(np.maximum(power, 1e-300))
-    y0 = pdb[cells]
+    y0 = _db(power, cells)
     frac, peak = [], y0.copy()
     for axis in range(4):
         if power.shape[axis] > 2:
-            off, h = _interp(pdb, cells, axis, power.shape[axis])
+            off, h = _interp(power, cells, axis, power.shape[axis])
             peak += h - y0
         else:
             off = np.zeros(y0.shape)
