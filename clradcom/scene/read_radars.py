@@ -17,24 +17,27 @@ from clradcom.scene.bounds import (
     check_speed,
 )
 from clradcom.scene.fields import FieldReader
+from clradcom.scene.read_arrays import read_arrays
 from clradcom.scene.read_patterns import read_pattern
 from clradcom.scene.records import ROLES, Radar, SceneObject
 
 __all__ = ["RADAR_KEYS", "read_radars"]
 
 RADAR_KEYS = ("name", "position", "rides_on", "orientation_deg", "velocity", "pattern",
-              "polarization", "role", "tx_power_w", "noise_figure_db", "description")
+              "polarization", "role", "tx_power_w", "noise_figure_db", "description",
+              "array", "tx_array", "rx_array")
 
 
 def read_radars(fields: FieldReader, entries: list, objects: list[SceneObject],
-                base_dir: Path) -> list[Radar]:
-    """Radars in file order; ``objects`` are the ones they may ride on."""
+                base_dir: Path, wavelength_m: float | None = None) -> list[Radar]:
+    """Radars in file order; ``objects`` are the ones they may ride on; ``wavelength_m``
+    (the scene's carrier) scales array spacings given in wavelengths."""
     seen: dict = {}
-    return [_read_radar(fields, f"radars[{i}]", tbl, seen, objects, base_dir)
+    return [_read_radar(fields, f"radars[{i}]", tbl, seen, objects, base_dir, wavelength_m)
             for i, tbl in enumerate(entries)]
 
 
-def _read_radar(fields, kp, tbl, seen, objects, base_dir) -> Radar:
+def _read_radar(fields, kp, tbl, seen, objects, base_dir, wavelength_m) -> Radar:
     fields.check_keys(tbl, RADAR_KEYS, kp)
     name = fields.unique_name(tbl, kp, seen, "radar")
     pos_local = fields.get_vec3(tbl, "position", kp, unit="m")
@@ -72,11 +75,13 @@ def _read_radar(fields, kp, tbl, seen, objects, base_dir) -> Radar:
                          f"must be <= {NOISE_FIGURE_MAX_DB:g} dB (real receivers have "
                          "0-20 dB)")
     pattern, pol, pol_name = read_pattern(fields, tbl, kp, base_dir)
+    tx_array, rx_array = read_arrays(fields, tbl, kp, wavelength_m)
     return Radar(
         name=name, position=np.asarray(position, dtype=np.float64), rides_on=rides,
         orientation=orientation, pattern=pattern, polarization=pol,
         polarization_name=pol_name, velocity=velocity, role=role, tx_power_w=power,
         noise_figure_db=nf, position_local=pos_local, orientation_deg=ori_deg,
+        tx_array=tx_array, rx_array=rx_array,
     )
 
 

@@ -44,6 +44,7 @@ from clradcom.errors import ArgumentTypeError, SceneError
 from clradcom.scene.bounds import check_carrier, warn_far_geometry, warn_speeds
 from clradcom.scene.fields import REQUIRED, FieldReader, is_file
 from clradcom.scene.import_xml import read_xml_scene
+from clradcom.scene.materials import C0
 from clradcom.scene.read_geometry import MESH_SUFFIXES, SHAPES
 from clradcom.scene.read_materials import read_materials
 from clradcom.scene.read_objects import read_objects
@@ -103,7 +104,8 @@ def scene_from_dict(data: dict, *, file="<dict>", base_dir=".") -> Scene:
         placed = read_xml_scene(fields, rel, "scene.import", materials, carrier, base_dir)
     objects, triangles = read_objects(fields, fields.array_of_tables(data, "objects"),
                                       materials, carrier, base_dir, placed)
-    radars = read_radars(fields, fields.array_of_tables(data, "radars"), objects, base_dir)
+    radars = read_radars(fields, fields.array_of_tables(data, "radars"), objects, base_dir,
+                         C0 / carrier)
     _warn_out_of_range(fields, carrier, objects, triangles, radars)
     return _assemble_scene(file, name, description, carrier, materials.materials, objects,
                            triangles, radars)

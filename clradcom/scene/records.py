@@ -16,7 +16,8 @@ import numpy as np
 from clradcom.scene.antenna import Pattern
 from clradcom.scene.materials import C0, ROUGHNESS_MODELS, Material
 
-__all__ = ["OPTICS", "ROLES", "SBR_SPACING_WAVELENGTHS", "Radar", "Scene", "SceneObject"]
+__all__ = ["ARRAY_KINDS", "OPTICS", "ROLES", "SBR_SPACING_WAVELENGTHS", "ArrayLayout", "Radar",
+           "Scene", "SceneObject"]
 
 #: ``objects[].optics``: how the tracer models the object's returns (docs/po.md)
 OPTICS = ("go", "po", "both")
@@ -25,6 +26,22 @@ OPTICS = ("go", "po", "both")
 SBR_SPACING_WAVELENGTHS = (0.01, 100.0)
 #: What a radar does: transmit and receive, only transmit, only receive.
 ROLES = ("txrx", "tx", "rx")
+#: ``radars[].array.kind``: uniform linear, uniform planar, explicit element positions
+ARRAY_KINDS = ("ula", "upa", "positions")
+
+
+@dataclass(eq=False)
+class ArrayLayout:
+    """A radar's antenna array: element positions in the radar's own frame (m; boresight
+    local +x, local z up), offsets from the radar's position. Every element shares the
+    radar's pattern and polarisation (docs/scene-format.md, "Arrays")."""
+
+    kind: str  #: one of :data:`ARRAY_KINDS`
+    positions_local: np.ndarray  #: (E, 3) float64, m
+
+    @property
+    def n_elements(self) -> int:
+        return int(self.positions_local.shape[0])
 
 
 @dataclass(eq=False)
@@ -74,6 +91,10 @@ class Radar:
     noise_figure_db: float | None = None
     position_local: np.ndarray = field(default_factory=lambda: np.zeros(3))
     orientation_deg: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    #: transmit / receive arrays (None: a single element at ``position``); the paths of a
+    #: snapshot start and end at ``position``, the array's reference point
+    tx_array: ArrayLayout | None = None
+    rx_array: ArrayLayout | None = None
 
     def world_to_local(self, directions_world) -> np.ndarray:
         """(K,3) world directions -> antenna-frame directions (R^T d)."""
@@ -199,6 +220,10 @@ class Scene:
                 [r.name, vec(r.position), r.rides_on, vec(r.orientation), r.pattern.params(),
                  [[f(c.real), f(c.imag)] for c in r.polarization], vec(r.velocity), r.role,
                  f(r.tx_power_w), None if r.noise_figure_db is None else f(r.noise_figure_db)]
+                # arrays only when set, so scenes without them keep their hashes
+                + [[key, a.kind, vec(a.positions_local)]
+                   for key, a in (("tx_array", r.tx_array), ("rx_array", r.rx_array))
+                   if a is not None]
                 for r in self.radars
             ],
         }
