@@ -1,13 +1,18 @@
-/* Electromagnetics of a reflection in double precision: the device twin of
+/* Electromagnetics of a reflection, in `real`: the device twin of
  * clradcom/physics/em.py (fresnel_coefficients, ament/boithias roughness factors,
  * reflection_dyad and material_reflection_dyad applied to a field vector) and of
- * physics/vectors.py's perpendicular. The formulas, branches and tolerances are the host's, so a
- * kernel's reflection dyad agrees with the host reference to rounding; see the
- * host functions for the physics and its sources. Needs cl_khr_fp64. */
+ * physics/vectors.py's perpendicular. The formulas, branches and tolerances are the
+ * host's, so a kernel's reflection dyad agrees with the host reference to rounding (in double; in
+ * float to float rounding, where the device has no fp64); see the host functions for the
+ * physics and its sources. */
 #ifndef CLRADCOM_EM_H
 #define CLRADCOM_EM_H
 
-#pragma OPENCL EXTENSION cl_khr_fp64 : enable
+/* The includer defines `real` (double where the device has fp64, else float) with its
+ * vector types real2 and real3 before including this header. */
+#ifndef CLRADCOM_REAL_DEFINED
+#error "include em.h after defining real, real2 and real3 (kernels/sbr.cl)"
+#endif
 
 #define EM_INLINE inline __attribute__((always_inline))
 
@@ -16,37 +21,37 @@
 /* em.py: ROUGHNESS_BOITHIAS */
 #define EM_ROUGHNESS_BOITHIAS 1
 
-typedef double2 cplx;   /* (re, im) */
+typedef real2 cplx;   /* (re, im) */
 
 EM_INLINE cplx c_mul(cplx a, cplx b) { return (cplx)(a.x * b.x - a.y * b.y, a.x * b.y + a.y * b.x); }
 EM_INLINE cplx c_div(cplx a, cplx b)
 {
     /* Smith's algorithm: no overflow for large |b| */
     if (fabs(b.x) >= fabs(b.y)) {
-        double r = b.y / b.x, den = b.x + b.y * r;
+        real r = b.y / b.x, den = b.x + b.y * r;
         return (cplx)((a.x + a.y * r) / den, (a.y - a.x * r) / den);
     }
-    double r = b.x / b.y, den = b.x * r + b.y;
+    real r = b.x / b.y, den = b.x * r + b.y;
     return (cplx)((a.x * r + a.y) / den, (a.y * r - a.x) / den);
 }
-EM_INLINE cplx c_scale(cplx a, double s) { return (cplx)(a.x * s, a.y * s); }
+EM_INLINE cplx c_scale(cplx a, real s) { return (cplx)(a.x * s, a.y * s); }
 
 /* principal square root (Re >= 0), as numpy's */
 EM_INLINE cplx c_sqrt(cplx z)
 {
-    double m = hypot(z.x, z.y);
+    real m = hypot(z.x, z.y);
     if (m == 0.0) return (cplx)(0.0, 0.0);
-    double re = sqrt(0.5 * (m + fabs(z.x)));
-    double im = 0.5 * z.y / re;
+    real re = sqrt(0.5 * (m + fabs(z.x)));
+    real im = 0.5 * z.y / re;
     if (z.x >= 0.0) return (cplx)(re, im);
     return (cplx)(fabs(im), (z.y >= 0.0) ? re : -re);
 }
 
 /* Fresnel coefficients from air, em.py: fresnel_coefficients (PEC: -1, +1). */
-EM_INLINE void fresnel(cplx eps, double cos_theta, int pec, cplx *r_te, cplx *r_tm)
+EM_INLINE void fresnel(cplx eps, real cos_theta, int pec, cplx *r_te, cplx *r_tm)
 {
     if (pec) { *r_te = (cplx)(-1.0, 0.0); *r_tm = (cplx)(1.0, 0.0); return; }
-    double c = fmin(fmax(fabs(cos_theta), 0.0), 1.0);
+    real c = fmin(fmax(fabs(cos_theta), 0.0), 1.0);
     cplx a = c_sqrt((cplx)((eps.x - 1.0) + c * c, eps.y));
     a.y = -fabs(a.y);
     cplx cc = (cplx)(c, 0.0);
@@ -60,59 +65,59 @@ EM_INLINE void fresnel(cplx eps, double cos_theta, int pec, cplx *r_te, cplx *r_
 /* exp(-x) I0(x) for x >= 0: Abramowitz & Stegun 9.8.1 (x <= 3.75, |error| < 1.6e-7
  * relative to I0) and 9.8.2 (x > 3.75, < 1.9e-7 relative), as scipy's i0e to that
  * accuracy. */
-EM_INLINE double i0e(double x)
+EM_INLINE real i0e(real x)
 {
     x = fabs(x);
     if (x <= 3.75) {
-        double t = x / 3.75;
+        real t = x / 3.75;
         t *= t;
-        double i0 = 1.0 + t * (3.5156229 + t * (3.0899424 + t * (1.2067492 + t * (
+        real i0 = 1.0 + t * (3.5156229 + t * (3.0899424 + t * (1.2067492 + t * (
                     0.2659732 + t * (0.0360768 + t * 0.0045813)))));
         return i0 * exp(-x);
     }
-    double t = 3.75 / x;
+    real t = 3.75 / x;
     return (0.39894228 + t * (0.01328592 + t * (0.00225319 + t * (-0.00157565 + t * (
             0.00916281 + t * (-0.02057706 + t * (0.02635537 + t * (-0.01647633
             + t * 0.00392377)))))))) / sqrt(x);
 }
 
 /* em.py: roughness_factor (Ament, or Boithias for model 1) */
-EM_INLINE double roughness_factor(double sigma_h, double cos_theta, double k, int model)
+EM_INLINE real roughness_factor(real sigma_h, real cos_theta, real k, int model)
 {
-    double g = k * sigma_h * fabs(cos_theta);
+    real g = k * sigma_h * fabs(cos_theta);
     g *= g;
     return (model == EM_ROUGHNESS_BOITHIAS) ? i0e(2.0 * g) : exp(-2.0 * g);
 }
 
 /* vectors.py: perpendicular (cross with the world axis least aligned with n, the first
  * of equals) */
-EM_INLINE double3 perpendicular(double3 n)
+EM_INLINE real3 perpendicular(real3 n)
 {
-    double ax = fabs(n.x), ay = fabs(n.y), az = fabs(n.z);
-    double3 axis = (ax <= ay && ax <= az) ? (double3)(1.0, 0.0, 0.0)
-                 : ((ay <= az) ? (double3)(0.0, 1.0, 0.0) : (double3)(0.0, 0.0, 1.0));
-    double3 p = cross(n, axis);
+    real ax = fabs(n.x), ay = fabs(n.y), az = fabs(n.z);
+    real3 axis = (ax <= ay && ax <= az) ? (real3)(1.0, 0.0, 0.0)
+                 : ((ay <= az) ? (real3)(0.0, 1.0, 0.0) : (real3)(0.0, 0.0, 1.0));
+    real3 p = cross(n, axis);
     return p / sqrt(dot(p, p));
 }
 
 /* A complex 3-vector: a field. */
 typedef struct { cplx x, y, z; } cvec3;
 
-EM_INLINE cvec3 cv_real(double3 a)
+EM_INLINE cvec3 cv_real(real3 a)
 {
     cvec3 r = {(cplx)(a.x, 0.0), (cplx)(a.y, 0.0), (cplx)(a.z, 0.0)};
     return r;
 }
-EM_INLINE cplx cv_dot_real(cvec3 a, double3 b)
+EM_INLINE cplx cv_dot_real(cvec3 a, real3 b)
 {
     return c_scale(a.x, b.x) + c_scale(a.y, b.y) + c_scale(a.z, b.z);
 }
-EM_INLINE cvec3 cv_axpy(cplx s, double3 a, cvec3 y)   /* s a + y */
+EM_INLINE cvec3 cv_axpy(cplx s, real3 a, cvec3 y)   /* s a + y */
 {
     cvec3 r = {y.x + c_scale(s, a.x), y.y + c_scale(s, a.y), y.z + c_scale(s, a.z)};
     return r;
 }
-EM_INLINE cvec3 cv_scale_real(cvec3 a, double s)
+EM_INLINE cvec3 cv_scale_real(cvec3 a, real s)
 {
     cvec3 r = {c_scale(a.x, s), c_scale(a.y, s), c_scale(a.z, s)};
     return r;
@@ -130,17 +135,17 @@ EM_INLINE cvec3 cv_zero(void)
 
 /* D f for em.py: reflection_dyad D = r_te e_perp e_perp^T + r_tm e_par_r e_par_i^T
  * at unit k, n, applied to a field f without forming the matrix */
-EM_INLINE cvec3 reflect_field(double3 k, double3 n, cplx r_te, cplx r_tm, cvec3 f)
+EM_INLINE cvec3 reflect_field(real3 k, real3 n, cplx r_te, cplx r_tm, cvec3 f)
 {
-    double kn = dot(k, n);
+    real kn = dot(k, n);
     if (kn > 0.0) n = -n;
     kn = -fabs(kn);
-    double3 k_r = k - 2.0 * kn * n;
-    double3 x = cross(k, n);
-    double sx = sqrt(dot(x, x));
-    double3 e_perp = (sx < EM_NORMAL_INCIDENCE_TOL) ? perpendicular(n) : x / sx;
-    double3 e_par_i = cross(e_perp, k);
-    double3 e_par_r = cross(e_perp, k_r);
+    real3 k_r = k - 2.0 * kn * n;
+    real3 x = cross(k, n);
+    real sx = sqrt(dot(x, x));
+    real3 e_perp = (sx < EM_NORMAL_INCIDENCE_TOL) ? perpendicular(n) : x / sx;
+    real3 e_par_i = cross(e_perp, k);
+    real3 e_par_r = cross(e_perp, k_r);
     cvec3 r = cv_axpy(c_mul(r_te, cv_dot_real(f, e_perp)), e_perp, cv_zero());
     return cv_axpy(c_mul(r_tm, cv_dot_real(f, e_par_i)), e_par_r, r);
 }
@@ -148,13 +153,13 @@ EM_INLINE cvec3 reflect_field(double3 k, double3 n, cplx r_te, cplx r_tm, cvec3 
 /* em.py: material_reflection_dyad applied to f: Fresnel x roughness x specular share
  * sqrt(1 - S^2). mf = (eps re, eps im, sigma_h, sqrt(1 - S^2)), mi = (pec, roughness
  * model). */
-EM_INLINE cvec3 material_reflect_field(double3 k, double3 n, __global const double *mf,
-                                       __global const int *mi, double k0, cvec3 f)
+EM_INLINE cvec3 material_reflect_field(real3 k, real3 n, __global const real *mf,
+                                       __global const int *mi, real k0, cvec3 f)
 {
-    double cos_t = fabs(dot(k, n));
+    real cos_t = fabs(dot(k, n));
     cplx r_te, r_tm;
     fresnel((cplx)(mf[0], mf[1]), cos_t, mi[0], &r_te, &r_tm);
-    double rho = roughness_factor(mf[2], cos_t, k0, mi[1]) * mf[3];
+    real rho = roughness_factor(mf[2], cos_t, k0, mi[1]) * mf[3];
     return reflect_field(k, n, c_scale(r_te, rho), c_scale(r_tm, rho), f);
 }
 

@@ -189,7 +189,7 @@ class RayCaster:
         return out
 
     def run_kernel(self, source: str, kernel_name: str, global_size: int, *args,
-                   defines=None, local_size: int | None = None) -> None:
+                   defines=None, local_size: int | None = None, options=()) -> None:
         """Launch ``kernel_name`` of ``kernels/<source>`` over ``global_size`` work items
         (rounded up to whole work-groups: the kernel ignores the items past its own
         count) with the BVH buffers first: ``(nodes, tri4, slot_prim, *args)``.
@@ -202,7 +202,8 @@ class RayCaster:
         if global_size <= 0:
             return
         rt = self.runtime
-        kernel = rt.kernel(source, kernel_name, defines={**KERNEL_DEFINES, **(defines or {})})
+        kernel = rt.kernel(source, kernel_name, tuple(options),
+                           defines={**KERNEL_DEFINES, **(defines or {})})
         local = local_size or self.LOCAL_SIZE
         with self._lock, rt.kernel_clock():
             kernel(rt.queue, (-(-int(global_size) // local) * local,), (local,), self._nodes,

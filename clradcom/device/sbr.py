@@ -13,7 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from clradcom.device.raycast import RayCaster
+from clradcom.device.precision import join_pairs, split_pairs
+from clradcom.device.raycast import KERNEL_DEFINES, RayCaster
 from clradcom.device.visibility import (
     CONFIRM_TOL_M,
     INSIDE_TOL_REL,
@@ -24,7 +25,8 @@ from clradcom.device.visibility import (
 from clradcom.errors import ArgumentError
 from clradcom.geometry.silhouette import BLOCK
 
-__all__ = ["BATCH_TUBES", "record_dtype", "shoot_and_radiate"]
+__all__ = ["BATCH_TUBES", "PRECISIONS", "engine_precision", "record_dtype", "record_size",
+           "shoot_and_radiate"]
 
 #: Tubes per kernel launch (whole blocks): about 1 M, some 10 ms to a second of work.
 BATCH_TUBES = 1 << 20
@@ -38,14 +40,72 @@ def tri_slots(max_bounces: int) -> int:
     return max(1, int(max_bounces))
 
 
-def record_dtype(max_bounces: int) -> np.dtype:
-    """numpy twin of ``SbrRecord`` in kernels/sbr.cl."""
+#: the precisions the engine runs in: "fp64" (double throughout) and "double-float"
+#: (kernels/precise.h for positions and lengths, float for the fields), and "auto", fp64
+#: where the device has it
+PRECISIONS = ("auto", "fp64", "double-float")
+#: plain float32 positions and lengths: the tests' negative control, never for results
+CONTROL_PRECISION = "float32"
+
+
+def record_dtype(max_bounces: int, precision: str = "fp64") -> np.dtype:
+    """numpy twin of ``SbrRecord`` in kernels/sbr.cl, as a build of ``precision`` lays it
+    out (fp64: doubles; double-float: lengths and points as (hi, lo) float pairs, the
+    rest float)."""
     k = tri_slots(max_bounces)
-    return np.dtype([("M", "<f8", (8,)), ("weight", "<f8"), ("weighted_length", "<f8"),
-                     ("rep_weight", "<f8"), ("length", "<f8"), ("point", "<f8", (3,)),
+    real = "<f8" if precision == "fp64" else "<f4"
+    out = ("<f8", ()) if precision == "fp64" else ("<f4", (2,))
+    return np.dtype([("length", out[0], out[1]), ("point", out[0], (3, *out[1])),
+                     ("M", real, (8,)), ("weight", real), ("weighted_length", real),
+                     ("rep_weight", real), ("pad_real", real),
                      ("tube", "<i8"), ("ordinal", "<i4"), ("count", "<i4"),
                      ("bounce", "<i2"), ("receiver", "<i2"), ("pad", "<i4"),
                      ("face", "<i4", (k,)), ("tri", "<i4", (k,))])
+
+
+def engine_precision(runtime, precision: str = "auto") -> str:
+    """The precision a build for ``precision`` runs in on ``runtime``'s device:
+    "fp64" or "double-float"."""
+    if precision == CONTROL_PRECISION:
+        return precision
+    if precision not in PRECISIONS:
+        raise ArgumentError(f"must be one of {', '.join(PRECISIONS)}", argument="precision",
+                            value=precision)
+    if precision == "fp64" and not runtime.info.has_double:
+        raise ArgumentError("this OpenCL device has no fp64 (use 'auto' or 'double-float')",
+                            argument="precision", value=precision)
+    if precision == "auto":
+        return "fp64" if runtime.info.has_double else "double-float"
+    return precision
+
+
+def record_size(runtime, max_bounces: int, precision: str = "fp64") -> int:
+    """sizeof(SbrRecord) as the device lays it out in ``precision`` (for a test)."""
+    import pyopencl as cl
+
+    kernel = runtime.kernel("sbr.cl", "sbr_record_size", _options(precision),
+                            defines=_defines(max_bounces, precision))
+    out = np.zeros(1, dtype=np.int32)
+    buf = runtime.empty(4)
+    kernel(runtime.queue, (1,), None, buf)
+    cl.enqueue_copy(runtime.queue, out, buf, is_blocking=True)
+    return int(out[0])
+
+
+def _options(precision: str) -> tuple:
+    """Build options: without fp64 a literal such as 0.5 is a float, as a device without
+    fp64 makes it (and PoCL, which has fp64, must be told)."""
+    return ("-cl-single-precision-constant",) if precision != "fp64" else ()
+
+
+def _defines(max_bounces: int, precision: str) -> dict:
+    out = {**KERNEL_DEFINES, "SBR_MAX_BOUNCES": int(max_bounces),
+           "SBR_TRI_SLOTS": tri_slots(max_bounces), "SBR_BLOCK": BLOCK, "SBR_GROUPS": GROUPS}
+    if precision == "double-float":
+        out["CLRADCOM_NO_FP64"] = 1
+    elif precision == CONTROL_PRECISION:
+        out["CLRADCOM_PRECISE_FLOAT32"] = 1
+    return out
 
 
 def _tables(scene):
@@ -98,31 +158,32 @@ def near_triangles(caster: RayCaster, antennas) -> tuple[np.ndarray, np.ndarray]
 
 def shoot_and_radiate(caster: RayCaster, scene, tri_face, windows, tx_frame, receivers,
                       rx_frames, *, wavenumber: float, wavelength: float, max_bounces: int,
-                      first_bounce: int, record_triangles,
-                      batch_tubes: int = BATCH_TUBES) -> np.ndarray:
+                      first_bounce: int, record_triangles, batch_tubes: int = BATCH_TUBES,
+                      precision: str = "auto") -> np.ndarray:
     """Block sums (:func:`record_dtype`) of the tubes of ``windows`` as kernels/sbr.cl
     computes them: per covered block, bounce >= ``first_bounce`` on a triangle of
     ``record_triangles`` (bool per scene triangle), receiver (positions (R,3), antenna
     frames (R,3,3); tx's frame ``tx_frame``) and sequence of planar faces ``tri_face``,
     the sum of the tubes' 2x2 polarimetric matrices at ``wavenumber`` (rad/m) and
     ``wavelength`` (m), with the representative tube.  Sorted by block and emission
-    order, so every run returns the same records in the same order.
+    order, so every run returns the same records in the same order.  ``precision``
+    (:data:`PRECISIONS`): fp64 where the device has it; "double-float" carries positions
+    and lengths in kernels/precise.h's compensated float pairs and the fields in float
+    (devices without fp64; tests force it on any device).  Records come back in the
+    fp64 layout either way.
     """
     import pyopencl as cl
 
     rt = caster.runtime
-    if not rt.info.has_double:
-        raise ArgumentError("the device SBR engine needs an OpenCL device with fp64; "
-                            "use engine \"host\"", argument="device",
-                            value=rt.info.device_name.strip())
+    precision = engine_precision(rt, precision)
+    fp64 = precision == "fp64"
     receivers = np.ascontiguousarray(np.asarray(receivers, np.float64).reshape(-1, 3))
     if len(receivers) >= 2**15:
         raise ArgumentError("at most 32767 receivers per transmitter", argument="receivers",
                             value=len(receivers))
-    dtype = record_dtype(max_bounces)
-    defines = {"SBR_MAX_BOUNCES": int(max_bounces), "SBR_TRI_SLOTS": tri_slots(max_bounces),
-               "SBR_BLOCK": BLOCK, "SBR_GROUPS": GROUPS}
-    data64 = caster.scene_data64()
+    dtype = record_dtype(max_bounces, precision)
+    defines = _defines(max_bounces, precision)
+    real = np.float64 if fp64 else np.float32
     mat_f, mat_i = _tables(scene)
     win_f, win_i, blocks = _windows(windows)
     near_first, near_tri = near_triangles(caster, receivers)
@@ -132,14 +193,24 @@ def shoot_and_radiate(caster: RayCaster, scene, tri_face, windows, tx_frame, rec
         a = np.ascontiguousarray(a, dtype=dtype)
         return to_dev(a if a.size else np.zeros(1, dtype))
 
-    bufs = [data64["vertices"], data64["normals"], dev(scene.tri_material, np.int32),
-            dev(tri_face, np.int32), dev(record_triangles, np.uint8), dev(mat_f, np.float64),
-            dev(mat_i, np.int32), dev(win_f, np.float64), dev(win_i, np.int32),
-            dev(windows.masks, np.uint8), dev(blocks, np.int32), dev(receivers, np.float64),
-            dev(np.asarray(rx_frames, np.float64).reshape(-1, 9), np.float64),
-            dev(np.asarray(tx_frame, np.float64).reshape(9), np.float64),
+    def precise(a):
+        """float64 positions and lengths as the build reads them: doubles, or pairs"""
+        a = np.asarray(a, np.float64).reshape(-1)
+        return dev(a, np.float64) if fp64 else dev(split_pairs(a), np.float32)
+
+    if fp64:
+        data64 = caster.scene_data64()
+        tri_v, tri_n = data64["vertices"], data64["normals"]
+    else:
+        tri_v, tri_n = precise(caster.triangles), precise(caster.normals64())
+    tx_and_k = np.append(np.asarray(windows.tx, np.float64), float(wavenumber))
+    bufs = [tri_v, tri_n, dev(scene.tri_material, np.int32),
+            dev(tri_face, np.int32), dev(record_triangles, np.uint8), dev(mat_f, real),
+            dev(mat_i, np.int32), dev(win_f, real), dev(win_i, np.int32),
+            dev(windows.masks, np.uint8), dev(blocks, np.int32), precise(receivers),
+            dev(np.asarray(rx_frames, np.float64).reshape(-1, 9), real),
+            dev(np.asarray(tx_frame, np.float64).reshape(9), real), precise(tx_and_k),
             dev(near_first, np.int32), dev(near_tri, np.int32)]
-    tx = np.asarray(windows.tx, dtype=np.float64)
     sight_tmax = np.float32(1.0 - SIGHT_STOP)
     cells = BLOCK * BLOCK
     blocks_per_batch = max(1, int(batch_tubes) // cells)
@@ -153,14 +224,12 @@ def shoot_and_radiate(caster: RayCaster, scene, tri_face, windows, tx_frame, rec
         nb = min(blocks_per_batch, n_blocks - first)
         while True:
             cl.enqueue_copy(rt.queue, count_buf, np.zeros(1, np.int32))
-            caster.run_kernel("sbr.cl", "sbr_blocks", nb, *bufs, np.float64(ON_FACE_TOL_REL),
-                              np.float64(INSIDE_TOL_REL), np.float64(CONFIRM_TOL_M),
-                              np.int32(len(receivers)),
-                              np.float64(tx[0]), np.float64(tx[1]), np.float64(tx[2]),
-                              np.float64(wavenumber), np.float64(wavelength), sight_tmax,
+            caster.run_kernel("sbr.cl", "sbr_blocks", nb, *bufs, real(ON_FACE_TOL_REL),
+                              real(INSIDE_TOL_REL), real(CONFIRM_TOL_M),
+                              np.int32(len(receivers)), real(wavelength), sight_tmax,
                               np.int32(first_bounce), np.int32(max_bounces), np.int64(first),
                               np.int32(nb), out_buf, count_buf, np.int32(capacity),
-                              defines=defines)
+                              defines=defines, options=_options(precision))
             cl.enqueue_copy(rt.queue, count, count_buf)
             n = int(count[0])
             if n <= capacity:
@@ -174,4 +243,14 @@ def shoot_and_radiate(caster: RayCaster, scene, tri_face, windows, tx_frame, rec
             cl.enqueue_copy(rt.queue, rec, out_buf)
             parts.append(rec)
     rec = np.concatenate(parts) if parts else np.zeros(0, dtype=dtype)
-    return rec[np.lexsort((rec["ordinal"], rec["tube"] // cells))]
+    rec = rec[np.lexsort((rec["ordinal"], rec["tube"] // cells))]
+    if fp64:
+        return rec
+    # double-float: lengths and points back to float64, the rest widened
+    out = np.zeros(len(rec), dtype=record_dtype(max_bounces, "fp64"))
+    for name in out.dtype.names:
+        if name in ("length", "point"):
+            out[name] = join_pairs(rec[name])
+        else:
+            out[name] = rec[name]
+    return out

@@ -758,15 +758,17 @@ def host_block_sums(geom, windows: TubeWindows, tx, receivers, max_bounces: int,
 
 
 def device_block_sums(geom, windows: TubeWindows, tx, receivers, max_bounces: int,
-                      first_bounce: int, record_triangles) -> BlockSums:
-    """The device engine: :func:`clradcom.device.sbr.shoot_and_radiate`."""
+                      first_bounce: int, record_triangles, precision: str = "auto"
+                      ) -> BlockSums:
+    """The device engine: :func:`clradcom.device.sbr.shoot_and_radiate` (``precision``:
+    fp64 where the device has it, else double-float positions with float fields)."""
     scene = geom.scene
     rec = device_sbr.shoot_and_radiate(
         geom.caster, scene, geom.faces.tri_face, windows, tx.orientation,
         [rx.position for rx in receivers], [rx.orientation for rx in receivers],
         wavenumber=2.0 * np.pi * scene.carrier_hz / em.C0,
         wavelength=em.C0 / scene.carrier_hz, max_bounces=max_bounces,
-        first_bounce=first_bounce, record_triangles=record_triangles)
+        first_bounce=first_bounce, record_triangles=record_triangles, precision=precision)
     M = rec["M"].reshape(-1, 2, 2, 2)
     return BlockSums(receiver=rec["receiver"].astype(np.int32),
                      bounce=rec["bounce"].astype(np.int16),
@@ -940,9 +942,10 @@ def object_spacing_m(geom, objects, spacing_wavelengths: float | None,
 
 def shoot_sbr(geom, tx, objects, receivers, *, spacing_wavelengths: float | None = None,
               accuracy_db: float = 0.5, max_bounces: int = 3, first_bounce: int = 2,
-              mirrors: bool = True) -> SbrTubes:
+              mirrors: bool = True, precision: str = "auto") -> SbrTubes:
     """Shoot tx's tubes over ``objects`` and radiate them toward every receiver (radars):
-    what a tracer computes once per transmitter, with the engine ``geom.engine``."""
+    what a tracer computes once per transmitter, with the engine ``geom.engine``
+    (``precision`` of the device engine: :data:`clradcom.device.sbr.PRECISIONS`)."""
     scene = geom.scene
     objects = np.asarray(list(objects), dtype=np.int64)
     receivers = list(receivers)
@@ -953,10 +956,14 @@ def shoot_sbr(geom, tx, objects, receivers, *, spacing_wavelengths: float | None
         object_spacing_m(geom, objects, spacing_wavelengths, accuracy_db), mirrors=mirrors,
         tx_name=tx.name), tx)
     record = np.isin(scene.tri_object, objects)
-    engine = device_block_sums if geom.engine == "device" else host_block_sums
-    sums = (engine(geom, windows, tx, receivers, max_bounces, first_bounce, record)
-            if windows.n_tubes and receivers and max_bounces >= first_bounce
-            else BlockSums.empty(max_bounces))
+    if not (windows.n_tubes and receivers and max_bounces >= first_bounce):
+        sums = BlockSums.empty(max_bounces)
+    elif geom.engine == "device":
+        sums = device_block_sums(geom, windows, tx, receivers, max_bounces, first_bounce,
+                                 record, precision)
+    else:
+        sums = host_block_sums(geom, windows, tx, receivers, max_bounces, first_bounce,
+                               record)
     return SbrTubes(windows=windows, receivers=rx_pos, sums=sums, max_bounces=max_bounces)
 
 
