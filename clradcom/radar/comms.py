@@ -25,15 +25,20 @@ Every function takes and returns plain arrays (plus the ``Waveform`` and the sma
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.special import erfc
 
-from clradcom.errors import ArgumentError
+from clradcom.errors import AliasingWarning, ArgumentError, CyclicPrefixWarning
 from clradcom.figures import new_figure
 from clradcom.radar.interference import stream_signal
-from clradcom.radar.synthesis import check_paths, thermal_noise_power
+from clradcom.radar.synthesis import (
+    channel_transfer_function,
+    check_paths,
+    thermal_noise_power,
+)
 from clradcom.radar.waveform import Waveform, check_symbols
 
 #: the modulations the receiver decodes with Gray mapping (square QAM per axis)
@@ -325,13 +330,26 @@ def _finite(name, value) -> float:
     return v
 
 
-def snr_noise_variance(gains, esn0_db: float) -> float:
+def channel_power(gains, delays_s, dopplers_hz, waveform: Waveform) -> float:
+    """Mean power gain of the link over the frame's cells, mean |H(n, μ)|² of the
+    frequency-domain channel (docs/dsp.md §3): Σ|a_k|² when the paths are resolved, less
+    when unresolved paths cancel (a line of sight and its road bounce)."""
+    a, tau, fd = check_paths(gains, delays_s, dopplers_hz)
+    with warnings.catch_warnings():  # only the power is used: aliasing does not change it
+        warnings.simplefilter("ignore", AliasingWarning)
+        warnings.simplefilter("ignore", CyclicPrefixWarning)
+        h = channel_transfer_function(a, tau, fd, waveform,
+                                      method="matmul" if a.size <= 64 else "nufft")
+    return float(np.mean(np.abs(h) ** 2))
+
+
+def snr_noise_variance(channel_power_gain: float, esn0_db: float) -> float:
     """Noise variance per sample for a mean Es/N0 of ``esn0_db`` at D: the symbols have unit
-    power and the transforms are unitary, so Es/N0 = Σ|a_k|²/σ² (the channel's mean power
-    gain over the noise)."""
-    p = float(np.sum(np.abs(np.asarray(gains)) ** 2))
+    power and the transforms are unitary, so Es/N0 = mean|H|²/σ² (``channel_power``)."""
+    p = _finite("channel_power_gain", channel_power_gain)
     if not p > 0:
-        raise ArgumentError("the link carries no power", argument="gains", value=p)
+        raise ArgumentError("the link carries no power", argument="channel_power_gain",
+                            value=p)
     return p * 10.0 ** (-_finite("esn0_db", esn0_db) / 10.0)
 
 
@@ -617,10 +635,10 @@ def monte_carlo(gains, delays_s, dopplers_hz, waveform: Waveform, esn0_db, *,
     """BER, SER and EVM of D's receiver against Es/N0 (``esn0_db``: a list) on one link.
 
     Each of ``frames`` frames has its own data and is synthesised once; every SNR adds its
-    own noise to it.  Es/N0 is the link's mean: Σ|a_k|²/σ².  Beside each measurement: the
-    AWGN theory and the known-channel theory (AWGN rates averaged over the cells' |H|² of
-    the frequency-domain channel).  A timing error is a frame start off by more than the
-    prefix allows (|error| > backoff)."""
+    own noise to it.  Es/N0 is the link's mean: mean|H|²/σ² (``channel_power``).  Beside
+    each measurement: the AWGN theory and the known-channel theory (AWGN rates averaged
+    over the cells' |H|² of the frequency-domain channel).  A timing error is a frame
+    start off by more than the window's backoff."""
     mod = check_modulation(modulation)
     pattern = PilotPattern() if pattern is None else pattern
     a, tau, fd = check_paths(gains, delays_s, dopplers_hz)
@@ -632,6 +650,7 @@ def monte_carlo(gains, delays_s, dopplers_hz, waveform: Waveform, esn0_db, *,
     rng = np.random.default_rng(seed)
     acc = {s: np.zeros(7) for s in snrs}  # bit err, bits, sym err, syms, evm², timing, cfo
     h_known = None
+    p_link = channel_power(a, tau, fd, wf)
     n, fs, df = wf.n_subcarriers, wf.sample_rate, wf.subcarrier_spacing_hz
     true_start = (timing_offset_s + float(tau[np.argmax(np.abs(a))])) * fs
     backoff = max(1, wf.n_cp // 8)
@@ -641,7 +660,7 @@ def monte_carlo(gains, delays_s, dopplers_hz, waveform: Waveform, esn0_db, *,
         clean = received_signal(tx.symbols, a, tau, fd, wf, timing_offset_s=timing_offset_s,
                                 cfo_hz=cfo_hz, phase_rad=phase_rad)
         for s in snrs:
-            nv = snr_noise_variance(a, s)
+            nv = snr_noise_variance(p_link, s)
             noise = math.sqrt(nv / 2) * (rng.standard_normal(clean.size)
                                          + 1j * rng.standard_normal(clean.size))
             res = receive(clean + noise, tx, wf, dd_passes=dd_passes, backoff=backoff)
@@ -665,13 +684,13 @@ def monte_carlo(gains, delays_s, dopplers_hz, waveform: Waveform, esn0_db, *,
     return MonteCarlo(mod, pattern, pattern.overhead(n, wf.n_symbols), rows)
 
 
-def link_snr_db(gains, tx_power_w: float, noise_figure_db: float, bandwidth_hz: float,
-                temperature_k: float = 290.0) -> float:
-    """Mean Es/N0 of the link in dB: P_tx Σ|a_k|² over D's thermal noise kTBF."""
-    p = float(np.sum(np.abs(np.asarray(gains)) ** 2))
+def link_snr_db(gains, delays_s, dopplers_hz, waveform: Waveform, tx_power_w: float,
+                noise_figure_db: float, temperature_k: float = 290.0) -> float:
+    """Mean Es/N0 of the link in dB: P_tx mean|H|² over D's thermal noise kTBF, B = NΔf."""
+    p = channel_power(gains, delays_s, dopplers_hz, waveform)
     if not p > 0:
         raise ArgumentError("the link carries no power", argument="gains", value=p)
-    noise = thermal_noise_power(bandwidth_hz, noise_figure_db, temperature_k)
+    noise = thermal_noise_power(waveform.bandwidth, noise_figure_db, temperature_k)
     return 10.0 * math.log10(_finite("tx_power_w", tx_power_w) * p / noise)
 
 
