@@ -3,6 +3,7 @@
     clradcom trace scenes/street/street.toml        trace, snapshot, radar images, tables
     clradcom radar out/street/snapshot.npz --scene scenes/street/street.toml
     clradcom interference scenes/street/street.toml two radars: interference, cancellation
+    clradcom comms scenes/street/street.toml        the A->D data link: BER, SER, EVM
     clradcom tradeoff scenes/street/street.toml     speed against accuracy sweep
     clradcom rcs --out out/rcs                      the car's RCS against aspect
     clradcom view scenes/street/street.toml         the scene from above
@@ -20,6 +21,7 @@ import argparse
 import sys
 
 from clradcom import __version__
+from clradcom.commands import comms as comms_cmd
 from clradcom.commands import interference as interference_cmd
 from clradcom.commands import radar as radar_cmd
 from clradcom.commands import rcs as rcs_cmd
@@ -86,6 +88,8 @@ SUBCOMMANDS = {
     "interference": ("two radars on one scene: the interference and its cancellation",
                      interference_cmd.__doc__, interference_cmd.add_arguments,
                      interference_cmd.check_args, interference_cmd.run),
+    "comms": ("the data link: A's frame decoded by D, BER/SER/EVM against SNR and theory",
+              comms_cmd.__doc__, comms_cmd.add_arguments, comms_cmd.check_args, comms_cmd.run),
     "tradeoff": ("sweep the tracer's knobs: run time against accuracy, Pareto front",
                  tradeoff_cmd.__doc__, tradeoff_cmd.add_arguments, None, tradeoff_cmd.run),
     "rcs": ("the car model's radar cross-section against aspect, GO against PO + SBR",

@@ -1,0 +1,259 @@
+"""The data link of RadCom: radar A's frame received as data by car D.
+
+    clradcom comms scenes/street/street.toml --out out/comms
+    clradcom comms --snapshot out/street/snapshot.npz --out out/comms
+
+(``python tools/comms.py ...`` runs the same.)
+
+A sends its OFDM frame (24 GHz, Δf = 90.909 kHz, cyclic prefix 1.375 µs; N and M from
+--subcarriers/--symbols) with Gray-mapped random data (--modulation) and known pilots
+(--pilots block|comb, --pilot-step); car D receives it through the traced A->D link
+(one-way delays, gains and Dopplers with both cars' motion), exact time-domain synthesis
+(ICI, ISI), with D's receiver timing (--timing-offset-us) and oscillator offset
+(--cfo-hz), plus white noise at each Es/N0 of --snr-db and at the link's own SNR
+(P_tx mean|H|² / kTBF of D's noise figure).  D synchronises on the cyclic prefix, estimates
+the channel from the pilots, equalises (zero forcing) and decodes.  Written into --out:
+
+  comms.csv          BER, SER, EVM per Es/N0, bit and symbol counts, AWGN and known-channel
+                     theory, timing errors, worst frequency-offset error
+  comms.png / .svg   BER and SER against Es/N0 beside the AWGN theory, EVM
+  snapshot.npz       (only when tracing a scene) every link of the scene
+
+Formulas, the pilot patterns and their overhead, sources: docs/comms.md.  Errors are one
+line on stderr, exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from dataclasses import replace
+from pathlib import Path
+
+from clradcom.commands.console import progress_bar, trace_steps
+from clradcom.commands.options import (
+    finite_float,
+    list_of,
+    noise_figure_db,
+    non_negative_float,
+    non_negative_int,
+    output_folder,
+    positive_float,
+    positive_int,
+    run_tool,
+    seed,
+    tool_waveform,
+)
+from clradcom.device.runtime import get_runtime
+from clradcom.errors import ArgumentError, SceneError, SnapshotError
+from clradcom.files import save_figure, staged_folder, write_csv
+from clradcom.presets import DEFAULT_PRESET, PRESETS
+from clradcom.radar.comms import (
+    COMMS_MODULATIONS,
+    CSV_COLUMNS,
+    PilotPattern,
+    comms_figure,
+    csv_rows,
+    link_snr_db,
+    monte_carlo,
+)
+from clradcom.radar.interference import MAX_FREQUENCY_OFFSET
+from clradcom.radar.pipeline import check_frame_memory
+from clradcom.radar.synthesis import check_noise_figure
+from clradcom.scene.reader import load_scene
+from clradcom.snapshot import load_snapshot, save_snapshot
+from clradcom.trace import TraceSettings, check_launch_memory, trace_scene
+
+#: the names this tool writes into its output folder (the snapshot only when tracing)
+OUTPUTS = ("comms.csv", "comms.png", "comms.svg")
+
+
+def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(
+        prog=prog, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_arguments(ap)
+    return ap
+
+
+def parse_args(argv, prog: str | None = None):
+    ap = build_parser(prog)
+    args = ap.parse_args(argv)
+    check_args(ap, args)
+    return args
+
+
+def add_arguments(ap: argparse.ArgumentParser) -> None:
+    """The options of ``clradcom comms`` / tools/comms.py."""
+    ap.add_argument("scene", nargs="?", help="scene file (TOML) to trace, e.g. "
+                    "scenes/street/street.toml; leave out when giving --snapshot")
+    ap.add_argument("--snapshot", help="an existing snapshot.npz (from clradcom trace)")
+    ap.add_argument("--out", type=output_folder, default="out/comms",
+                    help="output folder (default out/comms)")
+    ap.add_argument("--tx", default="A", help="the radar that sends (default A)")
+    ap.add_argument("--rx", default="D", help="the radar that receives (default D)")
+    ap.add_argument("--modulation", choices=COMMS_MODULATIONS, default="qpsk",
+                    help="data modulation, Gray mapped (default qpsk)")
+    ap.add_argument("--pilots", choices=("block", "comb"), default="block",
+                    help="block: every --pilot-step-th symbol all pilots; comb: every "
+                         "--pilot-step-th subcarrier of every symbol (default block)")
+    ap.add_argument("--pilot-step", type=positive_int, default=8,
+                    help="pilot spacing in symbols (block) or subcarriers (comb), default 8")
+    ap.add_argument("--snr-db", type=list_of(finite_float, "Es/N0"),
+                    default=[0.0, 2.0, 4.0, 6.0, 8.0, 10.0, 12.0, 14.0, 16.0, 18.0, 20.0],
+                    help="mean Es/N0 values in dB, comma separated (default 0,2,...,20)")
+    ap.add_argument("--frames", type=positive_int, default=1,
+                    help="frames per Es/N0, each with its own data (default 1)")
+    ap.add_argument("--dd-passes", type=non_negative_int, default=0,
+                    help="decision-directed re-estimation passes (default 0)")
+    ap.add_argument("--timing-offset-us", type=non_negative_float, default=3.0,
+                    help="when A's frame leaves, in D's capture, µs (default 3.0)")
+    ap.add_argument("--cfo-hz", type=finite_float, default=2400.0,
+                    help="D's oscillator offset from A's, Hz (default 2400 = 0.1 ppm at "
+                         "24 GHz); with the Doppler within ±0.4 Δf")
+    ap.add_argument("--seed", type=seed, default=0, help="seed of data and noise "
+                    "(an integer >= 0, default 0)")
+    ap.add_argument("--tx-power-w", type=positive_float, default=0.01,
+                    help="with --snapshot: the sender's power for the link SNR (default 0.01)")
+    ap.add_argument("--noise-figure-db", type=noise_figure_db, default=10.0,
+                    help="with --snapshot: the receiver's noise figure (default 10 dB)")
+    ap.add_argument("--device", default=None, help="OpenCL device for tracing a scene")
+    ap.add_argument("--preset", choices=tuple(PRESETS), default=DEFAULT_PRESET,
+                    help=f"the tracer's physics when tracing a scene (default {DEFAULT_PRESET})")
+    ap.add_argument("--rays", type=positive_int, default=None,
+                    help="rays per transmitter when tracing a scene (default: the preset's)")
+    ap.add_argument("--subcarriers", type=positive_int, default=1024,
+                    help="N (default 1024; a multiple of 8)")
+    ap.add_argument("--symbols", type=positive_int, default=256, help="M (default 256)")
+    ap.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+
+
+def check_args(ap: argparse.ArgumentParser, args) -> None:
+    """What argparse alone cannot refuse: the scene or a snapshot, two different radars."""
+    if (args.scene is None) == (args.snapshot is None):
+        ap.error("give either a scene file or --snapshot (exactly one)")
+    if args.tx == args.rx:
+        ap.error(f"--rx must be another radar than --tx ({args.tx!r})")
+
+
+def settings(args) -> TraceSettings:
+    changes = {} if args.rays is None else {"specular__rays": args.rays}
+    return TraceSettings.preset(args.preset, **changes)
+
+
+def scene_radars(args, scene):
+    """(sender's power, receiver's noise figure) from the scene, refused by scene key."""
+    names = [r.name for r in scene.radars]
+    for option, name in (("--tx", args.tx), ("--rx", args.rx)):
+        if name not in names:
+            raise ArgumentError(f"{args.scene} has no radar of that name (radars: "
+                                f"{sorted(names)})", argument=option, value=name)
+    it, ir = names.index(args.tx), names.index(args.rx)
+    if scene.radars[it].tx_power_w == 0:
+        raise SceneError("the sending radar transmits nothing: there is no link to decode",
+                         file=scene.source, key=f"radars[{it}].tx_power_w", value=0.0)
+    nf = scene.radars[ir].noise_figure_db
+    nf = args.noise_figure_db if nf is None else nf
+    try:
+        check_noise_figure(nf)
+    except ArgumentError as exc:
+        raise SceneError(exc.reason, file=scene.source, key=f"radars[{ir}].noise_figure_db",
+                         value=nf) from None
+    return scene.radars[it].tx_power_w, nf
+
+
+def link_paths(snap, args, source):
+    try:
+        return snap.link(args.tx, args.rx).paths
+    except KeyError as exc:
+        raise SnapshotError(f"{exc.args[0]}; check --tx and --rx", file=source) from None
+
+
+def check_run(args, wf) -> None:
+    """The pilot step, the timing and carrier offsets, named by their options."""
+    n, m = wf.n_subcarriers, wf.n_symbols
+    limit = m if args.pilots == "block" else n
+    if args.pilot_step >= limit:
+        raise ArgumentError(f"must be below the frame's {limit} "
+                            f"{'symbols' if args.pilots == 'block' else 'subcarriers'}",
+                            argument="--pilot-step", value=args.pilot_step)
+    if not args.timing_offset_us * 1e-6 < wf.symbol_duration:
+        raise ArgumentError(f"must lie in [0, T_sym = {wf.symbol_duration * 1e6:.6g} µs)",
+                            argument="--timing-offset-us", value=args.timing_offset_us)
+    lim = MAX_FREQUENCY_OFFSET * wf.subcarrier_spacing_hz
+    if abs(args.cfo_hz) > lim:
+        raise ArgumentError(f"must stay within ±{MAX_FREQUENCY_OFFSET}·Δf = ±{lim:.6g} Hz: "
+                            "the cyclic-prefix frequency estimate is ambiguous beyond",
+                            argument="--cfo-hz", value=args.cfo_hz)
+
+
+def main(argv=None, prog: str = "comms.py") -> int:
+    args = parse_args(argv, prog)
+    args.prog = prog
+    return run_tool(prog, run, args)
+
+
+def run(args) -> int:
+    out = Path(args.out)
+    t0 = time.perf_counter()
+    if args.scene is not None:
+        check_launch_memory(settings(args), argument="--rays",
+                            value=settings(args).specular.rays)
+        scene = load_scene(args.scene)
+        p_tx, nf = scene_radars(args, scene)
+        wf = tool_waveform(scene.carrier_hz, subcarriers=args.subcarriers,
+                           symbols=args.symbols, scene=scene)
+        source, owned = args.scene, (*OUTPUTS, "snapshot.npz")
+    else:
+        try:
+            snap = load_snapshot(args.snapshot)
+        except OSError as exc:
+            raise SnapshotError(f"cannot read it ({exc.strerror or exc})",
+                                file=args.snapshot) from None
+        p_tx, nf = args.tx_power_w, args.noise_figure_db
+        wf = tool_waveform(snap.carrier_hz, subcarriers=args.subcarriers,
+                           symbols=args.symbols, snapshot=args.snapshot)
+        source, owned = args.snapshot, OUTPUTS
+        paths = link_paths(snap, args, args.snapshot)
+    wf = replace(wf, modulation=args.modulation)
+    check_run(args, wf)
+    check_frame_memory(wf, "exact", copies=2, argument="--subcarriers x --symbols",
+                       value=f"{args.subcarriers} x {args.symbols}",
+                       advice="choose fewer --subcarriers or --symbols")
+    pattern = PilotPattern.named(args.pilots, args.pilot_step)
+    with staged_folder(out, inputs=[source], owned=owned) as stage:
+        if args.scene is not None:
+            runtime = get_runtime(args.device)
+            print(f"tracing {args.scene} on {runtime.info.describe()} ...", flush=True)
+            with progress_bar(None, "trace", quiet=args.quiet, unit="link") as bar:
+                snap = trace_scene(scene, settings(args), runtime=runtime,
+                                   steps=trace_steps(bar))
+            save_snapshot(stage / "snapshot.npz", snap)
+            paths = link_paths(snap, args, args.scene)
+        if len(paths.gain) == 0:
+            raise SnapshotError(f"the link {args.tx}->{args.rx} has no paths: D receives "
+                                "nothing", file=source)
+        snr_link = link_snr_db(paths.gain, paths.delay_s, paths.doppler_hz, wf, p_tx, nf)
+        snrs = sorted(set(args.snr_db) | {round(snr_link, 2)})
+        print(f"link {args.tx}->{args.rx}: {len(paths.gain)} paths, mean Es/N0 "
+              f"{snr_link:.2f} dB (P_tx {p_tx:g} W, NF {nf:g} dB); pilots "
+              f"{pattern.overhead(wf.n_subcarriers, wf.n_symbols):.2%} of the cells",
+              flush=True)
+        mc = monte_carlo(
+            paths.gain, paths.delay_s, paths.doppler_hz, wf, snrs, modulation=args.modulation,
+            pattern=pattern, frames=args.frames, seed=args.seed,
+            timing_offset_s=args.timing_offset_us * 1e-6, cfo_hz=args.cfo_hz,
+            dd_passes=args.dd_passes,
+            progress=lambda msg: print(f"[{time.perf_counter() - t0:6.1f} s] {msg} ...",
+                                       flush=True))
+        write_csv(stage / "comms.csv", csv_rows(mc), CSV_COLUMNS, inputs=[source])
+        fig = comms_figure(mc, f"{args.tx} -> {args.rx} data link", snr_link)
+        for ext in ("png", "svg"):
+            save_figure(fig, stage / f"comms.{ext}", inputs=[source], dpi=120)
+    print(f"\n  {'Es/N0 dB':>8} {'BER':>10} {'AWGN BER':>10} {'SER':>10} {'EVM dB':>7} "
+          f"{'timing err':>10}")
+    for row in mc.rows:
+        mark = "  <- the link's own SNR" if row[0] == round(snr_link, 2) else ""
+        print(f"  {row[0]:8.2f} {row[1]:10.3e} {row[8]:10.3e} {row[2]:10.3e} {row[3]:7.2f} "
+              f"{row[13]:10d}{mark}")
+    print(f"\n[{time.perf_counter() - t0:6.1f} s] wrote {out}/comms.csv, comms.png, comms.svg")
+    return 0
