@@ -31,7 +31,7 @@ from clradcom.scene.bounds import check_coordinates, check_speed
 from clradcom.scene.fields import FieldReader
 from clradcom.scene.records import Motion, Radar, Scene, SceneObject, TimeAxis
 
-__all__ = ["MAX_TIME_STEPS", "MOTION_KEYS", "TIME_KEYS", "read_motion", "read_time_axis",
+__all__ = ["MAX_TIME_STEPS", "MOTION_KEYS", "TIME_KEYS", "covers", "read_motion", "read_time_axis",
            "rotation_matrix", "scene_at", "trajectory_position", "trajectory_velocity"]
 
 #: the keys of an object or a free radar that describe motion beyond ``velocity``
@@ -123,7 +123,7 @@ def _read_trajectory(fields: FieldReader, value, key: str,
                              "overflows")
         check_speed(fields, v, value[i + 1], f"{key}[{i + 1}]")
     lo, hi = span
-    if lo < t[0] or hi > t[-1]:
+    if not (covers(rows, lo) and covers(rows, hi)):
         raise fields.err(key, value, f"covers {t[0]:g} .. {t[-1]:g} s, but the scene is "
                          f"traced from {lo:g} to {hi:g} s ([time] or 0 s): extend it")
     return rows
@@ -131,6 +131,14 @@ def _read_trajectory(fields: FieldReader, value, key: str,
 
 # ---------------------------------------------------------------------------
 # poses at a time
+
+
+def covers(traj: np.ndarray, t: float) -> bool:
+    """Whether ``t`` lies in the trajectory's span, give or take 1e-9 of the time (so
+    ``start_s + step_s * (count - 1)`` rounded past the last waypoint still counts; the
+    pose there is the waypoint's)."""
+    slack = 1e-9 * max(1.0, abs(t))
+    return bool(traj[0, 0] - slack <= t <= traj[-1, 0] + slack)
 
 
 def trajectory_position(traj: np.ndarray, t: float) -> np.ndarray:
@@ -182,7 +190,7 @@ def _move(name: str, motion: Motion | None, velocity: np.ndarray, t0: float,
     dt = t - t0
     if motion is not None and motion.trajectory is not None:
         traj = motion.trajectory
-        if not traj[0, 0] <= t <= traj[-1, 0]:
+        if not covers(traj, t):
             raise ArgumentError(f"lies outside the trajectory of {name} ({traj[0, 0]:g} "
                                 f"to {traj[-1, 0]:g} s)", argument="t", value=t)
         shift = trajectory_position(traj, t) - trajectory_position(traj, t0)
