@@ -191,3 +191,21 @@ def test_scene_at_refuses_bad_times():
         with pytest.raises(ArgumentError) as exc:
             scene_at(scene, bad)
         assert exc.value.argument == "t"
+
+
+def test_turning_radar_frame_and_velocity():
+    doc = disc_doc((0.0, 0.0, 0.0))
+    doc["radars"][0].update(velocity=[1.0, 0.0, 0.0], angular_velocity_deg_s=[0, 0, 180.0],
+                            rotation_centre=[3.0, -1.0, 4.0])
+    scene = scene_from_dict(doc)
+    w = np.pi
+    # v + omega x (p - c), p - c = (0, 1, 0): omega z x y = -w x
+    np.testing.assert_allclose(scene.radars[0].velocity, [1.0 - w, 0.0, 0.0], atol=1e-15)
+    half = scene_at(scene, 0.5)  # a quarter turn about the centre, which moved 0.5 m
+    np.testing.assert_allclose(half.radars[0].position, [3.5 - 1.0, -1.0, 4.0], atol=1e-12)
+    np.testing.assert_allclose(half.radars[0].orientation[:, 0], [0, 1, 0], atol=1e-12)
+    # at (-1, 0, 0) from the centre omega z x (-x) = -w y
+    np.testing.assert_allclose(half.radars[0].velocity, [1.0, -w, 0.0], atol=1e-12)
+    again = scene_at(scene, 0.0)
+    np.testing.assert_allclose(again.radars[0].velocity, scene.radars[0].velocity,
+                               atol=1e-15)

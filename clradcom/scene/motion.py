@@ -241,8 +241,14 @@ def scene_at(scene: Scene, t: float) -> Scene:
             velocity=mv.velocity, motion=mv.motion(o.motion)))
     radars: list[Radar] = []
     for i, r in enumerate(scene.radars):
-        mv = moves[r.rides_on] if r.rides_on >= 0 else _move(
-            f"radars[{i}] ({r.name})", r.motion, r.velocity, t0, t)
+        if r.rides_on >= 0:
+            mv = moves[r.rides_on]
+        else:  # a radar's velocity is that of its point: take the turn out of it
+            v = r.velocity
+            if r.motion is not None and r.motion.angular_velocity_deg_s is not None:
+                v = v - np.cross(r.motion.angular_velocity,
+                                 r.position - r.motion.rotation_centre)
+            mv = _move(f"radars[{i}] ({r.name})", r.motion, v, t0, t)
         pos = mv.points(r.position[None])[0]
         radars.append(dataclasses.replace(
             r, position=pos,
