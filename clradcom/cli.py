@@ -6,6 +6,7 @@
     clradcom comms scenes/street/street.toml        the A->D data link: BER, SER, EVM
     clradcom tradeoff scenes/street/street.toml     speed against accuracy sweep
     clradcom rcs --out out/rcs                      the car's RCS against aspect
+    clradcom drive scene.toml                       a moving scene over time: path series
     clradcom view scenes/street/street.toml         the scene from above
     clradcom presets                                the tracer's named physics
     clradcom devices                                the OpenCL devices
@@ -22,6 +23,7 @@ import sys
 
 from clradcom import __version__
 from clradcom.commands import comms as comms_cmd
+from clradcom.commands import drive as drive_cmd
 from clradcom.commands import interference as interference_cmd
 from clradcom.commands import radar as radar_cmd
 from clradcom.commands import rcs as rcs_cmd
@@ -94,6 +96,8 @@ SUBCOMMANDS = {
                  tradeoff_cmd.__doc__, tradeoff_cmd.add_arguments, None, tradeoff_cmd.run),
     "rcs": ("the car model's radar cross-section against aspect, GO against PO + SBR",
             rcs_cmd.__doc__, rcs_cmd.add_arguments, rcs_cmd.check_args, rcs_cmd.run),
+    "drive": ("trace a moving scene at every instant of its [time] table, paths followed",
+              drive_cmd.__doc__, drive_cmd.add_arguments, None, drive_cmd.run),
     "view": ("draw a scene from above, with a snapshot's strongest paths",
              radar_cmd.__doc__, radar_cmd.add_view_arguments, None, radar_cmd.run_view),
 }

@@ -303,4 +303,5 @@ def trace_scene(scene: Scene, settings: TraceSettings | None = None,
     meta["device"] = geom.runtime.info.device_name.strip()
     return Snapshot(scene_name=scene.name, carrier_hz=float(scene.carrier_hz),
                     scene_hash=scene.content_hash(), links=tuple(out), metadata=meta,
+                    time_s=float(scene.time_s),
                     object_names=tuple(obj.name for obj in scene.objects))

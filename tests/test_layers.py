@@ -11,7 +11,7 @@ Layers, low to high (a module may import its own layer and those below):
     physics                Fresnel/roughness dyads, UTD, PO integrals
     mechanisms             specular, diffraction, physical optics/SBR, scattering
     snapshot, export       the file; .mat and Sionna-style exports
-    trace, presets         the orchestrator, its named settings
+    trace, presets, series the orchestrator, its named settings, path series over time
     radar                  waveform, synthesis, processing, CFAR, interference, truth
     evaluation             accuracy, budget, trade-off (nothing imports it)
     plots, views, commands, cli   what users run (and __main__)
@@ -34,7 +34,7 @@ LAYERS = [
     {"clradcom.physics"},
     {"clradcom.mechanisms"},
     {"clradcom.snapshot", "clradcom.export"},
-    {"clradcom.trace", "clradcom.presets"},
+    {"clradcom.trace", "clradcom.presets", "clradcom.series"},
     {"clradcom.radar"},
     {"clradcom.evaluation"},
     {"clradcom.plots", "clradcom.views", "clradcom.commands", "clradcom.cli",

@@ -454,7 +454,7 @@ def chain_fields(scene, faces, wedges: Wedges, chains: Chains, points, triangles
     gain, M = em.path_gains(T, total, u[:, 0], u[:, -1], tx, rx, scene.carrier_hz)
     vel = np.empty_like(points)
     vel[:, 0] = tx.velocity
-    vel[:, 1:K + 1] = scene.object_velocity[obj]
+    vel[:, 1:K + 1] = scene.point_velocity(obj, points[:, 1:K + 1])
     vel[:, K + 1] = rx.velocity
     doppler = em.doppler_hz(points, vel, scene.wavelength_m)
     return Paths(gain=gain, matrix=M, delay_s=em.delay_s(total), doppler_hz=doppler,

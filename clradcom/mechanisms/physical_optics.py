@@ -134,7 +134,7 @@ def po_paths(geom, tx, rx, *, objects=None, min_relative_db=-80.0, two_sided=Fal
     pts = np.stack([np.broadcast_to(tx_pos, (P, 3)), c, np.broadcast_to(rx_pos, (P, 3))],
                    axis=1)
     vel = np.stack([np.broadcast_to(np.asarray(tx.velocity, float), (P, 3)),
-                    scene.object_velocity[obj],
+                    scene.point_velocity(obj, c),
                     np.broadcast_to(np.asarray(rx.velocity, float), (P, 3))], axis=1)
     doppler = em.doppler_hz(pts, vel, scene.wavelength_m)
 

@@ -860,8 +860,8 @@ def block_paths(geom, windows: TubeWindows, sums: BlockSums, tx, rx, *, max_boun
     obj = np.where(tri_ids >= 0, scene.tri_object[np.maximum(tri_ids, 0)], -1)
     vel = np.zeros_like(pts)
     vel[:, 0] = tx.velocity
-    vel[:, 1:max_bounces + 1] = np.where((tri_ids >= 0)[..., None],
-                                         scene.object_velocity[np.maximum(obj, 0)], 0.0)
+    vel[:, 1:max_bounces + 1] = np.where((tri_ids >= 0)[..., None], scene.point_velocity(
+        np.maximum(obj, 0), pts[:, 1:max_bounces + 1]), 0.0)
     vel[np.arange(P), nk + 1] = rx.velocity
     doppler = em.doppler_hz(pts, vel, scene.wavelength_m, num_interactions=nk)
     active = tri_ids >= 0

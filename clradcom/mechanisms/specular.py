@@ -422,8 +422,8 @@ def path_fields(geom: Geometry, pg: PathGeometry, tx: Radar, rx: Radar) -> Paths
     M = M * specular_share[:, None, None]
     vel = np.zeros_like(pts)
     vel[:, 0] = tx.velocity
-    vel[:, 1:k_max + 1] = np.where(active[..., None], scene.object_velocity[np.maximum(obj, 0)],
-                                   0.0)
+    vel[:, 1:k_max + 1] = np.where(active[..., None], scene.point_velocity(
+        np.maximum(obj, 0), pts[:, 1:k_max + 1]), 0.0)
     vel[np.arange(P), nk + 1] = rx.velocity
     doppler = em.doppler_hz(pts, vel, scene.wavelength_m, num_interactions=nk)
     interaction = np.where(active, int(InteractionType.REFLECTION), 0).astype(np.int8)

@@ -21,6 +21,12 @@ from clradcom.scene.antenna import euler_deg_to_matrix
 from clradcom.scene.bounds import check_coordinates, check_speed
 from clradcom.scene.fields import FieldReader
 from clradcom.scene.geojson import GEOJSON_KEYS, read_geojson_buildings
+from clradcom.scene.motion import (
+    MOTION_KEYS,
+    read_motion,
+    trajectory_position,
+    trajectory_velocity,
+)
 from clradcom.scene.read_geometry import MeshCache, read_object_geometry
 from clradcom.scene.read_materials import MaterialTable, material_index
 from clradcom.scene.records import OPTICS, SBR_SPACING_WAVELENGTHS, SceneObject
@@ -30,7 +36,7 @@ __all__ = ["DEGENERATE_REL", "OBJECT_KEYS", "PlacedMesh", "drop_or_refuse_degene
 
 OBJECT_KEYS = ("name", "material", "mesh", "shape", "extents", "size", "vertices", "faces",
                "position", "rotation_deg", "scale", "velocity", "drop_degenerate",
-               "optics", "sbr_spacing_wavelengths", "description")
+               "optics", "sbr_spacing_wavelengths", "description", *MOTION_KEYS)
 
 #: Relative area threshold for "degenerate": 2*area <= DEGENERATE_REL * longest_edge^2.
 DEGENERATE_REL = 1e-10
@@ -54,10 +60,11 @@ class PlacedMesh:
 
 
 def read_objects(fields: FieldReader, entries: list, materials: MaterialTable,
-                 carrier: float, base_dir: Path, placed=()
+                 carrier: float, base_dir: Path, placed=(), span=(0.0, 0.0)
                  ) -> tuple[list[SceneObject], list[np.ndarray]]:
     """Objects (``placed`` ones first, then the entries in file order) and each one's world
-    triangles (F, 3, 3); built-in materials they name join ``materials``."""
+    triangles (F, 3, 3); built-in materials they name join ``materials``. ``span`` is the
+    first and last instant traced (trajectories must cover it; poses are at the first)."""
     objects: list[SceneObject] = []
     triangles: list[np.ndarray] = []
     seen: dict = {}
@@ -84,7 +91,7 @@ def read_objects(fields: FieldReader, entries: list, materials: MaterialTable,
                 add(*_placed_object(p, start))
             continue
         add(*_read_object(fields, kp, tbl, seen, materials, carrier, base_dir, mesh_cache,
-                          start))
+                          start, span))
     return objects, triangles
 
 
@@ -150,7 +157,8 @@ def _read_geojson_entry(fields, kp, tbl, seen, materials, carrier, base_dir):
     return out
 
 
-def _read_object(fields, kp, tbl, seen, materials, carrier, base_dir, mesh_cache, start):
+def _read_object(fields, kp, tbl, seen, materials, carrier, base_dir, mesh_cache, start,
+                 span=(0.0, 0.0)):
     fields.check_keys(tbl, OBJECT_KEYS, kp)
     name = fields.unique_name(tbl, kp, seen, "object")
     mat_name = fields.get_str(tbl, "material", kp)
@@ -160,6 +168,10 @@ def _read_object(fields, kp, tbl, seen, materials, carrier, base_dir, mesh_cache
     velocity = fields.get_vec3(tbl, "velocity", kp, default=(0.0, 0.0, 0.0), unit="m/s")
     if "velocity" in tbl:
         check_speed(fields, velocity, tbl["velocity"], f"{kp}.velocity")
+    motion = read_motion(fields, tbl, kp, position, span)
+    if motion is not None and motion.trajectory is not None:
+        position = trajectory_position(motion.trajectory, span[0])
+        velocity = trajectory_velocity(motion.trajectory, span[0])
     scale = _read_scale(fields, tbl, kp)
     drop = fields.get_bool(tbl, "drop_degenerate", kp, default=False)
     optics = fields.get_str(tbl, "optics", kp, default=None, choices=OPTICS)
@@ -176,7 +188,7 @@ def _read_object(fields, kp, tbl, seen, materials, carrier, base_dir, mesh_cache
         name=name, mesh=label, material=mat, material_name=mat_name, position=position,
         rotation_deg=rot_deg, rotation=rotation, scale=scale, velocity=velocity,
         tri_start=start, tri_stop=start + tri.shape[0], optics=optics,
-        sbr_spacing_wavelengths=sbr_spacing,
+        sbr_spacing_wavelengths=sbr_spacing, motion=motion,
     )
     return obj, tri
 

@@ -17,6 +17,12 @@ from clradcom.scene.bounds import (
     check_speed,
 )
 from clradcom.scene.fields import FieldReader
+from clradcom.scene.motion import (
+    MOTION_KEYS,
+    read_motion,
+    trajectory_position,
+    trajectory_velocity,
+)
 from clradcom.scene.read_arrays import read_arrays
 from clradcom.scene.read_patterns import read_pattern
 from clradcom.scene.records import ROLES, Radar, SceneObject
@@ -25,22 +31,38 @@ __all__ = ["RADAR_KEYS", "read_radars"]
 
 RADAR_KEYS = ("name", "position", "rides_on", "orientation_deg", "velocity", "pattern",
               "polarization", "role", "tx_power_w", "noise_figure_db", "description",
-              "array", "tx_array", "rx_array")
+              "array", "tx_array", "rx_array", *MOTION_KEYS)
 
 
 def read_radars(fields: FieldReader, entries: list, objects: list[SceneObject],
-                base_dir: Path, wavelength_m: float | None = None) -> list[Radar]:
+                base_dir: Path, wavelength_m: float | None = None,
+                span=(0.0, 0.0)) -> list[Radar]:
     """Radars in file order; ``objects`` are the ones they may ride on; ``wavelength_m``
-    (the scene's carrier) scales array spacings given in wavelengths."""
+    (the scene's carrier) scales array spacings given in wavelengths; ``span`` is the first
+    and last instant traced (trajectories must cover it; poses are at the first)."""
     seen: dict = {}
-    return [_read_radar(fields, f"radars[{i}]", tbl, seen, objects, base_dir, wavelength_m)
+    return [_read_radar(fields, f"radars[{i}]", tbl, seen, objects, base_dir, wavelength_m,
+                        span)
             for i, tbl in enumerate(entries)]
 
 
-def _read_radar(fields, kp, tbl, seen, objects, base_dir, wavelength_m) -> Radar:
+def _read_radar(fields, kp, tbl, seen, objects, base_dir, wavelength_m,
+                span=(0.0, 0.0)) -> Radar:
     fields.check_keys(tbl, RADAR_KEYS, kp)
     name = fields.unique_name(tbl, kp, seen, "radar")
-    pos_local = fields.get_vec3(tbl, "position", kp, unit="m")
+    motion = None
+    if "rides_on" in tbl:
+        for key in MOTION_KEYS:
+            if key in tbl:
+                raise fields.err(f"{kp}.{key}", tbl[key], "a radar that rides_on an object "
+                                 f"moves with it; remove {key} (set it on the object)")
+    if "trajectory" in tbl and "rides_on" not in tbl:
+        motion = read_motion(fields, tbl, kp, None, span)  # refuses position and velocity
+        pos_local = trajectory_position(motion.trajectory, span[0])
+    else:
+        pos_local = fields.get_vec3(tbl, "position", kp, unit="m")
+        if "rides_on" not in tbl:
+            motion = read_motion(fields, tbl, kp, pos_local, span)
     ori_deg = fields.get_vec3(tbl, "orientation_deg", kp, default=(0.0, 0.0, 0.0),
                               unit="deg")
     r_local = euler_deg_to_matrix(ori_deg)
@@ -50,6 +72,9 @@ def _read_radar(fields, kp, tbl, seen, objects, base_dir, wavelength_m) -> Radar
         position = obj.position + obj.rotation @ pos_local
         orientation = obj.rotation @ r_local
         velocity = obj.velocity.copy()
+        if obj.motion is not None and obj.motion.angular_velocity_deg_s is not None:
+            velocity = velocity + np.cross(obj.motion.angular_velocity,
+                                           position - obj.motion.rotation_centre)
     else:
         rides = -1
         position = pos_local
@@ -57,7 +82,13 @@ def _read_radar(fields, kp, tbl, seen, objects, base_dir, wavelength_m) -> Radar
         velocity = fields.get_vec3(tbl, "velocity", kp, default=(0.0, 0.0, 0.0), unit="m/s")
         if "velocity" in tbl:
             check_speed(fields, velocity, tbl["velocity"], f"{kp}.velocity")
-    check_coordinates(fields, position[None, :], f"{kp}.position", tbl["position"],
+        if motion is not None and motion.trajectory is not None:
+            velocity = trajectory_velocity(motion.trajectory, span[0])
+        if motion is not None and motion.angular_velocity_deg_s is not None:
+            velocity = velocity + np.cross(motion.angular_velocity,
+                                           position - motion.rotation_centre)
+    check_coordinates(fields, position[None, :], f"{kp}.position",
+                      tbl.get("position", tbl.get("trajectory")),
                       "the radar's position" + (" on its object" if rides >= 0 else ""))
     role = fields.get_str(tbl, "role", kp, default="txrx", choices=ROLES)
     power = fields.get_float(tbl, "tx_power_w", kp, default=1.0, lo=0.0, unit="W")
@@ -81,7 +112,7 @@ def _read_radar(fields, kp, tbl, seen, objects, base_dir, wavelength_m) -> Radar
         orientation=orientation, pattern=pattern, polarization=pol,
         polarization_name=pol_name, velocity=velocity, role=role, tx_power_w=power,
         noise_figure_db=nf, position_local=pos_local, orientation_deg=ori_deg,
-        tx_array=tx_array, rx_array=rx_array,
+        tx_array=tx_array, rx_array=rx_array, motion=motion,
     )
 
 

@@ -45,6 +45,7 @@ from clradcom.scene.bounds import check_carrier, warn_far_geometry, warn_speeds
 from clradcom.scene.fields import REQUIRED, FieldReader, is_file
 from clradcom.scene.import_xml import read_xml_scene
 from clradcom.scene.materials import C0
+from clradcom.scene.motion import read_time_axis
 from clradcom.scene.read_geometry import MESH_SUFFIXES, SHAPES
 from clradcom.scene.read_materials import read_materials
 from clradcom.scene.read_objects import read_objects
@@ -53,7 +54,7 @@ from clradcom.scene.records import Radar, Scene, SceneObject
 
 __all__ = ["load_scene", "scene_from_dict", "SHAPES", "MESH_SUFFIXES"]
 
-TOP_KEYS = ("scene", "materials", "objects", "radars")
+TOP_KEYS = ("scene", "materials", "objects", "radars", "time")
 SCENE_KEYS = ("name", "carrier_hz", "description", "import")
 
 
@@ -97,18 +98,24 @@ def scene_from_dict(data: dict, *, file="<dict>", base_dir=".") -> Scene:
         raise fields.err(None, data, "scene document must be a table")
     fields.check_keys(data, TOP_KEYS, "")
     name, description, carrier = _read_scene_table(fields, data)
+    time_axis = read_time_axis(fields, data)
+    span = (0.0, 0.0) if time_axis is None else (
+        time_axis.start_s, float(time_axis.times[-1]))
     materials = read_materials(fields, fields.array_of_tables(data, "materials"), carrier)
     placed = []
     if "import" in data["scene"]:
         rel = fields.get_str(data["scene"], "import", "scene")
         placed = read_xml_scene(fields, rel, "scene.import", materials, carrier, base_dir)
     objects, triangles = read_objects(fields, fields.array_of_tables(data, "objects"),
-                                      materials, carrier, base_dir, placed)
+                                      materials, carrier, base_dir, placed, span)
     radars = read_radars(fields, fields.array_of_tables(data, "radars"), objects, base_dir,
-                         C0 / carrier)
+                         C0 / carrier, span)
     _warn_out_of_range(fields, carrier, objects, triangles, radars)
-    return _assemble_scene(file, name, description, carrier, materials.materials, objects,
-                           triangles, radars)
+    scene = _assemble_scene(file, name, description, carrier, materials.materials, objects,
+                            triangles, radars)
+    if time_axis is not None:
+        scene.time_s, scene.time_axis = time_axis.start_s, time_axis
+    return scene
 
 
 def _path_argument(value, argument: str) -> Path:

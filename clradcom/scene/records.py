@@ -16,8 +16,8 @@ import numpy as np
 from clradcom.scene.antenna import Pattern
 from clradcom.scene.materials import C0, ROUGHNESS_MODELS, Material
 
-__all__ = ["ARRAY_KINDS", "OPTICS", "ROLES", "SBR_SPACING_WAVELENGTHS", "ArrayLayout", "Radar",
-           "Scene", "SceneObject"]
+__all__ = ["ARRAY_KINDS", "OPTICS", "ROLES", "SBR_SPACING_WAVELENGTHS", "ArrayLayout", "Motion",
+           "Radar", "Scene", "SceneObject", "TimeAxis"]
 
 #: ``objects[].optics``: how the tracer models the object's returns (docs/po.md)
 OPTICS = ("go", "po", "both")
@@ -45,6 +45,47 @@ class ArrayLayout:
 
 
 @dataclass(eq=False)
+class Motion:
+    """Rigid motion beyond a constant velocity (docs/scene-format.md, "Motion"): a turn
+    at ``angular_velocity_deg_s`` about an axis through ``rotation_centre``, and/or a
+    piecewise-linear ``trajectory`` of the position. ``None`` fields are absent."""
+
+    #: (3,) deg/s, a world vector along the axis (right hand), or None
+    angular_velocity_deg_s: np.ndarray | None = None
+    #: (3,) world point on the axis at the scene's time (m); it moves with the position
+    rotation_centre: np.ndarray | None = None
+    #: (N, 4) float64 rows [t (s), x, y, z (m)], times strictly increasing, or None
+    trajectory: np.ndarray | None = None
+
+    @property
+    def angular_velocity(self) -> np.ndarray:
+        """(3,) rad/s (zeros when the object does not turn)."""
+        if self.angular_velocity_deg_s is None:
+            return np.zeros(3)
+        return np.radians(self.angular_velocity_deg_s)
+
+    def hash_params(self) -> list:
+        def vec(a):
+            return [repr(float(x)) for x in np.asarray(a, dtype=np.float64).reshape(-1)]
+        return [[key, vec(getattr(self, key))]
+                for key in ("angular_velocity_deg_s", "rotation_centre", "trajectory")
+                if getattr(self, key) is not None]
+
+
+@dataclass(frozen=True)
+class TimeAxis:
+    """The ``[time]`` table: ``count`` instants ``start_s + i * step_s``."""
+
+    start_s: float
+    step_s: float
+    count: int
+
+    @property
+    def times(self) -> np.ndarray:
+        return self.start_s + self.step_s * np.arange(self.count, dtype=np.float64)
+
+
+@dataclass(eq=False)
 class SceneObject:
     """One object: a mesh placed in the world with a material and a velocity."""
 
@@ -64,6 +105,8 @@ class SceneObject:
     #: pitch of this object's SBR ray tubes in wavelengths, or None to follow
     #: ``OpticsSettings.sbr_spacing_wavelengths``
     sbr_spacing_wavelengths: float | None = None
+    #: rotation and/or trajectory (None: constant ``velocity`` only)
+    motion: Motion | None = None
 
     @property
     def tri_slice(self) -> slice:
@@ -95,6 +138,8 @@ class Radar:
     #: snapshot start and end at ``position``, the array's reference point
     tx_array: ArrayLayout | None = None
     rx_array: ArrayLayout | None = None
+    #: rotation and/or trajectory of a radar that rides on nothing (None: ``velocity``)
+    motion: Motion | None = None
 
     def world_to_local(self, directions_world) -> np.ndarray:
         """(K,3) world directions -> antenna-frame directions (R^T d)."""
@@ -132,6 +177,11 @@ class Scene:
     tri_material: np.ndarray
     object_velocity: np.ndarray
     description: str = ""
+    #: the instant the poses and velocities hold for (s); :func:`clradcom.scene.motion.
+    #: scene_at` moves the scene to another
+    time_s: float = 0.0
+    #: the file's ``[time]`` table, or None
+    time_axis: TimeAxis | None = None
 
     # -- convenience -------------------------------------------------------
     @property
@@ -152,6 +202,36 @@ class Scene:
 
     def material_index(self, name: str) -> int:
         return self._index(self.materials, name, "material")
+
+    @property
+    def moving(self) -> bool:
+        """True when anything turns or follows a trajectory (the velocities then depend
+        on time or on the point)."""
+        return any(x.motion is not None for x in (*self.objects, *self.radars))
+
+    def point_velocity(self, object_ids, points) -> np.ndarray:
+        """Velocity (m/s) of material points of objects: ``v + omega x (p - c)`` with the
+        object's translation velocity v, angular velocity omega and rotation centre c.
+
+        ``object_ids`` (...) int, ``points`` (..., 3) world m -> (..., 3). For objects that
+        do not turn this is exactly ``object_velocity[object_ids]`` (the points are not
+        read), so scenes without rotation give the same Doppler, bit for bit."""
+        ids = np.asarray(object_ids)
+        base = self.object_velocity[ids]
+        turning = [i for i, o in enumerate(self.objects)
+                   if o.motion is not None and o.motion.angular_velocity_deg_s is not None]
+        if not turning:
+            return base
+        omega = np.zeros((len(self.objects), 3))
+        centre = np.zeros((len(self.objects), 3))
+        for i in turning:
+            omega[i] = self.objects[i].motion.angular_velocity
+            centre[i] = self.objects[i].motion.rotation_centre
+        sel = np.isin(ids, turning)
+        out = base.copy()
+        p = np.asarray(points, dtype=np.float64)[sel]
+        out[sel] = base[sel] + np.cross(omega[ids[sel]], p - centre[ids[sel]])
+        return out
 
     # -- material arrays (M,) --------------------------------------------------
     @property
@@ -215,6 +295,9 @@ class Scene:
                         + ([o.optics] if o.optics is not None else [])
                         + ([["sbr_spacing_wavelengths", f(o.sbr_spacing_wavelengths)]]
                            if o.sbr_spacing_wavelengths is not None else [])
+                        # motion only when set, so scenes without it keep their hashes
+                        + ([["motion", o.motion.hash_params()]]
+                           if o.motion is not None else [])
                         for o in self.objects],
             "radars": [
                 [r.name, vec(r.position), r.rides_on, vec(r.orientation), r.pattern.params(),
@@ -224,9 +307,16 @@ class Scene:
                 + [[key, a.kind, vec(a.positions_local)]
                    for key, a in (("tx_array", r.tx_array), ("rx_array", r.rx_array))
                    if a is not None]
+                + ([["motion", r.motion.hash_params()]] if r.motion is not None else [])
                 for r in self.radars
             ],
         }
+        # the time only when a scene has one, so scenes without it keep their hashes
+        if self.time_s != 0.0 or self.time_axis is not None:
+            params["time_s"] = f(self.time_s)
+        if self.time_axis is not None:
+            ta = self.time_axis
+            params["time_axis"] = [f(ta.start_s), f(ta.step_s), int(ta.count)]
         h = hashlib.sha256()
         h.update(json.dumps(params, sort_keys=True, separators=(",", ":")).encode())
         for arr, dt in ((self.triangles, "<f8"), (self.tri_object, "<i4"),
