@@ -16,14 +16,18 @@ import numpy as np
 from clradcom.scene.antenna import Pattern
 from clradcom.scene.materials import C0, ROUGHNESS_MODELS, Material
 
-__all__ = ["ARRAY_KINDS", "OPTICS", "ROLES", "SBR_SPACING_WAVELENGTHS", "ArrayLayout", "Radar",
-           "Scene", "SceneObject"]
+__all__ = ["ARRAY_KINDS", "SIDES", "OPTICS", "ROLES", "SBR_SPACING_WAVELENGTHS", "ArrayLayout",
+           "Radar", "Scene", "SceneObject"]
 
 #: ``objects[].optics``: how the tracer models the object's returns (docs/po.md)
 OPTICS = ("go", "po", "both")
 #: ``objects[].sbr_spacing_wavelengths``: the range (inclusive, in wavelengths) of an
 #: object's own SBR ray-tube pitch, that of ``OpticsSettings.sbr_spacing_wavelengths``
 SBR_SPACING_WAVELENGTHS = (0.01, 100.0)
+#: ``objects[].sides``: which sides of its triangles reflect (docs/scene-format.md, "Sides"):
+#: "auto" re-orients closed shells wound inside out and makes the object two-sided when
+#: any part of it is open; "as_wound" trusts the winding; "two_sided" lights both sides
+SIDES = ("auto", "as_wound", "two_sided")
 #: What a radar does: transmit and receive, only transmit, only receive.
 ROLES = ("txrx", "tx", "rx")
 #: ``radars[].array.kind``: uniform linear, uniform planar, explicit element positions
@@ -64,6 +68,11 @@ class SceneObject:
     #: pitch of this object's SBR ray tubes in wavelengths, or None to follow
     #: ``OpticsSettings.sbr_spacing_wavelengths``
     sbr_spacing_wavelengths: float | None = None
+    #: the ``sides`` key as given (one of :data:`SIDES`)
+    sides: str = "auto"
+    #: both sides of its triangles reflect (an open sheet under "auto", or "two_sided"):
+    #: PO facets and wedges are lit from either side, not only where the winding faces
+    two_sided: bool = False
 
     @property
     def tri_slice(self) -> slice:
@@ -153,6 +162,12 @@ class Scene:
     def material_index(self, name: str) -> int:
         return self._index(self.materials, name, "material")
 
+    @property
+    def tri_two_sided(self) -> np.ndarray:
+        """(T,) bool: the triangle's object is two-sided (``SceneObject.two_sided``)."""
+        flags = np.array([o.two_sided for o in self.objects], dtype=bool)
+        return flags[self.tri_object] if len(flags) else np.zeros(0, dtype=bool)
+
     # -- material arrays (M,) --------------------------------------------------
     @property
     def material_eps_r(self) -> np.ndarray:
@@ -215,6 +230,9 @@ class Scene:
                         + ([o.optics] if o.optics is not None else [])
                         + ([["sbr_spacing_wavelengths", f(o.sbr_spacing_wavelengths)]]
                            if o.sbr_spacing_wavelengths is not None else [])
+                        # the sides key only when not "auto" (what "auto" makes of the
+                        # mesh follows from the triangles, which are hashed)
+                        + ([["sides", o.sides]] if o.sides != "auto" else [])
                         for o in self.objects],
             "radars": [
                 [r.name, vec(r.position), r.rides_on, vec(r.orientation), r.pattern.params(),
