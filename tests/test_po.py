@@ -1,6 +1,6 @@
 """Physical-optics facet returns (clradcom.po) against quadrature and closed forms.
 
-Reference: /work/shared/reference/propagation-physics.md §6 (flat plate sigma =
+Reference: docs/reference/propagation-physics.md §6 (flat plate sigma =
 4 pi A^2 / lambda^2; GO and PO agree at R = 2 D^2 / lambda).  Radar equation with
 isotropic antennas: |a|^2 = lambda^2 sigma / ((4 pi)^3 R^4).
 """
