@@ -213,9 +213,14 @@ def test_shadowed_plate_gives_nothing(runtime):
 
 def test_back_side_and_non_pec_default(runtime):
     verts, faces = plate_tris(1, 0.2, -5.0)  # behind the radar, facing -x: away from it
+    # an open sheet is two-sided (sides = "auto"); trusted as wound, its back is dark
     scene = scene_of([tri_object("plate", verts, faces)], [iso_radar()])
-    assert len(link(scene, runtime)) == 0
-    assert len(link(scene, runtime, two_sided=True)) == 2
+    assert len(link(scene, runtime)) == 2
+    assert len(link(scene, runtime, two_sided=False)) == 0
+    one = scene_of([{**tri_object("plate", verts, faces), "sides": "as_wound"}],
+                   [iso_radar()])
+    assert len(link(one, runtime)) == 0
+    assert len(link(one, runtime, two_sided=True)) == 2
     verts, faces = plate_tris(1, 0.2, 5.0)
     scene = scene_of([tri_object("plate", verts, faces, material="itu_concrete")], [iso_radar()])
     assert len(link(scene, runtime)) == 0  # only PEC objects by default
