@@ -84,11 +84,21 @@ def orient_shells(triangles) -> Shells:
     edge_ok = (uses == 2) & (turns == 0)
     face_ok = edge_ok[edge].reshape(n, 3).all(axis=1)
     closed = np.bincount(shell, weights=(~face_ok).astype(float), minlength=S) == 0
-    inward = np.zeros(S, dtype=bool)
-    for s in np.flatnonzero(closed):
-        t = tri[shell == s]
-        t = t - t.reshape(-1, 3).mean(axis=0)
-        volume = np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum() / 6.0
-        diagonal = float(np.linalg.norm(np.ptp(t.reshape(-1, 3), axis=0)))
-        inward[s] = volume < -1e-9 * diagonal ** 3
+    # signed volume per shell about its vertex centroid (all shells at once: a tree of
+    # many small closed leaves costs O(T), not O(S T))
+    pts = tri.reshape(-1, 3)
+    owner = np.repeat(shell, 3)
+    count = np.bincount(owner, minlength=S)
+    centre = np.column_stack([np.bincount(owner, weights=pts[:, i], minlength=S)
+                              for i in range(3)]) / count[:, None]
+    t = tri - centre[shell][:, None, :]
+    volume = np.bincount(shell, weights=np.einsum("ij,ij->i", t[:, 0],
+                                                  np.cross(t[:, 1], t[:, 2])),
+                         minlength=S) / 6.0
+    lo = np.full((S, 3), np.inf)
+    hi = np.full((S, 3), -np.inf)
+    np.minimum.at(lo, owner, pts)
+    np.maximum.at(hi, owner, pts)
+    diagonal = np.linalg.norm(hi - lo, axis=1)
+    inward = closed & (volume < -1e-9 * diagonal ** 3)
     return Shells(label=shell, closed=closed, inward=inward)
