@@ -1,6 +1,6 @@
 """Field physics of exact paths (clradcom.physics.em) against closed forms.
 
-Reference numbers: /work/shared/reference/propagation-physics.md (§1 Fresnel and
+Reference numbers: docs/reference/propagation-physics.md (§1 Fresnel and
 roughness, §4 Doppler, §6 canonical cases); formulas in docs/physics.md.
 """
 

@@ -1,6 +1,6 @@
 """Two radars: D's interference in A's image and its cancellation (clradcom.radar.interference).
 
-References: docs/interference.md; shared/reference/ofdm-radar-dsp.md §2 (peak-to-floor =
+References: docs/interference.md; docs/reference/ofdm-radar-dsp.md §2 (peak-to-floor =
 NM·SIR_in, coherent ghost when D sends A's symbols, residual P_I(NMSE + SER·E|d−d̂|²)).
 Each stage is checked against a closed form or a brute-force sum; the whole chain on a
 small frame (N = 256, M = 64) whose paths are resolved.
@@ -264,7 +264,7 @@ def test_every_interference_free_detection_is_found_again(run):
 
 def test_residual_follows_the_error_budget_when_decisions_fail(symbols):
     """With D only a few dB above the noise A's decisions on D fail now and then; the
-    residual is then P_I·(NMSE + SER·E|d − d̂|²) (ofdm-radar-dsp.md §2).  That budget
+    residual is then P_I·(NMSE + SER·E|d − d̂|²) (docs/reference/ofdm-radar-dsp.md §2).  That budget
     spreads the errors evenly, so D's channel here is flat (one path); on a selective
     channel the errors fall in fades and the |Ĥ|²-weighted budget holds instead."""
     d_a, d_d = symbols

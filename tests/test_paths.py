@@ -2,7 +2,7 @@
 
 Every scene goes through ``trace_scene(scene_from_dict(...))``: OpenCL candidate
 search, float64 image method, ray-cast confirmation and the field physics.
-Reference numbers: /work/shared/reference/propagation-physics.md (§1 Fresnel,
+Reference numbers: docs/reference/propagation-physics.md (§1 Fresnel,
 §1 monostatic sigma_eq = pi R^2, §4 Doppler, §6.1-6.2, §6.7 polarimetric corners,
 §6.8 Brewster).  Conventions (clradcom/em.py): M = [[VV, VH], [HV, HH]]; for a
 monostatic radar this is the backscatter-alignment basis (PEC plate -I); two

@@ -1,6 +1,6 @@
 """Physical-optics facet returns (clradcom.po) against quadrature and closed forms.
 
-Reference: /work/shared/reference/propagation-physics.md §6 (flat plate sigma =
+Reference: docs/reference/propagation-physics.md §6 (flat plate sigma =
 4 pi A^2 / lambda^2; GO and PO agree at R = 2 D^2 / lambda).  Radar equation with
 isotropic antennas: |a|^2 = lambda^2 sigma / ((4 pi)^3 R^4).
 """
@@ -213,9 +213,14 @@ def test_shadowed_plate_gives_nothing(runtime):
 
 def test_back_side_and_non_pec_default(runtime):
     verts, faces = plate_tris(1, 0.2, -5.0)  # behind the radar, facing -x: away from it
+    # an open sheet is two-sided (sides = "auto"); trusted as wound, its back is dark
     scene = scene_of([tri_object("plate", verts, faces)], [iso_radar()])
-    assert len(link(scene, runtime)) == 0
-    assert len(link(scene, runtime, two_sided=True)) == 2
+    assert len(link(scene, runtime)) == 2
+    assert len(link(scene, runtime, two_sided=False)) == 0
+    one = scene_of([{**tri_object("plate", verts, faces), "sides": "as_wound"}],
+                   [iso_radar()])
+    assert len(link(one, runtime)) == 0
+    assert len(link(one, runtime, two_sided=True)) == 2
     verts, faces = plate_tris(1, 0.2, 5.0)
     scene = scene_of([tri_object("plate", verts, faces, material="itu_concrete")], [iso_radar()])
     assert len(link(scene, runtime)) == 0  # only PEC objects by default

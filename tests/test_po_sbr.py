@@ -1,7 +1,7 @@
 """SBR-PO multi-bounce returns (clradcom.mechanisms.sbr) and the per-object optics switch.
 
 Closed forms (Knott, Shaeffer & Tuley, *Radar Cross Section*, 2nd ed., table 6.1;
-/work/shared/reference/propagation-physics.md §6), monostatic, PEC:
+docs/reference/propagation-physics.md §6), monostatic, PEC:
 
 * 90° dihedral, fold length a, plate width b, incidence perpendicular to the fold
   at 45° to both plates: sigma = 8 pi a^2 b^2 / lambda^2; BSA matrix ~ diag(1, -1)

@@ -1,6 +1,6 @@
 """Diffuse (Lambertian, effective-roughness) tile scattering (clradcom.mechanisms.scattering).
 
-Reference: /work/shared/reference/propagation-physics.md §3 (hemisphere power
+Reference: docs/reference/propagation-physics.md §3 (hemisphere power
 S^2 Gamma^2 P_inc; tile RCS sigma = 4 S^2 Gamma^2 A cos^2 theta, -25.0 dBsm for
 A = 0.01 m^2, S = 0.5, Gamma = 0.562; incoherent sum independent of tile size).
 Radar equation with isotropic antennas: |a|^2 = lambda^2 sigma / ((4 pi)^3 R^4).

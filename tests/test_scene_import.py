@@ -217,10 +217,14 @@ def test_inside_out_closed_mesh_warns_naming_the_object(tmp_path):
     box = trimesh.creation.box(extents=[1.0, 1.0, 1.0])
     box.invert()
     box.export(tmp_path / "meshes" / "inverted.ply")
-    with pytest.warns(SceneWarning, match=r"object 'kiosk' .*1 of its 1 closed shell"):
+    with pytest.warns(SceneWarning, match=r"object 'kiosk' .*1 of its 1 closed shell.*"
+                      r"re-oriented 12 triangle"):
         scene = load_scene(path)
     assert scene.objects[2].n_triangles == 12
-    # flip_normals turns it the right way round: no warning, reversed winding
+    assert inward_closed_shells(scene.triangles[scene.objects[2].tri_slice]) == (0, 1)
+    assert not scene.objects[2].two_sided
+    # flip_normals turns it the right way round as written: no warning, the same
+    # triangles as the re-oriented ones
     fixed = xml.replace('value="meshes/inverted.ply"/>',
                         'value="meshes/inverted.ply"/>\n'
                         '    <boolean name="flip_normals" value="true"/>')
@@ -229,7 +233,7 @@ def test_inside_out_closed_mesh_warns_naming_the_object(tmp_path):
         warnings.simplefilter("error", SceneWarning)
         flipped = load_scene(path)
     np.testing.assert_array_equal(flipped.triangles[flipped.objects[2].tri_slice],
-                                  scene.triangles[scene.objects[2].tri_slice][:, ::-1])
+                                  scene.triangles[scene.objects[2].tri_slice])
 
 
 def test_inward_closed_shells_counts_shells_of_a_welded_soup():

@@ -67,3 +67,26 @@ def test_settings_from_args_maps_every_flag_to_its_mechanism(capsys):
     with pytest.raises(SystemExit):
         tool.build_parser().parse_args(["s.toml", "--rays", "0"])
     assert "argument --rays: must be a positive integer, got '0'" in capsys.readouterr().err
+
+
+def test_the_main_job_prints_the_papers_table_iii_beside_the_detections(tmp_path, capsys):
+    """The street run prints, for radar A, each car's set values and detections beside
+    the paper's Table III (set and simulated), and nothing of the paper for radar D."""
+    from pathlib import Path
+
+    street = Path(__file__).resolve().parent.parent / "scenes" / "street" / "street.toml"
+    assert load_trace_tool().main([str(street), "--preset", "go", "--rays", "5000",
+                                   "--reflections", "1", "--diffractions", "0", "--quiet",
+                                   "--out", str(tmp_path / "out")]) == 0
+    out = capsys.readouterr().out
+    a = out[out.index("  A: "):out.index("  D: ")]
+    d = out[out.index("  D: "):]
+    assert "paper (Sit et al.), Table III" in a and "Table III" not in d
+    rows = {line.split()[0]: line for line in a.splitlines() if line.startswith("    car")}
+    # object, our set R and v, our detection, then the paper's set R, v and simulated R, v
+    for car, paper in {"carB": "16.40   26.20   16.10   25.70",
+                       "carC": "26.00    0.00   25.20    0.00",
+                       "carD": "34.60   27.40   34.40   27.40"}.items():
+        ours, theirs = rows[car].split("|")
+        assert theirs.split() == paper.split()
+        assert float(ours.split()[1]) == pytest.approx(float(paper.split()[0]), abs=0.01)

@@ -1,6 +1,6 @@
 """UTD wedge diffraction (clradcom.physics.utd) against exact solutions and closed forms.
 
-References: /work/shared/reference/propagation-physics.md §2 (KP 1974, Luebbers 1984),
+References: docs/reference/propagation-physics.md §2 (KP 1974, Luebbers 1984),
 §6.3 (Sommerfeld half-plane), §6.4 (wedge eigen-series), §6.5 (knife edge J(nu));
 formulas in docs/utd.md.  Every reference value is computed here independently of
 clradcom.physics.utd (quadrature, Fresnel integrals, Bessel series).

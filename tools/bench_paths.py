@@ -14,7 +14,7 @@ diffraction stage (candidate search, exact points, confirmation casts, UTD field
 
 Context (not measured here): Sionna RT 2.2 on this machine's CPU, reflections
 <= 5 + first-order diffraction on a 16 k-triangle street: 1e6 rays in 1.6 s,
-~1,100 paths (shared/DESIGN.md).
+~1,100 paths (docs/performance.md, "Peer figures").
 
     python tools/bench_paths.py [--scene PATH] [--device SPEC] [--orders 1,2,3,4,5]
                                 [--rays 100000,300000,1000000]

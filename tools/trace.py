@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""The design card's scene runner: the same as ``clradcom trace`` (clradcom.commands.trace).
+"""The scene runner: the same as ``clradcom trace`` (clradcom.commands.trace).
 
     python tools/trace.py scenes/street/street.toml
 

@@ -24,6 +24,9 @@ Stages and what they write into the output folder (default: out/<scene name>/):
                 -> <radar>_truth.csv         each moving object's set range and
                                               relative velocity beside the detection
                                               that matches it (or none)
+                printed: the same table; for radar A of the paper's street
+                (scenes/street/) the paper's Table III beside it, its set values
+                and its own simulation's detections
   3. picture    scene_top.png: the scene from above, strongest paths drawn
 
 Before anything is traced the run is checked whole: every option, the scene, the
@@ -91,6 +94,7 @@ from clradcom.radar.report import (
     static_returns_beyond,
     strongest_static_cell,
     truth_rows,
+    truth_table_lines,
     write_table,
 )
 from clradcom.radar.synthesis import check_noise_figure
@@ -342,10 +346,8 @@ def radar_stage(sw, args, scene, wf, link, radar, nf, stage) -> None:
         matches = match_truth(dets, truth, *match_tolerances(wf))
         rows = truth_rows(truth, matches)
         print(f"  {radar.name}: {len(dets)} detections; moving objects:")
-        print(f"    {'object':<10} {'R set':>7} {'v set':>7} {'R det':>7} {'v det':>7}")
-        for t, (*_, rd, vd) in zip(truth, rows, strict=True):
-            print(f"    {t['name']:<10} {t['range_centre_m']:7.2f} {t['v_rel_m_s']:7.2f} "
-                  f"{rd or 'missed':>7} {vd:>7}")
+        for line in truth_table_lines(radar.name, truth, rows):
+            print(line)
         static = static_returns_beyond(dets, radar, STATIC_RANGE_M, wf.velocity_resolution)
         rng, above = strongest_static_cell(image, radar, STATIC_RANGE_M,
                                            scene_reach_m(scene, radar.position),

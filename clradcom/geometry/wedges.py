@@ -126,7 +126,7 @@ def _empty_wedges(stats) -> Wedges:
 
 def extract_wedges(triangles, tri_object, tri_material, angle_threshold_deg: float = 20.0,
                    weld_tol: float = 1e-6, *, include_half_planes: bool = True,
-                   merge_collinear: bool = True) -> Wedges:
+                   merge_collinear: bool = True, two_sided=None) -> Wedges:
     """Diffracting edges of a triangle soup (a Scene's ``triangles``, ``tri_object``,
     ``tri_material``).
 
@@ -143,6 +143,13 @@ def extract_wedges(triangles, tri_object, tri_material, angle_threshold_deg: flo
     * used by one triangle: a rim edge, a half-plane (``n = 2``) when
       ``include_half_planes``.
     * used by three or more triangles: non-manifold, skipped (``stats["nonmanifold"]``).
+
+    ``two_sided`` (T,) bool, optional: triangles of two-sided objects (open sheets,
+    ``SceneObject.two_sided``). A crease between two of them has no material side to
+    take from the winding: it gives two wedges, the one above and its twin with both
+    normals reversed (exterior angle ``2 - n``), so the convex one exists whichever way
+    the sheet is wound (``stats["two_sided_creases"]`` counts the twins). Rims are
+    half-planes, the same from either side, either way.
 
     Triangles that collapse under welding or have zero area are ignored
     (``stats["degenerate"]``). With ``merge_collinear`` consecutive collinear segments of
@@ -177,6 +184,11 @@ def extract_wedges(triangles, tri_object, tri_material, angle_threshold_deg: flo
     good = (area2 > 1e-12 * longest**2) & (vid[:, 0] != vid[:, 1]) & (vid[:, 1] != vid[:, 2])
     good &= vid[:, 2] != vid[:, 0]
     stats["degenerate"] = int(T - np.count_nonzero(good))
+    if two_sided is not None:
+        two_sided = np.asarray(two_sided, dtype=bool).reshape(-1)
+        if two_sided.shape != (T,):
+            raise ArgumentError(f"two_sided needs one entry per triangle ({T}), got "
+                                f"{two_sided.shape}")
 
     # one row per (good triangle, local edge), triangle-major so ties keep triangle order
     li, lj, lk = np.array([0, 1, 2]), np.array([1, 2, 0]), np.array([2, 0, 1])
@@ -217,17 +229,27 @@ def extract_wedges(triangles, tri_object, tri_material, angle_threshold_deg: flo
     nB[inconsistent] *= -1.0
     opening = np.arctan2(np.linalg.norm(np.cross(uA, uB), axis=1),
                          np.einsum("ij,ij->i", uA, uB))  # [0, pi] between the face directions
-    convex = np.einsum("ij,ij->i", nA, uB) <= 0.0
-    interior = np.where(convex, opening, 2.0 * np.pi - opening)
-    n_val = (2.0 * np.pi - interior) / np.pi
-    # a turn exactly at the threshold (a 12-sided cylinder at 30 deg) stays out whatever
-    # the rounding: the margin is far above float64 noise and far below any real crease
-    keep = np.abs(np.pi - interior) > np.deg2rad(angle_threshold_deg) + _ANGLE_MARGIN
-    stats["crease_segments"] = int(np.count_nonzero(keep))
-    parts.append(dict(p=pA[keep], q=qA[keep], u0=uA[keep], n0=nA[keep], n1=nB[keep],
-                      n=n_val[keep], tri0=tA[keep], tri1=tB[keep], half=np.zeros(
-                          int(np.count_nonzero(keep)), dtype=bool),
-                      va=a[ra][keep], vb=b[ra][keep]))
+
+    def crease(nA, nB, rows):
+        convex = np.einsum("ij,ij->i", nA, uB) <= 0.0
+        interior = np.where(convex, opening, 2.0 * np.pi - opening)
+        n_val = (2.0 * np.pi - interior) / np.pi
+        # a turn exactly at the threshold (a 12-sided cylinder at 30 deg) stays out whatever
+        # the rounding: the margin is far above float64 noise and far below any real crease
+        keep = np.abs(np.pi - interior) > np.deg2rad(angle_threshold_deg) + _ANGLE_MARGIN
+        keep &= rows
+        return dict(p=pA[keep], q=qA[keep], u0=uA[keep], n0=nA[keep], n1=nB[keep],
+                    n=n_val[keep], tri0=tA[keep], tri1=tB[keep], half=np.zeros(
+                        int(np.count_nonzero(keep)), dtype=bool),
+                    va=a[ra][keep], vb=b[ra][keep])
+
+    parts.append(crease(nA, nB, np.ones(len(tA), dtype=bool)))
+    stats["crease_segments"] = len(parts[-1]["n"])
+    if two_sided is not None:
+        # a crease of a two-sided (thin) surface is a wedge seen from either side: its
+        # twin has the material on the other side of both faces (exterior angle 2 - n)
+        parts.append(crease(-nA, -nB, two_sided[tA] & two_sided[tB]))
+        stats["two_sided_creases"] = len(parts[-1]["n"])
     # -- rims: edges of one triangle
     g1 = np.flatnonzero(counts == 1)
     stats["boundary_edges"] = int(len(g1))

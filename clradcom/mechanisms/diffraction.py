@@ -984,13 +984,14 @@ def prepare(geom: Geometry, settings: DiffractionSettings,
             po_objects=()) -> Wedges | None:
     """The scene's wedges (edges between faces turning by more than wedge_angle_deg); one
     set serves every transmitter. None when diffraction is off or nothing can diffract.
+    Creases of two-sided objects (open sheets) diffract seen from either side.
     Wedges of ``po_objects`` (those physical optics handles) are left out unless
     ``settings.po_object_edges``."""
     if not settings.max_diffractions or not len(geom.scene.triangles):
         return None
     scene = geom.scene
     wedges = extract_wedges(scene.triangles, scene.tri_object, scene.tri_material,
-                            settings.wedge_angle_deg)
+                            settings.wedge_angle_deg, two_sided=scene.tri_two_sided)
     if len(po_objects) and not settings.po_object_edges:
         wedges = wedges.select(~np.isin(wedges.object_id, np.asarray(po_objects)))
     return wedges

@@ -53,7 +53,7 @@ def _mixed_transfer(scene, v, nrm, mat, pec, tx_pos, rx_pos):
     return T, L, c, k_dep, k_arr
 
 
-def po_paths(geom, tx, rx, *, objects=None, min_relative_db=-80.0, two_sided=False):
+def po_paths(geom, tx, rx, *, objects=None, min_relative_db=-80.0, two_sided=None):
     """PO facet paths of one tx -> rx link as :class:`clradcom.snapshot.Paths`.
 
     One path per scene triangle of the chosen objects (default: every object
@@ -61,8 +61,9 @@ def po_paths(geom, tx, rx, *, objects=None, min_relative_db=-80.0, two_sided=Fal
 
     * front side: n . (tx - c) > 0 and n . (rx - c) > 0 with n the triangle's
       winding normal (v1 - v0) x (v2 - v0), outward for a closed mesh;
-      ``two_sided=True`` also accepts both on the back side (open sheets with
-      arbitrary winding), using -n there;
+      a triangle of a two-sided object (``SceneObject.two_sided``: an open sheet, or
+      ``sides = "two_sided"``) is also accepted with both on its back side, using -n
+      there; ``two_sided=True`` / ``False`` does so for every triangle / none;
     * visibility: no triangle (other than the facet itself) hit on the segments
       centroid -> tx and centroid -> rx
       (:func:`clradcom.device.visibility.surface_sees`, origins spawned off the
@@ -103,8 +104,10 @@ def po_paths(geom, tx, rx, *, objects=None, min_relative_db=-80.0, two_sided=Fal
     st = np.einsum("fi,fi->f", nrm, tx_pos - c)
     sr = np.einsum("fi,fi->f", nrm, rx_pos - c)
     front = (st > 0) & (sr > 0)
-    if two_sided:
-        back = (st < 0) & (sr < 0)
+    both = (scene.tri_two_sided[tri_ids] if two_sided is None
+            else np.full(len(tri_ids), bool(two_sided)))
+    if both.any():
+        back = both & (st < 0) & (sr < 0)
         nrm = np.where(back[:, None], -nrm, nrm)
         front = front | back
     keep = np.flatnonzero(front)

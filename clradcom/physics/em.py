@@ -5,7 +5,8 @@ From a path's interaction points and surfaces to its complex baseband gain, its
 plain arrays and is vectorised over paths ``P``.  docs/physics.md gives each
 formula with its source; the equation labels below refer to it.
 
-Conventions (DESIGN.md): SI units, time factor e^{+jwt}, lossy permittivity
+Conventions (docs/architecture.md, "Contracts kept between the parts"): SI units,
+time factor e^{+jwt}, lossy permittivity
 ``eps_r = eps' - j eps''`` (imag <= 0).  A path's gain ``a`` is its baseband
 channel coefficient (received baseband = sum_k a_k x(t - tau_k) e^{j2 pi f_D,k t})
 with the carrier phase e^{-jkL} inside ``a``.

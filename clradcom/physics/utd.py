@@ -33,7 +33,7 @@ References
 [MPK90] D. A. McNamara, C. W. I. Pistorius, J. A. G. Malherbe, *Introduction to
        the Uniform Geometrical Theory of Diffraction*, Artech House, 1990.
 [P526] ITU-R P.526 (knife-edge J(nu)).  Sionna RT em_primer "Diffraction" uses
-       the same formulas (see /work/shared/reference/propagation-physics.md §2).
+       the same formulas (see docs/reference/propagation-physics.md §2).
 """
 
 from __future__ import annotations

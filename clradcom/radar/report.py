@@ -17,10 +17,12 @@ from clradcom.radar.cfar import detect
 from clradcom.radar.interference import InterferenceResult
 from clradcom.radar.processing import RadarImage
 from clradcom.radar.waveform import Waveform
+from clradcom.scene.street import TABLE_III
 
 __all__ = ["DETECTION_COLUMNS", "INTERFERENCE_IMAGES", "INTERFERENCE_TITLES", "STATIC_RANGE_M",
            "TRUTH_COLUMNS", "detection_rows", "display_range_db", "interference_detections",
-           "interference_summary", "match_tolerances", "moving_objects", "recovered_detections",
+           "interference_summary", "match_tolerances", "moving_objects", "paper_table_iii",
+           "recovered_detections", "truth_table_lines",
            "scene_reach_m", "static_returns_beyond", "strongest_static_cell", "truth_rows",
            "write_table"]
 
@@ -81,6 +83,56 @@ def truth_rows(truth, matches) -> list[tuple[str, ...]]:
         rows.append((t["name"], f"{t['range_centre_m']:.2f}", f"{t['range_nearest_m']:.2f}",
                      f"{t['v_rel_m_s']:.2f}", rd, vd))
     return rows
+
+
+#: a target is the paper's car when its set range and closing speed along the road are
+#: those of Table III within these (m, m/s): the same street, seen from radar A
+PAPER_MATCH = (0.5, 0.5)
+
+
+def paper_table_iii(radar_name: str, truth) -> list[dict | None]:
+    """For each target of ``truth`` (:func:`clradcom.radar.truth.detection_truth`), the
+    row of the paper's Table III (:data:`clradcom.scene.street.TABLE_III`: set R and v_rel,
+    and the paper's simulated R and v_rel) when the target is that car of the paper's
+    street as set (named ``car<letter>``, seen from radar ``A``, its set range and
+    closing speed along the road within :data:`PAPER_MATCH` of the paper's); None for
+    every other target, and for every target of any other scene or radar."""
+    out: list[dict | None] = []
+    for t in truth:
+        row = TABLE_III.get(str(t["name"]).removeprefix("car")) \
+            if str(t["name"]).startswith("car") and radar_name == "A" else None
+        if row is not None and (
+                abs(t["range_centre_m"] - row["range_set_m"]) > PAPER_MATCH[0]
+                or abs(t["v_rel_along_m_s"] - row["v_rel_set_mps"]) > PAPER_MATCH[1]):
+            row = None
+        out.append(row)
+    return out
+
+
+def truth_table_lines(radar_name: str, truth, rows) -> list[str]:
+    """The moving-object table a run prints: each target's set range and radial closing
+    speed beside the detection that matches it, and, for the paper's street, the paper's
+    Table III beside them (its set values and its own simulation's detections)."""
+    paper = paper_table_iii(radar_name, truth)
+    show = any(p is not None for p in paper)
+    head = f"    {'object':<10} {'R set':>7} {'v set':>7} {'R det':>7} {'v det':>7}"
+    lines = []
+    if show:
+        lines.append(f"    {'':<42} | paper (Sit et al.), Table III")
+        head += f" | {'R set':>7} {'v set':>7} {'R sim':>7} {'v sim':>7}"
+    lines.append(head)
+    for t, (*_, rd, vd), p in zip(truth, rows, paper, strict=True):
+        line = (f"    {t['name']:<10} {t['range_centre_m']:7.2f} {t['v_rel_m_s']:7.2f} "
+                f"{rd or 'missed':>7} {vd:>7}")
+        if p is not None:
+            line += (f" | {p['range_set_m']:7.2f} {p['v_rel_set_mps']:7.2f} "
+                     f"{p['range_sim_m']:7.2f} {p['v_rel_sim_mps']:7.2f}")
+        lines.append(line)
+    if show:
+        lines.append("    (R: range of the car's centre, m; v: closing speed, m/s: the set v of "
+                     "clradcom is the centre's range rate, the paper's the speed difference "
+                     "along the road; R sim, v sim: the paper's own ray-tracing detections)")
+    return lines
 
 
 # ----------------------------------------------------------------------------------------

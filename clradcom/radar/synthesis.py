@@ -1,6 +1,7 @@
 """Received OFDM radar signal from a snapshot's paths, and thermal noise.
 
-Channel model (DESIGN.md contract): y(t) = Σ_k a_k · x(t − τ_k) · e^{j2π f_D,k t}, with the
+Channel model (docs/architecture.md, "Contracts"):
+y(t) = Σ_k a_k · x(t − τ_k) · e^{j2π f_D,k t}, with the
 carrier phase −2π f_c τ_k already inside a_k, so nothing here adds a carrier phase.  t = 0
 is the first sample of the frame (start of symbol 0's cyclic prefix); nothing is
 transmitted before the frame.  τ_k is constant over the frame (no range migration:

@@ -28,24 +28,25 @@ frequency and the radars, which the XML does not hold, stay in the scene file
   ``SceneObject.velocity`` sets.
 
 Render-only elements (integrator, sensor, emitter, ...) are ignored. Zero-area triangles
-of imported meshes are dropped with a warning. A closed shell of a mesh whose faces point
-inwards gets a :class:`~clradcom.errors.SceneWarning` naming the object: surfaces reflect
-only on the side their winding faces (docs/po.md, docs/wedges.md), so such a building is
-invisible from outside.
+of imported meshes are dropped with a warning. Imported objects follow the ``sides =
+"auto"`` rule of the scene reader (:func:`clradcom.scene.read_objects.orient_sides`): a
+closed shell whose faces point inwards (common in converted Sionna scenes) is re-oriented
+with a :class:`~clradcom.errors.SceneWarning` naming the object, and an open mesh reflects
+on both sides (docs/scene-format.md, "Sides").
 """
 
 from __future__ import annotations
 
 import math
 import re
-import warnings
 import xml.parsers.expat
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from clradcom.errors import SceneError, SceneWarning
+from clradcom.errors import SceneError
+from clradcom.geometry.shells import orient_shells
 from clradcom.scene.bounds import check_coordinates, check_speed
 from clradcom.scene.fields import FieldReader, is_file
 from clradcom.scene.materials import (
@@ -394,13 +395,6 @@ def _read_shape(rd: _Reader, fields: FieldReader, shape: XmlNode, i: int, mats: 
         raise rd.err(shape, exc.key, exc.value, exc.reason) from None
     tri = drop_or_refuse_degenerate(fields, world[faces], key, label, True, label)
     rotation, scale = _rotation_scale(lin)
-    inward, closed = inward_closed_shells(tri)
-    if inward:
-        warnings.warn(f"{rd.path}: {key}: object '{name}' ({label}): {inward} of its "
-                      f"{closed} closed shell(s) have inward-facing normals; surfaces "
-                      "reflect only on the side their winding faces, so it is invisible "
-                      "from outside; fix the mesh (or add <boolean name=\"flip_normals\" "
-                      "value=\"true\"/>)", SceneWarning, stacklevel=2)
     return PlacedMesh(name=name, key=key, mesh=label, triangles=tri, material=material,
                       material_name=mats.table.materials[material].name, position=offset,
                       rotation=rotation, scale=scale, velocity=velocity)
@@ -490,46 +484,8 @@ def _look_at(rd: _Reader, c: XmlNode, k: str) -> np.ndarray:
 
 def inward_closed_shells(triangles: np.ndarray) -> tuple[int, int]:
     """(inward, closed): of the closed, consistently wound shells of a triangle soup, how
-    many enclose a negative volume (their normals point inwards), and how many there are.
-
-    Vertices are welded where they are bitwise equal (exporters repeat them per face).
-    A shell is a set of faces joined by shared edges; it is closed and consistently wound
-    when each of its edges is used by exactly two faces in opposite directions. Its
-    signed volume is sum (v0 . (v1 x v2)) / 6 about its centroid; a flat closed shell (a
-    two-sided sheet: |volume| <= 1e-9 d^3, d its bounding box's diagonal) counts as
-    closed, not inward."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    tri = np.asarray(triangles, dtype=np.float64).reshape(-1, 3, 3)
-    n = len(tri)
-    if n < 2:
-        return 0, 0
-    verts, index = np.unique(tri.reshape(-1, 3), axis=0, return_inverse=True)
-    faces = index.reshape(n, 3)
-    a = faces.reshape(-1)
-    b = faces[:, [1, 2, 0]].reshape(-1)
-    lo, hi = np.minimum(a, b), np.maximum(a, b)
-    edge_keys, edge = np.unique(lo * len(verts) + hi, return_inverse=True)
-    n_edges = len(edge_keys)
-    face_of = np.repeat(np.arange(n), 3)
-    graph = coo_matrix((np.ones(3 * n), (face_of, n + edge)), shape=(n + n_edges,) * 2)
-    _, label = connected_components(graph, directed=False)
-    uses = np.bincount(edge, minlength=n_edges)
-    turns = np.bincount(edge, weights=np.where(a < b, 1.0, -1.0), minlength=n_edges)
-    edge_ok = (uses == 2) & (turns == 0)
-    face_ok = edge_ok[edge].reshape(n, 3).all(axis=1)
-    shell = label[:n]
-    inward = closed = 0
-    for s in np.unique(shell):
-        members = shell == s
-        if not face_ok[members].all():
-            continue
-        closed += 1
-        t = tri[members]
-        centre = t.reshape(-1, 3).mean(axis=0)
-        t = t - centre
-        volume = np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum() / 6.0
-        diagonal = float(np.linalg.norm(np.ptp(t.reshape(-1, 3), axis=0)))
-        inward += int(volume < -1e-9 * diagonal ** 3)
-    return inward, closed
+    many enclose a negative volume (their normals point inwards), and how many there are
+    (:func:`clradcom.geometry.shells.orient_shells`, which the scene reader uses to
+    re-orient them)."""
+    shells = orient_shells(triangles)
+    return shells.n_inward, shells.n_closed

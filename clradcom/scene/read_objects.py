@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from clradcom.errors import NOVALUE, SceneWarning
+from clradcom.geometry.shells import orient_shells
 from clradcom.geometry.triangles import triangle_double_areas
 from clradcom.scene.antenna import euler_deg_to_matrix
 from clradcom.scene.bounds import check_coordinates, check_speed
@@ -29,14 +30,14 @@ from clradcom.scene.motion import (
 )
 from clradcom.scene.read_geometry import MeshCache, read_object_geometry
 from clradcom.scene.read_materials import MaterialTable, material_index
-from clradcom.scene.records import OPTICS, SBR_SPACING_WAVELENGTHS, SceneObject
+from clradcom.scene.records import OPTICS, SBR_SPACING_WAVELENGTHS, SIDES, SceneObject
 
 __all__ = ["DEGENERATE_REL", "OBJECT_KEYS", "PlacedMesh", "drop_or_refuse_degenerate",
-           "read_objects"]
+           "orient_sides", "read_objects"]
 
 OBJECT_KEYS = ("name", "material", "mesh", "shape", "extents", "size", "vertices", "faces",
                "position", "rotation_deg", "scale", "velocity", "drop_degenerate",
-               "optics", "sbr_spacing_wavelengths", "description", *MOTION_KEYS)
+               "optics", "sbr_spacing_wavelengths", "sides", "description", *MOTION_KEYS)
 
 #: Relative area threshold for "degenerate": 2*area <= DEGENERATE_REL * longest_edge^2.
 DEGENERATE_REL = 1e-10
@@ -82,26 +83,56 @@ def read_objects(fields: FieldReader, entries: list, materials: MaterialTable,
             raise fields.err(p.key, p.name, f"duplicate object name (already used by "
                              f"{seen[p.name]})")
         seen[p.name] = p.key
-        add(*_placed_object(p, start))
+        add(*_placed_object(fields, p, start))
     for i, tbl in enumerate(entries):
         kp = f"objects[{i}]"
         if isinstance(tbl, dict) and "geojson" in tbl:
             for p in _read_geojson_entry(fields, kp, tbl, seen, materials, carrier,
                                          base_dir):
-                add(*_placed_object(p, start))
+                add(*_placed_object(fields, p, start))
             continue
         add(*_read_object(fields, kp, tbl, seen, materials, carrier, base_dir, mesh_cache,
                           start, span))
     return objects, triangles
 
 
-def _placed_object(p: PlacedMesh, start: int) -> tuple[SceneObject, np.ndarray]:
+def _placed_object(fields: FieldReader, p: PlacedMesh, start: int
+                   ) -> tuple[SceneObject, np.ndarray]:
+    tri, two_sided = orient_sides(fields, p.key, p.name, p.mesh, p.triangles, "auto")
     obj = SceneObject(
         name=p.name, mesh=p.mesh, material=p.material, material_name=p.material_name,
         position=p.position, rotation_deg=matrix_to_euler_deg(p.rotation),
         rotation=p.rotation, scale=p.scale, velocity=p.velocity, tri_start=start,
-        tri_stop=start + p.triangles.shape[0])
-    return obj, p.triangles
+        tri_stop=start + tri.shape[0], two_sided=two_sided)
+    return obj, tri
+
+
+def orient_sides(fields: FieldReader, kp: str, name: str, label: str, tri: np.ndarray,
+                 mode: str) -> tuple[np.ndarray, bool]:
+    """(triangles, two_sided) of one object under its ``sides`` mode (:data:`SIDES`).
+
+    "auto": every closed, consistently wound shell that encloses its volume with inward
+    normals is re-oriented (each triangle's vertex order reversed, so its winding normal
+    points out of the material) with a SceneWarning naming the object and its mesh; the
+    object is two-sided when any of its triangles is not part of a closed shell (an open
+    sheet such as a plane, a screen, a mesh with holes or inconsistent winding).
+    "as_wound": the triangles as given, one-sided. "two_sided": as given, two-sided."""
+    if mode == "as_wound":
+        return tri, False
+    if mode == "two_sided":
+        return tri, True
+    shells = orient_shells(tri)
+    if shells.n_inward:
+        flip = shells.inward_triangles
+        tri = tri.copy()
+        tri[flip] = tri[flip][:, ::-1]
+        warnings.warn(f"{fields.file}: {kp}: object '{name}' ({label}): {shells.n_inward} of "
+                      f"its {shells.n_closed} closed shell(s) had inward-facing normals "
+                      f"(inside out); re-oriented {int(np.count_nonzero(flip))} triangle(s) "
+                      "so their normals point outwards. Fix the mesh, or set sides = "
+                      "\"as_wound\" on the object to keep its winding (docs/scene-format.md, "
+                      "Sides)", SceneWarning, stacklevel=2)
+    return tri, bool(shells.open_triangles.any())
 
 
 def matrix_to_euler_deg(rotation: np.ndarray) -> np.ndarray:
@@ -176,6 +207,7 @@ def _read_object(fields, kp, tbl, seen, materials, carrier, base_dir, mesh_cache
     drop = fields.get_bool(tbl, "drop_degenerate", kp, default=False)
     optics = fields.get_str(tbl, "optics", kp, default=None, choices=OPTICS)
     sbr_spacing = _read_sbr_spacing(fields, tbl, kp)
+    sides = fields.get_str(tbl, "sides", kp, default="auto", choices=SIDES)
 
     verts, faces, label = read_object_geometry(fields, tbl, kp, base_dir, mesh_cache)
     rotation = euler_deg_to_matrix(rot_deg)
@@ -184,11 +216,12 @@ def _read_object(fields, kp, tbl, seen, materials, carrier, base_dir, mesh_cache
     if not drop:
         _refuse_flattened(fields, tbl, kp, label, tri, verts[faces], scale)
     tri = drop_or_refuse_degenerate(fields, tri, kp, label, drop, tbl.get("mesh"))
+    tri, two_sided = orient_sides(fields, kp, name, label, tri, sides)
     obj = SceneObject(
         name=name, mesh=label, material=mat, material_name=mat_name, position=position,
         rotation_deg=rot_deg, rotation=rotation, scale=scale, velocity=velocity,
         tri_start=start, tri_stop=start + tri.shape[0], optics=optics,
-        sbr_spacing_wavelengths=sbr_spacing, motion=motion,
+        sbr_spacing_wavelengths=sbr_spacing, motion=motion, sides=sides, two_sided=two_sided,
     )
     return obj, tri
 

@@ -16,14 +16,18 @@ import numpy as np
 from clradcom.scene.antenna import Pattern
 from clradcom.scene.materials import C0, ROUGHNESS_MODELS, Material
 
-__all__ = ["ARRAY_KINDS", "OPTICS", "ROLES", "SBR_SPACING_WAVELENGTHS", "ArrayLayout", "Motion",
-           "Radar", "Scene", "SceneObject", "TimeAxis"]
+__all__ = ["ARRAY_KINDS", "OPTICS", "ROLES", "SBR_SPACING_WAVELENGTHS", "SIDES", "ArrayLayout",
+           "Motion", "Radar", "Scene", "SceneObject", "TimeAxis"]
 
 #: ``objects[].optics``: how the tracer models the object's returns (docs/po.md)
 OPTICS = ("go", "po", "both")
 #: ``objects[].sbr_spacing_wavelengths``: the range (inclusive, in wavelengths) of an
 #: object's own SBR ray-tube pitch, that of ``OpticsSettings.sbr_spacing_wavelengths``
 SBR_SPACING_WAVELENGTHS = (0.01, 100.0)
+#: ``objects[].sides``: which sides of its triangles reflect (docs/scene-format.md, "Sides"):
+#: "auto" re-orients closed shells wound inside out and makes the object two-sided when
+#: any part of it is open; "as_wound" trusts the winding; "two_sided" lights both sides
+SIDES = ("auto", "as_wound", "two_sided")
 #: What a radar does: transmit and receive, only transmit, only receive.
 ROLES = ("txrx", "tx", "rx")
 #: ``radars[].array.kind``: uniform linear, uniform planar, explicit element positions
@@ -107,6 +111,11 @@ class SceneObject:
     sbr_spacing_wavelengths: float | None = None
     #: rotation and/or trajectory (None: constant ``velocity`` only)
     motion: Motion | None = None
+    #: the ``sides`` key as given (one of :data:`SIDES`)
+    sides: str = "auto"
+    #: both sides of its triangles reflect (an open sheet under "auto", or "two_sided"):
+    #: PO facets and wedges are lit from either side, not only where the winding faces
+    two_sided: bool = False
 
     @property
     def tri_slice(self) -> slice:
@@ -233,6 +242,12 @@ class Scene:
         out[sel] = base[sel] + np.cross(omega[ids[sel]], p - centre[ids[sel]])
         return out
 
+    @property
+    def tri_two_sided(self) -> np.ndarray:
+        """(T,) bool: the triangle's object is two-sided (``SceneObject.two_sided``)."""
+        flags = np.array([o.two_sided for o in self.objects], dtype=bool)
+        return flags[self.tri_object] if len(flags) else np.zeros(0, dtype=bool)
+
     # -- material arrays (M,) --------------------------------------------------
     @property
     def material_eps_r(self) -> np.ndarray:
@@ -298,6 +313,9 @@ class Scene:
                         # motion only when set, so scenes without it keep their hashes
                         + ([["motion", o.motion.hash_params()]]
                            if o.motion is not None else [])
+                        # the sides key only when not "auto" (what "auto" makes of the
+                        # mesh follows from the triangles, which are hashed)
+                        + ([["sides", o.sides]] if o.sides != "auto" else [])
                         for o in self.objects],
             "radars": [
                 [r.name, vec(r.position), r.rides_on, vec(r.orientation), r.pattern.params(),

@@ -27,7 +27,7 @@ from clradcom.geometry.triangles import ray_hit_distances
 from clradcom.scene.models import rounded_car
 from clradcom.scene.records import Scene
 
-__all__ = ["StreetOptions", "StreetPlan", "plan_street", "ply_bytes", "street_meshes",
+__all__ = ["TABLE_III", "StreetOptions", "StreetPlan", "plan_street", "ply_bytes", "street_meshes",
            "street_readme", "street_toml"]
 
 # --- the paper (Section IV, Table III) -------------------------------------------------------
@@ -35,6 +35,17 @@ CARRIER_HZ = 24e9
 V_SET = {"A": 12.9, "B": -13.3, "C": 12.9, "D": -14.5}  # m/s along +x
 R_SET = {"B": 16.4, "C": 26.0, "D": 34.6}  # m, "calculated from the center point of the cars"
 SAME_LANE = {"A": True, "B": False, "C": True, "D": False}  # B, D drive the opposite way
+#: Table III of the paper, per car seen by radar A: set range R (m, car centre), set
+#: relative velocity v_rel (m/s, closing along the road), and the paper's own ray-tracing
+#: simulation's detected R and v_rel. The street names the cars ``car<letter>``.
+TABLE_III = {
+    "B": {"range_set_m": 16.4, "v_rel_set_mps": 26.2, "range_sim_m": 16.1,
+          "v_rel_sim_mps": 25.7},
+    "C": {"range_set_m": 26.0, "v_rel_set_mps": 0.0, "range_sim_m": 25.2,
+          "v_rel_sim_mps": 0.0},
+    "D": {"range_set_m": 34.6, "v_rel_set_mps": 27.4, "range_sim_m": 34.4,
+          "v_rel_sim_mps": 27.4},
+}
 
 # --- our choices -------------------------------------------------------------------------------
 CAR_LENGTH, CAR_WIDTH, CAR_HEIGHT = 3.8, 1.85, 1.7
