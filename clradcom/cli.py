@@ -3,6 +3,7 @@
     clradcom trace scenes/street/street.toml        trace, snapshot, radar images, tables
     clradcom radar out/street/snapshot.npz --scene scenes/street/street.toml
     clradcom interference scenes/street/street.toml two radars: interference, cancellation
+    clradcom cube scenes/street/street_mimo.toml    MIMO array: radar cube, point cloud
     clradcom tradeoff scenes/street/street.toml     speed against accuracy sweep
     clradcom rcs --out out/rcs                      the car's RCS against aspect
     clradcom view scenes/street/street.toml         the scene from above
@@ -20,6 +21,7 @@ import argparse
 import sys
 
 from clradcom import __version__
+from clradcom.commands import cube as cube_cmd
 from clradcom.commands import interference as interference_cmd
 from clradcom.commands import radar as radar_cmd
 from clradcom.commands import rcs as rcs_cmd
@@ -86,6 +88,9 @@ SUBCOMMANDS = {
     "interference": ("two radars on one scene: the interference and its cancellation",
                      interference_cmd.__doc__, interference_cmd.add_arguments,
                      interference_cmd.check_args, interference_cmd.run),
+    "cube": ("a radar with an array: TDM-MIMO frame, radar cube, point cloud, truth in "
+             "range, velocity and azimuth", cube_cmd.__doc__, cube_cmd.add_arguments, None,
+             cube_cmd.run),
     "tradeoff": ("sweep the tracer's knobs: run time against accuracy, Pareto front",
                  tradeoff_cmd.__doc__, tradeoff_cmd.add_arguments, None, tradeoff_cmd.run),
     "rcs": ("the car model's radar cross-section against aspect, GO against PO + SBR",
