@@ -4,6 +4,7 @@
     clradcom radar out/street/snapshot.npz --scene scenes/street/street.toml
     clradcom interference scenes/street/street.toml two radars: interference, cancellation
     clradcom comms scenes/street/street.toml        the A->D data link: BER, SER, EVM
+    clradcom cube scenes/street/street_mimo.toml    MIMO array: radar cube, point cloud
     clradcom tradeoff scenes/street/street.toml     speed against accuracy sweep
     clradcom rcs --out out/rcs                      the car's RCS against aspect
     clradcom drive scene.toml                       a moving scene over time: path series
@@ -23,6 +24,7 @@ import sys
 
 from clradcom import __version__
 from clradcom.commands import comms as comms_cmd
+from clradcom.commands import cube as cube_cmd
 from clradcom.commands import drive as drive_cmd
 from clradcom.commands import interference as interference_cmd
 from clradcom.commands import radar as radar_cmd
@@ -92,6 +94,9 @@ SUBCOMMANDS = {
                      interference_cmd.check_args, interference_cmd.run),
     "comms": ("the data link: A's frame decoded by D, BER/SER/EVM against SNR and theory",
               comms_cmd.__doc__, comms_cmd.add_arguments, comms_cmd.check_args, comms_cmd.run),
+    "cube": ("a radar with an array: TDM-MIMO frame, radar cube, point cloud, truth in "
+             "range, velocity and azimuth", cube_cmd.__doc__, cube_cmd.add_arguments, None,
+             cube_cmd.run),
     "tradeoff": ("sweep the tracer's knobs: run time against accuracy, Pareto front",
                  tradeoff_cmd.__doc__, tradeoff_cmd.add_arguments, None, tradeoff_cmd.run),
     "rcs": ("the car model's radar cross-section against aspect, GO against PO + SBR",

@@ -25,6 +25,7 @@ Errors are one line on stderr, exit code 2.
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 from pathlib import Path
 
 from clradcom.cli import finite_float, output_folder, positive_float, positive_int, run_tool
@@ -42,7 +43,7 @@ from clradcom.scene.street import (
 REPO = Path(__file__).resolve().parent.parent
 DEFAULT_OUT = REPO / "scenes" / "street"
 #: the names this tool writes into its output folder (clradcom.files.staged_folder)
-OUTPUTS = ("street.toml", "README.md", "meshes")
+OUTPUTS = ("street.toml", "street_mimo.toml", "README.md", "meshes")
 
 
 def options_from_args(args) -> StreetOptions:
@@ -63,6 +64,8 @@ def build(args) -> Path:
         for name, data in street_meshes(plan).items():
             atomic_write(mdir / name, lambda fh, data=data: fh.write(data))
         write_text(stage / "street.toml", street_toml(options, plan))
+        # the MIMO variant: the same street, radar A with a 3 tx x 4 rx array
+        write_text(stage / "street_mimo.toml", street_toml(replace(options, mimo=True), plan))
         scene = load_scene(stage / "street.toml")
         truth = detection_truth(scene, "A", ["carB", "carC", "carD"])
         write_text(stage / "README.md", street_readme(options, plan, scene, truth))

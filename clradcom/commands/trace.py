@@ -81,7 +81,7 @@ from clradcom.radar.pipeline import (
     process,
     radar_frame,
 )
-from clradcom.radar.plots import save_radar_image
+from clradcom.radar.plots import image_title, mounting_range_m, save_radar_image
 from clradcom.radar.report import (
     DETECTION_COLUMNS,
     STATIC_RANGE_M,
@@ -337,12 +337,15 @@ def radar_stage(sw, args, scene, wf, link, radar, nf, stage) -> None:
                             noise_figure_db=nf)
         image, dets = process(D, Dr, wf)
     with sw.stage(f"radar {radar.name}: image and tables"):
-        # colour down to the noise floor, so weak echoes beside the ground return show
+        truth = detection_truth(scene, radar.name, moving_objects(scene, radar))
+        # colour down to the noise floor, so weak echoes beside the ground return show;
+        # 0 dB: the strongest return beyond the radar's own mounting return
         save_radar_image(image, stage / f"{radar.name}_image", dets,
-                         dynamic_range_db=display_range_db(image))
+                         dynamic_range_db=display_range_db(image),
+                         title=image_title(radar.name, scene.name), truth=truth,
+                         mount_range_m=mounting_range_m(wf.range_resolution))
         write_table(stage / f"{radar.name}_detections.csv", detection_rows(dets),
                     DETECTION_COLUMNS)
-        truth = detection_truth(scene, radar.name, moving_objects(scene, radar))
         matches = match_truth(dets, truth, *match_tolerances(wf))
         rows = truth_rows(truth, matches)
         print(f"  {radar.name}: {len(dets)} detections; moving objects:")

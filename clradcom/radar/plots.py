@@ -20,6 +20,22 @@ from clradcom.files import save_figure
 from clradcom.radar.processing import RadarImage
 from clradcom.radar.report import INTERFERENCE_TITLES
 
+#: a radar's own mounting return lies below this range: the bumper behind the antenna
+#: (7.5 cm in the street) and the road right under it (0.5 m)
+MOUNTING_RETURN_M = 1.0
+
+
+def mounting_range_m(range_resolution_m: float) -> float:
+    """Range below which an image's cells belong to the radar's own mounting return:
+    :data:`MOUNTING_RETURN_M` plus two range cells (the main lobe of the Hann window is
+    ±2 cells wide), so its main lobe is not taken as a target or as the 0 dB reference."""
+    return MOUNTING_RETURN_M + 2.0 * float(range_resolution_m)
+
+
+def image_title(radar_name: str, scene_name: str, what: str = "range–Doppler image") -> str:
+    """The title of a radar's picture: names the radar and the scene."""
+    return f"Radar {radar_name}, scene {scene_name}: {what}"
+
 
 def _limits(name, lim):
     try:
@@ -35,9 +51,17 @@ def _limits(name, lim):
 
 def plot_radar_image(image: RadarImage, detections=None, range_lim_m=(0.0, 100.0),
                      velocity_lim_mps=(-30.0, 30.0), dynamic_range_db: float = 50.0,
-                     title: str | None = "Radar image", figsize=(7.0, 4.5)) -> Figure:
+                     title: str | None = "Radar image", figsize=(7.0, 4.5), *, truth=(),
+                     mount_range_m: float | None = None) -> Figure:
     """Figure with range on x, relative velocity on y (approaching positive), colour in dB
-    relative to the strongest cell shown; detections (``cfar.detect`` output) as circles."""
+    relative to the strongest cell shown; detections (``cfar.detect`` output) as circles.
+
+    ``truth``: rows of :func:`clradcom.radar.truth.detection_truth`, each marked by a
+    black-edged square at (``range_centre_m``, ``v_rel_m_s``) labelled with its name.
+    ``mount_range_m`` (e.g. :func:`mounting_range_m`): cells nearer than this are the
+    radar's own mounting return (bumper, road under the radar): they are left out of the
+    0 dB reference (the strongest cell shown beyond it), and the strongest of them is
+    labelled "mounting return" (it may be above 0 dB and then shows saturated)."""
     rlo, rhi = _limits("range_lim_m", range_lim_m)
     vlo, vhi = _limits("velocity_lim_mps", velocity_lim_mps)
     if not (isinstance(dynamic_range_db, int | float | np.floating)
@@ -53,7 +77,15 @@ def plot_radar_image(image: RadarImage, detections=None, range_lim_m=(0.0, 100.0
             f"(image covers {r[0]:.3g}..{r[-1]:.3g} m, {v[0]:.3g}..{v[-1]:.3g} m/s)",
             argument="range_lim_m", value=range_lim_m)
     crop = np.asarray(image.power_db)[np.ix_(ri, vi)]
-    top = np.max(crop[np.isfinite(crop)]) if np.isfinite(crop).any() else 0.0
+    ref = crop
+    if mount_range_m is not None:
+        if not (np.isfinite(mount_range_m) and mount_range_m >= 0):
+            raise ArgumentError("must be a finite range >= 0 (m)", argument="mount_range_m",
+                                value=mount_range_m)
+        beyond = r[ri] >= mount_range_m
+        if beyond.any():
+            ref = crop[beyond]
+    top = np.max(ref[np.isfinite(ref)]) if np.isfinite(ref).any() else 0.0
     dr = r[1] - r[0] if r.size > 1 else 1.0
     dv = v[1] - v[0] if v.size > 1 else 1.0
     fig = new_figure(figsize=figsize)
@@ -65,11 +97,30 @@ def plot_radar_image(image: RadarImage, detections=None, range_lim_m=(0.0, 100.0
         extent=(r[ri[0]] - dr / 2, r[ri[-1]] + dr / 2, v[vi[0]] - dv / 2, v[vi[-1]] + dv / 2),
         interpolation="nearest",
     )
-    fig.colorbar(im, ax=ax, label="relative power [dB]")
+    fig.colorbar(im, ax=ax, label="relative power [dB]" if mount_range_m is None else
+                 f"power re strongest return beyond {mount_range_m:.1f} m [dB]")
     if detections is not None and len(detections):
         det = np.asarray(detections)
         ax.plot(det["range_m"], det["velocity_mps"], "o", mfc="none", mec="white", ms=9,
                 mew=1.5, label="detections")
+    for t in truth:
+        ax.plot([t["range_centre_m"]], [t["v_rel_m_s"]], "s", mfc="none", mec="black", ms=11,
+                mew=1.5, label="truth" if t is truth[0] else None, gid=f"truth:{t['name']}")
+        ax.annotate(t["name"], (t["range_centre_m"], t["v_rel_m_s"]),
+                    textcoords="offset points", xytext=(7, 7), fontsize=8, color="black",
+                    fontweight="bold")
+    if mount_range_m is not None:
+        near = np.flatnonzero(r[ri] < mount_range_m)
+        if near.size and np.isfinite(crop[near]).any():
+            k = np.unravel_index(np.nanargmax(np.where(np.isfinite(crop[near]), crop[near],
+                                                       -np.inf)), crop[near].shape)
+            rm, vm = r[ri[near[k[0]]]], v[vi[k[1]]]
+            ax.plot([rm], [vm], "D", mfc="none", mec="magenta", ms=9, mew=1.5,
+                    gid="mounting_return", label="mounting return (not the 0 dB reference)")
+            ax.annotate(f"radar's own mounting return\n({crop[near][k] - top:+.1f} dB)",
+                        (rm, vm), textcoords="offset points", xytext=(8, -22), fontsize=7,
+                        color="magenta")
+    if ax.get_legend_handles_labels()[0]:
         ax.legend(loc="upper right", fontsize="small")
     ax.set_xlim(rlo, rhi)
     ax.set_ylim(vlo, vhi)

@@ -68,6 +68,12 @@ TREE_Y = 5.5  # |y| of the tree rows (sidewalk, between road edge 3.5 m and faca
 TREE_FIRST_X, TREE_STEP = 4.0, 8.0
 TREE_SCALES = (1.0, 0.85, 1.15, 0.95)
 NORTH_TREE_OFFSET = 4.0  # north row shifted half a step
+# radar A's MIMO array (street_mimo.toml): 3 tx x 4 rx along the bumper (local y), the
+# layout of 3 tx / 4 rx automotive radar chips (receivers lambda/2 apart, transmitters
+# 4 x lambda/2 = 2 lambda apart), which makes a filled 12-element virtual ULA at lambda/2
+MIMO_TX, MIMO_RX = 3, 4
+MIMO_RX_SPACING_WAVELENGTHS = 0.5
+MIMO_TX_SPACING_WAVELENGTHS = MIMO_RX * MIMO_RX_SPACING_WAVELENGTHS
 
 
 @dataclass(frozen=True)
@@ -89,6 +95,8 @@ class StreetOptions:
     lane_width: float = 3.5
     #: reference of the paper's distances R: "radar" (radar A's antenna) or "car-centre"
     range_from: str = "radar"
+    #: radar A carries a 3 tx x 4 rx TDM-MIMO array (street_mimo.toml); radar D none
+    mimo: bool = False
 
 
 @dataclass
@@ -272,10 +280,15 @@ def street_toml(options: StreetOptions, plan: StreetPlan) -> str:
     w(f"# Options: length = {num(options.length)} m, trees = {str(options.trees).lower()}, "
       f"car_roundness = {num(options.car_roundness)}, car_segments = {options.car_segments}, "
       f"car_flat_ends = {str(options.car_flat_ends).lower()}, "
-      f"range_from = {options.range_from}, lane_width = {num(options.lane_width)} m")
+      f"range_from = {options.range_from}, lane_width = {num(options.lane_width)} m"
+      + (", mimo = true" if options.mimo else ""))
+    if options.mimo:
+        w("# MIMO variant: radar A carries a 3 tx x 4 rx array (12-element virtual ULA at "
+          "lambda/2);")
+        w("# everything else is street.toml's.")
     w("")
     w("[scene]")
-    w('name = "street"')
+    w('name = "street_mimo"' if options.mimo else 'name = "street"')
     w("carrier_hz = 24e9")
     w('description = "OFDM RadCom paper street: cars A, C at +12.9 m/s; B, D oncoming at '
       '-13.3 and -14.5 m/s; radar A on car A\'s front bumper"')
@@ -340,6 +353,15 @@ def street_toml(options: StreetOptions, plan: StreetPlan) -> str:
         w('role = "txrx"')
         w(f"tx_power_w = {num(TX_POWER_W)}")
         w(f"noise_figure_db = {num(NOISE_FIGURE_DB)}")
+        if options.mimo and k == "A":
+            w("# 3 tx x 4 rx along the bumper (local y), as 3 tx / 4 rx automotive radar "
+              "chips: rx lambda/2")
+            w("# apart, tx 2 lambda apart -> virtual ULA of 12 elements at lambda/2 (TDM: "
+              "one tx per symbol)")
+            w(f'tx_array = {{ kind = "ula", count = {MIMO_TX}, spacing_wavelengths = '
+              f'{num(MIMO_TX_SPACING_WAVELENGTHS)} }}')
+            w(f'rx_array = {{ kind = "ula", count = {MIMO_RX}, spacing_wavelengths = '
+              f'{num(MIMO_RX_SPACING_WAVELENGTHS)} }}')
         w("")
     return "\n".join(L).rstrip("\n") + "\n"
 
@@ -459,4 +481,18 @@ def street_readme(options: StreetOptions, plan: StreetPlan, scene: Scene,
     w("")
     w("The paper also sees the buildings beyond 60 m at the radar's own speed "
       "(v_rel ≈ 12.9 m/s cos(az)), and ground/car multiple bounces.")
+    w("")
+    w("## MIMO variant (`street_mimo.toml`)")
+    w("")
+    w("The same street (same meshes), scene name `street_mimo`, with radar A carrying a "
+      f"{MIMO_TX} tx × {MIMO_RX} rx array along its bumper (local y): receivers "
+      f"{num(MIMO_RX_SPACING_WAVELENGTHS)} λ apart, transmitters "
+      f"{num(MIMO_TX_SPACING_WAVELENGTHS)} λ apart, so the time-division (TDM) virtual array "
+      "is a filled 12-element ULA at λ/2 (±90° unambiguous, Rayleigh width 2/12 in sin az, "
+      "about 9.6° at boresight). This is the azimuth layout of the 3 tx / 4 rx radar chips "
+      "used in automotive radars (receivers at λ/2, transmitters 2λ apart), scaled to "
+      "24 GHz by the wavelength; 24 GHz automotive front ends often have fewer channels "
+      "(e.g. 2 tx / 2 rx), the paper's radar has one tx and one rx antenna. "
+      "`clradcom cube scenes/street/street_mimo.toml` traces it and builds the radar cube, "
+      "the point cloud and the truth table (docs/dsp.md §9).")
     return "\n".join(L) + "\n"
