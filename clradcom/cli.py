@@ -4,6 +4,8 @@
     clradcom radar out/street/snapshot.npz --scene scenes/street/street.toml
     clradcom interference scenes/street/street.toml two radars: interference, cancellation
     clradcom tradeoff scenes/street/street.toml     speed against accuracy sweep
+    clradcom sweep scenes/street/street.toml --preset fast,paper --workers 2
+                                                    traces of many settings on Dask
     clradcom rcs --out out/rcs                      the car's RCS against aspect
     clradcom view scenes/street/street.toml         the scene from above
     clradcom presets                                the tracer's named physics
@@ -23,6 +25,7 @@ from clradcom import __version__
 from clradcom.commands import interference as interference_cmd
 from clradcom.commands import radar as radar_cmd
 from clradcom.commands import rcs as rcs_cmd
+from clradcom.commands import sweep as sweep_cmd
 from clradcom.commands import trace as trace_cmd
 from clradcom.commands import tradeoff as tradeoff_cmd
 from clradcom.commands.options import (
@@ -88,6 +91,8 @@ SUBCOMMANDS = {
                      interference_cmd.check_args, interference_cmd.run),
     "tradeoff": ("sweep the tracer's knobs: run time against accuracy, Pareto front",
                  tradeoff_cmd.__doc__, tradeoff_cmd.add_arguments, None, tradeoff_cmd.run),
+    "sweep": ("trace one scene with many settings on Dask workers: a snapshot per setting",
+              sweep_cmd.__doc__, sweep_cmd.add_arguments, None, sweep_cmd.run),
     "rcs": ("the car model's radar cross-section against aspect, GO against PO + SBR",
             rcs_cmd.__doc__, rcs_cmd.add_arguments, rcs_cmd.check_args, rcs_cmd.run),
     "view": ("draw a scene from above, with a snapshot's strongest paths",
