@@ -6,6 +6,8 @@
     clradcom comms scenes/street/street.toml        the A->D data link: BER, SER, EVM
     clradcom cube scenes/street/street_mimo.toml    MIMO array: radar cube, point cloud
     clradcom tradeoff scenes/street/street.toml     speed against accuracy sweep
+    clradcom sweep scenes/street/street.toml --preset fast,paper --workers 2
+                                                    traces of many settings on Dask
     clradcom rcs --out out/rcs                      the car's RCS against aspect
     clradcom drive scene.toml                       a moving scene over time: path series
     clradcom view scenes/street/street.toml         the scene from above
@@ -29,6 +31,7 @@ from clradcom.commands import drive as drive_cmd
 from clradcom.commands import interference as interference_cmd
 from clradcom.commands import radar as radar_cmd
 from clradcom.commands import rcs as rcs_cmd
+from clradcom.commands import sweep as sweep_cmd
 from clradcom.commands import trace as trace_cmd
 from clradcom.commands import tradeoff as tradeoff_cmd
 from clradcom.commands.options import (
@@ -99,6 +102,8 @@ SUBCOMMANDS = {
              cube_cmd.run),
     "tradeoff": ("sweep the tracer's knobs: run time against accuracy, Pareto front",
                  tradeoff_cmd.__doc__, tradeoff_cmd.add_arguments, None, tradeoff_cmd.run),
+    "sweep": ("trace one scene with many settings on Dask workers: a snapshot per setting",
+              sweep_cmd.__doc__, sweep_cmd.add_arguments, None, sweep_cmd.run),
     "rcs": ("the car model's radar cross-section against aspect, GO against PO + SBR",
             rcs_cmd.__doc__, rcs_cmd.add_arguments, rcs_cmd.check_args, rcs_cmd.run),
     "drive": ("trace a moving scene at every instant of its [time] table, paths followed",

@@ -12,6 +12,7 @@ Layers, low to high (a module may import its own layer and those below):
     mechanisms             specular, diffraction, physical optics/SBR, scattering
     snapshot, export       the file; .mat and Sionna-style exports
     trace, presets, series the orchestrator, its named settings, path series over time
+    distributed            many traces (a sweep, a drive) as tasks on Dask workers
     radar                  waveform, synthesis, processing, CFAR, interference, truth
     evaluation             accuracy, budget, trade-off (nothing imports it)
     plots, views, commands, cli   what users run (and __main__)
@@ -35,6 +36,7 @@ LAYERS = [
     {"clradcom.mechanisms"},
     {"clradcom.snapshot", "clradcom.export"},
     {"clradcom.trace", "clradcom.presets", "clradcom.series"},
+    {"clradcom.distributed"},
     {"clradcom.radar"},
     {"clradcom.evaluation"},
     {"clradcom.plots", "clradcom.views", "clradcom.commands", "clradcom.cli",

@@ -20,6 +20,7 @@ from pathlib import Path
 
 from clradcom.commands.console import WarningLog
 from clradcom.device.runtime import OpenCLError
+from clradcom.distributed import TaskError
 from clradcom.errors import (
     ArgumentError,
     ArgumentTypeError,
@@ -30,9 +31,10 @@ from clradcom.files import OutputError
 from clradcom.radar.waveform import Waveform, cp_subcarrier_step
 
 #: what a tool reports as one line (exit code 2): bad input, a device problem, an output
-#: that cannot be written, a computation over the memory budget (an ArgumentError)
+#: that cannot be written, a computation over the memory budget (an ArgumentError), a
+#: distributed task that failed past its retries
 TOOL_ERRORS = (SceneError, SnapshotError, ArgumentError, ArgumentTypeError, OpenCLError,
-               OutputError)
+               OutputError, TaskError)
 
 
 # ----------------------------------------------------------------------------------------

@@ -1,0 +1,335 @@
+"""Many traces at once on Dask (``dask.distributed``): a parameter sweep, later a drive.
+
+The unit of work is a :class:`Task`: a module-level callable with picklable arguments
+that returns a result (a :class:`~clradcom.snapshot.Snapshot`, or arrays). A sweep is a
+list of them (:func:`trace_tasks`: one :func:`trace_task` per settings); a drive
+sequence will be one task per time step (``Task(key, series.trace_step, (scene,
+settings, t))``) with nothing else to change here. :func:`run_tasks` runs a list
+
+* serially in this process (``workers=0``): the reference every distributed run must
+  equal bit for bit;
+* on a ``LocalCluster`` it starts (``workers=N`` processes, one thread each);
+* on a running scheduler (``scheduler="tcp://host:8786"``), whose workers may be on
+  many machines;
+
+and gives the results back in task order, as :class:`TaskResult` records (the value,
+the worker's seconds, the warnings it raised, which are raised again here).
+
+Every worker process opens its own OpenCL runtime once (:class:`DevicePlugin`, then
+:func:`worker_runtime`, cached per process by
+:func:`clradcom.device.runtime.get_runtime`): with ``devices=["0:0", "0:1"]`` worker
+*i* takes device ``i mod 2`` (one worker per GPU), otherwise the worker's own
+``CLRADCOM_DEVICE`` or the default device. On PoCL's CPU device a local cluster gives
+each worker an equal share of the cores (``POCL_MAX_PTHREAD_COUNT``), so two workers
+do not fight over them.
+
+A task runs again when it raises (``retries`` times) and when its worker dies under it
+(the scheduler's ``allowed-failures``, set to ``retries`` for a local cluster; a remote
+scheduler keeps its own setting); past that bound :class:`TaskError` names the task.
+docs/scale.md has the design, the determinism argument and the measured scaling.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import time
+import uuid
+import warnings
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+
+from clradcom.device.runtime import Runtime, get_runtime
+from clradcom.errors import ArgumentError, ArgumentTypeError
+from clradcom.scene.records import Scene
+from clradcom.snapshot import Snapshot
+from clradcom.trace import TraceSettings, trace_scene
+
+try:  # a hard dependency (pyproject.toml); imported here so the error can say so
+    import dask
+    import distributed
+    from distributed.diagnostics.plugin import WorkerPlugin
+except ImportError as _exc:  # pragma: no cover - installed with clradcom
+    raise ImportError(f"clradcom.distributed needs dask.distributed ({_exc}): "
+                      "pip install distributed") from _exc
+
+__all__ = ["DevicePlugin", "Task", "TaskError", "TaskResult", "local_cluster", "run_tasks",
+           "trace_task", "trace_tasks", "worker_device", "worker_runtime"]
+
+#: PoCL's thread count for its CPU device, read when the platform is first opened
+POCL_THREADS_ENV = "POCL_MAX_PTHREAD_COUNT"
+#: the scheduler setting that bounds how often a task may take its worker down with it
+ALLOWED_FAILURES = "distributed.scheduler.allowed-failures"
+
+
+class TaskError(RuntimeError):
+    """A task of a distributed run failed past its retry bound (``key`` names it)."""
+
+    def __init__(self, message: str, *, key: str):
+        self.key = key
+        super().__init__(message)
+
+
+@dataclass(frozen=True)
+class Task:
+    """One unit of work: ``fn(*args, **kwargs)`` on some worker.
+
+    ``fn`` must be importable by the workers (a module-level function of an installed
+    package); ``args``/``kwargs`` are pickled and shipped (scenes are small: the street
+    is 1.7 MB). ``key`` names the task in errors and output files."""
+
+    key: str
+    fn: Callable[..., object]
+    args: tuple = ()
+    kwargs: Mapping = field(default_factory=dict)
+
+    def __post_init__(self):
+        if not isinstance(self.key, str) or not self.key:
+            raise ArgumentError("must be a non-empty string", argument="Task.key",
+                                value=self.key)
+        if not callable(self.fn):
+            raise ArgumentTypeError("must be callable", argument="Task.fn", value=self.fn)
+
+
+@dataclass(frozen=True)
+class TaskResult:
+    """What a task gave back: ``value``, the wall seconds it ran on its worker, the
+    worker's name (``"serial"`` in this process) and the warnings it raised as
+    ``(category, message, filename, lineno)``."""
+
+    key: str
+    value: object
+    seconds: float
+    worker: str
+    warnings: tuple = ()
+
+
+# ----------------------------------------------------------------------------------------
+# the worker side
+# ----------------------------------------------------------------------------------------
+_worker_device: str | None = None  # this process's device spec (DevicePlugin sets it)
+
+
+def worker_device() -> str | None:
+    """The device spec of this process (None: ``CLRADCOM_DEVICE``, else the default)."""
+    return _worker_device
+
+
+def worker_runtime() -> Runtime:
+    """This process's OpenCL runtime, opened once (:func:`get_runtime` caches it)."""
+    return get_runtime(_worker_device)
+
+
+class DevicePlugin(WorkerPlugin):
+    """Gives each worker its device and opens it once, before the worker's first task.
+
+    ``devices``: specs (``"0:0"``, ``"gpu"``, a name fragment) shared out by the worker's
+    number (a local cluster names its workers 0, 1, ...): worker *i* takes
+    ``devices[i % len(devices)]``. A worker with another name, or no ``devices``, keeps
+    its own ``CLRADCOM_DEVICE`` or the default device (start one worker per GPU with
+    ``CLRADCOM_DEVICE=i dask worker ADDRESS``)."""
+
+    name = "clradcom-device"
+
+    def __init__(self, devices: Sequence[str] | None = None):
+        self.devices = tuple(devices or ())
+
+    def setup(self, worker) -> None:
+        global _worker_device
+        index = worker.name if isinstance(worker.name, int) else None
+        if self.devices and index is not None:
+            _worker_device = self.devices[index % len(self.devices)]
+        worker_runtime()  # open it now: a device problem shows before any task runs
+
+
+def _run(fn: Callable, args: tuple, kwargs: Mapping) -> tuple:
+    """A task on its worker: value, seconds, worker name and the warnings it raised."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        t0 = time.perf_counter()
+        value = fn(*args, **kwargs)
+        seconds = time.perf_counter() - t0
+    try:
+        name = str(distributed.get_worker().name)
+    except ValueError:  # not inside a worker
+        name = "serial"
+    seen = {(w.category, str(w.message), w.filename, w.lineno) for w in caught}
+    return value, seconds, name, tuple(sorted(seen, key=lambda w: (w[2], w[3], w[1])))
+
+
+# ----------------------------------------------------------------------------------------
+# traces as tasks
+# ----------------------------------------------------------------------------------------
+def trace_task(scene: Scene, settings: TraceSettings, links=None) -> Snapshot:
+    """One trace on this process's device: :func:`clradcom.trace.trace_scene` with
+    :func:`worker_runtime`."""
+    return trace_scene(scene, settings, runtime=worker_runtime(), links=links)
+
+
+def trace_tasks(scene: Scene, settings: Sequence[TraceSettings], keys=None,
+                links=None) -> list[Task]:
+    """One :func:`trace_task` per settings, keyed ``keys`` (default ``task-000``, ...)."""
+    if not isinstance(scene, Scene):
+        raise ArgumentTypeError("must be a Scene", argument="scene", value=scene)
+    settings = list(settings)
+    for s in settings:
+        if not isinstance(s, TraceSettings):
+            raise ArgumentTypeError("must hold TraceSettings", argument="settings", value=s)
+    keys = [f"task-{i:03d}" for i in range(len(settings))] if keys is None else list(keys)
+    if len(keys) != len(settings) or len(set(keys)) != len(keys):
+        raise ArgumentError(f"must be {len(settings)} distinct names, one per settings",
+                            argument="keys", value=keys)
+    return [Task(k, trace_task, (scene, s), {} if links is None else {"links": links})
+            for k, s in zip(keys, settings, strict=True)]
+
+
+# ----------------------------------------------------------------------------------------
+# the client side
+# ----------------------------------------------------------------------------------------
+def local_cluster(workers: int, *, retries: int = 2, threads_per_worker: int | None = None,
+                  **kwargs) -> distributed.LocalCluster:
+    """A ``LocalCluster`` of ``workers`` processes with one thread each, no dashboard,
+    its scheduler allowing a task ``retries`` worker deaths. On PoCL each worker's CPU
+    device gets ``threads_per_worker`` threads (default: the cores shared out evenly;
+    an explicit ``POCL_MAX_PTHREAD_COUNT`` in the environment wins)."""
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ArgumentError("must be a positive integer", argument="workers", value=workers)
+    _check_retries(retries)
+    env = dict(kwargs.pop("env", {}))
+    if POCL_THREADS_ENV not in os.environ:
+        threads = threads_per_worker or max(1, (os.cpu_count() or 1) // workers)
+        env.setdefault(POCL_THREADS_ENV, str(threads))
+    with dask.config.set({ALLOWED_FAILURES: retries}):
+        return distributed.LocalCluster(
+            n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+            env=env, **kwargs)
+
+
+def _check_retries(retries) -> None:
+    if isinstance(retries, bool) or not isinstance(retries, int) or retries < 0:
+        raise ArgumentError("must be an integer >= 0", argument="retries", value=retries)
+
+
+def _shared_args(client, tasks: Sequence[Task]) -> dict[int, object]:
+    """Arguments that several tasks share (the same object, a scene): shipped once as a
+    task of their own, which the scheduler can run again when the worker holding the
+    value dies (a scattered value would be lost with it)."""
+    seen: dict[int, object] = {}
+    count: dict[int, int] = {}
+    for task in tasks:
+        for value in (*task.args, *task.kwargs.values()):
+            if isinstance(value, str | bytes | int | float | bool | type(None)):
+                continue
+            seen[id(value)] = value
+            count[id(value)] = count.get(id(value), 0) + 1
+    return {i: client.submit(_identity, seen[i], pure=False,
+                             key=f"clradcom-shared-{uuid.uuid4().hex[:12]}")
+            for i, n in count.items() if n > 1}
+
+
+def _identity(value):
+    return value
+
+
+def _reraise_warnings(result: TaskResult) -> None:
+    for category, message, filename, lineno in result.warnings:
+        warnings.warn_explicit(message, category, filename, lineno)
+
+
+def run_tasks(tasks: Sequence[Task], *, workers: int = 2, scheduler: str | None = None,
+              client=None, devices: Sequence[str] | None = None, retries: int = 2,
+              on_result: Callable[[int, TaskResult], None] | None = None,
+              keep: bool = True) -> list[TaskResult]:
+    """Run ``tasks`` and return their :class:`TaskResult` in task order.
+
+    Where: ``client`` (a ``distributed.Client`` the caller holds, e.g. one cluster for
+    many sweeps), else ``scheduler`` (an address: workers started elsewhere with ``dask
+    worker ADDRESS``), else a local cluster of ``workers`` processes started and stopped
+    here; ``workers=0`` runs them one after the other in this process, without Dask.
+    ``devices``: device specs shared out over the workers (:class:`DevicePlugin`).
+    ``retries``: further attempts of a task that raised, and (local cluster) worker
+    deaths a task may cause, before :class:`TaskError`. ``on_result(index, result)``
+    hears each result as it arrives (in completion order), e.g. to write it out; with
+    ``keep=False`` the results returned then hold no value (a long sweep's snapshots are
+    not all held in memory)."""
+    tasks = list(tasks)
+    for task in tasks:
+        if not isinstance(task, Task):
+            raise ArgumentTypeError("must hold Task records", argument="tasks", value=task)
+    if len({t.key for t in tasks}) != len(tasks):
+        raise ArgumentError("task keys must be distinct", argument="tasks",
+                            value=[t.key for t in tasks])
+    _check_retries(retries)
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 0:
+        raise ArgumentError("must be an integer >= 0", argument="workers", value=workers)
+    if client is None and scheduler is None and workers == 0:
+        return _run_serial(tasks, devices, on_result, keep)
+    if client is not None:
+        return _run_on(client, tasks, devices, retries, on_result, keep)
+    if scheduler is not None:
+        with distributed.Client(scheduler) as own:
+            return _run_on(own, tasks, devices, retries, on_result, keep)
+    with local_cluster(workers, retries=retries) as cluster, \
+            distributed.Client(cluster) as own:
+        return _run_on(own, tasks, devices, retries, on_result, keep)
+
+
+def _run_serial(tasks, devices, on_result, keep) -> list[TaskResult]:
+    global _worker_device
+    old = _worker_device
+    _worker_device = devices[0] if devices else old
+    try:
+        out = []
+        for i, task in enumerate(tasks):
+            try:
+                value, seconds, name, caught = _run(task.fn, task.args, task.kwargs)
+            except Exception as exc:
+                raise TaskError(f"task {task.key!r} failed: {type(exc).__name__}: {exc}",
+                                key=task.key) from exc
+            result = TaskResult(task.key, value, seconds, name, caught)
+            _reraise_warnings(result)
+            if on_result is not None:
+                on_result(i, result)
+            out.append(result if keep else dataclasses.replace(result, value=None))
+        return out
+    finally:
+        _worker_device = old
+
+
+def _run_on(client, tasks, devices, retries, on_result, keep) -> list[TaskResult]:
+    client.register_plugin(DevicePlugin(devices))
+    shared = _shared_args(client, tasks)
+
+    def ship(value):
+        return shared.get(id(value), value)
+
+    run_id = uuid.uuid4().hex[:8]
+    futures = [client.submit(_run, task.fn, tuple(ship(a) for a in task.args),
+                             {k: ship(v) for k, v in task.kwargs.items()},
+                             key=f"clradcom-{task.key}-{run_id}", pure=False,
+                             retries=retries)
+               for task in tasks]
+    index = {f.key: i for i, f in enumerate(futures)}
+    out: list[TaskResult | None] = [None] * len(tasks)
+    try:
+        for future in distributed.as_completed(futures):
+            i = index[future.key]
+            task = tasks[i]
+            try:
+                value, seconds, name, caught = future.result()
+            except distributed.KilledWorker as exc:
+                raise TaskError(
+                    f"task {task.key!r}: its worker died more often than the retry bound "
+                    f"allows ({exc})", key=task.key) from exc
+            except Exception as exc:
+                raise TaskError(f"task {task.key!r} failed after {retries + 1} attempts: "
+                                f"{type(exc).__name__}: {exc}", key=task.key) from exc
+            result = TaskResult(task.key, value, seconds, name, caught)
+            _reraise_warnings(result)
+            if on_result is not None:
+                on_result(i, result)
+            out[i] = result if keep else dataclasses.replace(result, value=None)
+            future.release()
+    finally:
+        client.cancel([f for f in futures if not f.done()])
+    return out
