@@ -17,8 +17,8 @@ from clradcom.presets import DEFAULT_PRESET, PRESETS
 from clradcom.scene import scene_from_dict
 from clradcom.trace import SpecularSettings, TraceSettings, trace_scene
 
-SUBCOMMANDS = ("trace", "radar", "cube", "interference", "tradeoff", "sweep", "rcs", "view", "drive",
-               "presets", "devices")
+SUBCOMMANDS = ("trace", "radar", "cube", "interference", "tradeoff", "sweep", "rcs", "view",
+               "drive", "presets", "devices")
 
 
 # ----------------------------------------------------------------------------------------
