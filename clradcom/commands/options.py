@@ -346,7 +346,7 @@ def run_waveform(carrier_hz: float, args, *, scene=None,
                   {"cyclic_prefix": paper.cp_s})
     cp_s = cp.get("cyclic_prefix", cp.get("cyclic_prefix_s"))
     cp_n = cp.get("cp_samples", cp.get("cyclic_prefix_samples"))
-    rate = f"{fs / 1e6:.6g} MHz (N·Δf = {n} × {df / 1e3:.6g} kHz)"
+    rate = f"{fs / 1e6:.6g} MHz = N·Δf = {n} × {df / 1e3:.6g} kHz"
     if cp_s is not None:
         rounded = round_cyclic_prefix(cp_s, fs)
         if cp_n is not None and cp_n != rounded:
