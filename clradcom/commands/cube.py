@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from clradcom.commands import trace as trace_cmd
-from clradcom.commands.options import run_tool, tool_waveform
+from clradcom.commands.options import run_tool, run_waveform
 from clradcom.device.runtime import get_runtime
 from clradcom.errors import ArgumentError, SnapshotError
 from clradcom.files import staged_folder
@@ -118,7 +118,8 @@ def run(args) -> int:
         scene = load_scene(args.scene)
     index = array_radar(scene, args.radar)
     radar = scene.radars[index]
-    wf = tool_waveform(scene.carrier_hz, scene=scene)
+    wf, frame = run_waveform(scene.carrier_hz, args, scene=scene)
+    print(f"  {frame}")
     nf = trace_cmd.radar_noise(scene, args)[index]
     out = Path(args.out or Path("out") / scene.name)
     inputs = [args.scene] + ([args.snapshot] if args.snapshot else [])

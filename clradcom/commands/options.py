@@ -7,7 +7,10 @@
 * :func:`run_tool`: the project's errors (:data:`TOOL_ERRORS`) become one line
   ``tool.py: <message>`` on stderr and exit code 2, never a traceback;
 * :func:`tool_waveform`: the radar waveform of a run, refusals naming what the user can
-  change (an option, or the scene's carrier).
+  change (an option, or the scene's carrier);
+* :func:`add_waveform_arguments` / :func:`run_waveform`: the frame from the options, the
+  scene's ``[waveform]`` and the paper's defaults, in that order of precedence, with the
+  cyclic prefix rounded to whole samples and the rounding stated.
 """
 
 from __future__ import annotations
@@ -28,7 +31,8 @@ from clradcom.errors import (
     SnapshotError,
 )
 from clradcom.files import OutputError
-from clradcom.radar.waveform import Waveform, cp_subcarrier_step
+from clradcom.radar.waveform import Waveform, cp_subcarrier_step, round_cyclic_prefix
+from clradcom.scene.records import MODULATIONS
 
 #: what a tool reports as one line (exit code 2): bad input, a device problem, an output
 #: that cannot be written, a computation over the memory budget (an ArgumentError), a
@@ -234,6 +238,156 @@ def tool_waveform(carrier_hz: float, *, subcarriers: int | None = None,
         raise
 
 
-__all__ = ["TOOL_ERRORS", "finite_float", "float_in", "int_in", "list_of",
+# ----------------------------------------------------------------------------------------
+# the frame from the options, the scene's [waveform] and the paper
+# ----------------------------------------------------------------------------------------
+#: option of each waveform parameter (the attribute argparse gives it)
+WAVEFORM_OPTIONS = {"subcarriers": "--subcarriers", "symbols": "--symbols",
+                    "subcarrier_spacing": "--subcarrier-spacing",
+                    "cyclic_prefix": "--cyclic-prefix", "cp_samples": "--cp-samples",
+                    "modulation": "--modulation"}
+
+
+def add_waveform_arguments(ap: argparse.ArgumentParser) -> None:
+    """The options that set the radar frame; each left out falls back to the scene's
+    ``[waveform]``, then to the paper's Table I."""
+    g = ap.add_argument_group("waveform (over the scene's [waveform], over the paper's "
+                              "Table I)")
+    g.add_argument("--subcarriers", type=positive_int, default=None,
+                   help="N, subcarriers (paper: 1024)")
+    g.add_argument("--symbols", type=positive_int, default=None,
+                   help="M, OFDM symbols per frame (paper: 256)")
+    g.add_argument("--subcarrier-spacing", type=positive_float, default=None, metavar="HZ",
+                   help="Δf in Hz (paper: 90909); T = 1/Δf")
+    g.add_argument("--cyclic-prefix", type=non_negative_float, default=None,
+                   metavar="SECONDS", help="T_CP in seconds, rounded to the nearest whole "
+                   "sample at f_s = NΔf (paper: 1.375e-6)")
+    g.add_argument("--cp-samples", type=non_negative_int, default=None,
+                   help="the cyclic prefix in samples at f_s = NΔf")
+    g.add_argument("--modulation", choices=MODULATIONS, default=None,
+                   help="the radar's random symbols (paper: qpsk)")
+
+
+class _Sources:
+    """Where each waveform parameter came from, to name it in a refusal."""
+
+    def __init__(self, scene, snapshot):
+        self.scene, self.snapshot, self.where = scene, snapshot, {}
+
+    def pick(self, name, args, attrs, spec_keys, default):
+        """The first of: the options ``attrs``, the scene's ``spec_keys``, ``default``;
+        returns {attr or key: value} of the source that gave any."""
+        given = {a: getattr(args, a, None) for a in attrs}
+        given = {a: v for a, v in given.items() if v is not None}
+        if given:
+            self.where[name] = ("option", given)
+            return given
+        spec = None if self.scene is None else self.scene.waveform
+        if spec is not None:
+            given = {k: getattr(spec, k) for k in spec_keys}
+            given = {k: v for k, v in given.items() if v is not None}
+            if given:
+                self.where[name] = ("scene", given)
+                return given
+        self.where[name] = ("default", default)
+        return dict(default)
+
+    def refuse(self, name, reason, which=None):
+        """The error naming the option or scene key that gave ``name``."""
+        kind, given = self.where[name]
+        keys = [which] if which in given else list(given)
+        if kind == "option":
+            value = given[keys[0]] if len(keys) == 1 else ", ".join(
+                f"{WAVEFORM_OPTIONS[k]} {given[k]!r}" for k in keys)
+            return ArgumentError(reason, argument=" and ".join(WAVEFORM_OPTIONS[k]
+                                                                for k in keys), value=value)
+        if kind == "scene":
+            value = given[keys[0]] if len(keys) == 1 else {k: given[k] for k in keys}
+            return SceneError(reason, file=self.scene.source,
+                              key=" and ".join(f"waveform.{k}" for k in keys), value=value)
+        return ArgumentError(f"the paper's default {reason}; set it with an option or in "
+                             "the scene's [waveform]", argument=name,
+                             value=next(iter(given.values())))
+
+
+def run_waveform(carrier_hz: float, args, *, scene=None,
+                 snapshot=None) -> tuple[Waveform, str]:
+    """The radar frame of a run and the line that states it (with the cyclic prefix's
+    rounding): each parameter from the options in ``args`` (those of
+    :func:`add_waveform_arguments`; absent attributes count as not given), else the
+    scene's ``[waveform]`` (``scene.waveform``), else the paper's Table I. A refusal
+    names the option (ArgumentError) or the scene's file and key (SceneError) and the
+    value: N or M not positive, T against Δf, a cyclic prefix given in seconds and in
+    samples that disagree, one not shorter than the symbol, an unknown modulation, a
+    carrier below half the bandwidth."""
+    paper = Waveform()
+    src = _Sources(scene, snapshot)
+    n = src.pick("subcarriers", args, ["subcarriers"], ["subcarriers"],
+                 {"subcarriers": paper.n_subcarriers})
+    n = next(iter(n.values()))
+    m = src.pick("symbols", args, ["symbols"], ["symbols"], {"symbols": paper.n_symbols})
+    m = next(iter(m.values()))
+    for name, value in (("subcarriers", n), ("symbols", m)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise src.refuse(name, "must be a positive integer")
+    spacing = src.pick("spacing", args, ["subcarrier_spacing"],
+                       ["subcarrier_spacing_hz", "useful_duration_s"],
+                       {"subcarrier_spacing": paper.subcarrier_spacing_hz})
+    df = spacing.get("subcarrier_spacing", spacing.get("subcarrier_spacing_hz"))
+    useful = spacing.get("useful_duration_s")
+    if df is None:  # the scene gave T alone
+        df = 1.0 / useful
+        useful = None
+    modulation = next(iter(src.pick("modulation", args, ["modulation"], ["modulation"],
+                                    {"modulation": paper.modulation}).values()))
+    fs = n * df
+    cp = src.pick("cyclic_prefix", args, ["cyclic_prefix", "cp_samples"],
+                  ["cyclic_prefix_s", "cyclic_prefix_samples"],
+                  {"cyclic_prefix": paper.cp_s})
+    cp_s = cp.get("cyclic_prefix", cp.get("cyclic_prefix_s"))
+    cp_n = cp.get("cp_samples", cp.get("cyclic_prefix_samples"))
+    rate = f"{fs / 1e6:.6g} MHz = N·Δf = {n} × {df / 1e3:.6g} kHz"
+    if cp_s is not None:
+        rounded = round_cyclic_prefix(cp_s, fs)
+        if cp_n is not None and cp_n != rounded:
+            raise src.refuse("cyclic_prefix", f"disagree: {cp_s!r} s is {cp_s * fs:.4f} "
+                             f"samples at {rate}, which rounds to {rounded}, not {cp_n}")
+        n_cp = rounded
+        statement = (f"cyclic prefix {cp_s * 1e6:.6g} µs → {n_cp} samples = "
+                     f"{n_cp / fs * 1e6:.4f} µs at {rate} (rounded to the nearest whole "
+                     "sample, halves up)")
+    else:
+        n_cp = cp_n
+        statement = (f"cyclic prefix {n_cp} samples = {n_cp / fs * 1e6:.4f} µs at {rate}")
+    if n_cp >= n:
+        raise src.refuse("cyclic_prefix", f"gives {n_cp} samples, not shorter than the "
+                         f"symbol it precedes (N = {n} samples, T = 1/Δf = "
+                         f"{1e6 / df:.6g} µs)")
+    kw = dict(carrier_hz=carrier_hz, n_subcarriers=n, n_symbols=m,
+              subcarrier_spacing_hz=df, cp_s=n_cp / fs, modulation=modulation,
+              useful_duration_s=useful)
+    try:
+        wf = Waveform(**kw)
+    except ArgumentError as exc:
+        if exc.argument == "carrier_hz" and scene is not None:
+            raise SceneError(f"the radar's carrier {exc.reason}", file=scene.source,
+                             key="scene.carrier_hz", value=carrier_hz) from None
+        if exc.argument == "carrier_hz" and snapshot is not None:
+            raise SnapshotError(f"carrier_hz = {carrier_hz!r}: {exc.reason}", file=snapshot,
+                                key="meta/carrier_hz") from None
+        name = {"n_subcarriers": "subcarriers", "n_symbols": "symbols",
+                "subcarrier_spacing_hz": "spacing", "useful_duration_s": "spacing",
+                "modulation": "modulation", "cp_s": "cyclic_prefix"}.get(exc.argument)
+        if name is None:
+            raise
+        raise src.refuse(name, exc.reason, which=exc.argument) from None
+    head = (f"waveform: f_c {carrier_hz / 1e9:.6g} GHz, N {n}, M {m}, Δf "
+            f"{df / 1e3:.6g} kHz, {wf.modulation}; Δr {wf.range_resolution:.4g} m, "
+            f"Δv {wf.velocity_resolution:.4g} m/s")
+    return wf, f"{head}\n  {statement}"
+
+
+__all__ = ["TOOL_ERRORS", "WAVEFORM_OPTIONS", "add_waveform_arguments", "run_waveform",
+           "finite_float", "float_in", "int_in", "list_of",
            "noise_figure_db", "non_negative_float", "non_negative_int", "output_folder",
            "positive_float", "positive_int", "run_tool", "seed", "tool_waveform"]

@@ -19,7 +19,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from clradcom.commands.options import output_folder, seed, tool_waveform
+from clradcom.commands.options import (
+    add_waveform_arguments,
+    output_folder,
+    run_waveform,
+    seed,
+)
 from clradcom.commands.trace import Stopwatch, radar_noise, radar_stage
 from clradcom.errors import ArgumentError, SnapshotError
 from clradcom.files import staged_folder
@@ -48,6 +53,7 @@ def add_radar_arguments(ap: argparse.ArgumentParser) -> None:
                     help="seed of the random OFDM data (an integer >= 0; the noise uses "
                          "seed + 1)")
     ap.add_argument("--no-noise", action="store_true", help="leave thermal noise out")
+    add_waveform_arguments(ap)
 
 
 def _load_snapshot(path) -> Snapshot:
@@ -65,7 +71,8 @@ def run_radar(args) -> int:
         raise SnapshotError(f"was traced from another scene than {args.scene} (its scene "
                             "hash differs); trace this scene again with clradcom trace",
                             file=args.snapshot, key="scene_hash")
-    wf = tool_waveform(scene.carrier_hz, scene=scene)
+    wf, frame = run_waveform(scene.carrier_hz, args, scene=scene)
+    print(f"  {frame}")
     check_frame_memory(wf, args.synthesis)
     noise = radar_noise(scene, args)
     mono = [lk for lk in snap if lk.tx_index == lk.rx_index

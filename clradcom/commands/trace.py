@@ -60,13 +60,14 @@ import numpy as np
 
 from clradcom.commands.console import progress_bar, trace_steps
 from clradcom.commands.options import (
+    add_waveform_arguments,
     float_in,
     int_in,
     output_folder,
     positive_int,
     run_tool,
+    run_waveform,
     seed,
-    tool_waveform,
 )
 from clradcom.device.runtime import get_runtime
 from clradcom.errors import ArgumentError, SceneError
@@ -205,6 +206,7 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--no-noise", action="store_true", help="leave thermal noise out")
     ap.add_argument("-q", "--quiet", action="store_true",
                     help="no progress bar (it is shown only when stderr is a terminal)")
+    add_waveform_arguments(ap)
 
 
 #: option -> TraceSettings field it sets (None: the preset's value stands)
@@ -275,7 +277,8 @@ def run(args) -> int:
     check_launch_memory(settings, argument=option, value=value)
     with sw.stage("load scene"):
         scene = load_scene(args.scene)
-    wf = tool_waveform(scene.carrier_hz, scene=scene)
+    wf, frame = run_waveform(scene.carrier_hz, args, scene=scene)
+    print(f"  {frame}")
     check_frame_memory(wf, args.synthesis)
     noise = radar_noise(scene, args)
     out = Path(args.out or Path("out") / scene.name)

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from clradcom.errors import ArgumentError
+from clradcom.scene.records import MODULATIONS
 
 SPEED_OF_LIGHT = 299_792_458.0
 
@@ -29,7 +30,6 @@ ORTHOGONALITY_TOLERANCE = 1e-4
 #: T_CP·f_s may miss an integer by this many samples (1.375 µs·93.0908 MHz = 127.99987).
 CP_SAMPLE_TOLERANCE = 1e-3
 
-MODULATIONS = ("bpsk", "qpsk", "8psk", "16psk", "16qam", "64qam", "256qam")
 
 
 def _positive_finite(name: str, value) -> float:
@@ -221,6 +221,19 @@ def cp_subcarrier_step(cp_s: float, subcarrier_spacing_hz: float,
         if abs(exact - round(exact)) <= CP_SAMPLE_TOLERANCE:
             return n
     return None
+
+
+def round_cyclic_prefix(cp_s: float, sample_rate_hz: float) -> int:
+    """A cyclic prefix of ``cp_s`` seconds as a whole number of samples at
+    ``sample_rate_hz``: the nearest one, halves rounded up (floor(T_CP·f_s + 1/2))."""
+    fs = _positive_finite("sample_rate_hz", sample_rate_hz)
+    try:
+        cp = float(cp_s)
+    except (TypeError, ValueError):
+        raise ArgumentError("must be a real number", argument="cp_s", value=cp_s) from None
+    if not math.isfinite(cp) or cp < 0.0:
+        raise ArgumentError("must be non-negative and finite", argument="cp_s", value=cp_s)
+    return int(math.floor(cp * fs + 0.5))
 
 
 def paper_waveform(**overrides) -> Waveform:

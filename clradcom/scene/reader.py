@@ -8,6 +8,8 @@ A scene file has four parts (docs/scene-format.md is the full reference)::
                    with material, position, rotation_deg, scale, velocity
     [[radars]]     antennas: position, rides_on, orientation_deg, pattern,
                    polarization, role, tx_power_w, noise_figure_db
+    [waveform]     optional radar frame: subcarriers, symbols, subcarrier_spacing_hz,
+                   cyclic_prefix_s / _samples, modulation (:mod:`~clradcom.scene.read_waveform`)
 
 ``[scene] import = "canyon.xml"`` adds the shapes of a Mitsuba 3 / Sionna RT XML scene
 (:mod:`~clradcom.scene.import_xml`) before the ``[[objects]]``; an ``[[objects]]`` entry
@@ -50,11 +52,12 @@ from clradcom.scene.read_geometry import MESH_SUFFIXES, SHAPES
 from clradcom.scene.read_materials import read_materials
 from clradcom.scene.read_objects import read_objects
 from clradcom.scene.read_radars import read_radars
+from clradcom.scene.read_waveform import read_waveform
 from clradcom.scene.records import Radar, Scene, SceneObject
 
 __all__ = ["load_scene", "scene_from_dict", "SHAPES", "MESH_SUFFIXES"]
 
-TOP_KEYS = ("scene", "materials", "objects", "radars", "time")
+TOP_KEYS = ("scene", "materials", "objects", "radars", "time", "waveform")
 SCENE_KEYS = ("name", "carrier_hz", "description", "import")
 
 
@@ -99,6 +102,7 @@ def scene_from_dict(data: dict, *, file="<dict>", base_dir=".") -> Scene:
     fields.check_keys(data, TOP_KEYS, "")
     name, description, carrier = _read_scene_table(fields, data)
     time_axis = read_time_axis(fields, data)
+    waveform = read_waveform(fields, data)
     span = (0.0, 0.0) if time_axis is None else (
         time_axis.start_s, float(time_axis.times[-1]))
     materials = read_materials(fields, fields.array_of_tables(data, "materials"), carrier)
@@ -115,6 +119,7 @@ def scene_from_dict(data: dict, *, file="<dict>", base_dir=".") -> Scene:
                             triangles, radars)
     if time_axis is not None:
         scene.time_s, scene.time_axis = time_axis.start_s, time_axis
+    scene.waveform = waveform
     return scene
 
 

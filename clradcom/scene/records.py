@@ -16,8 +16,12 @@ import numpy as np
 from clradcom.scene.antenna import Pattern
 from clradcom.scene.materials import C0, ROUGHNESS_MODELS, Material
 
-__all__ = ["ARRAY_KINDS", "OPTICS", "ROLES", "SBR_SPACING_WAVELENGTHS", "SIDES", "ArrayLayout",
-           "Motion", "Radar", "Scene", "SceneObject", "TimeAxis"]
+__all__ = ["ARRAY_KINDS", "MODULATIONS", "OPTICS", "ROLES", "SBR_SPACING_WAVELENGTHS", "SIDES",
+           "ArrayLayout", "Motion", "Radar", "Scene", "SceneObject", "TimeAxis",
+           "WaveformSpec"]
+
+#: the radar's modulations (``[waveform] modulation``, ``Waveform.modulation``)
+MODULATIONS = ("bpsk", "qpsk", "8psk", "16psk", "16qam", "64qam", "256qam")
 
 #: ``objects[].optics``: how the tracer models the object's returns (docs/po.md)
 OPTICS = ("go", "po", "both")
@@ -162,6 +166,33 @@ class Radar:
         return self.orientation[:, 0].copy()
 
 
+@dataclass(frozen=True)
+class WaveformSpec:
+    """The scene file's ``[waveform]`` table as written: each field None where the file
+    leaves it out (the command's options, then the paper's Table I, fill it in).
+    Checked one value at a time by the reader; whether the values fit together (a
+    cyclic prefix given twice, T against Δf, a prefix longer than the symbol) is decided
+    where the frame is built (:func:`clradcom.commands.options.run_waveform`)."""
+
+    subcarriers: int | None = None
+    symbols: int | None = None
+    subcarrier_spacing_hz: float | None = None
+    useful_duration_s: float | None = None
+    cyclic_prefix_s: float | None = None
+    cyclic_prefix_samples: int | None = None
+    modulation: str | None = None
+
+    def hash_params(self) -> list:
+        """The keys given, in a fixed order, for :meth:`Scene.content_hash`."""
+        return [[k, repr(v)] for k, v in (
+            ("subcarriers", self.subcarriers), ("symbols", self.symbols),
+            ("subcarrier_spacing_hz", self.subcarrier_spacing_hz),
+            ("useful_duration_s", self.useful_duration_s),
+            ("cyclic_prefix_s", self.cyclic_prefix_s),
+            ("cyclic_prefix_samples", self.cyclic_prefix_samples),
+            ("modulation", self.modulation)) if v is not None]
+
+
 @dataclass(eq=False)
 class Scene:
     """A loaded scene.  The flattened arrays are what the BVH builder and the
@@ -191,6 +222,8 @@ class Scene:
     time_s: float = 0.0
     #: the file's ``[time]`` table, or None
     time_axis: TimeAxis | None = None
+    #: the file's ``[waveform]`` table, or None
+    waveform: WaveformSpec | None = None
 
     # -- convenience -------------------------------------------------------
     @property
@@ -335,6 +368,9 @@ class Scene:
         if self.time_axis is not None:
             ta = self.time_axis
             params["time_axis"] = [f(ta.start_s), f(ta.step_s), int(ta.count)]
+        # the waveform only when a scene has one, so scenes without it keep their hashes
+        if self.waveform is not None:
+            params["waveform"] = self.waveform.hash_params()
         h = hashlib.sha256()
         h.update(json.dumps(params, sort_keys=True, separators=(",", ":")).encode())
         for arr, dt in ((self.triangles, "<f8"), (self.tri_object, "<i4"),
