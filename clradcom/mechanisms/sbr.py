@@ -44,10 +44,12 @@ material's full specular dyad: Fresnel x roughness x sqrt(1 - S^2)
 (:func:`clradcom.physics.em.material_reflection_dyad`).
 
 **Two engines, one result.**  ``geom.engine == "device"`` follows and radiates the tubes in
-``kernels/sbr.cl`` (:mod:`clradcom.device.sbr`); ``"host"`` does the same in numpy over
-ray casts (:func:`shoot_tubes`, :func:`host_contributions`), the reference the device is
-tested against.  Both give :class:`Contributions` (one row per tube, bounce and
-receiver), which :func:`contribution_paths` turns into paths the same way.
+``kernels/sbr.cl`` (:mod:`clradcom.device.sbr`, :func:`device_block_sums`); ``"host"`` does
+the same in numpy over ray casts (:func:`shoot_tubes`, :func:`_radiate`,
+:func:`host_block_sums`), the reference the device is tested against.  Both give
+:class:`BlockSums` (the footprints' polarimetric matrices summed per launch block,
+bounce, receiver and face sequence), which :func:`block_paths` turns into paths the same
+way.
 """
 
 from __future__ import annotations
