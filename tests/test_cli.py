@@ -83,9 +83,9 @@ def test_a_preset_option_with_a_knob_on_top():
 def test_interference_traces_the_same_preset():
     tool = load_tool("interference")
     args = tool.parse_args(["s.toml"])
-    from clradcom.commands.interference import settings
-    assert settings(args) == TraceSettings.preset("paper")
-    assert settings(tool.parse_args(["s.toml", "--rays", "99"])).specular.rays == 99
+    from clradcom.commands.options import preset_settings
+    assert preset_settings(args) == TraceSettings.preset("paper")
+    assert preset_settings(tool.parse_args(["s.toml", "--rays", "99"])).specular.rays == 99
 
 
 # ----------------------------------------------------------------------------------------

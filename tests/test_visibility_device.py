@@ -52,8 +52,8 @@ def wall_and_floor():
 
 @pytest.fixture(scope="module")
 def device_ok(runtime):
-    if not runtime.info.has_double:
-        pytest.skip("the test device has no fp64: both engines are the host's numpy")
+    """The runtime; on a device without fp64 the device engine falls back to the host's
+    numpy, and the comparisons still hold (trivially)."""
     assert dot3_order() is not None
     return runtime
 

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from clradcom.commands import trace as trace_cmd
-from clradcom.commands.options import run_tool, run_waveform
+from clradcom.commands.options import read_snapshot, run_tool, run_waveform
 from clradcom.device.runtime import get_runtime
 from clradcom.errors import ArgumentError, SnapshotError
 from clradcom.files import staged_folder
@@ -42,7 +42,6 @@ from clradcom.radar.pointcloud import (
 from clradcom.radar.report import moving_objects, write_table
 from clradcom.radar.truth import detection_truth
 from clradcom.scene.reader import load_scene
-from clradcom.snapshot import load_snapshot
 from clradcom.trace import trace_scene
 
 __all__ = ["CUBE_OUTPUTS", "CUBE_TRUTH_COLUMNS", "add_arguments", "array_radar", "run"]
@@ -86,7 +85,7 @@ def _paths(args, scene, index, settings):
         snap = trace_scene(scene, settings, runtime=get_runtime(args.device),
                            links=[(index, index)])
         return snap.links[0].paths
-    snap = load_snapshot(args.snapshot)
+    snap = read_snapshot(args.snapshot)
     if snap.scene_hash and snap.scene_hash != scene.content_hash():
         raise SnapshotError(f"was traced from another scene than {args.scene}",
                             file=args.snapshot, key="scene_hash")

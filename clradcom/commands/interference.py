@@ -52,19 +52,22 @@ import sys
 import time
 from pathlib import Path
 
-from clradcom.commands.console import progress_bar, trace_steps
 from clradcom.commands.options import (
+    command_parser,
     finite_float,
     noise_figure_db,
     non_negative_float,
     output_folder,
+    parse_command,
     positive_float,
     positive_int,
+    preset_settings,
+    read_snapshot,
     run_tool,
     seed,
     tool_waveform,
+    trace_into,
 )
-from clradcom.device.runtime import get_runtime
 from clradcom.errors import ArgumentError, SceneError, SnapshotError
 from clradcom.files import staged_folder
 from clradcom.presets import DEFAULT_PRESET, PRESETS
@@ -80,8 +83,7 @@ from clradcom.radar.report import (
 )
 from clradcom.radar.synthesis import check_noise_figure
 from clradcom.scene.reader import load_scene
-from clradcom.snapshot import load_snapshot, save_snapshot
-from clradcom.trace import TraceSettings, check_launch_memory, trace_scene
+from clradcom.trace import check_launch_memory
 
 #: the names this tool writes into its output folder (clradcom.files.staged_folder); the
 #: snapshot only when it traces a scene
@@ -89,17 +91,11 @@ OUTPUTS = ("interference.png", "interference.svg", "interference_summary.csv")
 
 
 def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(
-        prog=prog, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    add_arguments(ap)
-    return ap
+    return command_parser(__doc__, add_arguments, prog)
 
 
 def parse_args(argv, prog: str | None = None):
-    ap = build_parser(prog)
-    args = ap.parse_args(argv)
-    check_args(ap, args)
-    return args
+    return parse_command(build_parser(prog), argv, check_args)
 
 
 def add_arguments(ap: argparse.ArgumentParser) -> None:
@@ -154,12 +150,6 @@ def check_args(ap: argparse.ArgumentParser, args) -> None:
         ap.error("give either a scene file or --snapshot (exactly one)")
     if args.victim == args.interferer:
         ap.error(f"--interferer must be another radar than --victim ({args.victim!r})")
-
-
-def settings(args) -> TraceSettings:
-    """The preset (--preset) with --rays when given."""
-    changes = {} if args.rays is None else {"specular__rays": args.rays}
-    return TraceSettings.preset(getattr(args, "preset", DEFAULT_PRESET), **changes)
 
 
 def scene_radars(args, scene):
@@ -224,19 +214,15 @@ def run(args) -> int:
     t0 = time.perf_counter()
     # everything the run will refuse, before it traces
     if args.scene is not None:
-        check_launch_memory(settings(args), argument="--rays",
-                            value=settings(args).specular.rays)
+        check_launch_memory(preset_settings(args), argument="--rays",
+                            value=preset_settings(args).specular.rays)
         scene = load_scene(args.scene)
         p_a, p_d, nf = scene_radars(args, scene)
         wf = tool_waveform(scene.carrier_hz, subcarriers=args.subcarriers,
                            symbols=args.symbols, scene=scene)
         source, owned = args.scene, (*OUTPUTS, "snapshot.npz")
     else:
-        try:
-            snap = load_snapshot(args.snapshot)
-        except OSError as exc:
-            raise SnapshotError(f"cannot read it ({exc.strerror or exc})",
-                                file=args.snapshot) from None
+        snap = read_snapshot(args.snapshot)
         p_a = p_d = args.tx_power_w
         nf = args.noise_figure_db
         wf = tool_waveform(snap.carrier_hz, subcarriers=args.subcarriers,
@@ -249,13 +235,7 @@ def run(args) -> int:
                        advice="choose fewer --subcarriers or --symbols")
     with staged_folder(out, inputs=[source], owned=owned) as stage:
         if args.scene is not None:
-            runtime = get_runtime(args.device)
-            print(f"tracing {args.scene} on {runtime.info.describe()} ...", flush=True)
-            with progress_bar(None, "trace", quiet=getattr(args, "quiet", False),
-                              unit="link") as bar:
-                snap = trace_scene(scene, settings(args), runtime=runtime,
-                                   steps=trace_steps(bar))
-            save_snapshot(stage / "snapshot.npz", snap)
+            snap = trace_into(stage, scene, preset_settings(args), args)
             own, dl = link_paths(snap, args, args.scene)
         try:
             res = two_radar_run(

@@ -10,7 +10,11 @@
   change (an option, or the scene's carrier);
 * :func:`add_waveform_arguments` / :func:`run_waveform`: the frame from the options, the
   scene's ``[waveform]`` and the paper's defaults, in that order of precedence, with the
-  cyclic prefix rounded to whole samples and the rounding stated.
+  cyclic prefix rounded to whole samples and the rounding stated;
+* :func:`command_parser` / :func:`parse_command`: a command's parser from its docstring
+  and its ``add_arguments``, and the parse with its own ``check_args``;
+* :func:`preset_settings`, :func:`read_snapshot`, :func:`trace_into`: what the commands
+  that take "a scene to trace or a snapshot" share.
 """
 
 from __future__ import annotations
@@ -21,8 +25,8 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
-from clradcom.commands.console import WarningLog
-from clradcom.device.runtime import OpenCLError
+from clradcom.commands.console import WarningLog, progress_bar, trace_steps
+from clradcom.device.runtime import OpenCLError, get_runtime
 from clradcom.distributed import TaskError
 from clradcom.errors import (
     ArgumentError,
@@ -31,8 +35,11 @@ from clradcom.errors import (
     SnapshotError,
 )
 from clradcom.files import OutputError
+from clradcom.presets import DEFAULT_PRESET
 from clradcom.radar.waveform import Waveform, cp_subcarrier_step, round_cyclic_prefix
 from clradcom.scene.records import MODULATIONS
+from clradcom.snapshot import Snapshot, load_snapshot, save_snapshot
+from clradcom.trace import TraceSettings, trace_scene
 
 #: what a tool reports as one line (exit code 2): bad input, a device problem, an output
 #: that cannot be written, a computation over the memory budget (an ArgumentError), a
@@ -391,3 +398,50 @@ __all__ = ["TOOL_ERRORS", "WAVEFORM_OPTIONS", "add_waveform_arguments", "run_wav
            "finite_float", "float_in", "int_in", "list_of",
            "noise_figure_db", "non_negative_float", "non_negative_int", "output_folder",
            "positive_float", "positive_int", "run_tool", "seed", "tool_waveform"]
+
+
+# ----------------------------------------------------------------------------------------
+# the parser of a command, and a scene to trace or a snapshot
+# ----------------------------------------------------------------------------------------
+def command_parser(doc: str | None, add_arguments: Callable[[argparse.ArgumentParser], None],
+                   prog: str | None = None) -> argparse.ArgumentParser:
+    """The parser of a command: its module's docstring as the description (kept as
+    written) and the options ``add_arguments`` adds."""
+    ap = argparse.ArgumentParser(prog=prog, description=doc,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_arguments(ap)
+    return ap
+
+
+def parse_command(ap: argparse.ArgumentParser, argv, check_args=None):
+    """``argv`` parsed by ``ap``, then ``check_args(ap, args)`` (what argparse alone
+    cannot refuse) where the command has one."""
+    args = ap.parse_args(argv)
+    if check_args is not None:
+        check_args(ap, args)
+    return args
+
+
+def preset_settings(args) -> TraceSettings:
+    """The preset (``--preset``, else the default) with ``--rays`` when given."""
+    changes = {} if args.rays is None else {"specular__rays": args.rays}
+    return TraceSettings.preset(getattr(args, "preset", DEFAULT_PRESET), **changes)
+
+
+def read_snapshot(path) -> Snapshot:
+    """The snapshot at ``path``; a file that cannot be read is a SnapshotError naming it."""
+    try:
+        return load_snapshot(path)
+    except OSError as exc:
+        raise SnapshotError(f"cannot read it ({exc.strerror or exc})", file=path) from None
+
+
+def trace_into(stage: Path, scene, settings: TraceSettings, args) -> Snapshot:
+    """Trace ``scene`` on ``--device`` with a progress bar (off with ``--quiet``) and keep
+    the snapshot in the output folder being staged, as ``snapshot.npz``."""
+    runtime = get_runtime(args.device)
+    print(f"tracing {args.scene} on {runtime.info.describe()} ...", flush=True)
+    with progress_bar(None, "trace", quiet=getattr(args, "quiet", False), unit="link") as bar:
+        snap = trace_scene(scene, settings, runtime=runtime, steps=trace_steps(bar))
+    save_snapshot(Path(stage) / "snapshot.npz", snap)
+    return snap

@@ -22,6 +22,7 @@ from pathlib import Path
 from clradcom.commands.options import (
     add_waveform_arguments,
     output_folder,
+    read_snapshot,
     run_waveform,
     seed,
 )
@@ -31,7 +32,7 @@ from clradcom.files import staged_folder
 from clradcom.plots import plot_top_view
 from clradcom.radar.pipeline import SYNTHESIS_METHODS, check_frame_memory
 from clradcom.scene.reader import load_scene
-from clradcom.snapshot import Snapshot, load_snapshot
+from clradcom.snapshot import Snapshot
 
 __all__ = ["RADAR_OUTPUTS", "add_radar_arguments", "add_view_arguments", "run_radar",
            "run_view"]
@@ -56,17 +57,10 @@ def add_radar_arguments(ap: argparse.ArgumentParser) -> None:
     add_waveform_arguments(ap)
 
 
-def _load_snapshot(path) -> Snapshot:
-    try:
-        return load_snapshot(path)
-    except OSError as exc:
-        raise SnapshotError(f"cannot read it ({exc.strerror or exc})", file=path) from None
-
-
 def run_radar(args) -> int:
     sw = Stopwatch()
     scene = load_scene(args.scene)
-    snap = _load_snapshot(args.snapshot)
+    snap = read_snapshot(args.snapshot)
     if snap.scene_hash and snap.scene_hash != scene.content_hash():
         raise SnapshotError(f"was traced from another scene than {args.scene} (its scene "
                             "hash differs); trace this scene again with clradcom trace",
@@ -106,7 +100,7 @@ def add_view_arguments(ap: argparse.ArgumentParser) -> None:
 def run_view(args) -> int:
     scene = load_scene(args.scene)
     if args.snapshot is not None:
-        snap = _load_snapshot(args.snapshot)
+        snap = read_snapshot(args.snapshot)
     else:
         snap = Snapshot(scene_name=scene.name, carrier_hz=float(scene.carrier_hz),
                         scene_hash=scene.content_hash(), links=(), metadata={})

@@ -36,7 +36,14 @@ from pathlib import Path
 import numpy as np
 
 from clradcom.commands.console import progress_bar
-from clradcom.commands.options import finite_float, output_folder, positive_float, run_tool
+from clradcom.commands.options import (
+    command_parser,
+    finite_float,
+    output_folder,
+    parse_command,
+    positive_float,
+    run_tool,
+)
 from clradcom.device.runtime import get_runtime
 from clradcom.evaluation.rcs import (
     MODELS,
@@ -58,17 +65,11 @@ ASPECT_BYTES = 4096
 
 
 def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog=prog, description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    add_arguments(ap)
-    return ap
+    return command_parser(__doc__, add_arguments, prog)
 
 
 def parse_args(argv, prog: str | None = None):
-    ap = build_parser(prog)
-    args = ap.parse_args(argv)
-    check_args(ap, args)
-    return args
+    return parse_command(build_parser(prog), argv, check_args)
 
 
 def add_arguments(ap: argparse.ArgumentParser) -> None:

@@ -30,6 +30,7 @@ from pathlib import Path
 
 from clradcom.commands.console import progress_bar
 from clradcom.commands.options import (
+    command_parser,
     list_of,
     non_negative_int,
     output_folder,
@@ -66,10 +67,7 @@ def _device_list(text: str) -> list[str]:
 
 
 def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog=prog, description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    add_arguments(ap)
-    return ap
+    return command_parser(__doc__, add_arguments, prog)
 
 
 def add_arguments(ap: argparse.ArgumentParser) -> None:

@@ -61,6 +61,7 @@ import numpy as np
 from clradcom.commands.console import progress_bar, trace_steps
 from clradcom.commands.options import (
     add_waveform_arguments,
+    command_parser,
     float_in,
     int_in,
     output_folder,
@@ -142,10 +143,7 @@ def preset_help() -> str:
 
 
 def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(
-        prog=prog, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    add_arguments(ap)
-    return ap
+    return command_parser(__doc__, add_arguments, prog)
 
 
 def add_arguments(ap: argparse.ArgumentParser) -> None:

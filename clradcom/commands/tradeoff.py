@@ -68,6 +68,7 @@ from pathlib import Path
 
 from clradcom.commands.console import progress_bar
 from clradcom.commands.options import (
+    command_parser,
     finite_float,
     int_in,
     list_of,
@@ -143,10 +144,7 @@ def _synthesis(text: str):
 
 
 def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog=prog, description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    add_arguments(ap)
-    return ap
+    return command_parser(__doc__, add_arguments, prog)
 
 
 def parse_args(argv, prog: str | None = None):
