@@ -287,6 +287,8 @@ __kernel void sbr_blocks(__global const Bvh8Node *nodes,
                          __global const int *win_i,
                          __global const uchar *masks,
                          __global const int *blocks,        /* per covered block: window, i, j */
+                         __global const int *overlap_first, /* W+1: window w's earlier overlaps */
+                         __global const int *overlap_ids,
                          __global const pelem *rx_pos,      /* R*3 */
                          __global const real *rx_frame,     /* R*9, row-major */
                          __global const real *tx_frame,     /* 9 */
@@ -335,9 +337,9 @@ __kernel void sbr_blocks(__global const Bvh8Node *nodes,
         real3 vec = D * axis + ((real)i * s) * u + ((real)j * s) * v;
         real dist = sqrt(dot(vec, vec));
         real3 d = vec / dist;
-        bool owned = true;
-        for (int k = 0; k < w && owned; ++k)
-            owned = !window_covers(win_f, win_i, masks, k, d);   /* an earlier window's tube */
+        bool owned = true;   /* unless an earlier window whose cone meets this one holds d */
+        for (int o = overlap_first[w]; o < overlap_first[w + 1] && owned; ++o)
+            owned = !window_covers(win_f, win_i, masks, overlap_ids[o], d);
         if (!owned) continue;
         real cos_a = D / dist;
         real dom = s * s * cos_a * cos_a * cos_a / (D * D);

@@ -108,6 +108,17 @@ def _defines(max_bounces: int, precision: str) -> dict:
     return out
 
 
+def _overlap_lists(n_windows: int, earlier) -> tuple[np.ndarray, np.ndarray]:
+    """``earlier`` (W, W) bool as CSR lists (first (W+1,), window ids), each window's
+    earlier windows in increasing order; None: all of them."""
+    if earlier is None:
+        earlier = np.tri(n_windows, k=-1, dtype=bool)
+    earlier = np.asarray(earlier, dtype=bool).reshape(n_windows, n_windows)
+    rows, cols = np.nonzero(earlier & np.tri(n_windows, k=-1, dtype=bool))
+    first = np.searchsorted(rows, np.arange(n_windows + 1)).astype(np.int32)
+    return first, cols.astype(np.int32)
+
+
 def _tables(scene):
     """Per-material constants for the kernel: (eps re, eps im, roughness, sqrt(1 - S^2))
     and (pec, roughness model)."""
@@ -159,7 +170,7 @@ def near_triangles(caster: RayCaster, antennas) -> tuple[np.ndarray, np.ndarray]
 def shoot_and_radiate(caster: RayCaster, scene, tri_face, windows, tx_frame, receivers,
                       rx_frames, *, wavenumber: float, wavelength: float, max_bounces: int,
                       first_bounce: int, record_triangles, batch_tubes: int = BATCH_TUBES,
-                      precision: str = "auto") -> np.ndarray:
+                      precision: str = "auto", earlier=None) -> np.ndarray:
     """Block sums (:func:`record_dtype`) of the tubes of ``windows`` as kernels/sbr.cl
     computes them: per covered block, bounce >= ``first_bounce`` on a triangle of
     ``record_triangles`` (bool per scene triangle), receiver (positions (R,3), antenna
@@ -170,7 +181,9 @@ def shoot_and_radiate(caster: RayCaster, scene, tri_face, windows, tx_frame, rec
     (:data:`PRECISIONS`): fp64 where the device has it; "double-float" carries positions
     and lengths in kernels/precise.h's compensated float pairs and the fields in float
     (devices without fp64; tests force it on any device).  Records come back in the
-    fp64 layout either way.
+    fp64 layout either way.  ``earlier`` (W, W) bool marks the earlier windows k < w whose
+    directions can meet window w's (:func:`clradcom.mechanisms.sbr.earlier_overlaps`): a
+    tube tests its ownership against those only (default: every earlier window).
     """
     import pyopencl as cl
 
@@ -207,7 +220,9 @@ def shoot_and_radiate(caster: RayCaster, scene, tri_face, windows, tx_frame, rec
     bufs = [tri_v, tri_n, dev(scene.tri_material, np.int32),
             dev(tri_face, np.int32), dev(record_triangles, np.uint8), dev(mat_f, real),
             dev(mat_i, np.int32), dev(win_f, real), dev(win_i, np.int32),
-            dev(windows.masks, np.uint8), dev(blocks, np.int32), precise(receivers),
+            dev(windows.masks, np.uint8), dev(blocks, np.int32),
+            *(dev(a, np.int32) for a in _overlap_lists(windows.n_windows, earlier)),
+            precise(receivers),
             dev(np.asarray(rx_frames, np.float64).reshape(-1, 9), real),
             dev(np.asarray(tx_frame, np.float64).reshape(9), real), precise(tx_and_k),
             dev(near_first, np.int32), dev(near_tri, np.int32)]

@@ -436,14 +436,30 @@ def window_tubes(windows: TubeWindows, tubes) -> tuple[TubeGrid, np.ndarray]:
     e1 = a - np.einsum("ij,ij->i", d, a)[:, None] * d
     e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
     owned = np.ones(len(tubes), dtype=bool)
+    overlaps = earlier_overlaps(windows)
     for k in range(windows.n_windows - 1):
-        later = w > k
+        later = overlaps[w, k]
         if not later.any():
             continue
         owned[later] &= ~_covers(windows, k, d[later])
     grid = TubeGrid(directions=d, solid_angle=s * s * cos_a**3 / (D * D), edge1=e1,
                     edge2=np.cross(d, e1))
     return grid, owned
+
+
+def earlier_overlaps(windows: TubeWindows) -> np.ndarray:
+    """(W, W) bool: window k < w can cover a direction of window w - their cones of
+    directions (axis, and the half-angle of the grid extent's farthest corner) meet.
+    Only those need the ownership test; the others never hold each other's directions."""
+    W = windows.n_windows
+    lo = (windows.cell0 - 0.5) * windows.spacing[:, None]
+    hi = (windows.cell0 + windows.shape * BLOCK - 0.5) * windows.spacing[:, None]
+    reach = np.hypot(np.maximum(np.abs(lo[:, 0]), np.abs(hi[:, 0])),
+                     np.maximum(np.abs(lo[:, 1]), np.abs(hi[:, 1])))
+    half = np.arctan2(reach, windows.distance)
+    between = np.arccos(np.clip(windows.axis @ windows.axis.T, -1.0, 1.0))
+    meet = between <= half[:, None] + half[None, :] + 1e-9
+    return meet & np.tri(W, k=-1, dtype=bool)
 
 
 def _covers(windows: TubeWindows, k: int, d) -> np.ndarray:
@@ -770,7 +786,8 @@ def device_block_sums(geom, windows: TubeWindows, tx, receivers, max_bounces: in
         [rx.position for rx in receivers], [rx.orientation for rx in receivers],
         wavenumber=2.0 * np.pi * scene.carrier_hz / em.C0,
         wavelength=em.C0 / scene.carrier_hz, max_bounces=max_bounces,
-        first_bounce=first_bounce, record_triangles=record_triangles, precision=precision)
+        first_bounce=first_bounce, record_triangles=record_triangles, precision=precision,
+        earlier=earlier_overlaps(windows))
     M = rec["M"].reshape(-1, 2, 2, 2)
     return BlockSums(receiver=rec["receiver"].astype(np.int32),
                      bounce=rec["bounce"].astype(np.int16),
