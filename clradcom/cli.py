@@ -29,6 +29,7 @@ from clradcom.commands import comms as comms_cmd
 from clradcom.commands import cube as cube_cmd
 from clradcom.commands import drive as drive_cmd
 from clradcom.commands import interference as interference_cmd
+from clradcom.commands import microdoppler as microdoppler_cmd
 from clradcom.commands import radar as radar_cmd
 from clradcom.commands import rcs as rcs_cmd
 from clradcom.commands import sweep as sweep_cmd
@@ -108,6 +109,9 @@ SUBCOMMANDS = {
             rcs_cmd.__doc__, rcs_cmd.add_arguments, rcs_cmd.check_args, rcs_cmd.run),
     "drive": ("trace a moving scene at every instant of its [time] table, paths followed",
               drive_cmd.__doc__, drive_cmd.add_arguments, None, drive_cmd.run),
+    "microdoppler": ("the Doppler spread of wheels over the frames of a moving scene: "
+                     "spectrogram against the expected interval", microdoppler_cmd.__doc__,
+                     microdoppler_cmd.add_arguments, None, microdoppler_cmd.run),
     "view": ("draw a scene from above, with a snapshot's strongest paths",
              radar_cmd.__doc__, radar_cmd.add_view_arguments, None, radar_cmd.run_view),
 }

@@ -143,9 +143,11 @@ def doppler_spectrum(spectral, waveform: Waveform, range_m, *, window="hann",
 
 def spread_edges(doppler_hz, power, dynamic_range_db: float = 40.0,
                  noise_margin_db: float = 6.0) -> tuple[float, float]:
-    """(lowest, highest) Doppler (Hz) whose power is within ``dynamic_range_db`` of the
-    spectrum's peak and ``noise_margin_db`` above its median (the noise floor where the
-    returns fill few bins): the spread a spectrogram column shows."""
+    """(lowest, highest) Doppler (Hz) of the run of bins around the spectrum's peak whose
+    power is within ``dynamic_range_db`` of the peak and ``noise_margin_db`` above the
+    spectrum's median (the noise floor where the returns fill few bins): the spread a
+    spectrogram column shows. Only bins joined to the peak count, so a noise spike
+    elsewhere does not widen it."""
     f = np.asarray(doppler_hz, dtype=np.float64)
     p = np.asarray(power, dtype=np.float64)
     if f.shape != p.shape or f.ndim != 1 or f.size == 0:
@@ -161,10 +163,15 @@ def spread_edges(doppler_hz, power, dynamic_range_db: float = 40.0,
         return float("nan"), float("nan")
     level = max(top * 10.0 ** (-dynamic_range_db / 10.0),
                 float(np.median(p)) * 10.0 ** (noise_margin_db / 10.0))
-    on = np.flatnonzero(p >= level)
-    if on.size == 0:
-        return float("nan"), float("nan")
-    return float(f[on[0]]), float(f[on[-1]])
+    on = p >= level
+    k = int(np.argmax(p))
+    lo = k
+    while lo > 0 and on[lo - 1]:
+        lo -= 1
+    hi = k
+    while hi < p.size - 1 and on[hi + 1]:
+        hi += 1
+    return float(f[lo]), float(f[hi])
 
 
 def path_spread(paths, object_ids) -> tuple[float, float, int]:
@@ -371,7 +378,7 @@ def spectrogram_figure(result: MicroDoppler, *, dynamic_range_db: float = 60.0,
     ax.set_ylim(-0.3 * span - 4 * df, 1.3 * span + 4 * df)
     ax.set_xlabel("time [s]")
     ax.set_ylabel("Doppler [Hz]")
-    ax.set_title(f"micro-Doppler, radar {result.radar_name}: "
+    ax.set_title(f"micro-Doppler seen by {result.radar_name!r}: "
                  f"{len(result.part_names)} rotating parts")
     ax.legend(loc="upper right", fontsize="small")
     fig.tight_layout()

@@ -112,10 +112,11 @@ def wheel_mesh(car: WheeledCar = WheeledCar()) -> tuple[np.ndarray, np.ndarray]:
                 c, d = idx(s, j + 1, i + 1), idx(s, j + 1, i)
                 for t in ([a, d, c], [a, c, b]):
                     faces.append(t[::-1] if flip else t)
-    for i in range(n):  # the tread between the outer rings, normals outward
+    for i in range(n):  # the tread between the outer rings, normals outward:
+        # (c - a) x (b - a) ~ (2h y_hat) x (angular) points away from the axis
         a, b = idx(0, k, i), idx(0, k, i + 1)
         c, d = idx(1, k, i + 1), idx(1, k, i)
-        faces += [[a, b, c], [a, c, d]]
+        faces += [[a, c, b], [a, d, c]]
     return np.array(verts, dtype=np.float64), np.array(faces, dtype=np.int64)
 
 
