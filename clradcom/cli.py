@@ -10,6 +10,7 @@
                                                     traces of many settings on Dask
     clradcom rcs --out out/rcs                      the car's RCS against aspect
     clradcom drive scene.toml                       a moving scene over time: path series
+    clradcom microdoppler scene.toml                the wheels' Doppler spread: spectrogram
     clradcom view scenes/street/street.toml         the scene from above
     clradcom presets                                the tracer's named physics
     clradcom devices                                the OpenCL devices

@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 import trimesh
 
+from clradcom import cli
 from clradcom.errors import ArgumentError
 from clradcom.physics.em import C0
 from clradcom.radar.microdoppler import (
@@ -315,3 +316,21 @@ def test_refusals_name_the_argument(scene):
     with pytest.raises(ArgumentError, match="no turning object") as exc:
         microdoppler_run(flat, waveform=wf, times=[0.0])
     assert exc.value.argument == "scene"
+
+
+def test_microdoppler_command_writes_the_spectrogram(tmp_path, capsys):
+    out = tmp_path / "md"
+    code = cli.main(["microdoppler", str(SCENE), "--out", str(out), "--preset", "go",
+                     "--count", "2", "--step", "0.5", "--symbols", "128", "--no-noise"])
+    assert code == 0
+    assert sorted(p.name for p in out.iterdir()) == ["microdoppler.csv", "spectrogram.csv",
+                                                    "spectrogram.png"]
+    rows = (out / "microdoppler.csv").read_text().splitlines()
+    assert len(rows) == 3 and rows[1].startswith("0,") and rows[2].startswith("0.5,")
+    assert "spectrogram edges against the expected interval" in capsys.readouterr().out
+    # a scene without turning objects: one line naming the scene, exit code 2
+    code = cli.main(["microdoppler", str(ROOT / "scenes" / "canonical" / "moving_car.toml"),
+                     "--out", str(tmp_path / "x"), "--count", "1", "--preset", "go"])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "no turning object" in err and len(err.strip().splitlines()) <= 2
