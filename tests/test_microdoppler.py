@@ -37,6 +37,7 @@ from clradcom.radar.waveform import Waveform
 from clradcom.scene.motion import scene_at
 from clradcom.scene.reader import load_scene, scene_from_dict
 from clradcom.scene.wheeled_car import WheeledCar, microdoppler_toml, wheel_mesh
+from clradcom.series import match_paths
 from clradcom.trace import TraceSettings, trace_scene
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -46,6 +47,8 @@ LAM = C0 / DOC["scene"]["carrier_hz"]
 WHEELS = [o for o in DOC["objects"] if "angular_velocity_deg_s" in o]
 V_CAR = np.array(next(o for o in DOC["objects"] if o["name"] == "car")["velocity"])
 R = WheeledCar().wheel_radius
+#: the wheels' returns come from PO facets (optics = "both"), whatever the rays
+GO_FAST = TraceSettings.preset("go").replace(specular__rays=100_000)
 
 
 def closed_form_velocity(obj: dict, points) -> np.ndarray:
@@ -159,7 +162,7 @@ def test_wheel_returns_span_the_interval_and_follow_the_closed_form(scene, runti
     that of its own interaction point, closed form and central differences of scene_at;
     together they span the interval (2/lambda)(u.v -/+ omega r |u_perp|) and never leave
     it."""
-    snap = trace_scene(scene, TraceSettings.preset("go"), runtime, links=[(0, 0)])
+    snap = trace_scene(scene, GO_FAST, runtime, links=[(0, 0)])
     p = snap.links[0].paths
     on_wheel = wheel_path_mask(scene, p)
     assert on_wheel.sum() > 500
@@ -206,7 +209,8 @@ def test_tyre_scattering_tiles_and_sbr_move_with_their_points(runtime):
         if o["name"].startswith("wheel"):
             o.update(material="tyre", optics="po")
     scene = scene_from_dict(doc, base_dir=SCENE.parent)
-    p = trace_scene(scene, TraceSettings.preset("paper"), runtime, links=[(0, 0)]).links[0].paths
+    settings = TraceSettings.preset("paper", specular__rays=100_000)
+    p = trace_scene(scene, settings, runtime, links=[(0, 0)]).links[0].paths
     codes = {int(c) for c in np.unique(p.interaction[wheel_path_mask(scene, p)])} - {0}
     assert {3, 4, 5} <= codes  # scattering tiles, PO facets, SBR
     np.testing.assert_allclose(p.doppler_hz, closed_form_doppler(doc, p), rtol=1e-10,
@@ -244,9 +248,16 @@ def test_doppler_spectrum_puts_known_tones_in_their_bins():
     assert power[np.argmin(abs(f + 5 * bin_hz))] < 1e-4 * power.max()
     f2, power2 = doppler_spectrum(F, wf, (149.0, 151.0))
     assert f2[np.argmax(power2)] == pytest.approx(-5 * bin_hz)
-    # the spread edges: the two tones and the Hann main lobe (one bin either side)
-    lo, hi = spread_edges(f, power, dynamic_range_db=25.0)
-    assert lo == pytest.approx(2 * bin_hz) and hi == pytest.approx(10 * bin_hz)
+    # a band of tones on bins 3 .. 7 (powers 0, -6, -10.5, -14, -20 dB), a rectangular
+    # window (no leakage between bins): the spread ends where the band falls below the
+    # dynamic range
+    band = np.arange(3, 8)
+    G = tone_frame(wf, np.full(5, 20.0), band * bin_hz, [1.0, 0.5, 0.3, 0.2, 0.1])
+    f3, power3 = doppler_spectrum(G, wf, (19.0, 21.0), window="rect")
+    np.testing.assert_allclose(power3[wf.n_symbols // 2 + band] / power3.max(),
+                               [1.0, 0.25, 0.09, 0.04, 0.01], rtol=1e-9)
+    assert spread_edges(f3, power3, 25.0) == pytest.approx((3 * bin_hz, 7 * bin_hz))
+    assert spread_edges(f3, power3, 15.0) == pytest.approx((3 * bin_hz, 6 * bin_hz))
     with pytest.raises(ArgumentError) as exc:
         doppler_spectrum(F, wf, (5 * dr * wf.n_subcarriers, 6 * dr * wf.n_subcarriers))
     assert exc.value.argument == "range_m"
@@ -268,7 +279,7 @@ def test_spread_edges_stop_at_the_noise():
 
 def test_spectrogram_over_frames_shows_the_wheel_spread(scene, runtime, tmp_path):
     wf = Waveform(carrier_hz=scene.carrier_hz)
-    res = microdoppler_run(scene, TraceSettings.preset("go"), waveform=wf,
+    res = microdoppler_run(scene, GO_FAST, waveform=wf,
                            times=[0.0, 0.6], runtime=runtime, noise=False)
     bin_hz = res.doppler_hz[1] - res.doppler_hz[0]
     assert res.power.shape == (2, wf.n_symbols)
@@ -288,7 +299,7 @@ def test_spectrogram_over_frames_shows_the_wheel_spread(scene, runtime, tmp_path
         "angular_velocity_deg_s", "rotation_centre")} for o in DOC["objects"]]}
     still["objects"][2]["angular_velocity_deg_s"] = [0.0, 1e-9, 0.0]  # one part to name
     s2 = scene_from_dict(still, base_dir=SCENE.parent)
-    r2 = microdoppler_run(s2, TraceSettings.preset("go"), waveform=wf, times=[0.0],
+    r2 = microdoppler_run(s2, GO_FAST, waveform=wf, times=[0.0],
                           runtime=runtime, noise=False)
     assert r2.measured_hi_hz[0] - r2.measured_lo_hz[0] <= 4 * bin_hz
     assert res.measured_hi_hz[0] - res.measured_lo_hz[0] >= 9 * bin_hz
@@ -321,7 +332,8 @@ def test_refusals_name_the_argument(scene):
 def test_microdoppler_command_writes_the_spectrogram(tmp_path, capsys):
     out = tmp_path / "md"
     code = cli.main(["microdoppler", str(SCENE), "--out", str(out), "--preset", "go",
-                     "--count", "2", "--step", "0.5", "--symbols", "128", "--no-noise"])
+                     "--count", "2", "--step", "0.5", "--symbols", "128", "--no-noise",
+                     "--rays", "100000"])
     assert code == 0
     assert sorted(p.name for p in out.iterdir()) == ["microdoppler.csv", "spectrogram.csv",
                                                     "spectrogram.png"]
@@ -334,3 +346,52 @@ def test_microdoppler_command_writes_the_spectrogram(tmp_path, capsys):
     assert code == 2
     err = capsys.readouterr().err
     assert "no turning object" in err and len(err.strip().splitlines()) <= 2
+
+
+def test_specular_and_diffraction_dopplers_on_a_turning_box(runtime):
+    """The GO mechanisms on a turning object: a metal box driving and turning about an
+    off-centre vertical axis, seen by a bistatic pair over a road. Every path's Doppler
+    (line of sight, specular, edge diffraction, mixed with the road) equals
+    -(1/lambda) dL/dt by central differences of the same path's traced length at t -/+ dt
+    (paths matched by interactions, objects and faces), and the turn changes it."""
+    box = {"name": "box", "material": "metal", "shape": "box", "extents": [2.0, 1.0, 1.0],
+           "position": [10.0, 0.0, 1.0], "velocity": [-5.0, 1.0, 0.0],
+           "angular_velocity_deg_s": [0.0, 0.0, 40.0], "rotation_centre": [10.3, 0.2, 1.0]}
+    doc = {"scene": {"name": "turning_box", "carrier_hz": 24e9},
+           "objects": [{"name": "road", "material": "concrete_road", "shape": "plane",
+                        "size": [40.0, 20.0], "position": [10.0, 0.0, 0.0]}, box],
+           "radars": [{"name": "tx", "position": [0.0, -1.0, 1.2], "role": "tx",
+                       "pattern": "isotropic"},
+                      {"name": "rx", "position": [0.0, 1.0, 0.9], "role": "rx",
+                       "pattern": "isotropic"}]}
+    scene = scene_from_dict(doc)
+    settings = TraceSettings.preset("go").replace(
+        specular__rays=100_000, specular__max_reflections=2, diffraction__max_diffractions=1,
+        diffraction__max_reflections=1)
+    dt = 1e-4
+    at = {t: trace_scene(scene_at(scene, t), settings, runtime).links[0].paths
+          for t in (-dt, 0.0, dt)}
+    p = at[0.0]
+    on_box = np.any(p.object_id == 1, axis=1)
+    kinds = {tuple(p.interaction[i, :p.n_interactions[i]]) for i in np.flatnonzero(on_box)}
+    assert {(1,), (2,)} <= kinds and ({(1, 2), (2, 1)} & kinds)
+    before, now = match_paths(at[-dt], p)
+    now2, after = match_paths(p, at[dt])
+    later = dict(zip(now2.tolist(), after.tolist(), strict=True))
+    checked = 0
+    for i_before, i in zip(before.tolist(), now.tolist(), strict=True):
+        if i not in later:
+            continue
+        dl = (at[dt].delay_s[later[i]] - at[-dt].delay_s[i_before]) * C0
+        fd = -dl / (2 * dt) / LAM
+        assert p.doppler_hz[i] == pytest.approx(fd, rel=1e-7, abs=1e-4)
+        checked += on_box[i]
+    assert checked >= 8
+    # the turn matters: the same paths with the box's translation alone differ by Hz
+    plain = [{k: v for k, v in o.items() if k not in ("angular_velocity_deg_s",
+                                                      "rotation_centre")}
+             for o in doc["objects"]]
+    assert np.max(np.abs(closed_form_doppler(doc, p) - closed_form_doppler(
+        {**doc, "objects": plain}, p))[on_box]) > 10.0
+    np.testing.assert_allclose(p.doppler_hz, closed_form_doppler(doc, p), rtol=1e-10,
+                               atol=1e-6)

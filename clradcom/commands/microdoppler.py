@@ -43,7 +43,7 @@ from clradcom.errors import ArgumentError
 from clradcom.files import staged_folder
 from clradcom.mechanisms.common import ENGINES
 from clradcom.presets import DEFAULT_PRESET, PRESETS
-from clradcom.radar.microdoppler import microdoppler_run, save_microdoppler
+from clradcom.radar.microdoppler import microdoppler_run, rotating_parts, save_microdoppler
 from clradcom.radar.pipeline import check_frame_memory
 from clradcom.scene.motion import MAX_TIME_STEPS
 from clradcom.scene.reader import load_scene
@@ -103,6 +103,10 @@ def _times(scene, args) -> np.ndarray:
 
 def run(args) -> int:
     scene = load_scene(args.scene)
+    if not rotating_parts(scene):
+        raise ArgumentError("has no turning object (no angular_velocity_deg_s): nothing "
+                            "gives a micro-Doppler spread", argument="scene",
+                            value=args.scene)
     times = _times(scene, args)
     settings = settings_from_args(args)
     check_launch_memory(settings, argument="--rays", value=settings.specular.rays)

@@ -290,8 +290,8 @@ def microdoppler_run(scene: Scene, settings: TraceSettings | None = None, *,
                             argument="radar", value=radar)
     parts = rotating_parts(scene)
     if not parts:
-        raise ArgumentError(f"scene {scene.name!r} has no turning object "
-                            "(angular_velocity_deg_s)", argument="scene", value=scene.name)
+        raise ArgumentError("has no turning object (no angular_velocity_deg_s)",
+                            argument="scene", value=scene.name)
     part_ids = {p.object_id for p in parts}
     riding = scene.radars[ri].rides_on
     bodies = [i for i, o in enumerate(scene.objects) if i not in part_ids and i != riding
