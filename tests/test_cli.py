@@ -18,7 +18,7 @@ from clradcom.scene import scene_from_dict
 from clradcom.trace import SpecularSettings, TraceSettings, trace_scene
 
 SUBCOMMANDS = ("trace", "radar", "cube", "interference", "tradeoff", "sweep", "rcs", "view",
-               "drive", "presets", "devices")
+               "drive", "comms", "microdoppler", "presets", "devices")
 
 
 # ----------------------------------------------------------------------------------------
