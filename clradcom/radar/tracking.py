@@ -16,8 +16,10 @@ Tracking and Navigation*, 2001, §6.3 and §11.3):
   the χ² gate of ``gate_probability``; detections and tracks are paired by
   ``scipy.optimize.linear_sum_assignment`` on Blackman's generalised distance
   ``d² + ln |S|`` (global nearest neighbour).
-* **track management**: every detection left over starts a tentative track (its state
-  the measurement, range rate included: the Doppler gives it at once); a tentative track
+* **track management**: every detection left over that lies in no confirmed track's gate
+  (Blackman & Popoli §3.4: such a detection is the confirmed track's, a second echo of
+  the same object or clutter, not a new object) starts a tentative track (its state the
+  measurement, range rate included: the Doppler gives it at once); a tentative track
   is confirmed once it has ``confirm_hits`` hits within its last ``confirm_window``
   frames (M-of-N), and dropped when it can no longer reach them in its first
   ``confirm_window`` frames; a confirmed track is deleted after ``delete_misses``
@@ -211,6 +213,7 @@ class Tracker:
         self.time_s, self.frame = t_now, self.frame + 1
         n_t, n_z = len(self.tracks), len(z)
         assigned: dict[int, int] = {}
+        in_confirmed_gate = np.zeros(n_z, bool)
         if n_t and n_z:
             cost = np.full((n_t, n_z), _BIG)
             for i, t in enumerate(self.tracks):
@@ -220,6 +223,8 @@ class Tracker:
                 d2 = np.einsum("ij,jk,ik->i", y, Si, y)
                 ok = d2 <= self.gate
                 cost[i, ok] = d2[ok] + math.log(np.linalg.det(S))
+                if t.confirmed:
+                    in_confirmed_gate |= ok
             rows, cols = linear_sum_assignment(cost)
             for i, j in zip(rows.tolist(), cols.tolist(), strict=True):
                 if cost[i, j] < _BIG:
@@ -251,7 +256,7 @@ class Tracker:
             det_of[t.id] = -1 if j is None else j
         used = set(assigned.values())
         for j in range(n_z):
-            if j not in used:
+            if j not in used and not in_confirmed_gate[j]:
                 t = self._new_track(z[j])
                 if s.confirm_hits == 1:
                     t.confirmed = True

@@ -149,7 +149,7 @@ def _video_frame(image, detections, truth, tracks, *, title, range_lim_m, veloci
                 ax.annotate(f"T{t['track']}", (t["range_m"], t["velocity_mps"]),
                             textcoords="offset points", xytext=(5, -11), fontsize=7,
                             color="white")
-        ax.legend(loc="upper right", fontsize="small")
+        ax.legend(loc="lower right", fontsize="small")
     return _rgba(fig)
 
 
