@@ -43,9 +43,12 @@ __all__ = ["DETECTION_TABLE_COLUMNS", "DriveRadar", "FRAME_COLUMNS", "MIN_SNR_DB
            "track_rows", "tracks_figure"]
 
 #: an object is visible in a frame when its echoes' SNR after the range–Doppler
-#: processing gain N·M reaches this (dB): above the CA-CFAR threshold at p_fa = 1e-6
-#: (≈ 13.8 dB for a single cell) with room for the window's loss
-MIN_SNR_DB = 20.0
+#: processing gain N·M reaches this (dB): the CA-CFAR threshold at p_fa = 1e-6 (about
+#: 12 dB over the noise estimate with the pipeline's 40-odd training cells), plus the
+#: Hann windows' SNR loss (1.8 dB per dimension), the straddle loss of a peak between
+#: cells (up to about 3 dB in all), and some 6 dB for a high detection probability and
+#: an echo spread over more than one cell
+MIN_SNR_DB = 25.0
 
 #: header of the detection table (``azimuth_deg`` only for a radar with an array)
 DETECTION_TABLE_COLUMNS = ("time_s", "frame", "radar", "range_m", "velocity_m_s",
