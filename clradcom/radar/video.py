@@ -23,8 +23,11 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from PIL import Image
 
 from clradcom.errors import ArgumentError
+from clradcom.figures import new_figure
 from clradcom.files import atomic_write
 from clradcom.radar.array_frame import run_array_radar
 from clradcom.radar.pipeline import process, radar_frame
@@ -169,8 +172,6 @@ def _check_frames(frames):
 def save_gif(path, frames, fps: float = 5.0, *, inputs=()):
     """Write (H, W, 3) uint8 frames as an animated GIF (Pillow, as matplotlib's
     ``PillowWriter`` does; looping), atomically."""
-    from PIL import Image
-
     _check_frames(frames)
     if not (math.isfinite(fps) and fps > 0):
         raise ArgumentError("must be a positive frame rate", argument="fps", value=fps)
@@ -323,11 +324,7 @@ def tracks_figure(result: DriveRadar, title: str | None = None):
     """Range and velocity against time: each object's truth (its range from nearest
     point to centre as a band, its velocity as a line; dotted where it is not visible)
     and the confirmed tracks that were paired with it (markers)."""
-    from clradcom.figures import new_figure
-
     fig = new_figure(figsize=(9.0, 6.0))
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-
     FigureCanvasAgg(fig)
     ax_r, ax_v = fig.subplots(2, 1, sharex=True)
     sc = result.scores
