@@ -323,7 +323,7 @@ def score_rows(scores) -> list[tuple]:
 def tracks_figure(result: DriveRadar, title: str | None = None):
     """Range and velocity against time: each object's truth (its range from nearest
     point to centre as a band, its velocity as a line; dotted where it is not visible)
-    and the confirmed tracks that were paired with it (markers)."""
+    and the confirmed track paired with it in each frame where it is visible (markers)."""
     fig = new_figure(figsize=(9.0, 6.0))
     FigureCanvasAgg(fig)
     ax_r, ax_v = fig.subplots(2, 1, sharex=True)
@@ -338,9 +338,9 @@ def tracks_figure(result: DriveRadar, title: str | None = None):
         ax_v.plot(s["time_s"], np.where(vis, s["velocity_true_mps"], np.nan), "-", color=c,
                   label=f"{name} truth")
         ax_v.plot(s["time_s"], s["velocity_true_mps"], ":", color=c)
-        tr = s[s["track"] >= 0]
+        tr = s[(s["track"] >= 0) & vis]
         ax_r.plot(tr["time_s"], tr["range_track_m"], "o", color=c, ms=4, mfc="none",
-                  label=f"{name} track")
+                  label=f"{name} track (visible frames)")
         ax_v.plot(tr["time_s"], tr["velocity_track_mps"], "o", color=c, ms=4, mfc="none")
     ax_r.set_ylabel("range [m]")
     ax_v.set_ylabel("closing velocity [m/s]")
