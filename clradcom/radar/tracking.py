@@ -58,6 +58,7 @@ SCORE_DTYPE = np.dtype([
     ("track", np.int64), ("range_nearest_m", float), ("range_centre_m", float),
     ("velocity_true_mps", float), ("range_track_m", float), ("velocity_track_mps", float),
     ("range_error_cells", float), ("velocity_error_cells", float), ("within", bool),
+    ("azimuth_true_deg", float), ("azimuth_track_deg", float),
 ])
 
 _BIG = 1e12
@@ -306,7 +307,8 @@ def score_tracks(tracks, truth_frames, range_cell_m: float, velocity_cell_mps: f
     |v_track − v_rel| in velocity cells; each frame, objects and confirmed tracks are
     paired by ``linear_sum_assignment`` on the larger of the two errors, a pair kept
     when it is at most ``gate_cells``. One :data:`SCORE_DTYPE` row per object and frame;
-    ``within``: both errors at most one cell. ``retroactive``: a track confirmed at some
+    ``within``: both errors at most one cell (azimuth, where tracked, is reported
+    beside the centre's, not scored). ``retroactive``: a track confirmed at some
     frame counts from its first frame on (a batch evaluation: the online tracker shows it
     only from its confirmation, ``confirm_hits - 1`` frames after it began at the
     earliest); False: only the frames where it already was confirmed."""
@@ -339,15 +341,17 @@ def score_tracks(tracks, truth_frames, range_cell_m: float, velocity_cell_mps: f
             row["range_nearest_m"], row["range_centre_m"] = (t["range_nearest_m"],
                                                              t["range_centre_m"])
             row["velocity_true_mps"] = t["v_rel_m_s"]
+            row["azimuth_true_deg"] = t.get("azimuth_deg", np.nan)
             if j is None:
                 row["track"] = -1
-                for f in ("range_track_m", "velocity_track_mps"):
+                for f in ("range_track_m", "velocity_track_mps", "azimuth_track_deg"):
                     row[f] = np.nan
                 row["range_error_cells"] = row["velocity_error_cells"] = np.inf
             else:
                 row["track"] = live["track"][j]
                 row["range_track_m"] = live["range_m"][j]
                 row["velocity_track_mps"] = live["velocity_mps"][j]
+                row["azimuth_track_deg"] = live["azimuth_deg"][j]
                 row["range_error_cells"], row["velocity_error_cells"] = er[i, j], ev[i, j]
             row["within"] = bool(row["range_error_cells"] <= 1.0
                                  and row["velocity_error_cells"] <= 1.0)

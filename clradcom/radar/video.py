@@ -316,7 +316,8 @@ def score_rows(scores) -> list[tuple]:
     return [(str(s["frame"]), f"{s['time_s']:.6f}", s["object"], str(int(s["visible"])),
              str(s["track"]), f(s["range_nearest_m"]), f(s["range_centre_m"]),
              f(s["velocity_true_mps"]), f(s["range_track_m"]), f(s["velocity_track_mps"]),
-             f(s["range_error_cells"]), f(s["velocity_error_cells"]), str(int(s["within"])))
+             f(s["range_error_cells"]), f(s["velocity_error_cells"]), str(int(s["within"])),
+             f(s["azimuth_true_deg"]), f(s["azimuth_track_deg"]))
             for s in np.asarray(scores)]
 
 
