@@ -187,6 +187,9 @@ def test_bad_frames_are_refused():
         trk.step(1.0, _one(20.0, 1.0))
     with pytest.raises(ArgumentError, match="range_m"):
         trk.step(2.0, np.zeros(1, [("velocity_mps", float)]))
+    with pytest.raises(ArgumentError, match="azimuth_rad"):
+        Tracker(use_azimuth=True).step(0.0, np.zeros(1, [("range_m", float),
+                                                         ("velocity_mps", float)]))
     with pytest.raises(ArgumentError, match="non-finite"):
         trk.step(2.0, _one(float("nan"), 1.0))
     with pytest.raises(ArgumentError, match="one array of detections per time"):

@@ -121,7 +121,7 @@ def _detections(det, use_azimuth: bool) -> np.ndarray:
     """Measurements (n, 2 or 3): range, range rate, [azimuth rad]."""
     det = np.asarray(det)
     names = det.dtype.names or ()
-    for k in ("range_m", "velocity_mps"):
+    for k in ("range_m", "velocity_mps") + (("azimuth_rad",) if use_azimuth else ()):
         if k not in names:
             raise ArgumentError(f"must be structured detections with a {k!r} field",
                                 argument="detections", value=det.dtype)
