@@ -13,23 +13,64 @@ into tracks. Written into the output folder (default out/<scene name>/):
   series.npz              every track's gain, delay and Doppler per step (docs/series.md)
   snapshot_NNNN.npz       with --snapshots: each step's whole snapshot (its time_s set)
 
+With --radar NAME only that radar's own echoes are traced, and each step is also a radar
+frame (docs/tracking.md): range-Doppler image and CFAR detections (with an array: the
+TDM-MIMO cube and azimuth), a constant-velocity Kalman tracker over the frames, and the
+moving objects' truth at every instant:
+
+  <radar>_detections.csv  time_s, frame, radar, range, velocity, [azimuth], power, SNR
+  <radar>_tracks.csv      every live track per frame (range, velocity, confirmed)
+  <radar>_track_truth.csv each moving object per frame: visible, its track, errors in cells
+  <radar>_tracks.png      tracks against the true ranges and velocities over time
+  <radar>_video.gif       the range-Doppler image per frame, detections, truth, tracks
+                          (--no-video: none; --mp4: also <radar>_video.mp4, needs ffmpeg)
+  <radar>_frames.csv      per frame: paths, detections, seconds tracing and processing
+
+and prints per object whether its track stayed within one range and one velocity cell of
+its truth in every frame where it is visible, and the time per frame.
+
 Errors are one line on stderr, exit code 2.
 """
 
 from __future__ import annotations
 
 import argparse
+import time
 from pathlib import Path
 
 import numpy as np
 
-from clradcom.commands.options import finite_float, int_in, output_folder, positive_float
-from clradcom.commands.trace import settings_from_args
+from clradcom.commands.options import (
+    add_waveform_arguments,
+    finite_float,
+    int_in,
+    output_folder,
+    positive_float,
+    run_waveform,
+    seed,
+)
+from clradcom.commands.trace import radar_noise, settings_from_args
 from clradcom.device.runtime import get_runtime
 from clradcom.errors import ArgumentError
-from clradcom.files import staged_folder
+from clradcom.files import save_figure, staged_folder
 from clradcom.mechanisms.common import ENGINES
 from clradcom.presets import DEFAULT_PRESET, PRESETS
+from clradcom.radar.pipeline import SYNTHESIS_METHODS, check_frame_memory
+from clradcom.radar.report import write_table
+from clradcom.radar.tracking import SCORE_DTYPE, TRACK_DTYPE, score_summary
+from clradcom.radar.video import (
+    DETECTION_TABLE_COLUMNS,
+    FRAME_COLUMNS,
+    MIN_SNR_DB,
+    detection_table_rows,
+    drive_radar,
+    ffmpeg_available,
+    save_gif,
+    save_mp4,
+    score_rows,
+    track_rows,
+    tracks_figure,
+)
 from clradcom.scene.motion import MAX_TIME_STEPS
 from clradcom.scene.reader import load_scene
 from clradcom.series import save_series, trace_series
@@ -39,7 +80,8 @@ from clradcom.trace import check_launch_memory
 __all__ = ["OUTPUTS", "add_arguments", "run"]
 
 #: the names this command writes into its output folder
-OUTPUTS = ("series.npz", "snapshot_*.npz")
+OUTPUTS = ("series.npz", "snapshot_*.npz", "*_detections.csv", "*_tracks.csv",
+           "*_track_truth.csv", "*_tracks.png", "*_video.gif", "*_video.mp4", "*_frames.csv")
 
 
 def add_arguments(ap: argparse.ArgumentParser) -> None:
@@ -64,6 +106,24 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
                     help="OpenCL device: 'gpu', 'cpu', 'P:D' or part of its name")
     ap.add_argument("--snapshots", action="store_true",
                     help="also write every step's snapshot")
+    g = ap.add_argument_group("radar video and tracks (docs/tracking.md)")
+    g.add_argument("--radar", default=None,
+                   help="trace only this radar's own echoes and run its radar chain, "
+                        "tracker and truth at every step")
+    g.add_argument("--no-video", action="store_true", help="no <radar>_video.gif")
+    g.add_argument("--mp4", action="store_true",
+                   help="also write <radar>_video.mp4 (needs ffmpeg on the PATH)")
+    g.add_argument("--fps", type=positive_float, default=5.0,
+                   help="frames per second of the video (default %(default)s)")
+    g.add_argument("--min-snr-db", type=finite_float, default=MIN_SNR_DB,
+                   help="an object in the beam is visible when its echoes reach this SNR "
+                        "(dB, default %(default)s)")
+    g.add_argument("--synthesis", choices=SYNTHESIS_METHODS, default="fast",
+                   help="fast: frequency-domain model; exact: time-domain with ICI/ISI")
+    g.add_argument("--seed", type=seed, default=0,
+                   help="seed of frame 0's OFDM data (frame k: seed + 2k; noise + 1)")
+    g.add_argument("--no-noise", action="store_true", help="leave thermal noise out")
+    add_waveform_arguments(ap)
     ap.set_defaults(no_sbr_mirrors=False)
 
 
@@ -78,21 +138,109 @@ def _times(scene, args) -> np.ndarray:
     return start + step * np.arange(count, dtype=np.float64)
 
 
+def _radar_of(scene, args):
+    """(index, waveform, noise figure) of --radar, checked before any tracing."""
+    if args.radar is None:
+        if args.mp4 or args.no_video:
+            raise ArgumentError("needs --radar (the video is a radar's)",
+                                argument="--mp4" if args.mp4 else "--no-video", value=None)
+        return None, None, None
+    try:
+        index = scene.radar_index(args.radar)
+    except (KeyError, ValueError, IndexError):
+        raise ArgumentError("is no radar of the scene (" + ", ".join(
+            r.name for r in scene.radars) + ")", argument="--radar", value=args.radar) from None
+    radar = scene.radars[index]
+    if radar.role != "txrx":
+        raise ArgumentError(f"has role {radar.role!r}: only a transmit-receive radar has "
+                            "echoes to image", argument="--radar", value=args.radar)
+    if radar.tx_power_w == 0:
+        raise ArgumentError("has tx_power_w = 0: it transmits nothing, so it has no echo",
+                            argument="--radar", value=args.radar)
+    if args.mp4 and not ffmpeg_available():
+        raise ArgumentError("needs ffmpeg on the PATH (the GIF needs nothing; leave --mp4 "
+                            "out)", argument="--mp4", value=None)
+    wf, frame = run_waveform(scene.carrier_hz, args, scene=scene)
+    print(f"  {frame}")
+    check_frame_memory(wf, args.synthesis)
+    return index, wf, radar_noise(scene, args)[index]
+
+
+def _radar_outputs(stage: Path, scene, res, times, n_paths, trace_s, args) -> None:
+    name = res.radar
+    rows = []
+    for k, det in enumerate(res.detections):
+        rows += detection_table_rows(k, times[k], name, det, azimuth=res.azimuth)
+    cols = DETECTION_TABLE_COLUMNS if res.azimuth else tuple(
+        c for c in DETECTION_TABLE_COLUMNS if c != "azimuth_deg")
+    write_table(stage / f"{name}_detections.csv", rows, cols, inputs=[args.scene])
+    write_table(stage / f"{name}_tracks.csv", track_rows(res.tracks), TRACK_DTYPE.names)
+    write_table(stage / f"{name}_track_truth.csv", score_rows(res.scores), SCORE_DTYPE.names)
+    save_figure(tracks_figure(res, f"Radar {name}, scene {scene.name}: tracks against "
+                                   "truth"), stage / f"{name}_tracks.png", dpi=120)
+    write_table(stage / f"{name}_frames.csv",
+                [(str(k), f"{times[k]:.6f}", str(n_paths[k]), str(len(res.detections[k])),
+                  f"{trace_s[k]:.3f}", f"{res.radar_s[k]:.3f}") for k in range(len(times))],
+                FRAME_COLUMNS)
+    if res.frames:
+        save_gif(stage / f"{name}_video.gif", res.frames, args.fps)
+        if args.mp4:
+            save_mp4(stage / f"{name}_video.mp4", res.frames, args.fps)
+
+
+def _print_summary(res, trace_s) -> None:
+    print(f"  radar {res.radar}: cells {res.range_cell_m:.3f} m, "
+          f"{res.velocity_cell_mps:.3f} m/s; {len(set(res.tracks['track'].tolist()))} "
+          "tracks started")
+    print(f"    {'object':<10} {'visible':>8} {'within':>7} {'max cells (R, v)':>17}  tracks")
+    for s in score_summary(res.scores):
+        cells = ("" if not s["tracks"] else
+                 f"{s['max_range_error_cells']:.2f}, {s['max_velocity_error_cells']:.2f}")
+        print(f"    {s['object']:<10} {s['visible']:>3}/{s['frames']:<4} {s['within']:>7} "
+              f"{cells:>17}  {' '.join(f'T{t}' for t in s['tracks']) or '-'}"
+              + ("  all visible frames within one cell" if s["all_within"] else ""))
+    n = len(trace_s)
+    print(f"  time per frame: trace {np.mean(trace_s):.2f} s, radar chain, tracker and "
+          f"video {np.mean(res.radar_s):.2f} s, total "
+          f"{(np.sum(trace_s) + np.sum(res.radar_s)) / n:.2f} s ({n} frames)")
+
+
 def run(args) -> int:
     scene = load_scene(args.scene)
     times = _times(scene, args)
     settings = settings_from_args(args)
     check_launch_memory(settings, argument="--rays", value=settings.specular.rays)
+    index, wf, nf = _radar_of(scene, args)
     runtime = get_runtime(args.device)
     out = Path(args.out) if args.out else Path("out") / scene.name
+    links = None if index is None else [(index, index)]
+    paths_of, n_paths, trace_s = [], [], []
     with staged_folder(out, inputs=[args.scene], owned=OUTPUTS) as stage:
+        clock = [time.perf_counter()]
+
         def each(k, t, snap):
+            now = time.perf_counter()
+            trace_s.append(now - clock[0])
             paths = sum(len(lk.paths.gain) for lk in snap.links)
-            print(f"  step {k + 1}/{len(times)}: t = {t:.6g} s, {paths} paths", flush=True)
+            n_paths.append(paths)
+            print(f"  step {k + 1}/{len(times)}: t = {t:.6g} s, {paths} paths "
+                  f"({trace_s[-1]:.2f} s)", flush=True)
             if args.snapshots:
                 save_snapshot(Path(stage) / f"snapshot_{k:04d}.npz", snap)
+            if index is not None:
+                paths_of.append(snap.links[0].paths)
+            clock[0] = time.perf_counter()
 
-        series = trace_series(scene, settings, times, runtime=runtime, each=each)
+        series = trace_series(scene, settings, times, runtime=runtime, links=links, each=each)
         save_series(Path(stage) / "series.npz", series)
+        if index is not None:
+            res = drive_radar(scene, index, times, paths_of, wf, seed=args.seed,
+                              method=args.synthesis, noise_figure_db=nf,
+                              min_snr_db=args.min_snr_db, video=not args.no_video,
+                              each=lambda k, det: print(f"  frame {k + 1}/{len(times)}: "
+                                                        f"{len(det)} detections", flush=True))
+            _radar_outputs(Path(stage), scene, res, times, n_paths, trace_s, args)
     print(f"{series.n_tracks} tracks over {series.n_steps} steps; outputs in {out}/")
+    if index is not None:
+        _print_summary(res, trace_s)
     return 0

@@ -74,6 +74,8 @@ NORTH_TREE_OFFSET = 4.0  # north row shifted half a step
 MIMO_TX, MIMO_RX = 3, 4
 MIMO_RX_SPACING_WAVELENGTHS = 0.5
 MIMO_TX_SPACING_WAVELENGTHS = MIMO_RX * MIMO_RX_SPACING_WAVELENGTHS
+# the drive variant (street_drive.toml): one second of the street, 20 frames 50 ms apart
+DRIVE_START_S, DRIVE_STEP_S, DRIVE_COUNT = 0.0, 0.05, 20
 
 
 @dataclass(frozen=True)
@@ -97,6 +99,8 @@ class StreetOptions:
     range_from: str = "radar"
     #: radar A carries a 3 tx x 4 rx TDM-MIMO array (street_mimo.toml); radar D none
     mimo: bool = False
+    #: a [time] table: one second of the street in 20 frames (street_drive.toml)
+    drive: bool = False
 
 
 @dataclass
@@ -281,17 +285,30 @@ def street_toml(options: StreetOptions, plan: StreetPlan) -> str:
       f"car_roundness = {num(options.car_roundness)}, car_segments = {options.car_segments}, "
       f"car_flat_ends = {str(options.car_flat_ends).lower()}, "
       f"range_from = {options.range_from}, lane_width = {num(options.lane_width)} m"
-      + (", mimo = true" if options.mimo else ""))
+      + (", mimo = true" if options.mimo else "")
+      + (", drive = true" if options.drive else ""))
+    if options.drive:
+        w(f"# Drive variant: a [time] table of {DRIVE_COUNT} instants {num(DRIVE_STEP_S)} s "
+          "apart (one second, the cars at their set")
+        w("# speeds) for `clradcom drive --radar A` (docs/tracking.md); everything else is "
+          "street.toml's.")
     if options.mimo:
         w("# MIMO variant: radar A carries a 3 tx x 4 rx array (12-element virtual ULA at "
           "lambda/2);")
         w("# everything else is street.toml's.")
     w("")
     w("[scene]")
-    w('name = "street_mimo"' if options.mimo else 'name = "street"')
+    w('name = "street_mimo"' if options.mimo else
+      'name = "street_drive"' if options.drive else 'name = "street"')
     w("carrier_hz = 24e9")
     w('description = "OFDM RadCom paper street: cars A, C at +12.9 m/s; B, D oncoming at '
       '-13.3 and -14.5 m/s; radar A on car A\'s front bumper"')
+    if options.drive:
+        w("")
+        w("[time]")
+        w(f"start_s = {num(DRIVE_START_S)}")
+        w(f"step_s = {num(DRIVE_STEP_S)}")
+        w(f"count = {DRIVE_COUNT}")
     w("")
     w("# ---- road (Table II: concrete, road) ----")
     w("[[objects]]")
@@ -495,4 +512,13 @@ def street_readme(options: StreetOptions, plan: StreetPlan, scene: Scene,
       "(e.g. 2 tx / 2 rx), the paper's radar has one tx and one rx antenna. "
       "`clradcom cube scenes/street/street_mimo.toml` traces it and builds the radar cube, "
       "the point cloud and the truth table (docs/dsp.md §9).")
+    w("")
+    w("## Drive variant (`street_drive.toml`)")
+    w("")
+    w("The same street, scene name `street_drive`, with a `[time]` table: "
+      f"{DRIVE_COUNT} instants {num(DRIVE_STEP_S)} s apart from {num(DRIVE_START_S)} s, "
+      "the cars moving at their set speeds. `clradcom drive scenes/street/street_drive.toml "
+      "--radar A` traces radar A's echoes at every instant and writes the radar video, the "
+      "detection table with a time column and the tracks of the cars against their truth "
+      "(docs/tracking.md).")
     return "\n".join(L) + "\n"
