@@ -12,7 +12,10 @@ with clradcom trace's physics options) or read from a snapshot of this scene; th
                 TDM: transmitter i sends symbols i, i + E_tx, ... (the paper's
                 waveform with M cut to a multiple of E_tx), thermal noise per receiver
   2. cube       range-Doppler per virtual channel with TDM's motion-induced phase
-                compensated, FFT over the virtual array, CA-CFAR over the cube
+                compensated, FFT over the virtual array, CA-CFAR over the cube, each
+                detection's range, velocity and angle refined to the joint maximum-
+                likelihood fit on the raw channels (--refine parabola: the cube's
+                3-point dB parabola)
                 -> <radar>_points.csv / .ply   the point cloud (world x, y, z, radial
                                                velocity, power, SNR)
                 -> <radar>_bird_eye.png        the points over the scene, true objects
@@ -33,7 +36,12 @@ from clradcom.commands.options import read_snapshot, run_tool, run_waveform
 from clradcom.device.runtime import get_runtime
 from clradcom.errors import ArgumentError, SnapshotError
 from clradcom.files import staged_folder
-from clradcom.radar.array_frame import array_truth, run_array_radar, truth_table
+from clradcom.radar.array_frame import (
+    REFINEMENTS,
+    array_truth,
+    run_array_radar,
+    truth_table,
+)
 from clradcom.radar.pointcloud import (
     save_bird_eye,
     write_point_cloud_csv,
@@ -61,6 +69,10 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
                     help="a snapshot.npz of this scene to use instead of tracing")
     ap.add_argument("--radar", default=None,
                     help="the radar (name) with an array (default: the first one)")
+    ap.add_argument("--refine", choices=REFINEMENTS, default="ml",
+                    help="each detection's range, velocity and direction: ml = the joint "
+                         "maximum-likelihood fit on the raw channels (default), parabola = "
+                         "the cube's 3-point dB parabola")
 
 
 def array_radar(scene, name):
@@ -129,7 +141,7 @@ def run(args) -> int:
         with sw.stage(f"radar {radar.name}: TDM frame, cube, CFAR"):
             res = run_array_radar(paths, radar, wf, seed=args.seed,
                                   tx_power_w=radar.tx_power_w if nf is not None else None,
-                                  noise_figure_db=nf)
+                                  noise_figure_db=nf, refine=args.refine)
         truth = detection_truth(scene, radar.name, moving_objects(scene, radar))
         rows = array_truth(truth, res)
         et = 1 if radar.tx_array is None else radar.tx_array.n_elements

@@ -27,7 +27,13 @@ import numpy as np
 
 from clradcom.errors import ArgumentError
 from clradcom.radar.array import synthetic_channels
-from clradcom.radar.cube import detect_cube, point_cloud, radar_cube
+from clradcom.radar.cube import (
+    detect_cube,
+    point_cloud,
+    radar_cube,
+    refine_detections,
+    tdm_channels,
+)
 from clradcom.radar.mimo import mimo_received, tdm_range_doppler, virtual_positions
 from clradcom.radar.synthesis import (
     SYNTHESIS_ACCURACY,
@@ -37,8 +43,12 @@ from clradcom.radar.synthesis import (
 )
 from clradcom.radar.waveform import Waveform, random_symbols
 
-__all__ = ["ArrayResult", "array_offsets", "array_truth", "mimo_waveform", "run_array_radar",
-           "tdm_frame", "truth_table"]
+#: how :func:`run_array_radar` places its detections: the joint maximum-likelihood fit
+#: on the raw channels (default) or the cube's 3-point dB parabola
+REFINEMENTS = ("ml", "parabola")
+
+__all__ = ["REFINEMENTS", "ArrayResult", "array_offsets", "array_truth", "mimo_waveform",
+           "run_array_radar", "tdm_frame", "truth_table"]
 
 
 def array_offsets(radar):
@@ -102,10 +112,16 @@ class ArrayResult:
 
 def run_array_radar(paths, radar, waveform: Waveform, *, seed: int = 0,
                     tx_power_w: float | None = None, noise_figure_db: float | None = None,
-                    n_azimuth: int | None = None, p_fa: float = 1e-6) -> ArrayResult:
+                    n_azimuth: int | None = None, p_fa: float = 1e-6,
+                    refine: str = "ml") -> ArrayResult:
     """TDM frame, range–Doppler spectra with the motion-induced phase compensated, the
-    cube (Hann over range, Doppler and the virtual array), CA-CFAR over it and the point
-    cloud in the world (radar position and orientation)."""
+    cube (Hann over range, Doppler and the virtual array), CA-CFAR over it, each
+    detection's range, velocity and direction refined (``refine``: "ml", the joint
+    maximum-likelihood fit on the raw channels, :func:`clradcom.radar.cube.
+    refine_detections`; "parabola", the cube's 3-point dB parabola) and the point cloud
+    in the world (radar position and orientation)."""
+    if refine not in REFINEMENTS:
+        raise ArgumentError(f"must be one of {REFINEMENTS}", argument="refine", value=refine)
     tx, rx, virt = array_offsets(radar)
     wf = mimo_waveform(waveform, tx.shape[0])
     d, received = tdm_frame(paths, radar, wf, seed=seed, tx_power_w=tx_power_w,
@@ -115,6 +131,9 @@ def run_array_radar(paths, radar, waveform: Waveform, *, seed: int = 0,
     # a noiseless frame: no CFAR noise estimate below the synthesis' numerical floor
     noiseless = tx_power_w is None or noise_figure_db is None
     det = detect_cube(cube, p_fa=p_fa, accuracy=SYNTHESIS_ACCURACY if noiseless else None)
+    if refine == "ml" and virt.shape[0] > 1 and wf.n_symbols // tx.shape[0] > 1:
+        f, slow = tdm_channels(received, d, wf, tx.shape[0])
+        det = refine_detections(det, cube, f, slow, virt, wf)
     pts = point_cloud(det, radar.position, radar.orientation)
     return ArrayResult(wf, rd, cube, det, pts)
 
