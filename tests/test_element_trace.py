@@ -128,3 +128,52 @@ def test_the_element_snapshot_round_trips_and_refusals_name_what_is_missing(tmp_
         element_channels(ref, scene.radars[0], _wf(), "exact")
     with pytest.raises(ArgumentError, match="channel"):
         element_channels(ref, scene.radars[0], _wf(), "spherical")
+
+
+CUBE_OPTIONS = ["--rays", "20000", "--reflections", "1", "--diffractions", "0",
+                "--physical-optics", "none", "--no-scattering", "--subcarriers", "256",
+                "--symbols", "64", "-q"]
+
+
+def test_cube_command_runs_the_three_channels_and_reads_its_element_snapshot(tmp_path,
+                                                                             capsys):
+    from tool_helpers import CLOSING_PLATE_SCENE
+
+    from clradcom.cli import main as cli_main
+    from clradcom.radar.pointcloud import read_point_cloud_ply
+
+    path = tmp_path / "plate.toml"
+    path.write_text(CLOSING_PLATE_SCENE.replace(
+        'pattern = "sector"', 'pattern = "sector"\n'
+        'tx_array = { kind = "ula", count = 2, spacing_wavelengths = 2.0 }\n'
+        'rx_array = { kind = "ula", count = 4, spacing_wavelengths = 0.5 }'))
+    points = {}
+    for channel in ("synthetic", "corrected", "exact"):
+        out = tmp_path / channel
+        assert cli_main(["cube", str(path), "--out", str(out), "--array-channel", channel,
+                         *CUBE_OPTIONS]) == 0, capsys.readouterr().err
+        text = capsys.readouterr().out
+        assert f"TDM frame ({channel} element channels)" in text
+        assert (out / "A_elements.npz").exists() == (channel == "exact")
+        points[channel] = read_point_cloud_ply(out / "A_points.ply")
+    # the plate 20 m away, far field of a 4 cm array: the same strongest point each way
+    strongest = {k: p[np.argmax(p["power_db"])] for k, p in points.items()}
+    for k in ("corrected", "exact"):
+        for c in ("x", "y", "z", "velocity_mps"):
+            assert strongest[k][c] == pytest.approx(strongest["synthetic"][c], abs=1e-3)
+    assert strongest["exact"]["x"] == pytest.approx(20.0, abs=0.05)  # the plate, 20 m
+    # the element snapshot read back gives the same cloud without tracing
+    again = tmp_path / "again"
+    assert cli_main(["cube", str(path), "--out", str(again), "--array-channel", "exact",
+                     "--snapshot", str(tmp_path / "exact" / "A_elements.npz"),
+                     *CUBE_OPTIONS]) == 0
+    np.testing.assert_array_equal(read_point_cloud_ply(again / "A_points.ply"),
+                                  points["exact"])
+    # the snapshot of another scene is refused, naming the file and key
+    other = tmp_path / "other.toml"
+    other.write_text(path.read_text().replace("20.0, 0.0, 1.0", "21.0, 0.0, 1.0"))
+    assert cli_main(["cube", str(other), "--out", str(tmp_path / "o"), "--array-channel",
+                     "exact", "--snapshot", str(tmp_path / "exact" / "A_elements.npz"),
+                     *CUBE_OPTIONS]) == 2
+    err = capsys.readouterr().err
+    assert "A_elements.npz" in err and "scene_hash" in err and "element-pair" in err
