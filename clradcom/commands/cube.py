@@ -2,13 +2,19 @@
 
     clradcom cube scenes/street/street_mimo.toml
     clradcom cube scenes/street/street_mimo.toml --snapshot out/street_mimo/snapshot.npz
+    clradcom cube scenes/street/street_mimo.toml --array-channel exact
 
 (``python tools/cube.py ...`` runs the same.) The radar (--radar, default the first radar
 with a ``tx_array``/``rx_array``) has its own echoes traced (the monostatic link alone,
-with clradcom trace's physics options) or read from a snapshot of this scene; then:
+with clradcom trace's physics options) or read from a snapshot of this scene; with
+--array-channel exact every transmit element -> receive element pair is traced instead
+(written to <radar>_elements.npz, which --snapshot then takes); then:
 
-  1. frame      every element pair's channel from the paths by the synthetic array
-                (plane-wave phases along each path's departure and arrival directions),
+  1. frame      every element pair's channel (--array-channel): synthetic (default) =
+                plane-wave phases on the reference paths along each path's departure
+                and arrival directions, corrected = their first and last legs
+                recomputed from the elements, exact = the traced pairs; each element
+                with its own pattern and polarisation where the array gives them,
                 TDM: transmitter i sends symbols i, i + E_tx, ... (the paper's
                 waveform with M cut to a multiple of E_tx), thermal noise per receiver
   2. cube       range-Doppler per virtual channel with TDM's motion-induced phase
@@ -21,6 +27,8 @@ with clradcom trace's physics options) or read from a snapshot of this scene; th
                 -> <radar>_bird_eye.png        the points over the scene, true objects
                 -> <radar>_cube_truth.csv      each moving object's truth against the
                                                detection matching it, errors in cells
+                -> <radar>_elements.npz        (--array-channel exact) the element pairs'
+                                               snapshot (docs/snapshot-format.md)
   and prints the truth table (range, velocity, azimuth; the cell sizes).
 """
 

@@ -21,16 +21,18 @@ element j is then computed here, in one of two ways:
   interaction points held fixed and the first and last legs recomputed from the displaced
   elements in float64: L_ij = |x_1 − (x_0 + p_i)| + Σ middle legs + |(x_{n+1} + q_j) − x_n|,
   gain a_k · exp(−jk(L_ij − L_k)), delay τ_k + (L_ij − L_k)/c. It is exact for line of
-  sight and for returns from a point (scattering tiles, PO facet centroids) and, for
-  specular and diffracted points that move with the element, exact to second order in
-  the element offset (Fermat: the length is stationary in the interaction points). It is
-  not a re-trace: paths that appear or vanish between elements are not found. Amplitudes
-  (spreading, patterns) are those of the reference path.
+  sight and for returns from a point (scattering tiles, PO facet centroids). For specular
+  and diffracted points, which move with the element, it is exact to first order and
+  errs at second order in the element offset, like the synthetic array but by another
+  term (a mirror at distance h: −k(q + p)²/(4h) where the synthetic array has
+  +k(q − p)²/(4h); tests/test_element_trace.py). It is not a re-trace: paths that appear
+  or vanish between elements are not found. Amplitudes (spreading) are those of the
+  reference path. The re-trace is :mod:`clradcom.radar.element_trace`.
 
 The synthetic array is the exact one's first-order expansion: they agree when the array's
 extent D satisfies D²/(λ R) ≪ 1 (R the distance to the first/last interaction), and the
 exact form is needed in the near field (tests/test_arrays.py: a point 1 km away and 0.5 m
-away).
+away). Each element's own pattern and polarisation enter through :func:`element_gains`.
 """
 
 from __future__ import annotations
