@@ -50,7 +50,6 @@ from clradcom.commands.options import (
     positive_int,
     run_tool,
     seed,
-    tool_waveform,
 )
 from clradcom.device.runtime import ENV_DEVICE, choose_device, list_devices
 from clradcom.presets import DEFAULT_PRESET, PRESETS
@@ -58,7 +57,7 @@ from clradcom.trace import TraceSettings
 
 __all__ = ["TOOL_ERRORS", "finite_float", "float_in", "int_in", "list_of", "main",
            "noise_figure_db", "non_negative_float", "non_negative_int", "output_folder",
-           "positive_float", "positive_int", "run_tool", "seed", "tool_waveform"]
+           "positive_float", "positive_int", "run_tool", "seed"]
 
 
 def _cmd_devices(args) -> int:

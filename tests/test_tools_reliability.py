@@ -370,11 +370,16 @@ def test_subcarriers_that_break_the_cyclic_prefix_name_the_option(interference_t
     save_snapshot(snap, Snapshot("two", 24e9, "", links=(
         Link("A", "A", 0, 0, los_paths([1e-4], [1e-7], [0.0])),
         Link("D", "A", 1, 0, los_paths([1e-5], [2e-7], [100.0])))))
+    # N = 100 (not a multiple of 8) no longer breaks the paper's prefix: it is rounded to
+    # whole samples as every command does; a prefix given in seconds and in samples that
+    # disagree is refused naming both options and values (2 µs is 18.18 samples)
     assert interference_tool.main(["--snapshot", str(snap), "--out", str(tmp_path / "o"),
-                                   "--subcarriers", "100", "--symbols", "16"]) == 2
+                                   "--subcarriers", "100", "--symbols", "16",
+                                   "--cyclic-prefix", "2e-6", "--cp-samples", "17"]) == 2
     err = capsys.readouterr().err
-    assert err.startswith("interference.py: --subcarriers = 100: the 1.375 µs cyclic prefix")
-    assert "N a multiple of 8" in err and "cp_s" not in err
+    assert err.startswith("interference.py: --cyclic-prefix and --cp-samples = "
+                          "'--cyclic-prefix 2e-06, --cp-samples 17': disagree")
+    assert "rounds to 18, not 17" in err and "cp_s" not in err
     # an interferer that is not in the snapshot is named with the options to change
     assert interference_tool.main(["--snapshot", str(snap), "--out", str(tmp_path / "o"),
                                    "--interferer", "B", "--subcarriers", "64",

@@ -5,8 +5,9 @@
 
 (``python tools/comms.py ...`` runs the same.)
 
-A sends its OFDM frame (24 GHz, Δf = 90.909 kHz, cyclic prefix 1.375 µs; N and M from
---subcarriers/--symbols) with Gray-mapped random data (--modulation) and known pilots
+A sends its OFDM frame (the frame of every command: the options --subcarriers, --symbols,
+--subcarrier-spacing, --cyclic-prefix/--cp-samples, over the scene's [waveform], over the
+paper's 24 GHz frame) with Gray-mapped random data (--modulation) and known pilots
 (--pilots block|comb, --pilot-step); car D receives it through the traced A->D link
 (one-way delays, gains and Dopplers with both cars' motion), exact time-domain synthesis
 (ICI, ISI), with D's receiver timing (--timing-offset-us) and oscillator offset
@@ -27,10 +28,10 @@ from __future__ import annotations
 
 import argparse
 import time
-from dataclasses import replace
 from pathlib import Path
 
 from clradcom.commands.options import (
+    add_waveform_arguments,
     command_parser,
     finite_float,
     list_of,
@@ -44,8 +45,8 @@ from clradcom.commands.options import (
     preset_settings,
     read_snapshot,
     run_tool,
+    run_waveform,
     seed,
-    tool_waveform,
     trace_into,
 )
 from clradcom.errors import ArgumentError, SceneError, SnapshotError
@@ -87,8 +88,6 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
                     help="output folder (default out/comms)")
     ap.add_argument("--tx", default="A", help="the radar that sends (default A)")
     ap.add_argument("--rx", default="D", help="the radar that receives (default D)")
-    ap.add_argument("--modulation", choices=COMMS_MODULATIONS, default="qpsk",
-                    help="data modulation, Gray mapped (default qpsk)")
     ap.add_argument("--pilots", choices=("block", "comb"), default="block",
                     help="block: every --pilot-step-th symbol all pilots; comb: every "
                          "--pilot-step-th subcarrier of every symbol (default block)")
@@ -117,10 +116,9 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
                     help=f"the tracer's physics when tracing a scene (default {DEFAULT_PRESET})")
     ap.add_argument("--rays", type=positive_int, default=None,
                     help="rays per transmitter when tracing a scene (default: the preset's)")
-    ap.add_argument("--subcarriers", type=positive_int, default=1024,
-                    help="N (default 1024; a multiple of 8)")
-    ap.add_argument("--symbols", type=positive_int, default=256, help="M (default 256)")
     ap.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    add_waveform_arguments(ap, modulations=COMMS_MODULATIONS,
+                           modulation_help="data modulation, Gray mapped")
 
 
 def check_args(ap: argparse.ArgumentParser, args) -> None:
@@ -191,20 +189,20 @@ def run(args) -> int:
                             value=preset_settings(args).specular.rays)
         scene = load_scene(args.scene)
         p_tx, nf = scene_radars(args, scene)
-        wf = tool_waveform(scene.carrier_hz, subcarriers=args.subcarriers,
-                           symbols=args.symbols, scene=scene)
+        wf, frame = run_waveform(scene.carrier_hz, args, scene=scene,
+                                 modulations=COMMS_MODULATIONS)
         source, owned = args.scene, (*OUTPUTS, "snapshot.npz")
     else:
         snap = read_snapshot(args.snapshot)
         p_tx, nf = args.tx_power_w, args.noise_figure_db
-        wf = tool_waveform(snap.carrier_hz, subcarriers=args.subcarriers,
-                           symbols=args.symbols, snapshot=args.snapshot)
+        wf, frame = run_waveform(snap.carrier_hz, args, snapshot=args.snapshot,
+                                 modulations=COMMS_MODULATIONS)
         source, owned = args.snapshot, OUTPUTS
         paths = link_paths(snap, args, args.snapshot)
-    wf = replace(wf, modulation=args.modulation)
+    print(frame, flush=True)
     check_run(args, wf)
     check_frame_memory(wf, "exact", copies=2, argument="--subcarriers x --symbols",
-                       value=f"{args.subcarriers} x {args.symbols}",
+                       value=f"{wf.n_subcarriers} x {wf.n_symbols}",
                        advice="choose fewer --subcarriers or --symbols")
     pattern = PilotPattern.named(args.pilots, args.pilot_step)
     with staged_folder(out, inputs=[source], owned=owned) as stage:
@@ -221,7 +219,7 @@ def run(args) -> int:
               f"{pattern.overhead(wf.n_subcarriers, wf.n_symbols):.2%} of the cells",
               flush=True)
         mc = monte_carlo(
-            paths.gain, paths.delay_s, paths.doppler_hz, wf, snrs, modulation=args.modulation,
+            paths.gain, paths.delay_s, paths.doppler_hz, wf, snrs, modulation=wf.modulation,
             pattern=pattern, frames=args.frames, seed=args.seed,
             timing_offset_s=args.timing_offset_us * 1e-6, cfo_hz=args.cfo_hz,
             dd_passes=args.dd_passes,

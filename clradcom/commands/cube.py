@@ -2,22 +2,33 @@
 
     clradcom cube scenes/street/street_mimo.toml
     clradcom cube scenes/street/street_mimo.toml --snapshot out/street_mimo/snapshot.npz
+    clradcom cube scenes/street/street_mimo.toml --array-channel exact
 
 (``python tools/cube.py ...`` runs the same.) The radar (--radar, default the first radar
 with a ``tx_array``/``rx_array``) has its own echoes traced (the monostatic link alone,
-with clradcom trace's physics options) or read from a snapshot of this scene; then:
+with clradcom trace's physics options) or read from a snapshot of this scene; with
+--array-channel exact every transmit element -> receive element pair is traced instead
+(written to <radar>_elements.npz, which --snapshot then takes); then:
 
-  1. frame      every element pair's channel from the paths by the synthetic array
-                (plane-wave phases along each path's departure and arrival directions),
+  1. frame      every element pair's channel (--array-channel): synthetic (default) =
+                plane-wave phases on the reference paths along each path's departure
+                and arrival directions, corrected = their first and last legs
+                recomputed from the elements, exact = the traced pairs; each element
+                with its own pattern and polarisation where the array gives them,
                 TDM: transmitter i sends symbols i, i + E_tx, ... (the paper's
                 waveform with M cut to a multiple of E_tx), thermal noise per receiver
   2. cube       range-Doppler per virtual channel with TDM's motion-induced phase
-                compensated, FFT over the virtual array, CA-CFAR over the cube
+                compensated, FFT over the virtual array, CA-CFAR over the cube, each
+                detection's range, velocity and angle refined to the joint maximum-
+                likelihood fit on the raw channels (--refine parabola: the cube's
+                3-point dB parabola)
                 -> <radar>_points.csv / .ply   the point cloud (world x, y, z, radial
                                                velocity, power, SNR)
                 -> <radar>_bird_eye.png        the points over the scene, true objects
                 -> <radar>_cube_truth.csv      each moving object's truth against the
                                                detection matching it, errors in cells
+                -> <radar>_elements.npz        (--array-channel exact) the element pairs'
+                                               snapshot (docs/snapshot-format.md)
   and prints the truth table (range, velocity, azimuth; the cell sizes).
 """
 
@@ -33,7 +44,14 @@ from clradcom.commands.options import read_snapshot, run_tool, run_waveform
 from clradcom.device.runtime import get_runtime
 from clradcom.errors import ArgumentError, SnapshotError
 from clradcom.files import staged_folder
-from clradcom.radar.array_frame import array_truth, run_array_radar, truth_table
+from clradcom.radar.array_frame import (
+    ARRAY_CHANNELS,
+    REFINEMENTS,
+    array_truth,
+    run_array_radar,
+    truth_table,
+)
+from clradcom.radar.element_trace import element_pair_paths, element_scene, trace_elements
 from clradcom.radar.pointcloud import (
     save_bird_eye,
     write_point_cloud_csv,
@@ -42,12 +60,14 @@ from clradcom.radar.pointcloud import (
 from clradcom.radar.report import moving_objects, write_table
 from clradcom.radar.truth import detection_truth
 from clradcom.scene.reader import load_scene
+from clradcom.snapshot import save_snapshot
 from clradcom.trace import trace_scene
 
 __all__ = ["CUBE_OUTPUTS", "CUBE_TRUTH_COLUMNS", "add_arguments", "array_radar", "run"]
 
 #: the names ``clradcom cube`` writes into its output folder
-CUBE_OUTPUTS = ("*_points.csv", "*_points.ply", "*_bird_eye.png", "*_cube_truth.csv")
+CUBE_OUTPUTS = ("*_points.csv", "*_points.ply", "*_bird_eye.png", "*_cube_truth.csv",
+                "*_elements.npz")
 #: header of <radar>_cube_truth.csv
 CUBE_TRUTH_COLUMNS = ("object", "range_nearest_m", "range_centre_m", "v_rel_mps",
                       "azimuth_deg", "range_detected_m", "velocity_detected_mps",
@@ -61,6 +81,17 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
                     help="a snapshot.npz of this scene to use instead of tracing")
     ap.add_argument("--radar", default=None,
                     help="the radar (name) with an array (default: the first one)")
+    ap.add_argument("--array-channel", choices=ARRAY_CHANNELS, default="synthetic",
+                    help="each element pair's channel: synthetic = plane-wave phases on the "
+                         "reference point's paths (default, far field), corrected = their "
+                         "first and last legs recomputed from the elements, exact = the "
+                         "scene traced for every tx element -> rx element pair (near-field "
+                         "targets, large arrays; writes <radar>_elements.npz, and "
+                         "--snapshot then takes such a file)")
+    ap.add_argument("--refine", choices=REFINEMENTS, default="ml",
+                    help="each detection's range, velocity and direction: ml = the joint "
+                         "maximum-likelihood fit on the raw channels (default), parabola = "
+                         "the cube's 3-point dB parabola")
 
 
 def array_radar(scene, name):
@@ -96,6 +127,28 @@ def _paths(args, scene, index, settings):
                         file=args.snapshot, key="links")
 
 
+def _pair_paths(args, scene, index, settings, stage):
+    """The element pairs' paths for --array-channel exact: traced (and written to
+    <radar>_elements.npz) or read from --snapshot, which must be such a file of this
+    scene."""
+    radar = scene.radars[index]
+    if args.snapshot is None:
+        snap = trace_elements(scene, index, settings, runtime=get_runtime(args.device))
+        save_snapshot(stage / f"{radar.name}_elements.npz", snap)
+        return element_pair_paths(snap, radar)
+    snap = read_snapshot(args.snapshot)
+    escene, _, _ = element_scene(scene, index)
+    if snap.scene_hash and snap.scene_hash != escene.content_hash():
+        raise SnapshotError(f"is not an element-pair snapshot of radar {radar.name!r} of "
+                            f"{args.scene} (clradcom cube --array-channel exact writes one: "
+                            f"{radar.name}_elements.npz)", file=args.snapshot,
+                            key="scene_hash")
+    try:
+        return element_pair_paths(snap, radar)
+    except SnapshotError as exc:
+        raise SnapshotError(exc.reason, file=args.snapshot, key="links") from None
+
+
 def _csv_rows(rows):
     out = []
     for t in rows:
@@ -123,13 +176,18 @@ def run(args) -> int:
     out = Path(args.out or Path("out") / scene.name)
     inputs = [args.scene] + ([args.snapshot] if args.snapshot else [])
     with staged_folder(out, inputs=inputs, owned=CUBE_OUTPUTS) as stage:
-        with sw.stage(f"radar {radar.name}: paths ("
-                      + ("snapshot" if args.snapshot else "trace the monostatic link") + ")"):
-            paths = _paths(args, scene, index, settings)
-        with sw.stage(f"radar {radar.name}: TDM frame, cube, CFAR"):
+        exact = args.array_channel == "exact"
+        what = "snapshot" if args.snapshot else (
+            "trace every element pair" if exact else "trace the monostatic link")
+        with sw.stage(f"radar {radar.name}: paths ({what})"):
+            pairs = _pair_paths(args, scene, index, settings, stage) if exact else None
+            paths = None if exact else _paths(args, scene, index, settings)
+        with sw.stage(f"radar {radar.name}: TDM frame ({args.array_channel} element "
+                      "channels), cube, CFAR"):
             res = run_array_radar(paths, radar, wf, seed=args.seed,
                                   tx_power_w=radar.tx_power_w if nf is not None else None,
-                                  noise_figure_db=nf)
+                                  noise_figure_db=nf, refine=args.refine,
+                                  channel=args.array_channel, pair_paths=pairs)
         truth = detection_truth(scene, radar.name, moving_objects(scene, radar))
         rows = array_truth(truth, res)
         et = 1 if radar.tx_array is None else radar.tx_array.n_elements

@@ -53,6 +53,7 @@ import time
 from pathlib import Path
 
 from clradcom.commands.options import (
+    add_waveform_arguments,
     command_parser,
     finite_float,
     noise_figure_db,
@@ -64,8 +65,8 @@ from clradcom.commands.options import (
     preset_settings,
     read_snapshot,
     run_tool,
+    run_waveform,
     seed,
-    tool_waveform,
     trace_into,
 )
 from clradcom.errors import ArgumentError, SceneError, SnapshotError
@@ -133,15 +134,11 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--rays", type=positive_int, default=None,
                     help="rays per transmitter when tracing a scene (default: the "
                          "preset's, 1e6 for paper)")
-    ap.add_argument("--subcarriers", type=positive_int, default=1024,
-                    help="N (default 1024, the paper's; a multiple of 8, so that the cyclic "
-                         "prefix is a whole number of samples); fewer for a quick look")
-    ap.add_argument("--symbols", type=positive_int, default=256,
-                    help="M (default 256, the paper's); fewer for a quick look")
     ap.add_argument("--range-max", type=positive_float, default=60.0,
                     help="range shown in the pictures, m (default 60)")
     ap.add_argument("-q", "--quiet", action="store_true",
                     help="no progress bar (it is shown only when stderr is a terminal)")
+    add_waveform_arguments(ap)
 
 
 def check_args(ap: argparse.ArgumentParser, args) -> None:
@@ -218,20 +215,19 @@ def run(args) -> int:
                             value=preset_settings(args).specular.rays)
         scene = load_scene(args.scene)
         p_a, p_d, nf = scene_radars(args, scene)
-        wf = tool_waveform(scene.carrier_hz, subcarriers=args.subcarriers,
-                           symbols=args.symbols, scene=scene)
+        wf, frame = run_waveform(scene.carrier_hz, args, scene=scene)
         source, owned = args.scene, (*OUTPUTS, "snapshot.npz")
     else:
         snap = read_snapshot(args.snapshot)
         p_a = p_d = args.tx_power_w
         nf = args.noise_figure_db
-        wf = tool_waveform(snap.carrier_hz, subcarriers=args.subcarriers,
-                           symbols=args.symbols, snapshot=args.snapshot)
+        wf, frame = run_waveform(snap.carrier_hz, args, snapshot=args.snapshot)
         source, owned = args.snapshot, OUTPUTS
         own, dl = link_paths(snap, args, args.snapshot)
+    print(frame, flush=True)
     check_offsets(args, wf)
     check_frame_memory(wf, "exact", copies=2, argument="--subcarriers x --symbols",
-                       value=f"{args.subcarriers} x {args.symbols}",
+                       value=f"{wf.n_subcarriers} x {wf.n_symbols}",
                        advice="choose fewer --subcarriers or --symbols")
     with staged_folder(out, inputs=[source], owned=owned) as stage:
         if args.scene is not None:

@@ -6,11 +6,11 @@
   a positive integer, got '-1'``);
 * :func:`run_tool`: the project's errors (:data:`TOOL_ERRORS`) become one line
   ``tool.py: <message>`` on stderr and exit code 2, never a traceback;
-* :func:`tool_waveform`: the radar waveform of a run, refusals naming what the user can
-  change (an option, or the scene's carrier);
-* :func:`add_waveform_arguments` / :func:`run_waveform`: the frame from the options, the
+* :func:`add_waveform_arguments` / :func:`run_waveform`: the frame of every command that
+  makes one (trace, radar, cube, interference, comms, tradeoff), from the options, the
   scene's ``[waveform]`` and the paper's defaults, in that order of precedence, with the
-  cyclic prefix rounded to whole samples and the rounding stated;
+  cyclic prefix rounded to whole samples and the rounding stated; refusals name the
+  option or the scene's file and key, and the value;
 * :func:`command_parser` / :func:`parse_command`: a command's parser from its docstring
   and its ``add_arguments``, and the parse with its own ``check_args``;
 * :func:`preset_settings`, :func:`read_snapshot`, :func:`trace_into`: what the commands
@@ -36,7 +36,7 @@ from clradcom.errors import (
 )
 from clradcom.files import OutputError
 from clradcom.presets import DEFAULT_PRESET
-from clradcom.radar.waveform import Waveform, cp_subcarrier_step, round_cyclic_prefix
+from clradcom.radar.waveform import Waveform, round_cyclic_prefix
 from clradcom.scene.records import MODULATIONS
 from clradcom.snapshot import Snapshot, load_snapshot, save_snapshot
 from clradcom.trace import TraceSettings, trace_scene
@@ -208,44 +208,6 @@ def run_tool(tool: str, body: Callable[..., int], *args, **kwargs) -> int:
 
 
 # ----------------------------------------------------------------------------------------
-# the radar waveform of a run
-# ----------------------------------------------------------------------------------------
-def tool_waveform(carrier_hz: float, *, subcarriers: int | None = None,
-                  symbols: int | None = None, scene=None, snapshot=None) -> Waveform:
-    """The paper's waveform at ``carrier_hz`` with the user's N (``--subcarriers``) and
-    M (``--symbols``), None for the paper's. A refusal names what the user can change:
-    the option, or the carrier of the scene (``scene``: a Scene, the error a SceneError
-    naming its file and ``scene.carrier_hz``) or of the snapshot (``snapshot``: its
-    file)."""
-    kw = {"carrier_hz": carrier_hz}
-    if subcarriers is not None:
-        kw["n_subcarriers"] = subcarriers
-    if symbols is not None:
-        kw["n_symbols"] = symbols
-    try:
-        return Waveform(**kw)
-    except ArgumentError as exc:
-        if exc.argument == "carrier_hz" and scene is not None:
-            raise SceneError(f"the radar's carrier {exc.reason}", file=scene.source,
-                             key="scene.carrier_hz", value=carrier_hz) from None
-        if exc.argument == "carrier_hz" and snapshot is not None:
-            raise SnapshotError(f"carrier_hz = {carrier_hz!r}: {exc.reason}", file=snapshot,
-                                key="meta/carrier_hz") from None
-        if exc.argument == "cp_s":  # no option sets it: N decides whether it fits
-            wf = Waveform()
-            step = cp_subcarrier_step(wf.cp_s, wf.subcarrier_spacing_hz)
-            raise ArgumentError(
-                f"the {wf.cp_s * 1e6:g} µs cyclic prefix must be a whole number of samples "
-                f"at the sample rate N·Δf, which it is for N a multiple of {step}",
-                argument="--subcarriers", value=subcarriers) from None
-        option = {"n_subcarriers": ("--subcarriers", subcarriers),
-                  "n_symbols": ("--symbols", symbols)}.get(exc.argument)
-        if option is not None:
-            raise ArgumentError(exc.reason, argument=option[0], value=option[1]) from None
-        raise
-
-
-# ----------------------------------------------------------------------------------------
 # the frame from the options, the scene's [waveform] and the paper
 # ----------------------------------------------------------------------------------------
 #: option of each waveform parameter (the attribute argparse gives it)
@@ -255,9 +217,13 @@ WAVEFORM_OPTIONS = {"subcarriers": "--subcarriers", "symbols": "--symbols",
                     "modulation": "--modulation"}
 
 
-def add_waveform_arguments(ap: argparse.ArgumentParser) -> None:
+def add_waveform_arguments(ap: argparse.ArgumentParser, *,
+                           modulations: tuple[str, ...] = MODULATIONS,
+                           modulation_help: str = "the radar's random symbols") -> None:
     """The options that set the radar frame; each left out falls back to the scene's
-    ``[waveform]``, then to the paper's Table I."""
+    ``[waveform]``, then to the paper's Table I. ``modulations``: the choices of
+    ``--modulation`` (a command that decodes fewer, such as comms, narrows them;
+    :func:`run_waveform` then refuses a scene's other modulation by its key)."""
     g = ap.add_argument_group("waveform (over the scene's [waveform], over the paper's "
                               "Table I)")
     g.add_argument("--subcarriers", type=positive_int, default=None,
@@ -271,8 +237,8 @@ def add_waveform_arguments(ap: argparse.ArgumentParser) -> None:
                    "sample at f_s = NΔf (paper: 1.375e-6)")
     g.add_argument("--cp-samples", type=non_negative_int, default=None,
                    help="the cyclic prefix in samples at f_s = NΔf")
-    g.add_argument("--modulation", choices=MODULATIONS, default=None,
-                   help="the radar's random symbols (paper: qpsk)")
+    g.add_argument("--modulation", choices=modulations, default=None,
+                   help=f"{modulation_help} (paper: qpsk)")
 
 
 class _Sources:
@@ -317,16 +283,16 @@ class _Sources:
                              value=next(iter(given.values())))
 
 
-def run_waveform(carrier_hz: float, args, *, scene=None,
-                 snapshot=None) -> tuple[Waveform, str]:
+def run_waveform(carrier_hz: float, args, *, scene=None, snapshot=None,
+                 modulations: tuple[str, ...] | None = None) -> tuple[Waveform, str]:
     """The radar frame of a run and the line that states it (with the cyclic prefix's
     rounding): each parameter from the options in ``args`` (those of
     :func:`add_waveform_arguments`; absent attributes count as not given), else the
     scene's ``[waveform]`` (``scene.waveform``), else the paper's Table I. A refusal
     names the option (ArgumentError) or the scene's file and key (SceneError) and the
     value: N or M not positive, T against Δf, a cyclic prefix given in seconds and in
-    samples that disagree, one not shorter than the symbol, an unknown modulation, a
-    carrier below half the bandwidth."""
+    samples that disagree, one not shorter than the symbol, an unknown modulation (or one
+    outside ``modulations`` when given), a carrier below half the bandwidth."""
     paper = Waveform()
     src = _Sources(scene, snapshot)
     n = src.pick("subcarriers", args, ["subcarriers"], ["subcarriers"],
@@ -347,6 +313,9 @@ def run_waveform(carrier_hz: float, args, *, scene=None,
         useful = None
     modulation = next(iter(src.pick("modulation", args, ["modulation"], ["modulation"],
                                     {"modulation": paper.modulation}).values()))
+    if modulations is not None and modulation not in modulations:
+        raise src.refuse("modulation", f"is not one this command decodes "
+                         f"({', '.join(modulations)})")
     fs = n * df
     cp = src.pick("cyclic_prefix", args, ["cyclic_prefix", "cp_samples"],
                   ["cyclic_prefix_s", "cyclic_prefix_samples"],
@@ -397,7 +366,7 @@ def run_waveform(carrier_hz: float, args, *, scene=None,
 __all__ = ["TOOL_ERRORS", "WAVEFORM_OPTIONS", "add_waveform_arguments", "run_waveform",
            "finite_float", "float_in", "int_in", "list_of",
            "noise_figure_db", "non_negative_float", "non_negative_int", "output_folder",
-           "positive_float", "positive_int", "run_tool", "seed", "tool_waveform"]
+           "positive_float", "positive_int", "run_tool", "seed"]
 
 
 # ----------------------------------------------------------------------------------------

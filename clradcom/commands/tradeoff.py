@@ -68,6 +68,7 @@ from pathlib import Path
 
 from clradcom.commands.console import progress_bar
 from clradcom.commands.options import (
+    add_waveform_arguments,
     command_parser,
     finite_float,
     int_in,
@@ -77,8 +78,8 @@ from clradcom.commands.options import (
     output_folder,
     positive_int,
     run_tool,
+    run_waveform,
     seed,
-    tool_waveform,
 )
 from clradcom.device.runtime import get_runtime
 from clradcom.errors import ArgumentError, SceneError
@@ -187,11 +188,6 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
                     help="do not set the tracer's scattering threshold from the noise floor")
     ap.add_argument("--margin-db", type=finite_float, default=0.0,
                     help="noise floor margin: paths below floor + margin are pruned")
-    ap.add_argument("--subcarriers", type=positive_int, default=None,
-                    help="N (default the paper's 1024; a multiple of 8, so that the cyclic "
-                         "prefix is a whole number of samples)")
-    ap.add_argument("--symbols", type=positive_int, default=None,
-                    help="M (default the paper's 256)")
     ap.add_argument("--exact-max-paths", type=non_negative_int, default=None,
                     help="skip the exact back end for traces with more paths than this (its "
                          "cost grows with the paths; the reference always uses it)")
@@ -212,6 +208,7 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
                     help="detection target: velocity error (default: velocity resolution)")
     ap.add_argument("-q", "--quiet", action="store_true",
                     help="no progress bar (it is shown only when stderr is a terminal)")
+    add_waveform_arguments(ap)
 
 
 # ----------------------------------------------------------------------------------------
@@ -273,8 +270,8 @@ def run(args) -> int:
             except ArgumentError as exc:
                 raise ArgumentError(str(exc), argument="--vary",
                                     value=f"{name}={value!r}") from None
-    wf = tool_waveform(scene.carrier_hz, subcarriers=args.subcarriers, symbols=args.symbols,
-                       scene=scene)
+    wf, frame = run_waveform(scene.carrier_hz, args, scene=scene)
+    print(frame, flush=True)
     nf_db = radar.noise_figure_db if radar.noise_figure_db is not None else 10.0
     try:
         check_noise_figure(nf_db)

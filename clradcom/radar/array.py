@@ -21,16 +21,18 @@ element j is then computed here, in one of two ways:
   interaction points held fixed and the first and last legs recomputed from the displaced
   elements in float64: L_ij = |x_1 − (x_0 + p_i)| + Σ middle legs + |(x_{n+1} + q_j) − x_n|,
   gain a_k · exp(−jk(L_ij − L_k)), delay τ_k + (L_ij − L_k)/c. It is exact for line of
-  sight and for returns from a point (scattering tiles, PO facet centroids) and, for
-  specular and diffracted points that move with the element, exact to second order in
-  the element offset (Fermat: the length is stationary in the interaction points). It is
-  not a re-trace: paths that appear or vanish between elements are not found. Amplitudes
-  (spreading, patterns) are those of the reference path.
+  sight and for returns from a point (scattering tiles, PO facet centroids). For specular
+  and diffracted points, which move with the element, it is exact to first order and
+  errs at second order in the element offset, like the synthetic array but by another
+  term (a mirror at distance h: −k(q + p)²/(4h) where the synthetic array has
+  +k(q − p)²/(4h); tests/test_element_trace.py). It is not a re-trace: paths that appear
+  or vanish between elements are not found. Amplitudes (spreading) are those of the
+  reference path. The re-trace is :mod:`clradcom.radar.element_trace`.
 
 The synthetic array is the exact one's first-order expansion: they agree when the array's
 extent D satisfies D²/(λ R) ≪ 1 (R the distance to the first/last interaction), and the
 exact form is needed in the near field (tests/test_arrays.py: a point 1 km away and 0.5 m
-away).
+away). Each element's own pattern and polarisation enter through :func:`element_gains`.
 """
 
 from __future__ import annotations
@@ -40,8 +42,8 @@ import numpy as np
 from clradcom.errors import ArgumentError
 from clradcom.radar.waveform import SPEED_OF_LIGHT
 
-__all__ = ["element_positions", "exact_channels", "path_angles", "path_directions",
-           "synthetic_channels"]
+__all__ = ["element_gains", "element_positions", "exact_channels", "path_angles",
+           "path_directions", "synthetic_channels"]
 
 
 def element_positions(position, orientation, positions_local=None) -> np.ndarray:
@@ -110,23 +112,39 @@ def _wavenumber(wavelength_m):
     return 2.0 * np.pi / lam
 
 
-def synthetic_channels(paths, tx_offsets, rx_offsets, wavelength_m) -> np.ndarray:
+def _base(paths, gains, et, er):
+    """The gains the array phases multiply: the paths' own (P,), or each element pair's
+    (E_tx, E_rx, P) (:func:`element_gains`)."""
+    if gains is None:
+        return np.asarray(paths.gain)[None, None, :]
+    g = np.asarray(gains)
+    if g.shape != (et, er, len(paths.gain)):
+        raise ArgumentError(f"must be ({et}, {er}, {len(paths.gain)}) element-pair gains",
+                            argument="gains", value=f"shape {g.shape}")
+    return g
+
+
+def synthetic_channels(paths, tx_offsets, rx_offsets, wavelength_m, gains=None) -> np.ndarray:
     """Gains (E_tx, E_rx, P) of every element pair, plane-wave phases on the reference
-    paths' gains (module docstring). ``tx_offsets``/``rx_offsets``: (E, 3) world offsets
-    of the elements from the link's transmit/receive reference points."""
+    paths' gains (module docstring), or on ``gains`` (E_tx, E_rx, P) when given (each
+    pair's own patterns, :func:`element_gains`). ``tx_offsets``/``rx_offsets``: (E, 3)
+    world offsets of the elements from the link's transmit/receive reference points."""
     k = _wavenumber(wavelength_m)
     p, q = _offsets("tx_offsets", tx_offsets), _offsets("rx_offsets", rx_offsets)
+    base = _base(paths, gains, p.shape[0], q.shape[0])
     d_dep, d_arr = path_directions(paths)
     steer_tx = np.exp(1j * k * (p @ d_dep.T))  # (Et, P)
     steer_rx = np.exp(1j * k * (q @ d_arr.T))  # (Er, P)
-    return steer_tx[:, None, :] * steer_rx[None, :, :] * np.asarray(paths.gain)[None, None, :]
+    return steer_tx[:, None, :] * steer_rx[None, :, :] * base
 
 
-def exact_channels(paths, tx_offsets, rx_offsets, wavelength_m):
+def exact_channels(paths, tx_offsets, rx_offsets, wavelength_m, gains=None):
     """Gains and delays (E_tx, E_rx, P) of every element pair with the first and last legs
-    of each path recomputed exactly from the displaced elements (module docstring)."""
+    of each path recomputed exactly from the displaced elements (module docstring);
+    ``gains`` as :func:`synthetic_channels`."""
     k = _wavenumber(wavelength_m)
     p, q = _offsets("tx_offsets", tx_offsets), _offsets("rx_offsets", rx_offsets)
+    base = _base(paths, gains, p.shape[0], q.shape[0])
     x0, x1, xn, xr, n = _ends(paths)
     pts = np.asarray(paths.points, dtype=np.float64)
     legs = np.linalg.norm(np.diff(pts, axis=1), axis=2)  # NaN past the rx row
@@ -143,6 +161,33 @@ def exact_channels(paths, tx_offsets, rx_offsets, wavelength_m):
                                                               + p[:, None, None, :])
         length[:, :, direct] = np.linalg.norm(d, axis=3)
     dl = length - total[None, None, :]
-    gains = np.asarray(paths.gain)[None, None, :] * np.exp(-1j * k * dl)
+    out = base * np.exp(-1j * k * dl)
     delays = np.asarray(paths.delay_s)[None, None, :] + dl / SPEED_OF_LIGHT
-    return gains, delays
+    return out, delays
+
+
+def element_gains(paths, radar) -> np.ndarray:
+    """Gains (E_tx, E_rx, P) of every element pair before the array's phases, with each
+    element's own pattern and polarisation (``ArrayLayout.patterns``; the radar's where
+    an array gives none): a_ij = c_rx,j(d_arr)ᵀ M c_tx,i(d_dep), M the path's 2 × 2
+    polarimetric matrix (antenna patterns left out, its carrier phase and spreading in)
+    and c = pattern.field(direction in the radar's frame) the element's (C_θ, C_φ) with
+    its Jones vector (:func:`clradcom.physics.em.path_gains`, the tracer's own product).
+    Monostatic only (the radar is both ends). Where no array gives its elements patterns
+    this is the paths' own gain on every pair, unchanged (P,) broadcast."""
+    et = 1 if radar.tx_array is None else radar.tx_array.n_elements
+    er = 1 if radar.rx_array is None else radar.rx_array.n_elements
+    p = len(paths.gain)
+    tx_pat = None if radar.tx_array is None else radar.tx_array.patterns
+    rx_pat = None if radar.rx_array is None else radar.rx_array.patterns
+    if tx_pat is None and rx_pat is None:
+        return np.broadcast_to(np.asarray(paths.gain), (et, er, p))
+    r = np.asarray(radar.orientation, dtype=np.float64)
+    d_dep, d_arr = path_directions(paths) if p else (np.zeros((0, 3)), np.zeros((0, 3)))
+    loc_dep, loc_arr = d_dep @ r, d_arr @ r
+    c_tx = np.stack([np.asarray(pt.field(loc_dep), complex)
+                     for pt in (tx_pat or [radar.pattern] * et)])  # (Et, P, 2)
+    c_rx = np.stack([np.asarray(pt.field(loc_arr), complex)
+                     for pt in (rx_pat or [radar.pattern] * er)])  # (Er, P, 2)
+    m = np.asarray(paths.matrix)
+    return np.einsum("jpa,pab,ipb->ijp", c_rx, m, c_tx)

@@ -2,13 +2,23 @@
 the point cloud, and the cars' truth set against the detections in range, velocity and
 azimuth (``clradcom cube``; docs/dsp.md §9).
 
-The snapshot holds each link's paths between the radars' reference points; the channel of
-every element pair comes from them by the synthetic array
-(:func:`clradcom.radar.array.synthetic_channels`: plane-wave phases along each path's
-departure and arrival directions, exact in the far field of the array, D²/(λR) ≪ 1: the
-street's 12-element array is 6.9 cm wide, D²/λ = 0.4 m). Transmit element i sends symbols
-μ = m·E_tx + i (TDM, :func:`clradcom.radar.mimo.mimo_received`); every receive element
-gets its own thermal noise at the radar's power and noise figure.
+The channel of every element pair comes one of three ways (``channel``,
+:data:`ARRAY_CHANNELS`; docs/dsp.md §9):
+
+* ``"synthetic"`` (default): from the paths of the radar's reference point, plane-wave
+  phases along each path's departure and arrival directions
+  (:func:`clradcom.radar.array.synthetic_channels`), exact in the far field of the array,
+  D²/(λR) ≪ 1 (the street's 12-element array is 6.9 cm wide, D²/λ = 0.4 m);
+* ``"corrected"``: the same paths with their first and last legs recomputed from the
+  elements (:func:`clradcom.radar.array.exact_channels`);
+* ``"exact"``: the scene traced for every element pair
+  (:func:`clradcom.radar.element_trace.trace_elements`), the paths of each pair its own.
+
+Each element's own pattern and polarisation (``ArrayLayout.patterns``) enter the first
+two through the paths' polarimetric matrices and directions
+(:func:`clradcom.radar.array.element_gains`); the traced pairs carry them already.
+Transmit element i sends symbols μ = m·E_tx + i (TDM); every receive element gets its own
+thermal noise at the radar's power and noise figure.
 
 Truth (:func:`array_truth`): a car's range is the interval from its nearest triangle to
 its bounding-box centre (the echo comes from the faces turned to the radar, the paper's
@@ -26,19 +36,34 @@ import dataclasses
 import numpy as np
 
 from clradcom.errors import ArgumentError
-from clradcom.radar.array import synthetic_channels
-from clradcom.radar.cube import detect_cube, point_cloud, radar_cube
+from clradcom.radar.array import element_gains, exact_channels, synthetic_channels
+from clradcom.radar.cube import (
+    detect_cube,
+    point_cloud,
+    radar_cube,
+    refine_detections,
+    tdm_channels,
+)
+from clradcom.radar.element_trace import pair_channel_arrays
 from clradcom.radar.mimo import mimo_received, tdm_range_doppler, virtual_positions
 from clradcom.radar.synthesis import (
     SYNTHESIS_ACCURACY,
     add_thermal_noise,
+    channel_transfer_function,
     check_noise_figure,
     check_tx_power,
 )
 from clradcom.radar.waveform import Waveform, random_symbols
 
-__all__ = ["ArrayResult", "array_offsets", "array_truth", "mimo_waveform", "run_array_radar",
-           "tdm_frame", "truth_table"]
+#: how :func:`run_array_radar` places its detections: the joint maximum-likelihood fit
+#: on the raw channels (default) or the cube's 3-point dB parabola
+REFINEMENTS = ("ml", "parabola")
+#: where the channel of every element pair comes from (module docstring)
+ARRAY_CHANNELS = ("synthetic", "corrected", "exact")
+
+__all__ = ["ARRAY_CHANNELS", "REFINEMENTS", "ArrayResult", "element_channels",
+           "tdm_received_pairs", "array_offsets", "array_truth", "mimo_waveform",
+           "run_array_radar", "tdm_frame", "truth_table"]
 
 
 def array_offsets(radar):
@@ -67,16 +92,76 @@ def mimo_waveform(waveform: Waveform, n_tx: int) -> Waveform:
     return dataclasses.replace(waveform, n_symbols=m)
 
 
-def tdm_frame(paths, radar, waveform: Waveform, *, seed: int = 0,
-              tx_power_w: float | None = None, noise_figure_db: float | None = None):
-    """Transmit symbols D (N, M) and received symbols (E_rx, N, M) of a TDM-MIMO frame of
-    the radar's own echoes (module docstring); thermal noise per receive element when
-    both ``tx_power_w`` and ``noise_figure_db`` are given (noise seeded with seed + 1)."""
+def element_channels(paths, radar, waveform: Waveform, channel: str = "synthetic",
+                     pair_paths=None):
+    """Gains, delays (s) and Dopplers (Hz) of every element pair, each (E_tx, E_rx, P):
+    ``channel`` "synthetic" or "corrected" from the reference ``paths``, "exact" from
+    ``pair_paths`` ([i][j] Paths of the traced element pairs, zero-gain padded to one P)
+    (module docstring)."""
+    if channel not in ARRAY_CHANNELS:
+        raise ArgumentError(f"must be one of {ARRAY_CHANNELS}", argument="channel",
+                            value=channel)
     tx, rx, _ = array_offsets(radar)
+    if channel == "exact":
+        if pair_paths is None:
+            raise ArgumentError("the exact channel needs the traced element pairs "
+                                "(clradcom.radar.element_trace.trace_elements)",
+                                argument="pair_paths", value=None)
+        g, tau, fd = pair_channel_arrays(pair_paths)
+        if g.shape[:2] != (tx.shape[0], rx.shape[0]):
+            raise ArgumentError(f"must be {tx.shape[0]} x {rx.shape[0]} element pairs",
+                                argument="pair_paths", value=f"{g.shape[0]} x {g.shape[1]}")
+        return g, tau, fd
+    lam = waveform.wavelength
+    p = len(paths.gain)
+    fd = np.broadcast_to(np.asarray(paths.doppler_hz), (tx.shape[0], rx.shape[0], p))
+    # each element's own pattern and polarisation in place of the radar's (the paths'
+    # own gains where the arrays give none)
+    own = None if radar_patterns_shared(radar) else element_gains(paths, radar)
+    if channel == "synthetic":
+        g = synthetic_channels(paths, tx, rx, lam, gains=own)
+        tau = np.broadcast_to(np.asarray(paths.delay_s), g.shape)
+    else:
+        g, tau = exact_channels(paths, tx, rx, lam, gains=own)
+    return g, tau, fd
+
+
+def tdm_received_pairs(symbols, gains, delays_s, dopplers_hz, waveform: Waveform):
+    """Received symbols (E_rx, N, M) of a TDM frame whose element pairs each have their
+    own paths: gains, delays and Dopplers (E_tx, E_rx, P) (fast model, no noise); symbol
+    μ from transmitter μ mod E_tx, time origin the FFT window centre (as
+    :func:`clradcom.radar.mimo.mimo_received`, which shares one Doppler per path)."""
+    d = np.asarray(symbols)
+    g = np.asarray(gains)
+    et, er, _ = g.shape
+    owner = np.arange(waveform.n_symbols) % et
+    out = np.zeros((er, waveform.n_subcarriers, waveform.n_symbols), complex)
+    for i in range(et):
+        for j in range(er):
+            keep = g[i, j] != 0
+            if not keep.any():
+                continue
+            h = channel_transfer_function(g[i, j][keep], np.asarray(delays_s)[i, j][keep],
+                                          np.asarray(dopplers_hz)[i, j][keep], waveform,
+                                          waveform.fft_window_centre)
+            out[j][:, owner == i] = d[:, owner == i] * h[:, owner == i]
+    return out
+
+
+def tdm_frame(paths, radar, waveform: Waveform, *, seed: int = 0,
+              tx_power_w: float | None = None, noise_figure_db: float | None = None,
+              channel: str = "synthetic", pair_paths=None):
+    """Transmit symbols D (N, M) and received symbols (E_rx, N, M) of a TDM-MIMO frame of
+    the radar's own echoes (module docstring; ``channel``/``pair_paths`` as
+    :func:`element_channels`); thermal noise per receive element when both
+    ``tx_power_w`` and ``noise_figure_db`` are given (noise seeded with seed + 1)."""
     d = random_symbols(waveform, seed)
-    gains = synthetic_channels(paths, tx, rx, waveform.wavelength)
-    received = mimo_received(d, gains, np.asarray(paths.delay_s), np.asarray(paths.doppler_hz),
-                             waveform, mode="tdm")
+    gains, delays, dopplers = element_channels(paths, radar, waveform, channel, pair_paths)
+    if channel == "synthetic" and radar_patterns_shared(radar):
+        received = mimo_received(d, gains, np.asarray(paths.delay_s),
+                                 np.asarray(paths.doppler_hz), waveform, mode="tdm")
+    else:
+        received = tdm_received_pairs(d, gains, delays, dopplers, waveform)
     if tx_power_w is not None and noise_figure_db is not None:
         check_tx_power(tx_power_w)
         check_noise_figure(noise_figure_db)
@@ -84,6 +169,11 @@ def tdm_frame(paths, radar, waveform: Waveform, *, seed: int = 0,
         received = add_thermal_noise(received, tx_power_w, noise_figure_db,
                                      waveform.bandwidth, rng=rng)
     return d, received
+
+
+def radar_patterns_shared(radar) -> bool:
+    """True when no array of the radar gives its elements their own patterns."""
+    return all(a is None or a.patterns is None for a in (radar.tx_array, radar.rx_array))
 
 
 class ArrayResult:
@@ -102,19 +192,31 @@ class ArrayResult:
 
 def run_array_radar(paths, radar, waveform: Waveform, *, seed: int = 0,
                     tx_power_w: float | None = None, noise_figure_db: float | None = None,
-                    n_azimuth: int | None = None, p_fa: float = 1e-6) -> ArrayResult:
+                    n_azimuth: int | None = None, p_fa: float = 1e-6,
+                    refine: str = "ml", channel: str = "synthetic",
+                    pair_paths=None) -> ArrayResult:
     """TDM frame, range–Doppler spectra with the motion-induced phase compensated, the
-    cube (Hann over range, Doppler and the virtual array), CA-CFAR over it and the point
-    cloud in the world (radar position and orientation)."""
+    cube (Hann over range, Doppler and the virtual array), CA-CFAR over it, each
+    detection's range, velocity and direction refined (``refine``: "ml", the joint
+    maximum-likelihood fit on the raw channels, :func:`clradcom.radar.cube.
+    refine_detections`; "parabola", the cube's 3-point dB parabola) and the point cloud
+    in the world (radar position and orientation). ``channel``/``pair_paths``: how the
+    element pairs' channels are made (:func:`element_channels`)."""
+    if refine not in REFINEMENTS:
+        raise ArgumentError(f"must be one of {REFINEMENTS}", argument="refine", value=refine)
     tx, rx, virt = array_offsets(radar)
     wf = mimo_waveform(waveform, tx.shape[0])
     d, received = tdm_frame(paths, radar, wf, seed=seed, tx_power_w=tx_power_w,
-                            noise_figure_db=noise_figure_db)
+                            noise_figure_db=noise_figure_db, channel=channel,
+                            pair_paths=pair_paths)
     rd = tdm_range_doppler(received, d, wf, tx.shape[0])
     cube = radar_cube(rd, virt, wf.wavelength, n_azimuth=n_azimuth)
     # a noiseless frame: no CFAR noise estimate below the synthesis' numerical floor
     noiseless = tx_power_w is None or noise_figure_db is None
     det = detect_cube(cube, p_fa=p_fa, accuracy=SYNTHESIS_ACCURACY if noiseless else None)
+    if refine == "ml" and virt.shape[0] > 1 and wf.n_symbols // tx.shape[0] > 1:
+        f, slow = tdm_channels(received, d, wf, tx.shape[0])
+        det = refine_detections(det, cube, f, slow, virt, wf)
     pts = point_cloud(det, radar.position, radar.orientation)
     return ArrayResult(wf, rd, cube, det, pts)
 

@@ -16,6 +16,15 @@ CFAR: cell-averaging with the training band in range and Doppler of each angle b
 threshold α·mean for the design P_fa; detections are the cells above it that are the
 maximum of their 3 × 3 × 3 (× 3) neighbourhood; each axis refined by the 3-point parabola
 on dB (:func:`clradcom.radar.cfar.parabolic_offset`).
+
+Refinement (:func:`refine_detections`, the default of :func:`clradcom.radar.array_frame.
+run_array_radar`): the parabola on a Hann-windowed FFT grid is biased (up to a tenth of a
+cell; docs/dsp.md §6) and far from the Cramér–Rao bound; the maximum-likelihood range,
+velocity and direction of each detection come instead from the raw TDM channel
+estimates (:func:`tdm_channels`) by
+:func:`clradcom.radar.angle_estimation.refine_mimo_detections`, the 3-D periodogram's
+maximum found by Newton steps from the parabola's values (which stay where a detection
+does not converge, flagged in ``refined``).
 """
 
 from __future__ import annotations
@@ -26,6 +35,7 @@ import numpy as np
 from scipy import fft as sfft
 
 from clradcom.errors import ArgumentError
+from clradcom.radar.angle_estimation import refine_mimo_detections
 from clradcom.radar.cfar import (
     ca_cfar_alpha,
     numerical_floor,
@@ -35,15 +45,17 @@ from clradcom.radar.cfar import (
 )
 from clradcom.radar.mimo import RangeDoppler
 from clradcom.radar.processing import get_window
+from clradcom.radar.waveform import Waveform, check_symbols
 
 __all__ = ["CUBE_DETECTION_DTYPE", "POINT_DTYPE", "Cube", "angle_grid", "capon_angles",
-           "capon_spectrum", "detect_cube", "point_cloud", "radar_cube"]
+           "capon_spectrum", "detect_cube", "point_cloud", "radar_cube", "refine_detections",
+           "tdm_channels"]
 
 CUBE_DETECTION_DTYPE = np.dtype([
     ("range_m", float), ("velocity_mps", float), ("azimuth_rad", float),
     ("elevation_rad", float), ("u_y", float), ("u_z", float), ("power_db", float),
     ("snr_db", float), ("range_bin", float), ("doppler_bin", float), ("azimuth_bin", float),
-    ("elevation_bin", float),
+    ("elevation_bin", float), ("refined", bool),
 ])
 #: a point of the point cloud: world position (m), radial velocity (m/s, positive when
 #: approaching, the detections' sign), power (dB, image units) and SNR (dB over the CFAR
@@ -239,6 +251,52 @@ def detect_cube(cube: Cube, guard=(2, 1), train=(4, 2), p_fa: float = 1e-6,
         weaker = out["power_db"][:, None] < out["power_db"][None, :] - float(sidelobe_db)
         out = out[~np.any((dr <= 1.5) & (dd <= 1.5) & weaker, axis=1)]
     return out[:max_detections] if max_detections is not None else out
+
+
+def tdm_channels(received, symbols, waveform: Waveform, n_tx: int):
+    """(F, slow_time) of a TDM frame: the raw channel estimates F = D_r/D of every virtual
+    channel v = i·E_rx + j on its transmitter's symbols μ = m·E_tx + i, (E_tx·E_rx, N, M_v)
+    as :func:`clradcom.radar.mimo.tdm_range_doppler` orders them, and each channel's
+    slow-time offset i/E_tx (in units of the channel's interval E_tx·T_sym)."""
+    d = check_symbols(symbols, waveform)
+    r = np.asarray(received)
+    if r.ndim != 3 or r.shape[1:] != d.shape:
+        raise ArgumentError(f"must be (E_rx, {d.shape[0]}, {d.shape[1]})", argument="received",
+                            value=f"shape {r.shape}")
+    if isinstance(n_tx, bool) or not isinstance(n_tx, int | np.integer) or n_tx < 1 \
+            or d.shape[1] % n_tx:
+        raise ArgumentError(f"must be a positive integer dividing the {d.shape[1]} symbols",
+                            argument="n_tx", value=n_tx)
+    er, n, m = r.shape
+    mv = m // n_tx
+    f = (r / d[None]).reshape(er, n, mv, n_tx).transpose(3, 0, 1, 2).reshape(n_tx * er, n, mv)
+    return f, np.repeat(np.arange(n_tx) / n_tx, er)
+
+
+def refine_detections(detections, cube: Cube, channels, slow_time, virtual_positions_local,
+                      waveform: Waveform) -> np.ndarray:
+    """The cube's detections with range, velocity and direction replaced by the joint
+    maximum-likelihood estimate (module docstring); ``refined`` True where it converged
+    (elsewhere the parabola's values stay). ``channels``/``slow_time`` from
+    :func:`tdm_channels`; the cube's range and velocity cells are those of the waveform
+    (Δr, and Δv of the whole frame: M_v·E_tx·T_sym = M·T_sym)."""
+    det = np.array(detections, dtype=CUBE_DETECTION_DTYPE, copy=True)
+    if det.size == 0:
+        return det
+    pos = np.asarray(virtual_positions_local, float)
+    dr, dv = waveform.range_resolution, waveform.velocity_resolution
+    u0 = np.stack([det["u_y"], det["u_z"]], axis=1)
+    ref = refine_mimo_detections(channels, slow_time, pos[:, 1:3], waveform.wavelength,
+                                 det["range_m"] / dr, det["velocity_mps"] / dv, u0)
+    ok = ref.converged
+    det["range_m"] = np.where(ok, ref.range_bin * dr, det["range_m"])
+    det["velocity_mps"] = np.where(ok, ref.doppler_bin * dv, det["velocity_mps"])
+    det["u_y"], det["u_z"] = ref.u[:, 0], ref.u[:, 1]
+    el = np.arcsin(np.clip(det["u_z"], -1.0, 1.0))
+    det["elevation_rad"] = el
+    det["azimuth_rad"] = np.arcsin(np.clip(det["u_y"] / np.cos(el), -1.0, 1.0))
+    det["refined"] = ok
+    return det
 
 
 def point_cloud(detections, position, orientation) -> np.ndarray:

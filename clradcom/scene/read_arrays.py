@@ -6,28 +6,42 @@ An array table is a uniform linear array (``kind = "ula"``: ``count``, ``spacing
 or explicit element positions (``kind = "positions"``), all in the radar's own frame
 (boresight local +x, local z up), in wavelengths at the scene's carrier or in metres.
 ULA and UPA are centred on the radar's position; explicit positions are offsets from it.
-Every refusal names the file, key and value (docs/scene-format.md, "Arrays").
+Every element has the radar's pattern and polarisation unless the array table gives its
+own (``pattern``/``polarization``: every element of this array) or ``elements`` gives one
+element's (a list of E tables with ``pattern``/``polarization``, element order as the
+positions); each key falls back element -> array -> radar. Every refusal names the file,
+key and value (docs/scene-format.md, "Arrays").
 """
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from clradcom.scene.fields import FieldReader, key_path
+from clradcom.scene.read_patterns import read_pattern
 from clradcom.scene.records import ARRAY_KINDS, ArrayLayout
 
 __all__ = ["ARRAY_KEYS", "MAX_ELEMENTS", "read_arrays"]
 
 ARRAY_KEYS = ("kind", "count", "counts", "spacing_wavelengths", "spacing_m", "axis", "axes",
-              "positions_wavelengths", "positions_m")
+              "positions_wavelengths", "positions_m", "pattern", "polarization", "elements")
+#: the keys of one entry of an array's ``elements`` list
+ELEMENT_KEYS = ("pattern", "polarization")
+#: the keys every kind of array takes besides its geometry
+_SHARED_KEYS = {"kind", "pattern", "polarization", "elements"}
 #: elements per array at most (a frame per element pair is synthesised)
 MAX_ELEMENTS = 4096
 #: an array larger than this (m) is refused: the radar model is one position per radar
 MAX_EXTENT_M = 100.0
 
 
-def read_arrays(fields: FieldReader, tbl: dict, kp: str, wavelength_m: float):
-    """(tx_array, rx_array) of one ``[[radars]]`` entry; None where not given."""
+def read_arrays(fields: FieldReader, tbl: dict, kp: str, wavelength_m: float,
+                base_dir: Path | None = None):
+    """(tx_array, rx_array) of one ``[[radars]]`` entry; None where not given.
+    ``base_dir``: where pattern files are looked for (the scene file's folder)."""
+    base = Path(".") if base_dir is None else Path(base_dir)
     shared = "array" in tbl
     if shared and ("tx_array" in tbl or "rx_array" in tbl):
         key = "tx_array" if "tx_array" in tbl else "rx_array"
@@ -35,12 +49,12 @@ def read_arrays(fields: FieldReader, tbl: dict, kp: str, wavelength_m: float):
                          "give either 'array' (one array for transmit and receive) or "
                          "'tx_array'/'rx_array', not both")
     if shared:
-        a = _read_array(fields, tbl["array"], key_path(kp, "array"), wavelength_m)
+        a = _read_array(fields, tbl["array"], key_path(kp, "array"), wavelength_m, tbl, base)
         return a, a
-    tx = (_read_array(fields, tbl["tx_array"], key_path(kp, "tx_array"), wavelength_m)
-          if "tx_array" in tbl else None)
-    rx = (_read_array(fields, tbl["rx_array"], key_path(kp, "rx_array"), wavelength_m)
-          if "rx_array" in tbl else None)
+    tx = (_read_array(fields, tbl["tx_array"], key_path(kp, "tx_array"), wavelength_m, tbl,
+                      base) if "tx_array" in tbl else None)
+    rx = (_read_array(fields, tbl["rx_array"], key_path(kp, "rx_array"), wavelength_m, tbl,
+                      base) if "rx_array" in tbl else None)
     return tx, rx
 
 
@@ -85,15 +99,40 @@ def _axis(fields, v, key):
     return a / n
 
 
-def _read_array(fields: FieldReader, spec, kp: str, wavelength_m: float) -> ArrayLayout:
+def _element_patterns(fields, spec, kp, n, radar_tbl, base_dir):
+    """(E,) patterns of the elements, or None where the array names none."""
+    elements = spec.get("elements")
+    if elements is not None and (not isinstance(elements, list) or len(elements) != n
+                                 or not all(isinstance(e, dict) for e in elements)):
+        raise fields.err(key_path(kp, "elements"), elements,
+                         f"expected a list of {n} tables (one per element, e.g. "
+                         "{ pattern = \"sector\", polarization = \"H\" })")
+    if elements is None and "pattern" not in spec and "polarization" not in spec:
+        return None
+    out = []
+    for e in range(n):
+        merged = {k: radar_tbl[k] for k in ELEMENT_KEYS if k in radar_tbl}
+        merged.update({k: spec[k] for k in ELEMENT_KEYS if k in spec})
+        where = kp
+        if elements is not None:
+            where = f"{key_path(kp, 'elements')}[{e}]"
+            fields.check_keys(elements[e], ELEMENT_KEYS, where)
+            merged.update(elements[e])
+        pattern, _, _ = read_pattern(fields, merged, where, base_dir)  # Jones inside
+        out.append(pattern)
+    return tuple(out)
+
+
+def _read_array(fields: FieldReader, spec, kp: str, wavelength_m: float, radar_tbl=None,
+                base_dir: Path | None = None) -> ArrayLayout:
     if not isinstance(spec, dict):
         raise fields.err(kp, spec, "expected a table (e.g. { kind = \"ula\", count = 4, "
                                    "spacing_wavelengths = 0.5 })")
     fields.check_keys(spec, ARRAY_KEYS, kp)
     kind = fields.get_str(spec, "kind", kp, choices=ARRAY_KINDS)
-    allowed = {"ula": {"kind", "count", "spacing_wavelengths", "spacing_m", "axis"},
-               "upa": {"kind", "counts", "spacing_wavelengths", "spacing_m", "axes"},
-               "positions": {"kind", "positions_wavelengths", "positions_m"}}[kind]
+    allowed = _SHARED_KEYS | {"ula": {"count", "spacing_wavelengths", "spacing_m", "axis"},
+                              "upa": {"counts", "spacing_wavelengths", "spacing_m", "axes"},
+                              "positions": {"positions_wavelengths", "positions_m"}}[kind]
     for k in spec:
         if k not in allowed:
             raise fields.err(key_path(kp, k), spec[k],
@@ -142,4 +181,6 @@ def _read_array(fields: FieldReader, spec, kp: str, wavelength_m: float) -> Arra
     if extent > MAX_EXTENT_M:
         raise fields.err(kp, spec, f"an element lies {extent:g} m from the radar's position;"
                                    f" at most {MAX_EXTENT_M:g} m")
-    return ArrayLayout(kind=kind, positions_local=pos)
+    patterns = _element_patterns(fields, spec, kp, pos.shape[0], radar_tbl or {},
+                                 Path(".") if base_dir is None else base_dir)
+    return ArrayLayout(kind=kind, positions_local=pos, patterns=patterns)

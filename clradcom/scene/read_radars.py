@@ -106,7 +106,7 @@ def _read_radar(fields, kp, tbl, seen, objects, base_dir, wavelength_m,
                          f"must be <= {NOISE_FIGURE_MAX_DB:g} dB (real receivers have "
                          "0-20 dB)")
     pattern, pol, pol_name = read_pattern(fields, tbl, kp, base_dir)
-    tx_array, rx_array = read_arrays(fields, tbl, kp, wavelength_m)
+    tx_array, rx_array = read_arrays(fields, tbl, kp, wavelength_m, base_dir)
     return Radar(
         name=name, position=np.asarray(position, dtype=np.float64), rides_on=rides,
         orientation=orientation, pattern=pattern, polarization=pol,

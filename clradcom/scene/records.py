@@ -41,11 +41,14 @@ ARRAY_KINDS = ("ula", "upa", "positions")
 @dataclass(eq=False)
 class ArrayLayout:
     """A radar's antenna array: element positions in the radar's own frame (m; boresight
-    local +x, local z up), offsets from the radar's position. Every element shares the
-    radar's pattern and polarisation (docs/scene-format.md, "Arrays")."""
+    local +x, local z up), offsets from the radar's position, and each element's pattern
+    with its polarisation, or None where every element shares the radar's
+    (docs/scene-format.md, "Arrays")."""
 
     kind: str  #: one of :data:`ARRAY_KINDS`
     positions_local: np.ndarray  #: (E, 3) float64, m
+    #: (E,) antenna patterns (each with its Jones vector), or None: the radar's own
+    patterns: tuple | None = None
 
     @property
     def n_elements(self) -> int:
@@ -356,6 +359,7 @@ class Scene:
                  f(r.tx_power_w), None if r.noise_figure_db is None else f(r.noise_figure_db)]
                 # arrays only when set, so scenes without them keep their hashes
                 + [[key, a.kind, vec(a.positions_local)]
+                   + ([[p.params() for p in a.patterns]] if a.patterns is not None else [])
                    for key, a in (("tx_array", r.tx_array), ("rx_array", r.rx_array))
                    if a is not None]
                 + ([["motion", r.motion.hash_params()]] if r.motion is not None else [])
