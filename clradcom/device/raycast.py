@@ -287,7 +287,12 @@ class RayCaster:
                 n = len(d)
                 d_buf = rt.to_device(d)
                 o_buf = rt.empty(n * max_order * 4)
-                kernel(rt.queue, (n,), None, self._nodes, self._tri4, self._slot_prim,
+                # whole work-groups of LOCAL_SIZE (the kernel ignores items past n): left
+                # to itself PoCL may pick groups of thousands, whose private traversal
+                # stacks overflow its threads' stacks
+                local = self.LOCAL_SIZE
+                kernel(rt.queue, (-(-n // local) * local,), (local,), self._nodes, self._tri4,
+                       self._slot_prim,
                        face_buf, np.float32(o[0]), np.float32(o[1]), np.float32(o[2]), d_buf,
                        np.int32(max_order), o_buf, np.int32(n))
                 chunk = np.empty((n, max_order), dtype=np.int32)
