@@ -7,6 +7,7 @@ the numpy dtypes below mirror them byte for byte (tests check the sizes).
 from __future__ import annotations
 
 import threading
+import time
 
 import numpy as np
 
@@ -344,7 +345,8 @@ class InstancedCaster(RayCaster):
         self._normals = None
         self._zero_copy = rt.info.device_type == "CPU"
         self._placed = False
-        self._extent = 0.0
+        self._head = None
+        self._head_copy = None
 
     def place(self, triangles, rotations, origins, identity=None) -> None:
         """Place the parts for one time step: ``triangles`` (T, 3, 3) float64 are the
@@ -372,6 +374,7 @@ class InstancedCaster(RayCaster):
         if not (np.all(np.isfinite(rotations)) and np.all(np.isfinite(origins))):
             raise ArgumentError("transforms must be finite", argument="rotations")
         moved = [k for k in range(n) if not (self._placed and identity[k])]
+        t0 = time.perf_counter()
         lo = np.empty((n, 3))
         hi = np.empty((n, 3))
         extent = 0.0
@@ -385,11 +388,19 @@ class InstancedCaster(RayCaster):
             extent = max(extent, float(np.abs(lo[k]).max()), float(np.abs(hi[k]).max()))
         self._lo, self._hi = lo, hi
         lo32, hi32 = instance_boxes(lo, hi, extent)
+        t1 = time.perf_counter()
         head = step_head(tlas_nodes(lo32, hi32), n, rotations, origins, self.layout.roots,
                          self.layout.group_range, identity)
+        t2 = time.perf_counter()
         rt = self.runtime
         with self._lock:
-            cl.enqueue_copy(rt.queue, self._nodes, head, is_blocking=True)
+            if self._head_copy is not None:   # the last step's head has reached the device
+                self._head_copy.wait()
+            # not blocking: the in-order queue runs every later kernel after the copy;
+            # the array is kept alive until the copy is waited for
+            self._head = head
+            self._head_copy = cl.enqueue_copy(rt.queue, self._nodes, head, is_blocking=False)
+            t3 = time.perf_counter()
             if self._normals is not None or self._bounds is not None:
                 for k in moved:
                     ids = self.part_ids[k]
@@ -414,6 +425,10 @@ class InstancedCaster(RayCaster):
                         break
                 rt.queue.finish()
         self._placed = True
+        #: seconds of the last place(): moved triangles and boxes, the top-level tree and
+        #: head, its upload, the host and device data derived from the moved triangles
+        self.last_times = {"boxes": t1 - t0, "tlas": t2 - t1, "upload": t3 - t2,
+                           "derived": time.perf_counter() - t3}
 
     def _launch(self, kernel_name, rays, ignore_prim, out_dtype):
         self._check_placed()

@@ -26,7 +26,13 @@ import numpy as np
 
 from clradcom.errors import ArgumentError
 from clradcom.geometry.bvh import build_bvh
-from clradcom.geometry.layout import BVH8_NODE_DTYPE, LEAF_GROUP_BITS, bvh8_nodes, tri4_groups
+from clradcom.geometry.layout import (
+    BVH8_NODE_DTYPE,
+    BVH_WIDTH,
+    LEAF_GROUP_BITS,
+    bvh8_nodes,
+    tri4_groups,
+)
 
 __all__ = ["INSTANCE_DTYPE", "Blas", "TwoLevel", "build_blas", "instance_boxes",
            "step_head", "tlas_capacity", "tlas_nodes", "two_level"]
@@ -147,10 +153,21 @@ def instance_boxes(lo, hi, extent: float) -> tuple[np.ndarray, np.ndarray]:
 def tlas_nodes(lo32, hi32) -> np.ndarray:
     """8-wide top-level records over N instance boxes (float32 (N, 3) corners): a binary
     SAH tree with one instance per leaf, collapsed like any bottom-level tree; a leaf's
-    code holds its instance as ``LEAF_CODE(instance, 1)``."""
+    code holds its instance as ``LEAF_CODE(instance, 1)``. Up to eight instances are
+    one record, no tree built."""
     lo32 = np.asarray(lo32, np.float32)
     hi32 = np.asarray(hi32, np.float32)
     n = len(lo32)
+    if n <= BVH_WIDTH:
+        rec = np.zeros(1, dtype=BVH8_NODE_DTYPE)
+        for k, name in enumerate(("minx", "miny", "minz")):
+            rec[name][0] = np.inf
+            rec[name][0, :n] = lo32[:, k]
+        for k, name in enumerate(("maxx", "maxy", "maxz")):
+            rec[name][0] = -np.inf
+            rec[name][0, :n] = hi32[:, k]
+        rec["child"][0, :n] = -((np.arange(n) << LEAF_GROUP_BITS) + 1) - 1
+        return rec
     # a box as a triangle with that box: two corners and the centre (the SAH centroid)
     mid = (lo32.astype(np.float64) + hi32) * 0.5
     boxes = np.stack([lo32.astype(np.float64), hi32.astype(np.float64), mid], axis=1)

@@ -15,6 +15,7 @@ Every mechanism module (:mod:`~clradcom.mechanisms.specular`,
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -120,6 +121,9 @@ class GeometryCache:
         self._parts: list[tuple[int, np.ndarray]] = []  # (object, its triangles' ids)
         self._centre: list[np.ndarray] = []
         self.caster: RayCaster | None = None
+        #: seconds the last :meth:`at` spent in ``scene_at``, placing the parts and
+        #: redoing the moved faces (for tools/bench_steps.py)
+        self.last_times: dict[str, float] = {}
         if not len(scene.triangles):
             return
         if not self.moving:
@@ -147,8 +151,10 @@ class GeometryCache:
         """The :class:`Geometry` of the scene at ``t`` (s): its ``scene`` is
         ``scene_at(self.scene, t)``. The caster is shared by all steps (placed anew
         at every call), so a step's geometry is valid until the next call."""
+        t0 = time.perf_counter()
         scene = scene_at(self.scene, t)
         faces = self.faces
+        t1 = t2 = time.perf_counter()
         if isinstance(self.caster, InstancedCaster):
             n = len(self._parts)
             rot = np.empty((n, 3, 3))
@@ -163,11 +169,14 @@ class GeometryCache:
                 rot[k] = o1.rotation @ o0.rotation.T
                 org[k] = o1.position + rot[k] @ (c - o0.position)
             self.caster.place(scene.triangles, rot, org, identity)
+            t2 = time.perf_counter()
             normal, offset = faces.normal.copy(), faces.offset.copy()
             _face_planes(scene.triangles[self._moving_tri], faces.tri_face[self._moving_tri],
                          normal, offset, self._moving_faces)
             faces = Faces(tri_face=faces.tri_face, normal=normal, offset=offset,
                           object_id=faces.object_id, material_id=faces.material_id)
+        self.last_times = {"scene_at": t1 - t0, "place": t2 - t1,
+                           "faces": time.perf_counter() - t2}
         return Geometry(scene=scene, faces=faces, caster=self.caster, runtime=self.runtime,
                         engine=self.engine)
 
