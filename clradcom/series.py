@@ -131,7 +131,7 @@ class Series:
 def trace_series(scene: Scene, settings: TraceSettings | None = None, times=None, *,
                  runtime: Runtime | None = None, links=None,
                  each: Callable[[int, float, Snapshot], None] | None = None,
-                 rebuild: bool = False) -> Series:
+                 rebuild: bool = False, placement: str = "refit") -> Series:
     """Trace ``scene`` at every instant of ``times`` (s; default its ``[time]`` table),
     moved there by :func:`~clradcom.scene.motion.scene_at`, and follow its paths from step
     to step (:func:`match_paths`). ``settings``, ``runtime`` and ``links`` go to
@@ -139,8 +139,9 @@ def trace_series(scene: Scene, settings: TraceSettings | None = None, times=None
     snapshot (its ``time_s`` set), e.g. to save it.
 
     The BVH is built once (:class:`~clradcom.mechanisms.common.GeometryCache`: a
-    bottom-level tree per moving object, placed at each step); ``rebuild=True`` builds
-    the whole geometry anew at every step instead (the reference the cache is tested
+    bottom-level tree per moving object, refit to its place at each step, or placed by
+    its rigid transform with ``placement="transform"``); ``rebuild=True`` builds the
+    whole geometry anew at every step instead (the reference the cache is tested
     against)."""
     if not isinstance(scene, Scene):
         raise ArgumentTypeError("must be a Scene (clradcom.scene.load_scene)",
@@ -161,7 +162,8 @@ def trace_series(scene: Scene, settings: TraceSettings | None = None, times=None
     settings = TraceSettings.preset() if settings is None else settings
     if not isinstance(settings, TraceSettings):
         raise ArgumentTypeError("must be a TraceSettings", argument="settings", value=settings)
-    cache = None if rebuild else GeometryCache(scene, runtime, engine=settings.engine)
+    cache = None if rebuild else GeometryCache(scene, runtime, engine=settings.engine,
+                                               placement=placement)
     snaps: list[Snapshot] = []
     for k, t in enumerate(t_arr):
         if cache is None:

@@ -19,9 +19,11 @@ from clradcom.geometry.instances import (
     INSTANCE_DTYPE,
     build_blas,
     instance_boxes,
+    refit,
     step_head,
     tlas_nodes,
     two_level,
+    world_tri4,
 )
 from clradcom.geometry.layout import LEAF_GROUP_BITS
 from clradcom.mechanisms.common import GeometryCache, build_geometry
@@ -111,6 +113,34 @@ def test_layout_shifts_codes_and_codes_instances(n_movers):
                 assert rec["minx"][j] == lo32[k, 0] and rec["maxz"][j] == hi32[k, 2]
 
 
+def test_refit_of_an_unmoved_tree_is_the_tree_and_of_a_moved_one_bounds_it(parts):
+    lv = two_level([build_blas(tri, ids) for tri, ids in parts])
+    world = np.concatenate([tri for tri, _ in parts])
+    for k in range(len(parts)):
+        (g0, g1), r0 = lv.group_range[k], int(lv.roots[k])
+        recs = lv.nodes[r0:r0 + lv.n_records[k]]
+        tri4 = world_tri4(world, lv.slot_prim[4 * g0:4 * g1])
+        np.testing.assert_array_equal(tri4, lv.tri4[g0:g1])
+        assert refit(recs, tri4, r0, int(g0)).tobytes() == recs.tobytes()
+    # moved: every leaf box holds its groups' moved vertices, every inner box its record
+    rot = Rotation.from_euler("z", 40, degrees=True).as_matrix()
+    moved = world @ rot.T + np.array([5.0, -3.0, 1.0])
+    (g0, g1), r0 = lv.group_range[1], int(lv.roots[1])
+    tri4 = world_tri4(moved, lv.slot_prim[4 * g0:4 * g1])
+    recs = refit(lv.nodes[r0:r0 + lv.n_records[1]], tri4, r0, int(g0))
+    assert not np.array_equal(recs["minx"], lv.nodes[r0:r0 + lv.n_records[1]]["minx"])
+    for rec in recs:
+        for j, c in enumerate(rec["child"]):
+            if c < 0:
+                p = -int(c) - 1
+                first, cnt = (p >> LEAF_GROUP_BITS) - g0, p & ((1 << LEAF_GROUP_BITS) - 1)
+                xs = tri4[first:first + cnt, [0, 3, 6], :]
+                assert rec["minx"][j] == xs.min() and rec["maxx"][j] == xs.max()
+            elif c > 0:
+                sub = recs[c - r0]
+                assert rec["minz"][j] == sub["minz"].min() and rec["maxy"][j] == sub["maxy"].max()
+
+
 def place_random(caster, parts, seed):
     """Rotate and move the movers at random (the first part stays): the world triangles."""
     rng = np.random.default_rng(seed)
@@ -158,6 +188,23 @@ def test_instanced_hits_are_the_flat_bvh_hits(runtime, seed, n_movers):
     sa = flat.specular_sequences(np.zeros(3), dirs, tri_face, 3)
     sb = caster.specular_sequences(np.zeros(3), dirs, tri_face, 3)
     assert (sa == sb).all(axis=1).mean() >= 0.99
+
+
+def test_refit_parts_give_the_flat_hits_bit_for_bit(runtime):
+    parts = make_parts(4)
+    caster = InstancedCaster(parts, runtime=runtime, refit=[False] + [True] * 4)
+    flat = None
+    for seed in (1, 2):   # place twice: the second refit starts from the first's boxes
+        world = place_random(caster, parts, seed)
+        flat = RayCaster(world, runtime=runtime)
+    rng = np.random.default_rng(9)
+    target = world[rng.integers(0, len(world), 8000)].mean(axis=1)
+    origin = rng.uniform(-60.0, 60.0, (8000, 3))
+    rays = make_rays(origin, target - origin)
+    a, b = flat.closest_hit(rays), caster.closest_hit(rays)
+    assert a.tobytes() == b.tobytes()
+    short = make_rays(origin, target - origin, tmax=0.999)
+    np.testing.assert_array_equal(flat.occluded(short), caster.occluded(short))
 
 
 def test_a_wrong_transform_is_seen(runtime, parts):
@@ -222,14 +269,17 @@ def assert_same_series(a, b):
     assert np.max(np.abs(a.gain[m] - b.gain[m]) / np.abs(b.gain[m])) <= 1e-9
 
 
-@pytest.mark.parametrize("scene_of, settings", [
-    (lambda: load_scene(CANON / "moving_car.toml"), TraceSettings.preset("fast")),
-    (lambda: scene_from_dict(spinner_doc()), GO),
+@pytest.mark.parametrize("scene_of, settings, placement", [
+    (lambda: load_scene(CANON / "moving_car.toml"), TraceSettings.preset("fast"), "transform"),
+    (lambda: load_scene(CANON / "moving_car.toml"), TraceSettings.preset("fast"), "refit"),
+    (lambda: scene_from_dict(spinner_doc()), GO, "transform"),
+    (lambda: scene_from_dict(spinner_doc()), GO, "refit"),
 ])
-def test_series_with_the_cache_is_the_series_with_rebuilds(runtime, scene_of, settings):
+def test_series_with_the_cache_is_the_series_with_rebuilds(runtime, scene_of, settings,
+                                                           placement):
     scene = scene_of()
     times = [0.0, 0.1, 0.25]
-    cached = trace_series(scene, settings, times, runtime=runtime)
+    cached = trace_series(scene, settings, times, runtime=runtime, placement=placement)
     rebuilt = trace_series(scene, settings, times, runtime=runtime, rebuild=True)
     assert_same_series(cached, rebuilt)
     # the paths really move: delays change over the steps
@@ -237,9 +287,10 @@ def test_series_with_the_cache_is_the_series_with_rebuilds(runtime, scene_of, se
     assert np.ptp(cached.delay_s[:, moving], axis=0).max() * C0 > 0.5
 
 
-def test_cache_places_instead_of_rebuilding(runtime):
+@pytest.mark.parametrize("placement", GeometryCache.PLACEMENTS)
+def test_cache_places_instead_of_rebuilding(runtime, placement):
     scene = scene_from_dict(spinner_doc())
-    cache = GeometryCache(scene, runtime)
+    cache = GeometryCache(scene, runtime, placement=placement)
     assert [scene.objects[i].name for i in cache.moving] == ["plate", "car"]
     caster = cache.caster
     assert isinstance(caster, InstancedCaster)
@@ -263,6 +314,13 @@ def test_cache_places_instead_of_rebuilding(runtime):
     still = scene_from_dict({**spinner_doc(), "objects": spinner_doc()["objects"][:2]})
     sc = GeometryCache(still, runtime)
     assert type(sc.caster) is RayCaster and sc.at(1.0).caster is sc.caster
+
+
+def test_geometry_cache_refuses_bad_input(runtime):
+    with pytest.raises(ArgumentError, match="placement"):
+        GeometryCache(scene_from_dict(spinner_doc()), runtime, placement="warp")
+    with pytest.raises(ArgumentError, match="engine"):
+        GeometryCache(scene_from_dict(spinner_doc()), runtime, engine="gpu")
 
 
 def test_trace_scene_refuses_a_geometry_of_another_scene(runtime):

@@ -13,9 +13,11 @@ times (3: 21 k -> ~1.2 M triangles); the cars keep their meshes. Printed:
   (faces + one bottom-level tree per part);
 * per step (median of ``--steps`` steps 0.05 s apart): the full rebuild (scene_at +
   faces + BVH build + upload) against the cache's step (scene_at + top-level tree +
-  head upload + moved parts' normals and faces), with the parts of each, and the ratio;
+  head upload + moved parts' normals and faces), with the parts of each, and the ratio,
+  for both placements of the moving objects: "transform" (instances) and "refit" (their
+  Tri4 groups rewritten and boxes refit);
 * ray casting at the last step: closest hits of ``--rays`` rays from car A's radar
-  through the single-level BVH of the rebuild and the two-level BVH (rays per second,
+  through the single-level BVH of the rebuild and the two-level BVHs (rays per second,
   the same hits).
 
 Numbers vary by +-20 % on the shared 2-core machine; docs/bvh.md records a run.
@@ -93,54 +95,61 @@ def run(args) -> int:
     t0 = time.perf_counter()
     full_step(scene, 0.0, rt)
     t_full0 = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    cache = GeometryCache(scene, rt)
-    t_cache0 = time.perf_counter() - t0
-    print(f"set-up: full build {t_full0:.3f} s, cache build (one tree per part) "
-          f"{t_cache0:.3f} s")
+    caches = {}
+    for placement in GeometryCache.PLACEMENTS:
+        t0 = time.perf_counter()
+        caches[placement] = GeometryCache(scene, rt, placement=placement)
+        print(f"set-up: full build {t_full0:.3f} s, cache build ({placement}) "
+              f"{time.perf_counter() - t0:.3f} s")
     times = [0.05 * (k + 1) for k in range(args.steps)]
-    full, cached, placed = [], [], []
-    flat = geom = None
-    for t in times:   # alternate, so both see the same load
+    full = []
+    cached = {p: [] for p in caches}
+    placed = {p: [] for p in caches}
+    flat = None
+    geoms = {}
+    for t in times:   # alternate, so all see the same load
         f, flat = full_step(scene, t, rt)
         full.append(f)
-        t0 = time.perf_counter()
-        geom = cache.at(t)
-        c = dict(cache.last_times, total=time.perf_counter() - t0)
-        cached.append(c)
-        placed.append(cache.caster.last_times)
+        for p, cache in caches.items():
+            t0 = time.perf_counter()
+            geoms[p] = cache.at(t)
+            cached[p].append(dict(cache.last_times, total=time.perf_counter() - t0))
+            placed[p].append(cache.caster.last_times)
 
     def med(rows, key):
         return float(np.median([r[key] for r in rows]))
 
     print(f"per step (median of {args.steps}):")
-    print("  full rebuild   " + ", ".join(f"{k} {med(full, k) * 1e3:.1f} ms" for k in full[0]))
-    print("  two-level step " + ", ".join(f"{k} {med(cached, k) * 1e3:.1f} ms"
-                                          for k in cached[0]))
-    print("    place        " + ", ".join(f"{k} {med(placed, k) * 1e3:.2f} ms"
-                                          for k in placed[0]))
-    tl = sum(med(placed, k) for k in ("tlas", "upload"))
-    print(f"  ratio full / two-level: whole step {med(full, 'total') / med(cached, 'total'):.1f}x;"
-          f" BVH alone (build + upload vs top-level tree + head upload) "
-          f"{med(full, 'bvh+upload') / tl:.0f}x")
-    # ray casting through both at the last step
-    radar = geom.scene.radars[0]
+    print("  full rebuild       " + ", ".join(f"{k} {med(full, k) * 1e3:.1f} ms"
+                                              for k in full[0]))
+    for p in caches:
+        print(f"  two-level {p:10s}" + ", ".join(f"{k} {med(cached[p], k) * 1e3:.1f} ms"
+                                                for k in cached[p][0]))
+        print("    place          " + ", ".join(f"{k} {med(placed[p], k) * 1e3:.2f} ms"
+                                                for k in placed[p][0]))
+        print(f"    ratio full / two-level ({p}): whole step "
+              f"{med(full, 'total') / med(cached[p], 'total'):.1f}x")
+    # ray casting through all at the last step
+    radar = geoms["transform"].scene.radars[0]
     rng = np.random.default_rng(0)
     d = rng.normal(size=(args.rays, 3))
     d[:, 0] = np.abs(d[:, 0])   # the forward half-space of car A's radar
     rays = make_rays(np.tile(radar.position, (args.rays, 1)) + 0.05 * np.array([1, 0, 0]), d)
     best = {}
     hits = {}
+    casters = {"single-level": flat, **{f"two-level {p}": g.caster for p, g in geoms.items()}}
     for _ in range(3):
-        for name, caster in (("single-level", flat), ("two-level", geom.caster)):
+        for name, caster in casters.items():
             t0 = time.perf_counter()
             hits[name] = caster.closest_hit(rays)
             best[name] = min(best.get(name, np.inf), time.perf_counter() - t0)
-    same = (hits["single-level"]["prim"] == hits["two-level"]["prim"]).mean()
     print(f"closest hit, {args.rays:,} rays from {radar.name}: " + ", ".join(
-        f"{k} {args.rays / v / 1e6:.2f} Mrays/s" for k, v in best.items())
-        + f"; two-level / single-level time {best['two-level'] / best['single-level']:.2f};"
-        f" same hit {same * 100:.3f} %")
+        f"{k} {args.rays / v / 1e6:.2f} Mrays/s" for k, v in best.items()))
+    for name in list(casters)[1:]:
+        same = (hits["single-level"]["prim"] == hits[name]["prim"]).mean()
+        print(f"  {name}: time / single-level {best[name] / best['single-level']:.2f}, "
+              f"same hit {same * 100:.3f} %, bit-identical hits "
+              f"{(hits['single-level'] == hits[name]).mean() * 100:.3f} %")
     return 0
 
 

@@ -18,9 +18,11 @@ from clradcom.geometry.bvh import build_bvh
 from clradcom.geometry.instances import (
     build_blas,
     instance_boxes,
+    refit,
     step_head,
     tlas_nodes,
     two_level,
+    world_tri4,
 )
 from clradcom.geometry.layout import bvh8_nodes, tri4_groups
 from clradcom.geometry.triangles import triangle_normals
@@ -311,15 +313,23 @@ class InstancedCaster(RayCaster):
 
     ``parts`` is a list of ``(local_triangles (T_i, 3, 3), ids (T_i,))``: the part's
     triangles in its frame and their scene ids (together every id of the scene once).
-    Nothing can be cast before the first :meth:`place`.
+    ``refit`` (N,) bool marks parts whose tree is instead *refit* at every step: their
+    Tri4 groups rewritten from the world triangles and their boxes recomputed bottom up
+    (same topology), so the kernels test exactly the float32 triangles a single-level
+    BVH holds (no transform; O(part) per step). Nothing can be cast before the first
+    :meth:`place`.
     """
 
     EXTRA_DEFINES = {"BVH_INSTANCED": 1}
 
-    def __init__(self, parts, runtime: Runtime | None = None):
+    def __init__(self, parts, runtime: Runtime | None = None, refit=None):
         self.runtime = runtime or get_runtime()
         if not parts:
             raise ArgumentError("needs at least one part", argument="parts", value=0)
+        self.refit = np.zeros(len(parts), bool) if refit is None else np.asarray(refit, bool)
+        if self.refit.shape != (len(parts),):
+            raise ArgumentError(f"needs one flag per part ({len(parts)})", argument="refit",
+                                value=self.refit.shape)
         self.part_ids = [np.asarray(ids, dtype=np.int64) for _, ids in parts]
         n_tri = sum(len(i) for i in self.part_ids)
         seen = np.zeros(n_tri, dtype=np.int64)
@@ -354,9 +364,10 @@ class InstancedCaster(RayCaster):
         ``rotations`` (N, 3, 3) and ``origins`` (N, 3) the parts' transforms
         (world = R local + p), ``identity`` (N,) bool the parts that are not moved (their
         frame is the world's; default: none). Rebuilds the top-level tree over the parts'
-        world boxes and rewrites the head of the node buffer; host data derived from the
-        triangles (normals, boxes, the float64 device copy) is redone only for the
-        parts that moved."""
+        world boxes and rewrites the head of the node buffer; refit parts (their
+        transforms unused) get their groups and boxes from the world triangles; host data
+        derived from the triangles (normals, boxes, the float64 device copy) is redone
+        only for the parts that moved."""
         import pyopencl as cl
 
         triangles = np.asarray(triangles, dtype=np.float64)
@@ -389,11 +400,25 @@ class InstancedCaster(RayCaster):
         self._lo, self._hi = lo, hi
         lo32, hi32 = instance_boxes(lo, hi, extent)
         t1 = time.perf_counter()
+        rotations = np.where(self.refit[:, None, None], np.eye(3), rotations)
+        origins = np.where(self.refit[:, None], 0.0, origins)
         head = step_head(tlas_nodes(lo32, hi32), n, rotations, origins, self.layout.roots,
-                         self.layout.group_range, identity)
+                         self.layout.group_range, identity | self.refit)
+        refits = []
+        for k in moved:
+            if self.refit[k]:
+                (g0, g1), r0 = self.layout.group_range[k], int(self.layout.roots[k])
+                r1 = r0 + self.layout.n_records[k]
+                tri4 = world_tri4(triangles, self.layout.slot_prim[4 * g0:4 * g1])
+                refits.append((int(g0), tri4, r0, refit(self.layout.nodes[r0:r1], tri4, r0,
+                                                         int(g0))))
         t2 = time.perf_counter()
         rt = self.runtime
         with self._lock:
+            for g0, tri4, r0, records in refits:
+                cl.enqueue_copy(rt.queue, self._tri4, tri4, dst_offset=g0 * tri4[0].nbytes)
+                cl.enqueue_copy(rt.queue, self._nodes, records,
+                                dst_offset=r0 * records.dtype.itemsize)
             if self._head_copy is not None:   # the last step's head has reached the device
                 self._head_copy.wait()
             # not blocking: the in-order queue runs every later kernel after the copy;
@@ -426,7 +451,8 @@ class InstancedCaster(RayCaster):
                 rt.queue.finish()
         self._placed = True
         #: seconds of the last place(): moved triangles and boxes, the top-level tree and
-        #: head, its upload, the host and device data derived from the moved triangles
+        #: head (and refits), their upload, the host and device data derived from the
+        #: moved triangles
         self.last_times = {"boxes": t1 - t0, "tlas": t2 - t1, "upload": t3 - t2,
                            "derived": time.perf_counter() - t3}
 

@@ -34,8 +34,8 @@ from clradcom.geometry.layout import (
     tri4_groups,
 )
 
-__all__ = ["INSTANCE_DTYPE", "Blas", "TwoLevel", "build_blas", "instance_boxes",
-           "step_head", "tlas_capacity", "tlas_nodes", "two_level"]
+__all__ = ["INSTANCE_DTYPE", "Blas", "TwoLevel", "build_blas", "instance_boxes", "refit",
+           "step_head", "tlas_capacity", "tlas_nodes", "two_level", "world_tri4"]
 
 INSTANCE_DTYPE = np.dtype(
     [("world_to_local", "<f4", (9,)), ("origin", "<f4", (3,)), ("local_to_world", "<f4", (9,)),
@@ -109,6 +109,7 @@ class TwoLevel:
     roots: np.ndarray        # (N,) int32 record of each instance's root
     group_range: np.ndarray  # (N, 2) int32 [first, end) Tri4 groups of each instance
     head_records: int        # top-level capacity + N instance records
+    n_records: np.ndarray    # (N,) int64 records of each instance's tree
 
     @property
     def n_instances(self) -> int:
@@ -135,7 +136,7 @@ def two_level(blases: list[Blas]) -> TwoLevel:
         slot_prim=np.ascontiguousarray(np.concatenate([b.slot_prim for b in blases])),
         roots=rec_base[:-1].astype(np.int32),
         group_range=np.column_stack([grp_base[:-1], grp_base[1:]]).astype(np.int32),
-        head_records=head)
+        head_records=head, n_records=np.diff(rec_base).astype(np.int64))
 
 
 def instance_boxes(lo, hi, extent: float) -> tuple[np.ndarray, np.ndarray]:
@@ -207,3 +208,56 @@ def step_head(tlas: np.ndarray, n_instances: int, rotations, origins, roots, gro
     inst["end_group"] = np.asarray(group_range)[:, 1]
     head[cap:] = inst.view(BVH8_NODE_DTYPE)
     return head
+
+
+def world_tri4(triangles, slot_prim) -> np.ndarray:
+    """Tri4 groups (G, 9, 4) float32 of the scene ``triangles`` (T, 3, 3) that the leaf
+    slots ``slot_prim`` (4 G,) name: a tree's groups with its triangles moved, in the
+    layout of :func:`~clradcom.geometry.layout.tri4_groups`."""
+    prim = np.asarray(slot_prim, dtype=np.int64).reshape(-1, 4)
+    verts = np.asarray(triangles)[prim].astype(np.float32)         # (G, lane, vertex, xyz)
+    return np.ascontiguousarray(verts.transpose(0, 2, 3, 1).reshape(len(prim), 9, 4))
+
+
+def refit(records: np.ndarray, tri4: np.ndarray, record_base: int,
+          group_base: int) -> np.ndarray:
+    """The 8-wide ``records`` of one tree (child codes as they lie in the concatenated
+    buffers: records from ``record_base``, groups from ``group_base``) with every child
+    box recomputed bottom up from its Tri4 groups ``tri4`` (the tree's own, moved): the
+    same topology, boxes the exact float32 bounds of the moved triangles (Embree's
+    refit; a rigid motion keeps the tree valid, its boxes grow by up to sqrt(3) where a
+    part turns)."""
+    out = records.copy()
+    child = records["child"].astype(np.int64)
+    lo_g = np.stack([tri4[:, [k, 3 + k, 6 + k], :].min(axis=(1, 2)) for k in range(3)], 1)
+    hi_g = np.stack([tri4[:, [k, 3 + k, 6 + k], :].max(axis=(1, 2)) for k in range(3)], 1)
+    leaf = child < 0
+    packed = -child[leaf] - 1
+    first = (packed >> LEAF_GROUP_BITS) - group_base
+    count = packed & ((1 << LEAF_GROUP_BITS) - 1)
+    # a leaf's groups are consecutive: reduce over [first, first + count)
+    g = np.repeat(np.arange(len(first)), count)
+    gi = np.repeat(first - np.cumsum(count) + count, count) + np.arange(int(count.sum()))
+    lo_leaf = np.full((len(first), 3), np.inf, np.float32)
+    hi_leaf = np.full((len(first), 3), -np.inf, np.float32)
+    np.minimum.at(lo_leaf, g, lo_g[gi])
+    np.maximum.at(hi_leaf, g, hi_g[gi])
+    names_lo, names_hi = ("minx", "miny", "minz"), ("maxx", "maxy", "maxz")
+    for k in range(3):
+        out[names_lo[k]][leaf] = lo_leaf[:, k]
+        out[names_hi[k]][leaf] = hi_leaf[:, k]
+    inner = child > 0
+    sub = np.where(inner, child - record_base, 0)
+    for _ in range(len(records)):   # children follow their parent: depth passes settle it
+        rec_lo = [out[n].min(axis=1) for n in names_lo]
+        rec_hi = [out[n].max(axis=1) for n in names_hi]
+        changed = False
+        for k in range(3):
+            new_lo = np.where(inner, rec_lo[k][sub], out[names_lo[k]])
+            new_hi = np.where(inner, rec_hi[k][sub], out[names_hi[k]])
+            changed |= not (np.array_equal(new_lo, out[names_lo[k]])
+                            and np.array_equal(new_hi, out[names_hi[k]]))
+            out[names_lo[k]], out[names_hi[k]] = new_lo, new_hi
+        if not changed:
+            break
+    return out

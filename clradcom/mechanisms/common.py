@@ -99,20 +99,35 @@ class GeometryCache:
     moving objects' face planes, normals and boxes. A scene where nothing moves gets a
     plain :class:`~clradcom.device.raycast.RayCaster`, built once and reused as is.
 
+    ``placement`` says how a moving object's tree follows it. "refit" (the default)
+    rewrites the object's Tri4 groups from its world triangles and refits its boxes
+    bottom up (O(triangles of the moving objects) per step): the kernels test exactly the
+    float32 triangles of a full rebuild, so the paths are a rebuild's bit for bit and do
+    not depend on the instant the cache was built at. "transform" places the tree by the
+    object's rigid transform, the ray taken into its frame in float32 (Embree's and
+    OptiX's instancing, O(1) per object and step); hits then differ from a rebuild's by
+    float32 rounding where rays graze triangle edges (docs/bvh.md, "Two levels").
+
     Still O(T) per step: ``scene_at`` copies the scene's triangles (and moves the moving
     ones), :class:`Faces` arrays are copied, and ``trace_scene`` finds the diffracting
     wedges again.
     """
 
+    PLACEMENTS = ("refit", "transform")
+
     def __init__(self, scene: Scene, runtime: Runtime | None = None,
-                 engine: str = "device"):
+                 engine: str = "device", placement: str = "refit"):
         if not isinstance(scene, Scene):
             raise ArgumentTypeError("must be a Scene (clradcom.scene.load_scene)",
                                     argument="scene", value=scene)
         if engine not in ENGINES:
             raise ArgumentError(f"must be one of {', '.join(ENGINES)}", argument="engine",
                                 value=engine)
+        if placement not in self.PLACEMENTS:
+            raise ArgumentError(f"must be one of {', '.join(self.PLACEMENTS)}",
+                                argument="placement", value=placement)
         self.scene = scene
+        self.placement = placement
         self.runtime = runtime or get_runtime()
         self.engine = engine
         self.faces = merge_coplanar(scene.triangles, scene.tri_object, scene.tri_material)
@@ -142,7 +157,9 @@ class GeometryCache:
             parts.append((tri - centre, ids))
             self._parts.append((i, ids))
             self._centre.append(centre)
-        self.caster = InstancedCaster(parts, runtime=self.runtime)
+        self.caster = InstancedCaster(
+            parts, runtime=self.runtime,
+            refit=[placement == "refit" and i >= 0 for i, _ in self._parts])
         moving_tri = np.isin(tri_object, self.moving)
         self._moving_faces = np.unique(self.faces.tri_face[moving_tri])
         self._moving_tri = np.flatnonzero(moving_tri)
