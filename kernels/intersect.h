@@ -21,8 +21,9 @@
  * leaf is one instance (Bvh8Instance, types.h): a bottom-level BVH in the
  * same three buffers, placed in the world by a rigid transform. The ray is
  * taken into the instance's frame (a rotation keeps t) and the bottom-level
- * tree walked from its root; identity instances (the static scene) use the
- * world ray as is. Without the define the traversal is the single-level one,
+ * tree walked from its root; identity instances (the static scene, and
+ * moving parts whose groups and boxes the host refits in world coordinates
+ * every step) use the world ray as is. Without the define the traversal is the single-level one,
  * bit for bit. docs/bvh.md ("Two levels") has the layout.
  *
  * docs/bvh.md ("Performance") records what was measured to get here. */
