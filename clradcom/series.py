@@ -26,6 +26,7 @@ import numpy as np
 from clradcom.device.runtime import Runtime
 from clradcom.errors import ArgumentError, ArgumentTypeError, SnapshotError
 from clradcom.files import atomic_write
+from clradcom.mechanisms.common import GeometryCache
 from clradcom.paths import Paths
 from clradcom.scene.motion import scene_at
 from clradcom.scene.records import Scene
@@ -129,12 +130,19 @@ class Series:
 
 def trace_series(scene: Scene, settings: TraceSettings | None = None, times=None, *,
                  runtime: Runtime | None = None, links=None,
-                 each: Callable[[int, float, Snapshot], None] | None = None) -> Series:
+                 each: Callable[[int, float, Snapshot], None] | None = None,
+                 rebuild: bool = False, placement: str = "refit") -> Series:
     """Trace ``scene`` at every instant of ``times`` (s; default its ``[time]`` table),
     moved there by :func:`~clradcom.scene.motion.scene_at`, and follow its paths from step
     to step (:func:`match_paths`). ``settings``, ``runtime`` and ``links`` go to
     :func:`~clradcom.trace.trace_scene`; ``each(step, t, snapshot)`` hears every step's
-    snapshot (its ``time_s`` set), e.g. to save it."""
+    snapshot (its ``time_s`` set), e.g. to save it.
+
+    The BVH is built once (:class:`~clradcom.mechanisms.common.GeometryCache`: a
+    bottom-level tree per moving object, refit to its place at each step, or placed by
+    its rigid transform with ``placement="transform"``); ``rebuild=True`` builds the
+    whole geometry anew at every step instead (the reference the cache is tested
+    against)."""
     if not isinstance(scene, Scene):
         raise ArgumentTypeError("must be a Scene (clradcom.scene.load_scene)",
                                 argument="scene", value=scene)
@@ -151,9 +159,18 @@ def trace_series(scene: Scene, settings: TraceSettings | None = None, times=None
     if t_arr.size == 0 or not np.all(np.isfinite(t_arr)) or np.any(np.diff(t_arr) <= 0):
         raise ArgumentError("must be one or more finite times, strictly increasing",
                             argument="times", value=times)
+    settings = TraceSettings.preset() if settings is None else settings
+    if not isinstance(settings, TraceSettings):
+        raise ArgumentTypeError("must be a TraceSettings", argument="settings", value=settings)
+    cache = None if rebuild else GeometryCache(scene, runtime, engine=settings.engine,
+                                               placement=placement)
     snaps: list[Snapshot] = []
     for k, t in enumerate(t_arr):
-        snap = trace_scene(scene_at(scene, float(t)), settings, runtime, links=links)
+        if cache is None:
+            snap = trace_scene(scene_at(scene, float(t)), settings, runtime, links=links)
+        else:
+            geom = cache.at(float(t))
+            snap = trace_scene(geom.scene, settings, runtime, links=links, geometry=geom)
         if each is not None:
             each(k, float(t), snap)
         snaps.append(snap)

@@ -28,7 +28,7 @@ from clradcom import __version__
 from clradcom.device.runtime import Runtime
 from clradcom.errors import ArgumentError, ArgumentTypeError
 from clradcom.mechanisms import diffraction, optics, scattering, specular
-from clradcom.mechanisms.common import ENGINES, build_geometry
+from clradcom.mechanisms.common import ENGINES, Geometry, build_geometry
 from clradcom.mechanisms.diffraction import DiffractionSettings
 from clradcom.mechanisms.optics import OpticsSettings
 from clradcom.mechanisms.scattering import ScatteringSettings
@@ -210,7 +210,8 @@ def trace_scene(scene: Scene, settings: TraceSettings | None = None,
                 runtime: Runtime | None = None, links=None,
                 progress: Callable[[str], None] | None = None,
                 times: StageTimes | None = None,
-                steps: Callable[[int, int, str], None] | None = None) -> Snapshot:
+                steps: Callable[[int, int, str], None] | None = None,
+                geometry: Geometry | None = None) -> Snapshot:
     """Trace the links of a scene (default: every transmitter to every receiver).
 
     ``settings`` None traces with the ``paper`` preset (``TraceSettings.preset()``: PO +
@@ -218,7 +219,9 @@ def trace_scene(scene: Scene, settings: TraceSettings | None = None,
     ``clradcom trace`` without options; ``TraceSettings()`` is pure GO with diffraction.
     ``progress(message)`` hears each stage as it starts; ``steps(done, total, label)``
     is called before every mechanism of every link (``done`` links of ``total``
-    finished), for a progress bar."""
+    finished), for a progress bar. ``geometry`` (built for this very ``scene`` object,
+    e.g. by :meth:`~clradcom.mechanisms.common.GeometryCache.at`) is used instead of
+    building one."""
     if not isinstance(scene, Scene):
         raise ArgumentTypeError("must be a Scene: load a scene file with "
                                 "clradcom.scene.load_scene(path) first", argument="scene",
@@ -236,8 +239,13 @@ def trace_scene(scene: Scene, settings: TraceSettings | None = None,
     spec, opt, scat = settings.specular, settings.optics_search, settings.scattering
     diff = settings.diffraction_search
 
+    if geometry is not None and (geometry.scene is not scene
+                                 or geometry.engine != settings.engine):
+        raise ArgumentError("must be built for this scene object and the settings' "
+                            f"engine ({settings.engine!r})", argument="geometry",
+                            value=geometry.engine)
     with clock("geometry"):
-        geom = build_geometry(scene, runtime, engine=settings.engine)
+        geom = geometry or build_geometry(scene, runtime, engine=settings.engine)
     use_optics = optics.active(scene, opt)
     with clock("wedges"):
         wedges = diffraction.prepare(geom, diff, optics.po_object_ids(scene, opt)

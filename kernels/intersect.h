@@ -16,6 +16,16 @@
  * in a slab plane is never culled by that slab. Eight boxes per record
  * (Bvh8Node), tested with float8 operations.
  *
+ * Two levels (-D BVH_INSTANCED, for scenes whose objects move): record 0 of
+ * `nodes` is then the root of a top-level BVH over instances; a top-level
+ * leaf is one instance (Bvh8Instance, types.h): a bottom-level BVH in the
+ * same three buffers, placed in the world by a rigid transform. The ray is
+ * taken into the instance's frame (a rotation keeps t) and the bottom-level
+ * tree walked from its root; identity instances (the static scene, and
+ * moving parts whose groups and boxes the host refits in world coordinates
+ * every step) use the world ray as is. Without the define the traversal is the single-level one,
+ * bit for bit. docs/bvh.md ("Two levels") has the layout.
+ *
  * docs/bvh.md ("Performance") records what was measured to get here. */
 #ifndef CLRADCOM_INTERSECT_H
 #define CLRADCOM_INTERSECT_H
@@ -83,6 +93,9 @@ typedef struct {
     int nx, ny, nz;     /* the Bvh8Node rows holding the near planes (far: 3 rows on) */
     int kx, ky, kz;     /* the shear frame: dir[kz] is the largest component */
     float sx, sy, sz;
+#ifdef BVH_INSTANCED
+    float dx, dy, dz;   /* the direction itself, to take the ray into an instance */
+#endif
 } PreparedRay;
 
 CLR_INLINE float component(float3 a, int k)
@@ -111,6 +124,9 @@ CLR_INLINE PreparedRay prepare_ray(float3 org, float3 dir)
     r.sx = component(dir, kx) / dz;
     r.sy = component(dir, ky) / dz;
     r.sz = 1.0f / dz;
+#ifdef BVH_INSTANCED
+    r.dx = dir.x; r.dy = dir.y; r.dz = dir.z;
+#endif
     return r;
 }
 
@@ -231,15 +247,15 @@ CLR_INLINE float8 ray_box8(const PreparedRay *r, __global const float8 *q, float
  * to near by insertion, and the nearest popped at once. Stack entries keep
  * their entry distance, so subtrees beyond the closest hit so far are skipped
  * when popped. */
-CLR_INLINE int bvh_closest(__global const Bvh8Node *nodes, __global const float4 *tri4,
-                           __global const int *slot_prim, const PreparedRay *r,
-                           float tmin, float *tmax_io, float *u_out, float *v_out,
-                           int ignore_prim)
+CLR_INLINE int blas_closest(__global const Bvh8Node *nodes, __global const float4 *tri4,
+                            __global const int *slot_prim, const PreparedRay *r, int root,
+                            float tmin, float *tmax_io, float *u_out, float *v_out,
+                            int ignore_prim)
 {
     int stack_code[BVH_STACK_SIZE + 1];   /* a record may push all 8 before popping one */
     float stack_dist[BVH_STACK_SIZE + 1];
     int sp = 0;
-    int code = 0;   /* the root record */
+    int code = root;   /* the root record */
     int best = -1;
     float tmax = *tmax_io;
     for (;;) {
@@ -327,13 +343,13 @@ CLR_INLINE int bvh_closest(__global const Bvh8Node *nodes, __global const float4
 
 /* Any hit in (tmin, tmax): shadow / visibility rays. Slots whose scene id is
  * ignore_a or ignore_b do not count. */
-CLR_INLINE bool bvh_any(__global const Bvh8Node *nodes, __global const float4 *tri4,
-                        __global const int *slot_prim, const PreparedRay *r,
-                        float tmin, float tmax, int ignore_a, int ignore_b)
+CLR_INLINE bool blas_any(__global const Bvh8Node *nodes, __global const float4 *tri4,
+                         __global const int *slot_prim, const PreparedRay *r, int root,
+                         float tmin, float tmax, int ignore_a, int ignore_b)
 {
     int stack_code[BVH_STACK_SIZE + 1];   /* pushes all hit children, then pops one */
     int sp = 0;
-    int code = 0;
+    int code = root;
     for (;;) {
         if (code < 0) {
             int packed = -code - 1;
@@ -363,5 +379,163 @@ CLR_INLINE bool bvh_any(__global const Bvh8Node *nodes, __global const float4 *t
         code = stack_code[--sp];
     }
 }
+
+#ifndef BVH_INSTANCED
+
+/* One level: the tree's root is record 0. */
+CLR_INLINE int bvh_closest(__global const Bvh8Node *nodes, __global const float4 *tri4,
+                           __global const int *slot_prim, const PreparedRay *r,
+                           float tmin, float *tmax_io, float *u_out, float *v_out,
+                           int ignore_prim)
+{
+    return blas_closest(nodes, tri4, slot_prim, r, 0, tmin, tmax_io, u_out, v_out,
+                        ignore_prim);
+}
+
+CLR_INLINE bool bvh_any(__global const Bvh8Node *nodes, __global const float4 *tri4,
+                        __global const int *slot_prim, const PreparedRay *r,
+                        float tmin, float tmax, int ignore_a, int ignore_b)
+{
+    return blas_any(nodes, tri4, slot_prim, r, 0, tmin, tmax, ignore_a, ignore_b);
+}
+
+/* World-space unit normal of leaf slot s. */
+CLR_INLINE float3 slot_normal(__global const Bvh8Node *nodes, __global const float4 *tri4,
+                              int slot)
+{
+    return tri4_normal(tri4, slot);
+}
+
+#else
+
+/* Two levels. Record 0 (the top-level root) keeps in pad[0] the record of the
+ * first Bvh8Instance and in pad[1] their number; a top-level leaf code holds
+ * its instance as LEAF_CODE(instance, 1). */
+CLR_INLINE __global const Bvh8Instance *instance_of(__global const Bvh8Node *nodes, int code)
+{
+    int k = (-code - 1) >> LEAF_GROUP_BITS;
+    return (__global const Bvh8Instance *)(nodes + nodes[0].pad[0] + k);
+}
+
+/* The ray in the instance's frame: local = R^T (world - p), as the host's
+ * clradcom/geometry/instances.py writes R^T and p. */
+CLR_INLINE PreparedRay instance_ray(const PreparedRay *r, __global const Bvh8Instance *in)
+{
+    if (in->identity)
+        return *r;
+    __global const float *m = in->world_to_local;
+    float ox = r->ox - in->origin[0], oy = r->oy - in->origin[1], oz = r->oz - in->origin[2];
+    float3 o = (float3)(m[0] * ox + m[1] * oy + m[2] * oz, m[3] * ox + m[4] * oy + m[5] * oz,
+                        m[6] * ox + m[7] * oy + m[8] * oz);
+    float3 d = (float3)(m[0] * r->dx + m[1] * r->dy + m[2] * r->dz,
+                        m[3] * r->dx + m[4] * r->dy + m[5] * r->dz,
+                        m[6] * r->dx + m[7] * r->dy + m[8] * r->dz);
+    return prepare_ray(o, d);
+}
+
+/* Closest hit over all instances: the top-level tree is walked in order (near
+ * child first, entries beyond the closest hit so far skipped), each instance's
+ * tree with the ray in its frame and the same (tmin, tmax). */
+CLR_INLINE int bvh_closest(__global const Bvh8Node *nodes, __global const float4 *tri4,
+                           __global const int *slot_prim, const PreparedRay *r,
+                           float tmin, float *tmax_io, float *u_out, float *v_out,
+                           int ignore_prim)
+{
+    int stack_code[BVH_STACK_SIZE + 1];
+    float stack_dist[BVH_STACK_SIZE + 1];
+    int sp = 0;
+    int code = 0;
+    int best = -1;
+    float tmax = *tmax_io;
+    for (;;) {
+        if (code < 0) {
+            __global const Bvh8Instance *in = instance_of(nodes, code);
+            PreparedRay lr = instance_ray(r, in);
+            int slot = blas_closest(nodes, tri4, slot_prim, &lr, in->root, tmin, &tmax, u_out,
+                                    v_out, ignore_prim);
+            if (slot >= 0)
+                best = slot;
+        } else {
+            __global const float8 *q = (__global const float8 *)(nodes + code);
+            int mask;
+            float8 dv = ray_box8(r, q, tmin, tmax, &mask);
+            const float *d = (const float *)&dv;
+            __global const int *cc = (__global const int *)(q + 6);
+            int base = sp;
+            while (mask != 0) {   /* push sorted far to near */
+                int i = CLR_CTZ(mask);
+                mask &= mask - 1;
+                int j = sp;
+                while (j > base && stack_dist[j - 1] < d[i]) {
+                    stack_dist[j] = stack_dist[j - 1];
+                    stack_code[j] = stack_code[j - 1];
+                    --j;
+                }
+                stack_dist[j] = d[i];
+                stack_code[j] = cc[i];
+                ++sp;
+            }
+        }
+        for (;;) {
+            if (sp == 0) { *tmax_io = tmax; return best; }
+            --sp;
+            if (stack_dist[sp] <= tmax) break;
+        }
+        code = stack_code[sp];
+    }
+}
+
+CLR_INLINE bool bvh_any(__global const Bvh8Node *nodes, __global const float4 *tri4,
+                        __global const int *slot_prim, const PreparedRay *r,
+                        float tmin, float tmax, int ignore_a, int ignore_b)
+{
+    int stack_code[BVH_STACK_SIZE + 1];
+    int sp = 0;
+    int code = 0;
+    for (;;) {
+        if (code < 0) {
+            __global const Bvh8Instance *in = instance_of(nodes, code);
+            PreparedRay lr = instance_ray(r, in);
+            if (blas_any(nodes, tri4, slot_prim, &lr, in->root, tmin, tmax, ignore_a,
+                         ignore_b))
+                return true;
+        } else {
+            __global const float8 *q = (__global const float8 *)(nodes + code);
+            int mask;
+            ray_box8(r, q, tmin, tmax, &mask);
+            __global const int *cc = (__global const int *)(q + 6);
+            while (mask != 0) {
+                int i = CLR_CTZ(mask);
+                mask &= mask - 1;
+                stack_code[sp++] = cc[i];
+            }
+        }
+        if (sp == 0) return false;
+        code = stack_code[--sp];
+    }
+}
+
+/* World-space unit normal of leaf slot s: its triangle's normal in the frame
+ * of the instance whose groups hold the slot, rotated into the world. */
+CLR_INLINE float3 slot_normal(__global const Bvh8Node *nodes, __global const float4 *tri4,
+                              int slot)
+{
+    float3 n = tri4_normal(tri4, slot);
+    int group = slot >> 2;
+    __global const Bvh8Instance *in = (__global const Bvh8Instance *)(nodes + nodes[0].pad[0]);
+    for (int k = 0; k < nodes[0].pad[1]; ++k, ++in) {
+        if (group >= in->first_group && group < in->end_group) {
+            if (in->identity)
+                return n;
+            __global const float *m = in->local_to_world;
+            return (float3)(m[0] * n.x + m[1] * n.y + m[2] * n.z,
+                            m[3] * n.x + m[4] * n.y + m[5] * n.z,
+                            m[6] * n.x + m[7] * n.y + m[8] * n.z);
+        }
+    }
+    return n;
+}
+
+#endif
 
 #endif

@@ -42,3 +42,17 @@ __kernel void build_constants(__global int *out)
     out[3] = LEAF_GROUP_BITS;
     out[4] = SPAWN_OFFSET_ROUNDOFFS;
 }
+
+/* The two-level BVH's instance record (clradcom/geometry/instances.py). */
+__kernel void instance_layout(__global int *out)
+{
+    if (get_global_id(0) != 0) return;
+    Bvh8Instance in;
+    out[0] = sizeof(Bvh8Instance);
+    out[1] = MEMBER_OFFSET(in, origin);
+    out[2] = MEMBER_OFFSET(in, local_to_world);
+    out[3] = MEMBER_OFFSET(in, root);
+    out[4] = MEMBER_OFFSET(in, identity);
+    out[5] = MEMBER_OFFSET(in, first_group);
+    out[6] = MEMBER_OFFSET(in, end_group);
+}

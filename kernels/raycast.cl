@@ -29,7 +29,7 @@ __kernel void closest_hit(__global const Bvh8Node *nodes,
         h.t = INFINITY; h.u = 0.0f; h.v = 0.0f; h.prim = -1;
         h.ng[0] = 0.0f; h.ng[1] = 0.0f; h.ng[2] = 0.0f;
     } else {
-        float3 ng = tri4_normal(tri4, slot);
+        float3 ng = slot_normal(nodes, tri4, slot);
         h.t = tmax; h.u = u; h.v = v; h.prim = slot_prim[slot];
         h.ng[0] = ng.x; h.ng[1] = ng.y; h.ng[2] = ng.z;
     }

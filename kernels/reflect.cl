@@ -46,7 +46,7 @@ __kernel void trace_reflections(__global const Bvh8Node *nodes,
         if (slot < 0) break;
         last_prim = tri_index[slot];
         out[depth] = tri_face[last_prim];
-        float3 n = tri4_normal(tri_verts, slot);
+        float3 n = slot_normal(nodes, tri_verts, slot);
         float3 p = org + t * dir;
         dir = dir - 2.0f * dot(dir, n) * n;
         org = spawn_point(p, n, dir);

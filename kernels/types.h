@@ -43,6 +43,23 @@ typedef struct {
     int pad[BVH_WIDTH];
 } Bvh8Node;
 
+/* 256 bytes, one Bvh8Node record's room: an instance of the two-level BVH
+ * (kernels/intersect.h, -D BVH_INSTANCED; clradcom/geometry/instances.py).
+ * world = R local + origin; world_to_local is R^T and local_to_world R, both
+ * row-major. root: the record of its bottom-level tree's root; identity: the
+ * instance is not moved (the ray is used as is); its Tri4 groups are
+ * [first_group, end_group). */
+typedef struct {
+    float world_to_local[9];
+    float origin[3];
+    float local_to_world[9];
+    int root;
+    int identity;
+    int first_group;
+    int end_group;
+    int pad[39];
+} Bvh8Instance;
+
 /* 32 bytes. A hit is accepted for tmin < t < tmax. */
 typedef struct {
     float org[3];

@@ -7,6 +7,7 @@ the numpy dtypes below mirror them byte for byte (tests check the sizes).
 from __future__ import annotations
 
 import threading
+import time
 
 import numpy as np
 
@@ -14,6 +15,15 @@ from clradcom.device.runtime import Runtime, get_runtime
 from clradcom.errors import ArgumentError
 from clradcom.geometry import layout
 from clradcom.geometry.bvh import build_bvh
+from clradcom.geometry.instances import (
+    build_blas,
+    instance_boxes,
+    refit,
+    step_head,
+    tlas_nodes,
+    two_level,
+    world_tri4,
+)
 from clradcom.geometry.layout import bvh8_nodes, tri4_groups
 from clradcom.geometry.triangles import triangle_normals
 
@@ -105,6 +115,8 @@ class RayCaster:
     # Work-group size: PoCL's CPU device runs a work-group's items one after the
     # other in a loop; 16 to 256 measured the same, its own choice ~15% slower.
     LOCAL_SIZE = 64
+    #: -D options beyond KERNEL_DEFINES that this caster's buffers need
+    EXTRA_DEFINES: dict = {}
 
     def __init__(self, triangles, bvh=None, runtime: Runtime | None = None):
         triangles = np.asarray(triangles, dtype=np.float64)
@@ -130,6 +142,10 @@ class RayCaster:
         # time saved on 500k rays); other devices get reused buffers and copies.
         self._zero_copy = rt.info.device_type == "CPU"
 
+    def _defines(self) -> dict:
+        return {**KERNEL_DEFINES, **self.EXTRA_DEFINES} if self.EXTRA_DEFINES \
+            else KERNEL_DEFINES
+
     def _buffer(self, name, nbytes, flags):
         """A device buffer of at least nbytes kept under name, grown by doubling."""
         import pyopencl as cl
@@ -154,7 +170,7 @@ class RayCaster:
             ignore = np.ascontiguousarray(np.broadcast_to(ignore_prim, (n,)), dtype=np.int32)
         rt = self.runtime
         mf = cl.mem_flags
-        kernel = rt.kernel("raycast.cl", kernel_name, defines=KERNEL_DEFINES)
+        kernel = rt.kernel("raycast.cl", kernel_name, defines=self._defines())
         local = self.LOCAL_SIZE
         with self._lock, rt.kernel_clock():
             if self._zero_copy:
@@ -203,7 +219,7 @@ class RayCaster:
             return
         rt = self.runtime
         kernel = rt.kernel(source, kernel_name, tuple(options),
-                           defines={**KERNEL_DEFINES, **(defines or {})})
+                           defines={**self._defines(), **(defines or {})})
         local = local_size or self.LOCAL_SIZE
         with self._lock, rt.kernel_clock():
             kernel(rt.queue, (-(-int(global_size) // local) * local,), (local,), self._nodes,
@@ -262,7 +278,7 @@ class RayCaster:
         if max_order < 1:
             return np.zeros((len(directions), 0), dtype=np.int32)
         rt = self.runtime
-        kernel = rt.kernel("reflect.cl", "trace_reflections", defines=KERNEL_DEFINES)
+        kernel = rt.kernel("reflect.cl", "trace_reflections", defines=self._defines())
         o = np.asarray(origin, dtype=np.float64)
         out = np.empty((len(directions), max_order), dtype=np.int32)
         with self._lock, rt.kernel_clock():
@@ -274,10 +290,185 @@ class RayCaster:
                 n = len(d)
                 d_buf = rt.to_device(d)
                 o_buf = rt.empty(n * max_order * 4)
-                kernel(rt.queue, (n,), None, self._nodes, self._tri4, self._slot_prim,
+                # whole work-groups of LOCAL_SIZE (the kernel ignores items past n): left
+                # to itself PoCL may pick groups of thousands, whose private traversal
+                # stacks overflow its threads' stacks
+                local = self.LOCAL_SIZE
+                kernel(rt.queue, (-(-n // local) * local,), (local,), self._nodes, self._tri4,
+                       self._slot_prim,
                        face_buf, np.float32(o[0]), np.float32(o[1]), np.float32(o[2]), d_buf,
                        np.int32(max_order), o_buf, np.int32(n))
                 chunk = np.empty((n, max_order), dtype=np.int32)
                 cl.enqueue_copy(rt.queue, chunk, o_buf)
                 out[start:start + n] = chunk
         return out
+
+
+class InstancedCaster(RayCaster):
+    """A :class:`RayCaster` over a two-level BVH (docs/bvh.md, "Two levels"): one
+    bottom-level tree per *part* (the static scene, each rigid moving object), built once
+    in the part's own frame, and a top-level tree over the parts placed in the world,
+    rebuilt by :meth:`place` at every time step. Kernels are built with
+    ``-D BVH_INSTANCED``; their arguments are the same three buffers.
+
+    ``parts`` is a list of ``(local_triangles (T_i, 3, 3), ids (T_i,))``: the part's
+    triangles in its frame and their scene ids (together every id of the scene once).
+    ``refit`` (N,) bool marks parts whose tree is instead *refit* at every step: their
+    Tri4 groups rewritten from the world triangles and their boxes recomputed bottom up
+    (same topology), so the kernels test exactly the float32 triangles a single-level
+    BVH holds (no transform; O(part) per step). Nothing can be cast before the first
+    :meth:`place`.
+    """
+
+    EXTRA_DEFINES = {"BVH_INSTANCED": 1}
+
+    def __init__(self, parts, runtime: Runtime | None = None, refit=None):
+        self.runtime = runtime or get_runtime()
+        if not parts:
+            raise ArgumentError("needs at least one part", argument="parts", value=0)
+        self.refit = np.zeros(len(parts), bool) if refit is None else np.asarray(refit, bool)
+        if self.refit.shape != (len(parts),):
+            raise ArgumentError(f"needs one flag per part ({len(parts)})", argument="refit",
+                                value=self.refit.shape)
+        self.part_ids = [np.asarray(ids, dtype=np.int64) for _, ids in parts]
+        n_tri = sum(len(i) for i in self.part_ids)
+        seen = np.zeros(n_tri, dtype=np.int64)
+        for ids in self.part_ids:
+            if ids.size and (ids.min() < 0 or ids.max() >= n_tri):
+                raise ArgumentError(f"scene ids must lie in [0, {n_tri})", argument="parts",
+                                    value=(int(ids.min()), int(ids.max())))
+            np.add.at(seen, ids, 1)
+        if not np.all(seen == 1):
+            raise ArgumentError("every scene triangle must belong to exactly one part",
+                                argument="parts", value=int(np.flatnonzero(seen != 1)[0]))
+        self.layout = two_level([build_blas(tri, ids) for tri, ids in parts])
+        rt = self.runtime
+        self._nodes = rt.to_device(self.layout.nodes)
+        self._tri4 = rt.to_device(self.layout.tri4)
+        self._slot_prim = rt.to_device(self.layout.slot_prim)
+        self.bvh = None
+        self.triangles = np.zeros((n_tri, 3, 3))
+        self._lock = threading.Lock()
+        self._buffers = {}
+        self._bounds = None
+        self._data64 = None
+        self._normals = None
+        self._zero_copy = rt.info.device_type == "CPU"
+        self._placed = False
+        self._head = None
+        self._head_copy = None
+
+    def place(self, triangles, rotations, origins, identity=None) -> None:
+        """Place the parts for one time step: ``triangles`` (T, 3, 3) float64 are the
+        scene's world triangles now (the float64 data every exact computation reads),
+        ``rotations`` (N, 3, 3) and ``origins`` (N, 3) the parts' transforms
+        (world = R local + p), ``identity`` (N,) bool the parts that are not moved (their
+        frame is the world's; default: none). Rebuilds the top-level tree over the parts'
+        world boxes and rewrites the head of the node buffer; refit parts (their
+        transforms unused) get their groups and boxes from the world triangles; host data
+        derived from the triangles (normals, boxes, the float64 device copy) is redone
+        only for the parts that moved."""
+        import pyopencl as cl
+
+        triangles = np.asarray(triangles, dtype=np.float64)
+        n = len(self.part_ids)
+        if triangles.shape != self.triangles.shape:
+            raise ArgumentError(f"must have the shape {self.triangles.shape} of the parts",
+                                argument="triangles", value=triangles.shape)
+        rotations = np.asarray(rotations, dtype=np.float64)
+        origins = np.asarray(origins, dtype=np.float64)
+        identity = np.zeros(n, bool) if identity is None else np.asarray(identity, bool)
+        if rotations.shape != (n, 3, 3) or origins.shape != (n, 3) or identity.shape != (n,):
+            raise ArgumentError(f"needs one rotation (3, 3), origin (3,) and identity flag "
+                                f"per part ({n})", argument="rotations",
+                                value=(rotations.shape, origins.shape, identity.shape))
+        if not (np.all(np.isfinite(rotations)) and np.all(np.isfinite(origins))):
+            raise ArgumentError("transforms must be finite", argument="rotations")
+        moved = [k for k in range(n) if not (self._placed and identity[k])]
+        t0 = time.perf_counter()
+        lo = np.empty((n, 3))
+        hi = np.empty((n, 3))
+        extent = 0.0
+        for k, ids in enumerate(self.part_ids):
+            if k in moved:
+                tri = triangles[ids]
+                self.triangles[ids] = tri
+                lo[k], hi[k] = tri.min(axis=(0, 1)), tri.max(axis=(0, 1))
+            else:
+                lo[k], hi[k] = self._lo[k], self._hi[k]
+            extent = max(extent, float(np.abs(lo[k]).max()), float(np.abs(hi[k]).max()))
+        self._lo, self._hi = lo, hi
+        lo32, hi32 = instance_boxes(lo, hi, extent)
+        t1 = time.perf_counter()
+        rotations = np.where(self.refit[:, None, None], np.eye(3), rotations)
+        origins = np.where(self.refit[:, None], 0.0, origins)
+        head = step_head(tlas_nodes(lo32, hi32), n, rotations, origins, self.layout.roots,
+                         self.layout.group_range, identity | self.refit)
+        refits = []
+        for k in moved:
+            if self.refit[k]:
+                (g0, g1), r0 = self.layout.group_range[k], int(self.layout.roots[k])
+                r1 = r0 + self.layout.n_records[k]
+                tri4 = world_tri4(triangles, self.layout.slot_prim[4 * g0:4 * g1])
+                refits.append((int(g0), tri4, r0, refit(self.layout.nodes[r0:r1], tri4, r0,
+                                                         int(g0))))
+        t2 = time.perf_counter()
+        rt = self.runtime
+        with self._lock:
+            for g0, tri4, r0, records in refits:
+                cl.enqueue_copy(rt.queue, self._tri4, tri4, dst_offset=g0 * tri4[0].nbytes)
+                cl.enqueue_copy(rt.queue, self._nodes, records,
+                                dst_offset=r0 * records.dtype.itemsize)
+            if self._head_copy is not None:   # the last step's head has reached the device
+                self._head_copy.wait()
+            # not blocking: the in-order queue runs every later kernel after the copy;
+            # the array is kept alive until the copy is waited for
+            self._head = head
+            self._head_copy = cl.enqueue_copy(rt.queue, self._nodes, head, is_blocking=False)
+            t3 = time.perf_counter()
+            if self._normals is not None or self._bounds is not None:
+                for k in moved:
+                    ids = self.part_ids[k]
+                    if self._normals is not None:
+                        self._normals[ids] = triangle_normals(self.triangles[ids])
+                    if self._bounds is not None:
+                        self._bounds[0][ids] = self.triangles[ids].min(axis=1)
+                        self._bounds[1][ids] = self.triangles[ids].max(axis=1)
+            if self._data64 is not None:
+                for k in moved:
+                    ids = self.part_ids[k]
+                    if ids.size and np.all(np.diff(ids) == 1):   # one contiguous run
+                        start = int(ids[0])
+                        cl.enqueue_copy(rt.queue, self._data64["vertices"],
+                                        np.ascontiguousarray(self.triangles[ids]),
+                                        dst_offset=start * 72)
+                        cl.enqueue_copy(rt.queue, self._data64["normals"],
+                                        np.ascontiguousarray(self.normals64()[ids]),
+                                        dst_offset=start * 24)
+                    else:
+                        self._data64 = None
+                        break
+                rt.queue.finish()
+        self._placed = True
+        #: seconds of the last place(): moved triangles and boxes, the top-level tree and
+        #: head (and refits), their upload, the host and device data derived from the
+        #: moved triangles
+        self.last_times = {"boxes": t1 - t0, "tlas": t2 - t1, "upload": t3 - t2,
+                           "derived": time.perf_counter() - t3}
+
+    def _launch(self, kernel_name, rays, ignore_prim, out_dtype):
+        self._check_placed()
+        return super()._launch(kernel_name, rays, ignore_prim, out_dtype)
+
+    def run_kernel(self, *args, **kwargs) -> None:
+        self._check_placed()
+        return super().run_kernel(*args, **kwargs)
+
+    def specular_sequences(self, *args, **kwargs) -> np.ndarray:
+        self._check_placed()
+        return super().specular_sequences(*args, **kwargs)
+
+    def _check_placed(self):
+        if not self._placed:
+            raise ArgumentError("place() the parts before casting", argument="caster",
+                                value="unplaced")
