@@ -30,6 +30,10 @@ __all__ = ["BATCH_TUBES", "PRECISIONS", "engine_precision", "record_dtype", "rec
 
 #: Tubes per kernel launch (whole blocks): about 1 M, some 10 ms to a second of work.
 BATCH_TUBES = 1 << 20
+#: Records the output buffer has room for at first, per block and receiver of a batch,
+#: and at most (about 60 MB); more records grow it and shoot the batch again.
+RECORDS_PER_BLOCK_RX = 4
+MAX_START_RECORDS = 1 << 18
 #: Face sequences a work item sums at once per block (the oldest is written out when a
 #: new one finds the table full: the sums stay exact, the block just yields more records).
 GROUPS = 16
@@ -240,7 +244,11 @@ def shoot_and_radiate(caster: RayCaster, scene, tri_face, windows, tx_frame, rec
     n_blocks = len(blocks)
     count = np.zeros(1, dtype=np.int32)
     count_buf = cl.Buffer(rt.context, cl.mem_flags.READ_WRITE, size=4)
-    capacity = 1 << 14
+    # room for a few records per block and receiver: a batch whose records overflow the
+    # buffer is shot again (the street's first transmitter, 19k records, overflowed the
+    # 16k it once had, and the kernel ran twice)
+    capacity = int(np.clip(RECORDS_PER_BLOCK_RX * max(1, len(receivers))
+                           * min(blocks_per_batch, n_blocks), 1 << 14, MAX_START_RECORDS))
     out_buf = cl.Buffer(rt.context, cl.mem_flags.READ_WRITE, size=capacity * dtype.itemsize)
     parts = []
     for first in range(0, n_blocks, blocks_per_batch):
