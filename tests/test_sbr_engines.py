@@ -110,7 +110,8 @@ def test_street_channel_device_against_host(runtime):
     assert np.any(p["device"].object_id[:, 0] == road)
 
 
-def test_batches_and_runs_give_the_same_records(runtime):
+def trihedral_runs(runtime):
+    """A small trihedral's tubes: run(batch_tubes) -> records, and the whole batch's."""
     scene = scene_of([trihedral(0.1)], [(2.0, 1.5, 1.0)])
     geom = build_geometry(scene, runtime)
     r = scene.radars[0]
@@ -124,9 +125,33 @@ def test_batches_and_runs_give_the_same_records(runtime):
             first_bounce=2, record_triangles=np.ones(len(scene.triangles), bool),
             batch_tubes=batch)
 
-    whole = run(device_sbr.BATCH_TUBES)
+    return run, run(device_sbr.BATCH_TUBES)
+
+
+def test_batches_and_runs_give_the_same_records(runtime):
+    run, whole = trihedral_runs(runtime)
     assert len(whole) > 0
     assert whole.tobytes() == run(4096).tobytes() == run(device_sbr.BATCH_TUBES).tobytes()
+
+
+def test_records_beyond_the_buffer_shoot_the_batch_again(runtime, monkeypatch):
+    run, whole = trihedral_runs(runtime)
+    # a buffer of 16 records at first: the batch overflows it, grows it and reruns
+    monkeypatch.setattr(device_sbr, "MAX_START_RECORDS", 16)
+    monkeypatch.setattr(device_sbr, "RECORDS_PER_BLOCK_RX", 0)
+    calls = []
+    orig = type(runtime).kernel_clock
+
+    def clock(self):
+        calls.append(1)
+        return orig(self)
+
+    monkeypatch.setattr(type(runtime), "kernel_clock", clock)
+    assert len(whole) > 16 * 4
+    assert run(device_sbr.BATCH_TUBES).tobytes() == whole.tobytes()
+    assert len(calls) == 2   # one overflow, one rerun with room
+    calls.clear()
+    assert run(4096).tobytes() == whole.tobytes()
 
 
 # ---------------------------------------------------------------------------

@@ -30,6 +30,10 @@ __all__ = ["BATCH_TUBES", "PRECISIONS", "engine_precision", "record_dtype", "rec
 
 #: Tubes per kernel launch (whole blocks): about 1 M, some 10 ms to a second of work.
 BATCH_TUBES = 1 << 20
+#: Records the output buffer has room for at first, per block and receiver of a batch,
+#: and at most (about 60 MB); more records grow it and shoot the batch again.
+RECORDS_PER_BLOCK_RX = 4
+MAX_START_RECORDS = 1 << 18
 #: Face sequences a work item sums at once per block (the oldest is written out when a
 #: new one finds the table full: the sums stay exact, the block just yields more records).
 GROUPS = 16
@@ -84,7 +88,7 @@ def record_size(runtime, max_bounces: int, precision: str = "fp64") -> int:
     import pyopencl as cl
 
     kernel = runtime.kernel("sbr.cl", "sbr_record_size", _options(precision),
-                            defines=_defines(max_bounces, precision))
+                            defines=_defines(max_bounces, precision, _is_pocl(runtime)))
     out = np.zeros(1, dtype=np.int32)
     buf = runtime.empty(4)
     kernel(runtime.queue, (1,), None, buf)
@@ -98,9 +102,17 @@ def _options(precision: str) -> tuple:
     return ("-cl-single-precision-constant",) if precision != "fp64" else ()
 
 
-def _defines(max_bounces: int, precision: str) -> dict:
+def _is_pocl(runtime) -> bool:
+    name = runtime.info.platform_name.lower()
+    return "portable computing language" in name or "pocl" in name
+
+
+def _defines(max_bounces: int, precision: str, inline_builtins: bool = False) -> dict:
+    """``inline_builtins``: PoCL, whose builtins are out-of-line calls (kernels/sbr.cl)."""
     out = {**KERNEL_DEFINES, "SBR_MAX_BOUNCES": int(max_bounces),
            "SBR_TRI_SLOTS": tri_slots(max_bounces), "SBR_BLOCK": BLOCK, "SBR_GROUPS": GROUPS}
+    if inline_builtins:
+        out["SBR_INLINE_BUILTINS"] = 1
     if precision == "double-float":
         out["CLRADCOM_NO_FP64"] = 1
     elif precision == CONTROL_PRECISION:
@@ -195,7 +207,7 @@ def shoot_and_radiate(caster: RayCaster, scene, tri_face, windows, tx_frame, rec
         raise ArgumentError("at most 32767 receivers per transmitter", argument="receivers",
                             value=len(receivers))
     dtype = record_dtype(max_bounces, precision)
-    defines = _defines(max_bounces, precision)
+    defines = _defines(max_bounces, precision, _is_pocl(rt))
     real = np.float64 if fp64 else np.float32
     mat_f, mat_i = _tables(scene)
     win_f, win_i, blocks = _windows(windows)
@@ -232,7 +244,11 @@ def shoot_and_radiate(caster: RayCaster, scene, tri_face, windows, tx_frame, rec
     n_blocks = len(blocks)
     count = np.zeros(1, dtype=np.int32)
     count_buf = cl.Buffer(rt.context, cl.mem_flags.READ_WRITE, size=4)
-    capacity = 1 << 14
+    # room for a few records per block and receiver: a batch whose records overflow the
+    # buffer is shot again (the street's first transmitter, 19k records, overflowed the
+    # 16k it once had, and the kernel ran twice)
+    capacity = int(np.clip(RECORDS_PER_BLOCK_RX * max(1, len(receivers))
+                           * min(blocks_per_batch, n_blocks), 1 << 14, MAX_START_RECORDS))
     out_buf = cl.Buffer(rt.context, cl.mem_flags.READ_WRITE, size=capacity * dtype.itemsize)
     parts = []
     for first in range(0, n_blocks, blocks_per_batch):

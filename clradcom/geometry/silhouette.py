@@ -56,21 +56,22 @@ def block_coverage(tri_xy, block_size: float, origin, shape) -> np.ndarray:
     if len(tri) == 0 or nx == 0 or ny == 0:
         return mask
     ox, oy = (float(o) for o in origin)
-    e = np.roll(tri, -1, axis=1) - tri  # edges v_k -> v_{k+1}
+    e = tri[:, [1, 2, 0]] - tri  # edges v_k -> v_{k+1}
     area2 = e[:, 0, 0] * e[:, 1, 1] - e[:, 0, 1] * e[:, 1, 0]
     scale = np.abs(e).max(axis=(1, 2))
     keep = np.abs(area2) > 1e-12 * scale * scale
-    tri, e, area2 = tri[keep], e[keep], area2[keep]
-    # outward edge normals: for a counter-clockwise triangle (area2 > 0) (e_y, -e_x)
-    sgn = np.sign(area2)[:, None]
-    nrm = np.stack([e[..., 1] * sgn, -e[..., 0] * sgn], axis=-1)  # (T, 3, 2)
-    off = np.einsum("tkc,tkc->tk", nrm, tri)  # triangle lies where n.p <= off
     lo = np.floor((tri.min(axis=1) - (ox, oy)) / block_size).astype(np.int64)
     hi = np.floor((tri.max(axis=1) - (ox, oy)) / block_size).astype(np.int64)
     lo = np.maximum(lo, 0)
     hi = np.minimum(hi, (nx - 1, ny - 1))
     cnt = np.maximum(hi - lo + 1, 0)
     n_pairs = cnt[:, 0] * cnt[:, 1]
+    keep &= n_pairs > 0   # wholly outside the grid: no block to test
+    tri, e, area2, lo, cnt, n_pairs = (a[keep] for a in (tri, e, area2, lo, cnt, n_pairs))
+    # outward edge normals: for a counter-clockwise triangle (area2 > 0) (e_y, -e_x)
+    sgn = np.sign(area2)[:, None]
+    nrm = np.stack([e[..., 1] * sgn, -e[..., 0] * sgn], axis=-1)  # (T, 3, 2)
+    off = np.einsum("tkc,tkc->tk", nrm, tri)  # triangle lies where n.p <= off
     half = 0.5 * block_size
     radius = half * np.abs(nrm).sum(axis=-1)  # (T, 3): the square's reach along each normal
     start = 0
@@ -78,17 +79,18 @@ def block_coverage(tri_xy, block_size: float, origin, shape) -> np.ndarray:
         # as many triangles as keep the pair count under the chunk size (at least one)
         cum = np.cumsum(n_pairs[start:])
         stop = start + max(1, int(np.searchsorted(cum, _PAIR_CHUNK, side="right")))
-        rows = np.arange(start, stop)
-        counts = n_pairs[rows]
-        t = np.repeat(rows, counts)
+        counts = n_pairs[start:stop]
+        t = np.repeat(np.arange(start, stop), counts)
         k = np.arange(len(t)) - np.repeat(np.cumsum(counts) - counts, counts)
         w = cnt[t, 1]
-        bi = lo[t, 0] + k // np.maximum(w, 1)
-        bj = lo[t, 1] + k % np.maximum(w, 1)
+        bi = lo[t, 0] + k // w
+        bj = lo[t, 1] + k % w
         cx = ox + (bi + 0.5) * block_size
         cy = oy + (bj + 0.5) * block_size
-        proj = nrm[t, :, 0] * cx[:, None] + nrm[t, :, 1] * cy[:, None]
-        inside = np.all(proj - radius[t] <= off[t], axis=1)
-        mask[bi[inside], bj[inside]] = True
+        # the three edge normals as separating axes, one at a time on the pairs left
+        for edge in range(3):
+            ok = (nrm[t, edge, 0] * cx + nrm[t, edge, 1] * cy) - radius[t, edge] <= off[t, edge]
+            t, bi, bj, cx, cy = t[ok], bi[ok], bj[ok], cx[ok], cy[ok]
+        mask[bi, bj] = True
         start = stop
     return mask

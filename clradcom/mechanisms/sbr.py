@@ -228,22 +228,47 @@ class TubeWindows:
 
 def _clip_near(tri, eye, axis, near):
     """Triangles (T,3,3) clipped to the half-space (p - eye).axis >= near (0, 1 or 2
-    triangles each): a face that reaches behind the eye still projects."""
+    triangles each): a face that reaches behind the eye still projects.  A straddling
+    triangle becomes the polygon of its vertices in front and its edges' crossings, in
+    edge order, fanned from its first vertex."""
+    tri = np.asarray(tri, dtype=np.float64)
     depth = (tri - eye) @ axis
     front = depth >= near
-    out = [tri[front.all(axis=1)]]
-    for t, d in zip(tri[front.any(axis=1) & ~front.all(axis=1)],
-                    depth[front.any(axis=1) & ~front.all(axis=1)], strict=True):
-        poly = []
-        for k in range(3):
-            a, b, da, db = t[k], t[(k + 1) % 3], d[k], d[(k + 1) % 3]
-            if da >= near:
-                poly.append(a)
-            if (da >= near) != (db >= near):
-                poly.append(a + (near - da) / (db - da) * (b - a))
-        out.extend(np.array([[poly[0], poly[i], poly[i + 1]]])
-                   for i in range(1, len(poly) - 1))
-    return np.concatenate(out) if out else np.zeros((0, 3, 3))
+    n_front = front.sum(axis=1)
+    part = (n_front > 0) & (n_front < 3)
+    s, d, f = tri[part], depth[part], front[part]
+    if len(s) == 0:
+        return tri[n_front == 3]
+    nxt = [1, 2, 0]
+    b, db, fb = s[:, nxt], d[:, nxt], f[:, nxt]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cut = s + ((near - d) / (db - d))[..., None] * (b - s)   # edge k's crossing
+    # per edge k: vertex k if in front, then the crossing if the edge crosses
+    cand = np.stack([s, cut], axis=2).reshape(len(s), 6, 3)
+    valid = np.stack([f, f != fb], axis=2).reshape(len(s), 6)
+    order = np.argsort(~valid, axis=1, kind="stable")
+    poly = np.take_along_axis(cand, order[..., None], axis=1)   # valid ones first
+    quad = valid.sum(axis=1) == 4
+    first = poly[:, [0, 1, 2]]
+    second = poly[quad][:, [0, 2, 3]]
+    # the loop this replaces gave each straddler its fan triangles in turn; the order
+    # of triangles does not matter to a coverage mask, the order of vertices is kept
+    return np.concatenate([tri[n_front == 3], first, second])
+
+
+def _beside(tri, eye, axis, u, v, distance, lo, hi):
+    """(T,) bool: triangles (T,3,3) that lie wholly beyond one side plane of the pyramid
+    from ``eye`` through the rectangle [lo, hi] (x, y) of the window plane, by more than
+    rounding: their part in front of the eye projects outside the rectangle."""
+    rel = np.asarray(tri, dtype=np.float64) - eye
+    depth = rel @ axis
+    x, y = distance * (rel @ u), distance * (rel @ v)
+    margin = 1e-9 * (np.abs(x) + np.abs(y) + (np.abs(lo).max() + np.abs(hi).max()
+                                               + distance) * np.abs(depth))
+    return (np.all(x - hi[0] * depth > margin, axis=1)
+            | np.all(lo[0] * depth - x > margin, axis=1)
+            | np.all(y - hi[1] * depth > margin, axis=1)
+            | np.all(lo[1] * depth - y > margin, axis=1))
 
 
 def _project(tri, tx, axis, u, v, distance):
@@ -270,6 +295,12 @@ def _window(tx, centre, spacing, triangles, clip=None):
     origin = (lo - 0.5) * spacing
     mask = block_coverage(xy, BLOCK * spacing, origin, shape)
     if clip is not None and mask.any():
+        # only blocks of the mask matter: clip triangles that project wholly beside the
+        # covered blocks' rectangle cover none of them
+        ij = np.argwhere(mask)
+        rect_lo = origin + ij.min(axis=0) * (BLOCK * spacing)
+        rect_hi = origin + (ij.max(axis=0) + 1) * (BLOCK * spacing)
+        clip = clip[~_beside(clip, tx, axis, u, v, D, rect_lo, rect_hi)]
         clip = _clip_near(clip, tx, axis, MIN_DEPTH_FRACTION * D)
         mask &= block_coverage(_project(clip, tx, axis, u, v, D)[0], BLOCK * spacing,
                                origin, shape)

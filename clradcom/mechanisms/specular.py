@@ -122,6 +122,16 @@ def _unique_rows(seq: np.ndarray) -> np.ndarray:
     return rows[np.unique(void, return_index=True)[1]]
 
 
+def _decode_keys(key: np.ndarray, base: int, k: int) -> np.ndarray:
+    """(len(key), k) int32 rows of exact row keys (digits id + 1 in ``base``)."""
+    rows = np.empty((len(key), k), dtype=np.int32)
+    rest = key
+    for col in range(k - 1, -1, -1):
+        rest, digit = np.divmod(rest, base)
+        rows[:, col] = digit - 1
+    return rows
+
+
 def unique_candidates(face_seq: np.ndarray) -> dict[int, np.ndarray]:
     """Unique face sequences of each length 1..max_order from all prefixes.
 
@@ -129,10 +139,31 @@ def unique_candidates(face_seq: np.ndarray) -> dict[int, np.ndarray]:
     planar face cannot do that, so the rest of such a ray is a float32
     artefact of re-hitting a neighbouring triangle of the face it left.
     Rays repeat each other massively, so whole rows are de-duplicated first
-    (one sort) and prefixes are taken from the few unique rows.
+    and prefixes are taken from the few unique rows.  Where the face ids are few
+    enough ((max id + 2)**max_order < 2**63), each row is one exact int64 key, its
+    digits the ids + 1 in base max id + 2, first face most significant: keys sort as
+    rows do lexicographically, and a prefix of k faces is the key's first k digits.
+    Else rows are de-duplicated by checked hashes (:func:`_unique_rows`).
     """
     seq = np.ascontiguousarray(face_seq, dtype=np.int32)
     k_max = seq.shape[1]
+    out: dict[int, np.ndarray] = {}
+    base = int(seq.max(initial=-1)) + 2
+    if len(seq) and k_max and base**k_max < 2**63:
+        key = np.zeros(len(seq), dtype=np.int64)
+        cut = np.zeros(len(seq), dtype=bool)
+        for col in range(k_max):
+            face = seq[:, col]
+            if col:
+                cut |= (face == seq[:, col - 1]) & (face >= 0)
+            key = key * base + np.where(cut, 0, face.astype(np.int64) + 1)
+        key = np.unique(key)
+        for k in range(k_max, 0, -1):
+            # the k-face prefixes that have a k-th face, sorted, distinct
+            pref = key[key % base != 0]
+            out[k] = _decode_keys(np.unique(pref), base, k)
+            key //= base
+        return dict(sorted(out.items()))
     if k_max > 1:
         repeat = np.zeros(seq.shape, dtype=bool)
         repeat[:, 1:] = (seq[:, 1:] == seq[:, :-1]) & (seq[:, 1:] >= 0)
@@ -140,7 +171,6 @@ def unique_candidates(face_seq: np.ndarray) -> dict[int, np.ndarray]:
         seq = np.where(cut, -1, seq)
     if len(seq):
         seq = _unique_rows(seq)
-    out: dict[int, np.ndarray] = {}
     for k in range(1, k_max + 1):
         pref = seq[seq[:, k - 1] >= 0, :k]
         out[k] = np.unique(pref, axis=0) if len(pref) else np.zeros((0, k), np.int32)
