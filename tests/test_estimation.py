@@ -372,6 +372,19 @@ def test_training_sums_do_not_cancel_beside_a_huge_peak():
     assert np.all(noise > 0)
 
 
+def test_training_sums_of_a_cube_are_per_angle_bin():
+    """A (N, M, A_y, A_z) cube: every angle bin's range-Doppler sums, as an image's."""
+    rng = np.random.default_rng(6)
+    cube = rng.exponential(size=(40, 24, 5, 3))
+    cube[7, 3, 2, 1] = 1e12
+    got = training_sums(cube, (2, 1), (4, 2))
+    assert got.shape == cube.shape
+    for a in range(5):
+        for b in range(3):
+            np.testing.assert_array_equal(got[:, :, a, b],
+                                          training_sums(cube[:, :, a, b], (2, 1), (4, 2)))
+
+
 def test_numerical_floor_leaves_noise_alone():
     """On a noisy image the floor is ~1e-20 of the noise: no threshold changes."""
     rng = np.random.default_rng(1)

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import trimesh
 
+import clradcom.radar.cube as cube_module
 from clradcom.errors import ArgumentError
 from clradcom.radar import Waveform, add_noise, random_symbols
 from clradcom.radar.cube import capon_angles, detect_cube, point_cloud, radar_cube
@@ -183,3 +184,24 @@ def test_point_cloud_files_parse_and_the_picture_shows_them(tmp_path):
     assert any(ln.get_xydata().tolist() == [[-4.0, 16.0]] for ln in ax.lines)
     out = save_bird_eye(tmp_path / "bev.png", pts, truth=truth)
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.mark.parametrize("bins", [(16, 2), (7, 4), (8, 5)])
+def test_direct_angle_dft_equals_the_gridded_fft(monkeypatch, bins):
+    # a planar virtual array whose elements overlap (tx one rx spacing apart along y and a
+    # vertical tx), even and odd angle bin counts: the small-array matrix DFT and the
+    # gridded FFT give the same power
+    wf = Waveform(n_subcarriers=32, n_symbols=12)
+    lam = wf.wavelength
+    tx = np.array([[0, 0, 0], [0, lam / 2, 0], [0, 0, lam / 2]])
+    rx = np.zeros((4, 3))
+    rx[:, 1] = np.arange(4) * lam / 2
+    rng = np.random.default_rng(5)
+    spectra = rng.standard_normal((32, 4, 12)) + 1j * rng.standard_normal((32, 4, 12))
+    rd = RangeDoppler(spectra, np.arange(32.0), np.arange(4.0))
+    vp = virtual_positions(tx, rx)
+    direct = radar_cube(rd, vp, lam, n_azimuth=bins[0], n_elevation=bins[1]).power
+    monkeypatch.setattr(cube_module, "DIRECT_DFT_MAX", 0)
+    gridded = radar_cube(rd, vp, lam, n_azimuth=bins[0], n_elevation=bins[1]).power
+    assert direct.shape == gridded.shape == (32, 4) + bins
+    assert np.max(np.abs(direct - gridded)) <= 1e-12 * np.max(gridded)
