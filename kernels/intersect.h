@@ -341,6 +341,24 @@ CLR_INLINE int blas_closest(__global const Bvh8Node *nodes, __global const float
     }
 }
 
+/* An any-hit traversal's inner node: every child whose box the ray meets in
+ * (tmin, tmax) pushed, in slot order (any hit ends the search, so no sorting);
+ * returns the new stack size. */
+CLR_INLINE int push_hit_children(const PreparedRay *r, __global const Bvh8Node *nodes,
+                                 int code, float tmin, float tmax, int *stack_code, int sp)
+{
+    __global const float8 *q = (__global const float8 *)(nodes + code);
+    int mask;
+    ray_box8(r, q, tmin, tmax, &mask);
+    __global const int *cc = (__global const int *)(q + 6);
+    while (mask != 0) {
+        int i = CLR_CTZ(mask);
+        mask &= mask - 1;
+        stack_code[sp++] = cc[i];
+    }
+    return sp;
+}
+
 /* Any hit in (tmin, tmax): shadow / visibility rays. Slots whose scene id is
  * ignore_a or ignore_b do not count. */
 CLR_INLINE bool blas_any(__global const Bvh8Node *nodes, __global const float4 *tri4,
@@ -365,15 +383,7 @@ CLR_INLINE bool blas_any(__global const Bvh8Node *nodes, __global const float4 *
                 }
             }
         } else {
-            __global const float8 *q = (__global const float8 *)(nodes + code);
-            int mask;
-            ray_box8(r, q, tmin, tmax, &mask);
-            __global const int *cc = (__global const int *)(q + 6);
-            while (mask != 0) {
-                int i = CLR_CTZ(mask);
-                mask &= mask - 1;
-                stack_code[sp++] = cc[i];
-            }
+            sp = push_hit_children(r, nodes, code, tmin, tmax, stack_code, sp);
         }
         if (sp == 0) return false;
         code = stack_code[--sp];
@@ -500,15 +510,7 @@ CLR_INLINE bool bvh_any(__global const Bvh8Node *nodes, __global const float4 *t
                          ignore_b))
                 return true;
         } else {
-            __global const float8 *q = (__global const float8 *)(nodes + code);
-            int mask;
-            ray_box8(r, q, tmin, tmax, &mask);
-            __global const int *cc = (__global const int *)(q + 6);
-            while (mask != 0) {
-                int i = CLR_CTZ(mask);
-                mask &= mask - 1;
-                stack_code[sp++] = cc[i];
-            }
+            sp = push_hit_children(r, nodes, code, tmin, tmax, stack_code, sp);
         }
         if (sp == 0) return false;
         code = stack_code[--sp];

@@ -56,6 +56,21 @@ def triangle_planes(triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.n
     return n, d, area2
 
 
+def area_weighted_planes(triangles, normals, area2, face_of, n_faces: int):
+    """(normal (F, 3), offset (F,)) of ``n_faces`` faces: each the area-weighted mean of
+    its triangles' unit ``normals`` (``area2``: twice their areas) and the offset of that
+    normal through their area-weighted centroid. ``face_of`` (T,): each triangle's face,
+    0 .. F-1. The same sums in the same order give the same plane bit for bit, which a
+    moved object's faces rely on (clradcom.mechanisms.common.GeometryCache)."""
+    normal = np.zeros((n_faces, 3))
+    np.add.at(normal, face_of, normals * area2[:, None])
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    centroid_sum = np.zeros((n_faces, 3))
+    np.add.at(centroid_sum, face_of, triangles.mean(axis=1) * area2[:, None])
+    wsum = np.bincount(face_of, weights=area2, minlength=n_faces)
+    return normal, np.einsum("ij,ij->i", normal, centroid_sum / wsum[:, None])
+
+
 def merge_coplanar(triangles, tri_object, tri_material, angle_tol=1e-5, offset_tol=1e-5):
     """Group triangles into planar faces per (object, material, plane).
 
@@ -109,15 +124,7 @@ def merge_coplanar(triangles, tri_object, tri_material, angle_tol=1e-5, offset_t
     uniq = np.sort(first)
     tri_face = tri_face.astype(np.int32)
     F = len(uniq)
-    # area-weighted plane per face
-    w = area2
-    normal = np.zeros((F, 3))
-    np.add.at(normal, tri_face, n * w[:, None])
-    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
-    centroid_sum = np.zeros((F, 3))
-    np.add.at(centroid_sum, tri_face, tri.mean(axis=1) * w[:, None])
-    wsum = np.bincount(tri_face, weights=w, minlength=F)
-    offset = np.einsum("ij,ij->i", normal, centroid_sum / wsum[:, None])
+    normal, offset = area_weighted_planes(tri, n, area2, tri_face, F)
     return Faces(
         tri_face=tri_face,
         normal=normal,

@@ -23,7 +23,12 @@ import numpy as np
 from clradcom.device.raycast import InstancedCaster, RayCaster
 from clradcom.device.runtime import Runtime, get_runtime
 from clradcom.errors import ArgumentError, ArgumentTypeError
-from clradcom.geometry.faces import Faces, merge_coplanar, triangle_planes
+from clradcom.geometry.faces import (
+    Faces,
+    area_weighted_planes,
+    merge_coplanar,
+    triangle_planes,
+)
 from clradcom.scene.motion import scene_at
 from clradcom.scene.records import Radar, Scene
 
@@ -74,16 +79,8 @@ def _face_planes(triangles, tri_face, normal, offset, faces) -> None:
     if not len(faces):
         return
     n, _, area2 = triangle_planes(triangles)
-    local = np.searchsorted(faces, tri_face)
-    F = len(faces)
-    nsum = np.zeros((F, 3))
-    np.add.at(nsum, local, n * area2[:, None])
-    nsum /= np.linalg.norm(nsum, axis=1, keepdims=True)
-    centroid_sum = np.zeros((F, 3))
-    np.add.at(centroid_sum, local, triangles.mean(axis=1) * area2[:, None])
-    wsum = np.bincount(local, weights=area2, minlength=F)
-    normal[faces] = nsum
-    offset[faces] = np.einsum("ij,ij->i", nsum, centroid_sum / wsum[:, None])
+    normal[faces], offset[faces] = area_weighted_planes(
+        triangles, n, area2, np.searchsorted(faces, tri_face), len(faces))
 
 
 class GeometryCache:
