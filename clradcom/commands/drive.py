@@ -137,10 +137,10 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
     g.add_argument("--seed", type=seed, default=0,
                    help="seed of frame 0's OFDM data (frame k: seed + 2k; noise + 1)")
     g.add_argument("--no-noise", action="store_true", help="leave thermal noise out")
-    add_cluster_arguments(ap)
-    ap.add_argument("--chunk", type=int_in(1, MAX_TIME_STEPS), default=None,
-                    help="consecutive steps per task (default: the steps shared out "
-                         "evenly, one task per worker)")
+    add_cluster_arguments(ap).add_argument(
+        "--chunk", type=int_in(1, MAX_TIME_STEPS), default=None,
+        help="consecutive steps per task (default: the steps shared out evenly, one task "
+             "per worker)")
     add_waveform_arguments(ap)
     ap.set_defaults(no_sbr_mirrors=False)
 

@@ -89,9 +89,10 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
                     help="no progress bar (it is shown only when stderr is a terminal)")
 
 
-def add_cluster_arguments(ap: argparse.ArgumentParser) -> None:
+def add_cluster_arguments(ap: argparse.ArgumentParser):
     """Where the traces run (``clradcom sweep`` and ``clradcom drive``): ``--workers``,
-    ``--scheduler``, ``--devices``, ``--retries`` (clradcom.distributed.run_tasks)."""
+    ``--scheduler``, ``--devices``, ``--retries`` (clradcom.distributed.run_tasks), in an
+    argument group, returned for a command's own options of the kind."""
     g = ap.add_argument_group("where the traces run (Dask, docs/scale.md)")
     g.add_argument("--workers", type=non_negative_int, default=2,
                    help="processes of the local Dask cluster (default 2; 0: serially in "
@@ -105,6 +106,7 @@ def add_cluster_arguments(ap: argparse.ArgumentParser) -> None:
     g.add_argument("--retries", type=non_negative_int, default=2,
                    help="further attempts of a task that failed or whose worker died "
                         "(default 2)")
+    return g
 
 
 def cluster_text(args) -> str:
