@@ -94,6 +94,7 @@ def test_chunks_are_shared_out_over_both_workers(scene, serial, cluster):
     for r, ref in zip(results, serial, strict=True):
         (snap,), _ = r.value
         assert_snapshot_equal(snap, ref)
+    assert cd.worker_count(client) == 2 and cd.worker_count(None) == 1
     assert cd.steps_per_task(4, 2) == 2 and cd.steps_per_task(5, 2) == 3
     assert cd.steps_per_task(3, 8) == 1 and cd.steps_per_task(7, 1) == 7
 
@@ -141,7 +142,7 @@ def test_drive_command_on_a_scheduler_equals_the_serial_command(scene_file, clus
     assert code == 0, text
     assert "this process (serial)" in text
     code, text = _drive([*common, "--out", str(b), "--scheduler", c.scheduler_address,
-                         "--chunk", "3", "--retries", "1"])
+                         "--retries", "1"])  # default chunks: 2 steps on each worker
     assert code == 0, text
     assert f"scheduler {c.scheduler_address}" in text
     assert text.index("step 1/4") < text.index("step 4/4")  # in step order
