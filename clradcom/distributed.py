@@ -1,10 +1,12 @@
-"""Many traces at once on Dask (``dask.distributed``): a parameter sweep, later a drive.
+"""Many traces at once on Dask (``dask.distributed``): a parameter sweep, or a drive.
 
 The unit of work is a :class:`Task`: a module-level callable with picklable arguments
 that returns a result (a :class:`~clradcom.snapshot.Snapshot`, or arrays). A sweep is a
 list of them (:func:`trace_tasks`: one :func:`trace_task` per settings); a drive
-sequence will be one task per time step (``Task(key, series.trace_step, (scene,
-settings, t))``) with nothing else to change here. :func:`run_tasks` runs a list
+sequence is one task per run of consecutive time steps (:func:`drive_tasks`: one
+:func:`trace_steps_task` per chunk, each with its own
+:class:`~clradcom.mechanisms.common.GeometryCache`), which :func:`run_drive` runs and
+hands back in step order. :func:`run_tasks` runs a list
 
 * serially in this process (``workers=0``): the reference every distributed run must
   equal bit for bit;
@@ -31,7 +33,9 @@ docs/scale.md has the design, the determinism argument and the measured scaling.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import math
 import os
 import time
 import uuid
@@ -42,6 +46,7 @@ from dataclasses import dataclass, field
 from clradcom.device.runtime import Runtime, get_runtime
 from clradcom.errors import ArgumentError, ArgumentTypeError
 from clradcom.scene.records import Scene
+from clradcom.series import check_times, trace_steps
 from clradcom.snapshot import Snapshot
 from clradcom.trace import TraceSettings, trace_scene
 
@@ -53,8 +58,9 @@ except ImportError as _exc:  # pragma: no cover - installed with clradcom
     raise ImportError(f"clradcom.distributed needs dask.distributed ({_exc}): "
                       "pip install distributed") from _exc
 
-__all__ = ["DevicePlugin", "Task", "TaskError", "TaskResult", "local_cluster", "run_tasks",
-           "trace_task", "trace_tasks", "worker_device", "worker_runtime"]
+__all__ = ["DevicePlugin", "Task", "TaskError", "TaskResult", "connect", "drive_tasks",
+           "local_cluster", "run_drive", "run_tasks", "steps_per_task", "trace_steps_task",
+           "trace_task", "trace_tasks", "worker_count", "worker_device", "worker_runtime"]
 
 #: PoCL's thread count for its CPU device, read when the platform is first opened
 POCL_THREADS_ENV = "POCL_MAX_PTHREAD_COUNT"
@@ -183,6 +189,50 @@ def trace_tasks(scene: Scene, settings: Sequence[TraceSettings], keys=None,
             for k, s in zip(keys, settings, strict=True)]
 
 
+def trace_steps_task(scene: Scene, settings: TraceSettings, times,
+                     links=None) -> tuple[list[Snapshot], list[float]]:
+    """Consecutive steps of a drive on this process's device, through one
+    :class:`~clradcom.mechanisms.common.GeometryCache` (:func:`clradcom.series.
+    trace_steps`): the snapshots and each step's seconds (the first with the cache's
+    build)."""
+    seconds: list[float] = []
+    clock = [time.perf_counter()]
+
+    def each(k, t, snap):
+        now = time.perf_counter()
+        seconds.append(now - clock[0])
+        clock[0] = now
+
+    snaps = trace_steps(scene, settings, times, runtime=worker_runtime(), links=links,
+                        each=each)
+    return snaps, seconds
+
+
+def steps_per_task(n_steps: int, workers: int) -> int:
+    """The default chunk of a drive: the steps shared out evenly, one task per worker
+    (each builds its :class:`~clradcom.mechanisms.common.GeometryCache` once; docs/scale.md
+    has the measurement behind this choice)."""
+    return max(1, math.ceil(n_steps / max(1, workers)))
+
+
+def drive_tasks(scene: Scene, settings: TraceSettings, times=None, *, chunk: int = 1,
+                links=None) -> list[Task]:
+    """A drive as tasks: ``times`` (default the scene's ``[time]`` table) cut into runs of
+    ``chunk`` consecutive steps, one :func:`trace_steps_task` each, keyed
+    ``steps-FIRST-LAST`` (step numbers)."""
+    if not isinstance(scene, Scene):
+        raise ArgumentTypeError("must be a Scene", argument="scene", value=scene)
+    if not isinstance(settings, TraceSettings):
+        raise ArgumentTypeError("must be a TraceSettings", argument="settings", value=settings)
+    if isinstance(chunk, bool) or not isinstance(chunk, int) or chunk < 1:
+        raise ArgumentError("must be a positive integer", argument="chunk", value=chunk)
+    t = check_times(scene, times)
+    kwargs = {} if links is None else {"links": links}
+    return [Task(f"steps-{a:05d}-{min(a + chunk, t.size) - 1:05d}", trace_steps_task,
+                 (scene, settings, t[a:a + chunk]), kwargs)
+            for a in range(0, t.size, chunk)]
+
+
 # ----------------------------------------------------------------------------------------
 # the client side
 # ----------------------------------------------------------------------------------------
@@ -259,19 +309,74 @@ def run_tasks(tasks: Sequence[Task], *, workers: int = 2, scheduler: str | None 
     if len({t.key for t in tasks}) != len(tasks):
         raise ArgumentError("task keys must be distinct", argument="tasks",
                             value=[t.key for t in tasks])
+    with connect(workers, scheduler=scheduler, client=client, retries=retries) as own:
+        if own is None:
+            return _run_serial(tasks, devices, on_result, keep)
+        return _run_on(own, tasks, devices, retries, on_result, keep)
+
+
+@contextlib.contextmanager
+def connect(workers: int = 2, *, scheduler: str | None = None, client=None,
+            retries: int = 2):
+    """The ``distributed.Client`` a run uses (:func:`run_tasks` has the rules): the
+    caller's ``client``, one on ``scheduler``, or one on a local cluster of ``workers``
+    processes (started here, stopped on leaving); None for ``workers=0`` (serial)."""
     _check_retries(retries)
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 0:
         raise ArgumentError("must be an integer >= 0", argument="workers", value=workers)
-    if client is None and scheduler is None and workers == 0:
-        return _run_serial(tasks, devices, on_result, keep)
     if client is not None:
-        return _run_on(client, tasks, devices, retries, on_result, keep)
-    if scheduler is not None:
+        yield client
+    elif scheduler is not None:
         with distributed.Client(scheduler) as own:
-            return _run_on(own, tasks, devices, retries, on_result, keep)
-    with local_cluster(workers, retries=retries) as cluster, \
-            distributed.Client(cluster) as own:
-        return _run_on(own, tasks, devices, retries, on_result, keep)
+            yield own
+    elif workers == 0:
+        yield None
+    else:
+        with local_cluster(workers, retries=retries) as cluster, \
+                distributed.Client(cluster) as own:
+            yield own
+
+
+def worker_count(client) -> int:
+    """Workers connected to ``client``'s scheduler (1 for None: this process)."""
+    return 1 if client is None else max(1, len(client.scheduler_info()["workers"]))
+
+
+def run_drive(scene: Scene, settings: TraceSettings, times=None, *, workers: int = 2,
+              scheduler: str | None = None, client=None,
+              devices: Sequence[str] | None = None, retries: int = 2, links=None,
+              chunk: int | None = None,
+              each: Callable[[int, float, Snapshot, float], None] | None = None,
+              ) -> tuple[list[Snapshot], list[float]]:
+    """A drive (``scene`` at every instant of ``times``) traced as :func:`drive_tasks` on
+    Dask (where: as :func:`run_tasks`; ``workers=0`` serially here): every step's
+    snapshot, in step order, and its seconds on its worker. ``chunk``: steps per task
+    (default :func:`steps_per_task` over the workers there are). ``each(step, t,
+    snapshot, seconds)`` hears the steps in step order as soon as every earlier one is
+    in. The snapshots equal :func:`clradcom.series.trace_steps`'s bit for bit (the
+    GeometryCache's refit does not depend on where a chunk starts, docs/series.md)."""
+    t = check_times(scene, times)
+    with connect(workers, scheduler=scheduler, client=client, retries=retries) as own:
+        size = steps_per_task(t.size, worker_count(own)) if chunk is None else chunk
+        tasks = drive_tasks(scene, settings, t, chunk=size, links=links)
+        held: dict[int, TaskResult] = {}
+        snaps: list[Snapshot] = []
+        seconds: list[float] = []
+
+        def arrived(i, result):  # chunk i is in: hand on every step now in order
+            held[i] = result
+            while len(snaps) < t.size and len(snaps) // size in held:
+                got, secs = held.pop(len(snaps) // size).value
+                for snap, s in zip(got, secs, strict=True):
+                    k = len(snaps)
+                    if each is not None:
+                        each(k, float(t[k]), snap, s)
+                    snaps.append(snap)
+                    seconds.append(s)
+
+        run_tasks(tasks, workers=0, client=own, devices=devices, retries=retries,
+                  on_result=arrived, keep=False)
+    return snaps, seconds
 
 
 def _run_serial(tasks, devices, on_result, keep) -> list[TaskResult]:

@@ -33,8 +33,9 @@ from clradcom.scene.records import Scene
 from clradcom.snapshot import Snapshot, write_npz
 from clradcom.trace import TraceSettings, trace_scene
 
-__all__ = ["SERIES_FORMAT_NAME", "SERIES_FORMAT_VERSION", "Series", "load_series",
-           "match_paths", "path_keys", "save_series", "trace_series", "unwrap_phase"]
+__all__ = ["SERIES_FORMAT_NAME", "SERIES_FORMAT_VERSION", "Series", "check_times",
+           "load_series", "match_paths", "path_keys", "save_series", "series_from_snapshots",
+           "trace_series", "trace_steps", "unwrap_phase"]
 
 SERIES_FORMAT_NAME = "clradcom-series"
 SERIES_FORMAT_VERSION = 1
@@ -128,21 +129,9 @@ class Series:
         return np.flatnonzero(self.present[:, track])
 
 
-def trace_series(scene: Scene, settings: TraceSettings | None = None, times=None, *,
-                 runtime: Runtime | None = None, links=None,
-                 each: Callable[[int, float, Snapshot], None] | None = None,
-                 rebuild: bool = False, placement: str = "refit") -> Series:
-    """Trace ``scene`` at every instant of ``times`` (s; default its ``[time]`` table),
-    moved there by :func:`~clradcom.scene.motion.scene_at`, and follow its paths from step
-    to step (:func:`match_paths`). ``settings``, ``runtime`` and ``links`` go to
-    :func:`~clradcom.trace.trace_scene`; ``each(step, t, snapshot)`` hears every step's
-    snapshot (its ``time_s`` set), e.g. to save it.
-
-    The BVH is built once (:class:`~clradcom.mechanisms.common.GeometryCache`: a
-    bottom-level tree per moving object, refit to its place at each step, or placed by
-    its rigid transform with ``placement="transform"``); ``rebuild=True`` builds the
-    whole geometry anew at every step instead (the reference the cache is tested
-    against)."""
+def check_times(scene: Scene, times=None) -> np.ndarray:
+    """``times`` (s; default the scene's ``[time]`` table) as a float64 array, checked:
+    one or more finite instants, strictly increasing."""
     if not isinstance(scene, Scene):
         raise ArgumentTypeError("must be a Scene (clradcom.scene.load_scene)",
                                 argument="scene", value=scene)
@@ -159,6 +148,27 @@ def trace_series(scene: Scene, settings: TraceSettings | None = None, times=None
     if t_arr.size == 0 or not np.all(np.isfinite(t_arr)) or np.any(np.diff(t_arr) <= 0):
         raise ArgumentError("must be one or more finite times, strictly increasing",
                             argument="times", value=times)
+    return t_arr
+
+
+def trace_steps(scene: Scene, settings: TraceSettings | None = None, times=None, *,
+                runtime: Runtime | None = None, links=None,
+                each: Callable[[int, float, Snapshot], None] | None = None,
+                rebuild: bool = False, placement: str = "refit") -> list[Snapshot]:
+    """The snapshots of ``scene`` at every instant of ``times`` (s; default its ``[time]``
+    table), moved there by :func:`~clradcom.scene.motion.scene_at` (each with its
+    ``time_s`` set). ``settings``, ``runtime`` and ``links`` go to
+    :func:`~clradcom.trace.trace_scene`; ``each(step, t, snapshot)`` hears every step.
+
+    The BVH is built once (:class:`~clradcom.mechanisms.common.GeometryCache`: a
+    bottom-level tree per moving object, refit to its place at each step, or placed by
+    its rigid transform with ``placement="transform"``); ``rebuild=True`` builds the
+    whole geometry anew at every step instead (the reference the cache is tested
+    against). With "refit" the snapshots do not depend on the instant the cache was
+    built at, so any run of consecutive instants (a distributed drive's chunk,
+    :func:`clradcom.distributed.drive_tasks`) gives the steps of the whole run bit for
+    bit."""
+    t_arr = check_times(scene, times)
     settings = TraceSettings.preset() if settings is None else settings
     if not isinstance(settings, TraceSettings):
         raise ArgumentTypeError("must be a TraceSettings", argument="settings", value=settings)
@@ -174,7 +184,19 @@ def trace_series(scene: Scene, settings: TraceSettings | None = None, times=None
         if each is not None:
             each(k, float(t), snap)
         snaps.append(snap)
-    return series_from_snapshots(snaps)
+    return snaps
+
+
+def trace_series(scene: Scene, settings: TraceSettings | None = None, times=None, *,
+                 runtime: Runtime | None = None, links=None,
+                 each: Callable[[int, float, Snapshot], None] | None = None,
+                 rebuild: bool = False, placement: str = "refit") -> Series:
+    """Trace ``scene`` at every instant of ``times`` (:func:`trace_steps`, whose
+    arguments these are) and follow its paths from step to step (:func:`match_paths`,
+    :func:`series_from_snapshots`). On Dask: :func:`clradcom.distributed.run_drive`."""
+    return series_from_snapshots(trace_steps(
+        scene, settings, times, runtime=runtime, links=links, each=each, rebuild=rebuild,
+        placement=placement))
 
 
 def series_from_snapshots(snapshots: list[Snapshot]) -> Series:

@@ -2,13 +2,26 @@
 
     clradcom drive scenes/canonical/drive_by.toml
     clradcom drive scene.toml --start 0 --step 0.01 --count 100 --preset fast
+    clradcom drive SCENE --workers 0                     serially in this process
+    clradcom drive SCENE --scheduler tcp://host:8786     on workers started elsewhere
 
 The instants are the scene's [time] table (start_s, step_s, count), or --start, --step and
 --count (which replace it); objects and radars move by their velocity, trajectory and
 angular velocity (docs/scene-format.md, "Motion"). Every step is traced with the preset's
 physics (--preset, default "paper"; --rays and --reflections change one knob) and the
 paths of consecutive steps are matched by their interactions, objects and triangles
-into tracks. Written into the output folder (default out/<scene name>/):
+into tracks.
+
+The steps are traced on Dask like `clradcom sweep` (docs/scale.md): a local cluster of
+--workers processes (default 2, as the sweep's: the steps are independent traces, so two
+workers trace nearly twice as fast where two cores or devices are free; 0 traces them
+here, one after the other, without Dask), or the workers of --scheduler. Each task is a
+run of consecutive steps (--chunk; default the steps shared out, one run per worker)
+traced with the task's own two-level BVH, refit step by step; every worker opens its own
+OpenCL device (--device for all, or --devices shared out); a task that fails or loses
+its worker runs again up to --retries times. The results are those of the serial run bit
+for bit, gathered in step order. Written into the output folder (default out/<scene
+name>/):
 
   series.npz              every track's gain, delay and Doppler per step (docs/series.md)
   snapshot_NNNN.npz       with --snapshots: each step's whole snapshot (its time_s set)
@@ -35,7 +48,6 @@ Errors are one line on stderr, exit code 2.
 from __future__ import annotations
 
 import argparse
-import time
 from pathlib import Path
 
 import numpy as np
@@ -49,8 +61,9 @@ from clradcom.commands.options import (
     run_waveform,
     seed,
 )
+from clradcom.commands.sweep import add_cluster_arguments, cluster_text
 from clradcom.commands.trace import radar_noise, settings_from_args
-from clradcom.device.runtime import get_runtime
+from clradcom.distributed import run_drive
 from clradcom.errors import ArgumentError
 from clradcom.files import save_figure, staged_folder
 from clradcom.mechanisms.common import ENGINES
@@ -73,7 +86,7 @@ from clradcom.radar.video import (
 )
 from clradcom.scene.motion import MAX_TIME_STEPS
 from clradcom.scene.reader import load_scene
-from clradcom.series import save_series, trace_series
+from clradcom.series import save_series, series_from_snapshots
 from clradcom.snapshot import save_snapshot
 from clradcom.trace import check_launch_memory
 
@@ -103,7 +116,8 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--engine", choices=ENGINES, default="device",
                     help="device (default) or host (the numpy reference)")
     ap.add_argument("--device", default=None,
-                    help="OpenCL device: 'gpu', 'cpu', 'P:D' or part of its name")
+                    help="OpenCL device of every worker: 'gpu', 'cpu', 'P:D' or part of its "
+                         "name (--devices: one per worker)")
     ap.add_argument("--snapshots", action="store_true",
                     help="also write every step's snapshot")
     g = ap.add_argument_group("radar video and tracks (docs/tracking.md)")
@@ -123,6 +137,10 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
     g.add_argument("--seed", type=seed, default=0,
                    help="seed of frame 0's OFDM data (frame k: seed + 2k; noise + 1)")
     g.add_argument("--no-noise", action="store_true", help="leave thermal noise out")
+    add_cluster_arguments(ap).add_argument(
+        "--chunk", type=int_in(1, MAX_TIME_STEPS), default=None,
+        help="consecutive steps per task (default: the steps shared out evenly, one task "
+             "per worker)")
     add_waveform_arguments(ap)
     ap.set_defaults(no_sbr_mirrors=False)
 
@@ -211,27 +229,32 @@ def run(args) -> int:
     settings = settings_from_args(args)
     check_launch_memory(settings, argument="--rays", value=settings.specular.rays)
     index, wf, nf = _radar_of(scene, args)
-    runtime = get_runtime(args.device)
+    if args.device is not None and args.devices is not None:
+        raise ArgumentError("give --device (every worker) or --devices (one each), not both",
+                            argument="--device", value=args.device)
+    devices = args.devices or ([args.device] if args.device is not None else None)
     out = Path(args.out) if args.out else Path("out") / scene.name
     links = None if index is None else [(index, index)]
     paths_of, n_paths, trace_s = [], [], []
+    print(f"  {len(times)} steps on {cluster_text(args)}, retries {args.retries}")
     with staged_folder(out, inputs=[args.scene], owned=OUTPUTS) as stage:
-        clock = [time.perf_counter()]
 
-        def each(k, t, snap):
-            now = time.perf_counter()
-            trace_s.append(now - clock[0])
+        def each(k, t, snap, seconds):
+            trace_s.append(seconds)
             paths = sum(len(lk.paths.gain) for lk in snap.links)
             n_paths.append(paths)
             print(f"  step {k + 1}/{len(times)}: t = {t:.6g} s, {paths} paths "
-                  f"({trace_s[-1]:.2f} s)", flush=True)
+                  f"({seconds:.2f} s)", flush=True)
             if args.snapshots:
                 save_snapshot(Path(stage) / f"snapshot_{k:04d}.npz", snap)
             if index is not None:
                 paths_of.append(snap.links[0].paths)
-            clock[0] = time.perf_counter()
 
-        series = trace_series(scene, settings, times, runtime=runtime, links=links, each=each)
+        snaps, _ = run_drive(scene, settings, times, workers=args.workers,
+                             scheduler=args.scheduler, devices=devices, retries=args.retries,
+                             links=links, chunk=args.chunk, each=each)
+        series = series_from_snapshots(snaps)
+        del snaps
         save_series(Path(stage) / "series.npz", series)
         if index is not None:
             res = drive_radar(scene, index, times, paths_of, wf, seed=args.seed,

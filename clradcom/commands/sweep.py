@@ -82,22 +82,38 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
                          "specular.rays or a flat name); repeat for a grid")
     ap.add_argument("--engine", choices=ENGINES, default="device",
                     help="device (default) or host: who resolves the interactions")
-    ap.add_argument("--workers", type=non_negative_int, default=2,
-                    help="processes of the local Dask cluster (default 2; 0: serially in "
-                         "this process, without Dask)")
-    ap.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                    help="a running Dask scheduler (tcp://host:8786) whose workers trace; "
-                         "--workers is then not used")
-    ap.add_argument("--devices", type=_device_list, default=None,
-                    help="OpenCL device specs shared out over the workers (worker i takes "
-                         "the i-th, cyclically), e.g. 0:0,0:1 for one worker per GPU")
-    ap.add_argument("--retries", type=non_negative_int, default=2,
-                    help="further attempts of a task that failed or whose worker died "
-                         "(default 2)")
+    add_cluster_arguments(ap)
     ap.add_argument("--max-tasks", type=positive_int, default=10_000,
                     help="refuse a sweep of more tasks than this (default 10000)")
     ap.add_argument("-q", "--quiet", action="store_true",
                     help="no progress bar (it is shown only when stderr is a terminal)")
+
+
+def add_cluster_arguments(ap: argparse.ArgumentParser):
+    """Where the traces run (``clradcom sweep`` and ``clradcom drive``): ``--workers``,
+    ``--scheduler``, ``--devices``, ``--retries`` (clradcom.distributed.run_tasks), in an
+    argument group, returned for a command's own options of the kind."""
+    g = ap.add_argument_group("where the traces run (Dask, docs/scale.md)")
+    g.add_argument("--workers", type=non_negative_int, default=2,
+                   help="processes of the local Dask cluster (default 2; 0: serially in "
+                        "this process, without Dask)")
+    g.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="a running Dask scheduler (tcp://host:8786) whose workers trace; "
+                        "--workers is then not used")
+    g.add_argument("--devices", type=_device_list, default=None,
+                   help="OpenCL device specs shared out over the workers (worker i takes "
+                        "the i-th, cyclically), e.g. 0:0,0:1 for one worker per GPU")
+    g.add_argument("--retries", type=non_negative_int, default=2,
+                   help="further attempts of a task that failed or whose worker died "
+                        "(default 2)")
+    return g
+
+
+def cluster_text(args) -> str:
+    """Where ``args`` (:func:`add_cluster_arguments`) run the traces, in words."""
+    return (f"scheduler {args.scheduler}" if args.scheduler else
+            f"a local cluster of {args.workers} workers" if args.workers else
+            "this process (serial)")
 
 
 def sweep_settings(presets, vary, engine: str = "device"):
@@ -144,11 +160,8 @@ def run(args) -> int:
     keys = [f"sweep-{i:03d}" for i in range(len(points))]
     tasks = trace_tasks(scene, [s for _, s in points], keys=keys)
     out = Path(args.out or Path("out") / scene.name / "sweep")
-    where = (f"scheduler {args.scheduler}" if args.scheduler else
-             f"a local cluster of {args.workers} workers" if args.workers else
-             "this process (serial)")
     print(f"{len(tasks)} traces of {scene.name} ({len(scene.triangles)} triangles) on "
-          f"{where}, retries {args.retries}")
+          f"{cluster_text(args)}, retries {args.retries}")
     columns = ["preset", *(name for name, _ in args.vary)]
     rows: list = [None] * len(tasks)
     with staged_folder(out, inputs=[args.scene], owned=OUTPUTS) as stage:
