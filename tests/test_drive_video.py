@@ -84,7 +84,7 @@ tx_array = {{ kind = "ula", count = 2, spacing_wavelengths = 2.0 }}
 rx_array = {{ kind = "ula", count = 4, spacing_wavelengths = 0.5 }}
 """
 
-ARGS = ["--radar", "radarA", "--preset", "fast", "--symbols", "128"]
+ARGS = ["--radar", "radarA", "--preset", "fast", "--symbols", "128", "--workers", "0"]
 
 
 def _csv(path):
@@ -167,7 +167,7 @@ def test_drive_array_radar_tracks_azimuth(tmp_path):
     with contextlib.redirect_stdout(io.StringIO()):
         code = cli.main(["drive", str(scene), "--out", str(out), "--radar", "radarM",
                          "--preset", "fast", "--symbols", "128", "--count", "3",
-                         "--no-video"])
+                         "--no-video", "--workers", "0"])
     assert code == 0
     head, rows = _csv(out / "radarM_detections.csv")
     assert tuple(head) == DETECTION_TABLE_COLUMNS

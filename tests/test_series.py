@@ -161,7 +161,7 @@ def test_drive_command_writes_the_series(drive_by, tmp_path, capsys):
     # every 10th instant of the fixture's pass: the same paths, the same numbers
     code = cli.main(["drive", str(scene_file), "--out", str(out), "--preset", "go",
                      "--rays", "200000", "--reflections", "3", "--step", "0.1",
-                     "--count", "7", "--snapshots", "--no-scattering"])
+                     "--count", "7", "--snapshots", "--no-scattering", "--workers", "0"])
     text = capsys.readouterr().out
     assert code == 0, text
     assert "step 7/7" in text
