@@ -53,6 +53,8 @@ from pathlib import Path
 import numpy as np
 
 from clradcom.commands.options import (
+    add_sequence_arguments,
+    add_tracer_arguments,
     add_waveform_arguments,
     finite_float,
     int_in,
@@ -60,14 +62,13 @@ from clradcom.commands.options import (
     positive_float,
     run_waveform,
     seed,
+    sequence_times,
 )
 from clradcom.commands.sweep import add_cluster_arguments, cluster_text
 from clradcom.commands.trace import radar_noise, settings_from_args
 from clradcom.distributed import run_drive
 from clradcom.errors import ArgumentError
 from clradcom.files import save_figure, staged_folder
-from clradcom.mechanisms.common import ENGINES
-from clradcom.presets import DEFAULT_PRESET, PRESETS
 from clradcom.radar.pipeline import SYNTHESIS_METHODS, check_frame_memory
 from clradcom.radar.report import write_table
 from clradcom.radar.tracking import SCORE_DTYPE, TRACK_DTYPE, score_summary
@@ -101,23 +102,9 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("scene", help="scene file (TOML), with a [time] table or --step/--count")
     ap.add_argument("--out", type=output_folder, default=None,
                     help="output folder (default: out/<scene name>/)")
-    ap.add_argument("--start", type=finite_float, default=None,
-                    help="first instant (s; default the [time] table's start_s, else 0)")
-    ap.add_argument("--step", type=positive_float, default=None, help="time step (s)")
-    ap.add_argument("--count", type=int_in(1, MAX_TIME_STEPS), default=None,
-                    help="number of instants")
-    ap.add_argument("--preset", choices=tuple(PRESETS), default=DEFAULT_PRESET,
-                    help="the tracer's physics (default %(default)s)")
-    ap.add_argument("--rays", type=int_in(1, 10**9), default=None,
-                    help="rays launched per transmitter")
-    ap.add_argument("--reflections", type=int_in(0, 16), default=None,
-                    help="most specular reflections per path")
-    ap.add_argument("--no-scattering", action="store_true", help="no diffuse scattering")
-    ap.add_argument("--engine", choices=ENGINES, default="device",
-                    help="device (default) or host (the numpy reference)")
-    ap.add_argument("--device", default=None,
-                    help="OpenCL device of every worker: 'gpu', 'cpu', 'P:D' or part of its "
-                         "name (--devices: one per worker)")
+    add_sequence_arguments(ap)
+    add_tracer_arguments(ap, device_help="OpenCL device of every worker: 'gpu', 'cpu', 'P:D' "
+                                         "or part of its name (--devices: one per worker)")
     ap.add_argument("--snapshots", action="store_true",
                     help="also write every step's snapshot")
     g = ap.add_argument_group("radar video and tracks (docs/tracking.md)")
@@ -142,18 +129,6 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
         help="consecutive steps per task (default: the steps shared out evenly, one task "
              "per worker)")
     add_waveform_arguments(ap)
-    ap.set_defaults(no_sbr_mirrors=False)
-
-
-def _times(scene, args) -> np.ndarray:
-    axis = scene.time_axis
-    start = args.start if args.start is not None else (axis.start_s if axis else 0.0)
-    step = args.step if args.step is not None else (axis.step_s if axis else None)
-    count = args.count if args.count is not None else (axis.count if axis else None)
-    if step is None or count is None:
-        raise ArgumentError(f"{args.scene} has no [time] table: give --step and --count",
-                            argument="--step", value=None)
-    return start + step * np.arange(count, dtype=np.float64)
 
 
 def _radar_of(scene, args):
@@ -225,7 +200,7 @@ def _print_summary(res, trace_s) -> None:
 
 def run(args) -> int:
     scene = load_scene(args.scene)
-    times = _times(scene, args)
+    times = sequence_times(scene, args)
     settings = settings_from_args(args)
     check_launch_memory(settings, argument="--rays", value=settings.specular.rays)
     index, wf, nf = _radar_of(scene, args)

@@ -29,23 +29,21 @@ from pathlib import Path
 import numpy as np
 
 from clradcom.commands.options import (
+    add_sequence_arguments,
+    add_tracer_arguments,
     add_waveform_arguments,
-    finite_float,
-    int_in,
     output_folder,
     positive_float,
     run_waveform,
     seed,
+    sequence_times,
 )
 from clradcom.commands.trace import settings_from_args
 from clradcom.device.runtime import get_runtime
 from clradcom.errors import ArgumentError
 from clradcom.files import staged_folder
-from clradcom.mechanisms.common import ENGINES
-from clradcom.presets import DEFAULT_PRESET, PRESETS
 from clradcom.radar.microdoppler import microdoppler_run, rotating_parts, save_microdoppler
 from clradcom.radar.pipeline import check_frame_memory
-from clradcom.scene.motion import MAX_TIME_STEPS
 from clradcom.scene.reader import load_scene
 from clradcom.trace import check_launch_memory
 
@@ -62,22 +60,8 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
                     help="output folder (default: out/<scene name>/)")
     ap.add_argument("--radar", default=None,
                     help="the radar (default: the first that transmits and receives)")
-    ap.add_argument("--start", type=finite_float, default=None,
-                    help="first instant (s; default the [time] table's start_s, else 0)")
-    ap.add_argument("--step", type=positive_float, default=None, help="time step (s)")
-    ap.add_argument("--count", type=int_in(1, MAX_TIME_STEPS), default=None,
-                    help="number of instants (frames)")
-    ap.add_argument("--preset", choices=tuple(PRESETS), default=DEFAULT_PRESET,
-                    help="the tracer's physics (default %(default)s)")
-    ap.add_argument("--rays", type=int_in(1, 10**9), default=None,
-                    help="rays launched per transmitter")
-    ap.add_argument("--reflections", type=int_in(0, 16), default=None,
-                    help="most specular reflections per path")
-    ap.add_argument("--no-scattering", action="store_true", help="no diffuse scattering")
-    ap.add_argument("--engine", choices=ENGINES, default="device",
-                    help="device (default) or host (the numpy reference)")
-    ap.add_argument("--device", default=None,
-                    help="OpenCL device: 'gpu', 'cpu', 'P:D' or part of its name")
+    add_sequence_arguments(ap, count_help="number of instants (frames)")
+    add_tracer_arguments(ap)
     ap.add_argument("--no-noise", action="store_true", help="no thermal noise")
     ap.add_argument("--seed", type=seed, default=0,
                     help="seed of the data symbols and noise (frame k uses seed + k)")
@@ -85,20 +69,6 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
                     help="the measured spread: cells within this many dB of a column's "
                     "peak (default 40)")
     add_waveform_arguments(ap)
-    ap.set_defaults(no_sbr_mirrors=False)
-
-
-def _times(scene, args) -> np.ndarray:
-    axis = scene.time_axis
-    start = args.start if args.start is not None else (axis.start_s if axis else 0.0)
-    step = args.step if args.step is not None else (axis.step_s if axis else None)
-    count = args.count if args.count is not None else (axis.count if axis else None)
-    if count == 1 and step is None:
-        step = 1.0  # one frame needs no step
-    if step is None or count is None:
-        raise ArgumentError(f"{args.scene} has no [time] table: give --step and --count",
-                            argument="--step", value=None)
-    return start + step * np.arange(count, dtype=np.float64)
 
 
 def run(args) -> int:
@@ -107,7 +77,7 @@ def run(args) -> int:
         raise ArgumentError("has no turning object (no angular_velocity_deg_s): nothing "
                             "gives a micro-Doppler spread", argument="scene",
                             value=args.scene)
-    times = _times(scene, args)
+    times = sequence_times(scene, args)
     settings = settings_from_args(args)
     check_launch_memory(settings, argument="--rays", value=settings.specular.rays)
     waveform, line = run_waveform(scene.carrier_hz, args, scene=scene)

@@ -25,6 +25,8 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
+
 from clradcom.commands.console import WarningLog, progress_bar, trace_steps
 from clradcom.device.runtime import OpenCLError, get_runtime
 from clradcom.distributed import TaskError
@@ -35,8 +37,10 @@ from clradcom.errors import (
     SnapshotError,
 )
 from clradcom.files import OutputError
-from clradcom.presets import DEFAULT_PRESET
+from clradcom.mechanisms.common import ENGINES
+from clradcom.presets import DEFAULT_PRESET, PRESETS
 from clradcom.radar.waveform import Waveform, round_cyclic_prefix
+from clradcom.scene.motion import MAX_TIME_STEPS
 from clradcom.scene.records import MODULATIONS
 from clradcom.snapshot import Snapshot, load_snapshot, save_snapshot
 from clradcom.trace import TraceSettings, trace_scene
@@ -215,6 +219,51 @@ WAVEFORM_OPTIONS = {"subcarriers": "--subcarriers", "symbols": "--symbols",
                     "subcarrier_spacing": "--subcarrier-spacing",
                     "cyclic_prefix": "--cyclic-prefix", "cp_samples": "--cp-samples",
                     "modulation": "--modulation"}
+
+
+def add_sequence_arguments(ap: argparse.ArgumentParser, *,
+                           count_help: str = "number of instants") -> None:
+    """--start, --step and --count: the instants of a moving scene, over its [time]
+    table (:func:`sequence_times`)."""
+    ap.add_argument("--start", type=finite_float, default=None,
+                    help="first instant (s; default the [time] table's start_s, else 0)")
+    ap.add_argument("--step", type=positive_float, default=None, help="time step (s)")
+    ap.add_argument("--count", type=int_in(1, MAX_TIME_STEPS), default=None, help=count_help)
+
+
+def sequence_times(scene, args) -> np.ndarray:
+    """The instants (s) of a sequence: --start/--step/--count where given, else the
+    scene's [time] table; one instant needs no step. Refused naming --step when neither
+    gives a step and a count."""
+    axis = scene.time_axis
+    start = args.start if args.start is not None else (axis.start_s if axis else 0.0)
+    step = args.step if args.step is not None else (axis.step_s if axis else None)
+    count = args.count if args.count is not None else (axis.count if axis else None)
+    if count == 1 and step is None:
+        step = 1.0
+    if step is None or count is None:
+        raise ArgumentError(f"{args.scene} has no [time] table: give --step and --count",
+                            argument="--step", value=None)
+    return start + step * np.arange(count, dtype=np.float64)
+
+
+def add_tracer_arguments(ap: argparse.ArgumentParser, *,
+                         device_help: str = "OpenCL device: 'gpu', 'cpu', 'P:D' or part of "
+                                            "its name") -> None:
+    """The tracer's knobs of a command that traces a sequence: --preset, --rays,
+    --reflections, --no-scattering, --engine and --device (read by
+    :func:`clradcom.commands.trace.settings_from_args`)."""
+    ap.add_argument("--preset", choices=tuple(PRESETS), default=DEFAULT_PRESET,
+                    help="the tracer's physics (default %(default)s)")
+    ap.add_argument("--rays", type=int_in(1, 10**9), default=None,
+                    help="rays launched per transmitter")
+    ap.add_argument("--reflections", type=int_in(0, 16), default=None,
+                    help="most specular reflections per path")
+    ap.add_argument("--no-scattering", action="store_true", help="no diffuse scattering")
+    ap.add_argument("--engine", choices=ENGINES, default="device",
+                    help="device (default) or host (the numpy reference)")
+    ap.add_argument("--device", default=None, help=device_help)
+    ap.set_defaults(no_sbr_mirrors=False)
 
 
 def add_waveform_arguments(ap: argparse.ArgumentParser, *,
