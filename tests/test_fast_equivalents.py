@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from clradcom.mechanisms.diffraction import _row_counts
+from clradcom.geometry.rows import row_counts
 
 
 def test_row_counts_match_numpy_unique_with_signed_zeros():
@@ -13,7 +13,7 @@ def test_row_counts_match_numpy_unique_with_signed_zeros():
         rows[zero] = np.where(rng.random(zero.sum()) < 0.5, 0.0, -0.0)  # -0.0 == 0.0
         _, inverse, counts = np.unique(rows, axis=0, return_inverse=True,
                                        return_counts=True)
-        got = _row_counts(rows)
+        got = row_counts(rows)
         assert np.array_equal(got, counts[inverse.reshape(-1)])
         assert got.min() >= 1 and got.max() > 1   # some rows repeat, so the check bites
-    assert _row_counts(np.zeros((0, 3))).shape == (0,)
+    assert row_counts(np.zeros((0, 3))).shape == (0,)

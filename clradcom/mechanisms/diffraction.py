@@ -46,6 +46,7 @@ from clradcom.device.visibility import (
     edge_distances,
 )
 from clradcom.errors import ArgumentError, ArgumentTypeError, BoundaryWarning, CausticWarning
+from clradcom.geometry.rows import row_counts
 from clradcom.geometry.wedges import (
     Wedges,
     diffraction_point,
@@ -603,30 +604,12 @@ def _face_outlines(triangles, tri_face, cache: dict):
         rows = np.concatenate([face[:, None].astype(np.float64),
                                np.where(first[:, None], a, b), np.where(first[:, None], b, a)],
                               axis=1)
-        rim = np.flatnonzero(_row_counts(rows) == 1)
+        rim = np.flatnonzero(row_counts(rows) == 1)
         rim = rim[np.argsort(face[rim], kind="stable")]
         n_faces = int(tri_face.max()) + 1 if len(tri_face) else 0
         cache["edges"] = e[rim]
         cache["first"] = np.searchsorted(face[rim], np.arange(n_faces + 1))
     return cache["edges"], cache["first"]
-
-
-def _row_counts(rows) -> np.ndarray:
-    """(N,) how many rows of ``rows`` (N, K) equal each one, coordinate for coordinate as
-    floats (what np.unique(rows, axis=0) counts), from one lexicographic sort: rows equal
-    in every column are neighbours in it."""
-    n = len(rows)
-    if n == 0:
-        return np.zeros(0, dtype=np.int64)
-    order = np.lexsort(rows.T[::-1])
-    srt = rows[order]
-    new = np.ones(n, dtype=bool)
-    new[1:] = np.any(srt[1:] != srt[:-1], axis=1)
-    group = np.cumsum(new) - 1
-    counts = np.bincount(group)
-    out = np.empty(n, dtype=np.int64)
-    out[order] = counts[group]
-    return out
 
 
 def _lex_less(a, b) -> np.ndarray:
