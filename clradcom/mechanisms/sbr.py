@@ -66,6 +66,7 @@ from clradcom.device import silhouette as device_silhouette
 from clradcom.device.raycast import make_rays, spawn_origins
 from clradcom.device.visibility import surface_sees
 from clradcom.errors import ArgumentError
+from clradcom.geometry.rows import unique_rows
 from clradcom.geometry.silhouette import BLOCK, block_coverage, project_to_plane
 from clradcom.geometry.triangles import triangle_normals, triangle_normals_and_double_areas
 from clradcom.paths import InteractionType, Paths
@@ -885,8 +886,7 @@ def block_paths(geom, windows: TubeWindows, sums: BlockSums, tx, rx, *, max_boun
     c_tx = np.asarray(tx.pattern.field(d_tx[seen]), dtype=np.complex128)
     c_rx = np.asarray(rx.pattern.field(d_rx[seen]), dtype=np.complex128)
     gain = np.einsum("pi,pij,pj->p", c_rx, c.matrix, c_tx)
-    _, group = np.unique(c.face, axis=0, return_inverse=True)
-    group = group.ravel()
+    _, group, _ = unique_rows(c.face)  # np.unique(c.face, axis=0)'s groups, by lexsort
     G = int(group.max()) + 1
     g_gain = np.zeros(G, np.complex128)
     np.add.at(g_gain, group, gain)
