@@ -5,7 +5,7 @@
  * does on PoCL: clradcom/device/runtime.py, Runtime.build) they become inline functions
  * here, evaluated as written without contraction, as PoCL's own are, so every kernel's
  * results stay bit for bit the same (golden snapshot, engine tests); measured on the
- * street: 6-12 % less SBR kernel time, ~10 % less in trace_reflections
+ * street: 6-12 % less SBR kernel time, ~8 % less in trace_reflections
  * (docs/performance.md). Included first by intersect.h, so it comes before any use. */
 #ifndef CLRADCOM_FASTMATH_H
 #define CLRADCOM_FASTMATH_H
