@@ -30,6 +30,7 @@
 #ifndef CLRADCOM_INTERSECT_H
 #define CLRADCOM_INTERSECT_H
 
+#include "fastmath.h"
 #include "types.h"
 
 /* From the host (clradcom/geometry/layout.py), like BVH_WIDTH in types.h. */

@@ -11,57 +11,6 @@
  * sequence) over the block and written as one SbrRecord. The formulas are the host
  * reference's (clradcom/mechanisms/sbr.py: shoot_tubes, _chains, _radiate, and
  * clradcom/physics/em.py: polarimetric_matrix), step for step. */
-/* PoCL (3.0, the suite's CPU device) turns these builtins into out-of-line calls into
- * its kernel library: a call for every dot product, absolute value or square root of
- * the tube loop. The host passes -D SBR_INLINE_BUILTINS=1 there and they become inline
- * functions, evaluated as written without contraction (as PoCL's own are: the records
- * stay bit for bit the same; 6-12 % less kernel time on the street). */
-#ifdef SBR_INLINE_BUILTINS
-#define CLR_INL static inline __attribute__((overloadable, always_inline))
-#pragma OPENCL FP_CONTRACT OFF
-CLR_INL float clr_dot(float3 a, float3 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
-CLR_INL float3 clr_cross(float3 a, float3 b)
-{
-    return (float3)(a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x);
-}
-CLR_INL float clr_fabs(float a) { return __builtin_fabsf(a); }
-CLR_INL float3 clr_fabs(float3 a)
-{
-    return (float3)(__builtin_fabsf(a.x), __builtin_fabsf(a.y), __builtin_fabsf(a.z));
-}
-CLR_INL float clr_sqrt(float a) { return __builtin_sqrtf(a); }
-CLR_INL float clr_fmax(float a, float b) { return __builtin_fmaxf(a, b); }
-CLR_INL float clr_fmin(float a, float b) { return __builtin_fminf(a, b); }
-#ifdef cl_khr_fp64
-CLR_INL double clr_dot(double3 a, double3 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
-CLR_INL double3 clr_cross(double3 a, double3 b)
-{
-    return (double3)(a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x);
-}
-CLR_INL double clr_fabs(double a) { return __builtin_fabs(a); }
-CLR_INL double3 clr_fabs(double3 a)
-{
-    return (double3)(__builtin_fabs(a.x), __builtin_fabs(a.y), __builtin_fabs(a.z));
-}
-CLR_INL double clr_sqrt(double a) { return __builtin_sqrt(a); }
-CLR_INL double clr_fmax(double a, double b) { return __builtin_fmax(a, b); }
-CLR_INL double clr_fmin(double a, double b) { return __builtin_fmin(a, b); }
-#endif
-#pragma OPENCL FP_CONTRACT ON
-#undef dot
-#undef cross
-#undef fabs
-#undef sqrt
-#undef fmax
-#undef fmin
-#define dot clr_dot
-#define cross clr_cross
-#define fabs clr_fabs
-#define sqrt clr_sqrt
-#define fmax clr_fmax
-#define fmin clr_fmin
-#endif
-
 #include "intersect.h"
 #include "precise.h"
 

@@ -95,3 +95,23 @@ def test_block_coverage_matches_every_pair_tested():
     got = block_coverage(tri, 0.4, (-3.0, -2.6), (15, 14))
     np.testing.assert_array_equal(got, coverage_brute(tri, 0.4, (-3.0, -2.6), (15, 14)))
     assert 0 < got.sum() < got.size
+
+
+def test_device_block_coverage_is_the_hosts_bit_for_bit(runtime):
+    from clradcom.device.silhouette import block_coverage as device_coverage
+
+    rng = np.random.default_rng(11)
+    tri = rng.uniform(-3.0, 3.0, size=(40, 1, 2)) + rng.normal(size=(40, 3, 2)) * 0.5
+    tri[:5] = tri[:5, :1] + 1e-3 * rng.normal(size=(5, 3, 2))   # tiny ones inside a block
+    tri[5:8] += 20.0                                             # outside the grid
+    tri[8:10, 2] = tri[8:10, 0] + 0.5 * (tri[8:10, 1] - tri[8:10, 0])  # edge-on: no area
+    for origin, shape in (((-3.0, -2.6), (15, 14)), ((-4.05, -3.3), (31, 29))):
+        want = block_coverage(tri, 0.2, origin, shape)
+        got = device_coverage(runtime, tri, 0.2, origin, shape, min_pairs=0)
+        assert got.dtype == bool and got.shape == tuple(shape)
+        np.testing.assert_array_equal(got, want)
+        assert 0 < got.sum() < got.size
+    # the host path below the pair threshold gives the same mask
+    np.testing.assert_array_equal(
+        device_coverage(runtime, tri, 0.2, (-3.0, -2.6), (15, 14), min_pairs=1 << 40),
+        block_coverage(tri, 0.2, (-3.0, -2.6), (15, 14)))

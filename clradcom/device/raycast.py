@@ -138,6 +138,7 @@ class RayCaster:
         self._bounds: tuple[np.ndarray, np.ndarray] | None = None
         self._data64: dict | None = None
         self._normals: np.ndarray | None = None
+        self._lattice: tuple | None = None   # (local lattice, its device buffer)
         # PoCL's CPU device uses USE_HOST_PTR memory in place (5% of the end-to-end
         # time saved on 500k rays); other devices get reused buffers and copies.
         self._zero_copy = rt.info.device_type == "CPU"
@@ -304,6 +305,49 @@ class RayCaster:
         return out
 
 
+    def lattice_sequences(self, origin, local, rotation, tri_face, max_order: int,
+                          batch: int = 1 << 20) -> np.ndarray:
+        """:meth:`specular_sequences` of the rays ``local @ rotation.T`` (local (R, 3)
+        float64 lattice, rotation (3, 3)), rotated on the device in double exactly as
+        numpy's column sums ``local[:, :1] * r[:, 0] + local[:, 1:2] * r[:, 1] +
+        local[:, 2:] * r[:, 2]`` do (kernels/reflect.cl: trace_reflections_rotated), so
+        the sequences are those of the host-rotated directions bit for bit. The lattice
+        is uploaded once and kept while ``local`` is the same array (a launch lattice
+        shared by transmitters and traces); without fp64 the host rotates."""
+        import pyopencl as cl
+
+        local = np.asarray(local)
+        r = np.asarray(rotation, dtype=np.float64)
+        if local.ndim != 2 or local.shape[1] != 3 or local.dtype != np.float64:
+            raise ArgumentError(f"local must be a float64 (R, 3) array, got {local.dtype} "
+                                f"{local.shape}", argument="local", value=local.shape)
+        if r.shape != (3, 3):
+            raise ArgumentError(f"rotation must be 3 x 3, got {r.shape}", argument="rotation",
+                                value=r.shape)
+        if not self.runtime.info.has_double or max_order < 1:
+            dirs = local[:, :1] * r[:, 0] + local[:, 1:2] * r[:, 1] + local[:, 2:] * r[:, 2]
+            return self.specular_sequences(origin, dirs, tri_face, max_order, batch)
+        rt = self.runtime
+        kernel = rt.kernel("reflect.cl", "trace_reflections_rotated", defines=self._defines())
+        o = np.asarray(origin, dtype=np.float64)
+        out = np.empty((len(local), max_order), dtype=np.int32)
+        with self._lock, rt.kernel_clock():
+            cached = getattr(self, "_lattice", None)
+            if cached is None or cached[0] is not local:
+                self._lattice = cached = (local, rt.to_device(np.ascontiguousarray(local)))
+            face_buf = rt.to_device(np.asarray(tri_face, dtype=np.int32))
+            for start in range(0, len(local), batch):
+                n = min(batch, len(local) - start)
+                o_buf = rt.empty(n * max_order * 4)
+                size = self.LOCAL_SIZE   # whole work-groups, as in specular_sequences
+                kernel(rt.queue, (-(-n // size) * size,), (size,), self._nodes, self._tri4,
+                       self._slot_prim, face_buf, np.float32(o[0]), np.float32(o[1]),
+                       np.float32(o[2]), cached[1], *(np.float64(x) for x in r.ravel()),
+                       np.int32(start), np.int32(max_order), o_buf, np.int32(n))
+                cl.enqueue_copy(rt.queue, out[start:start + n], o_buf)
+        return out
+
+
 class InstancedCaster(RayCaster):
     """A :class:`RayCaster` over a two-level BVH (docs/bvh.md, "Two levels"): one
     bottom-level tree per *part* (the static scene, each rigid moving object), built once
@@ -467,6 +511,10 @@ class InstancedCaster(RayCaster):
     def specular_sequences(self, *args, **kwargs) -> np.ndarray:
         self._check_placed()
         return super().specular_sequences(*args, **kwargs)
+
+    def lattice_sequences(self, *args, **kwargs) -> np.ndarray:
+        self._check_placed()
+        return super().lattice_sequences(*args, **kwargs)
 
     def _check_placed(self):
         if not self._placed:

@@ -251,6 +251,11 @@ class Runtime:
         self._kernels: dict[tuple, object] = {}
         self._lock = threading.Lock()
         self._kernel_seconds = 0.0
+        #: -D CLR_INLINE_BUILTINS=1 on every build (kernels/fastmath.h): PoCL calls its
+        #: builtins (dot, fabs, sqrt, ...) out of line, and inline ones with the same
+        #: arithmetic give the same bits in less time. A plain attribute, so a benchmark
+        #: can build both variants in one process (the program cache keys on it).
+        self.inline_builtins = _is_pocl(self.info)
 
     @property
     def kernel_seconds(self) -> float:
@@ -280,7 +285,7 @@ class Runtime:
         """Built program for ``kernels/<name>``, compiled once per runtime, options and
         defines."""
         options = tuple(options) + define_options(defines)
-        key = (name, options)
+        key = (name, options, self.inline_builtins)
         with self._lock:
             prog = self._programs.get(key)
             if prog is None:
@@ -292,7 +297,7 @@ class Runtime:
                defines: Mapping[str, int] | None = None):
         """One cached Kernel object per (program, kernel): pyopencl makes a new one per lookup."""
         options = tuple(options) + define_options(defines)
-        key = (name, options, kernel_name)
+        key = (name, options, kernel_name, self.inline_builtins)
         with self._lock:
             k = self._kernels.get(key)
         if k is None:
@@ -303,9 +308,12 @@ class Runtime:
 
     def build(self, source: str, name: str, options: tuple[str, ...] = (),
               defines: Mapping[str, int] | None = None):
-        """Compile ``source``; a failure raises OpenCLError naming file, line and log."""
+        """Compile ``source``; a failure raises OpenCLError naming file, line and log.
+        On PoCL (:attr:`inline_builtins`) the build also gets -D CLR_INLINE_BUILTINS=1."""
         cl = _cl()
         options = tuple(options) + define_options(defines)
+        if self.inline_builtins:
+            options += ("-DCLR_INLINE_BUILTINS=1",)
         try:
             return cl.Program(self.context, source).build(options=list(options))
         except cl.RuntimeError as exc:

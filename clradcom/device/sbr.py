@@ -88,7 +88,7 @@ def record_size(runtime, max_bounces: int, precision: str = "fp64") -> int:
     import pyopencl as cl
 
     kernel = runtime.kernel("sbr.cl", "sbr_record_size", _options(precision),
-                            defines=_defines(max_bounces, precision, _is_pocl(runtime)))
+                            defines=_defines(max_bounces, precision))
     out = np.zeros(1, dtype=np.int32)
     buf = runtime.empty(4)
     kernel(runtime.queue, (1,), None, buf)
@@ -102,17 +102,9 @@ def _options(precision: str) -> tuple:
     return ("-cl-single-precision-constant",) if precision != "fp64" else ()
 
 
-def _is_pocl(runtime) -> bool:
-    name = runtime.info.platform_name.lower()
-    return "portable computing language" in name or "pocl" in name
-
-
-def _defines(max_bounces: int, precision: str, inline_builtins: bool = False) -> dict:
-    """``inline_builtins``: PoCL, whose builtins are out-of-line calls (kernels/sbr.cl)."""
+def _defines(max_bounces: int, precision: str) -> dict:
     out = {**KERNEL_DEFINES, "SBR_MAX_BOUNCES": int(max_bounces),
            "SBR_TRI_SLOTS": tri_slots(max_bounces), "SBR_BLOCK": BLOCK, "SBR_GROUPS": GROUPS}
-    if inline_builtins:
-        out["SBR_INLINE_BUILTINS"] = 1
     if precision == "double-float":
         out["CLRADCOM_NO_FP64"] = 1
     elif precision == CONTROL_PRECISION:
@@ -207,7 +199,7 @@ def shoot_and_radiate(caster: RayCaster, scene, tri_face, windows, tx_frame, rec
         raise ArgumentError("at most 32767 receivers per transmitter", argument="receivers",
                             value=len(receivers))
     dtype = record_dtype(max_bounces, precision)
-    defines = _defines(max_bounces, precision, _is_pocl(rt))
+    defines = _defines(max_bounces, precision)
     real = np.float64 if fp64 else np.float32
     mat_f, mat_i = _tables(scene)
     win_f, win_i, blocks = _windows(windows)

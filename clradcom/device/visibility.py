@@ -38,6 +38,7 @@ import numpy as np
 
 from clradcom.device.raycast import RayCaster, make_rays, spawn_origins
 from clradcom.errors import ArgumentError
+from clradcom.geometry.rows import row_counts
 from clradcom.geometry.triangles import triangle_cross_products, triangle_normals
 
 #: Where the visibility decisions are made: "device" (kernels/visibility.cl, float64 on
@@ -351,8 +352,7 @@ def face_tables(triangles, tri_face) -> dict:
     rows = np.concatenate([np.repeat(tri_face[:, None], 3, axis=1)[..., None].astype(np.float64),
                            lo, hi], axis=2).reshape(-1, 7)
     if T:
-        _, inverse, counts = np.unique(rows, axis=0, return_inverse=True, return_counts=True)
-        seam = (counts[inverse.reshape(-1)] >= 2).reshape(T, 3)
+        seam = (row_counts(rows) >= 2).reshape(T, 3)
     else:
         seam = np.zeros((0, 3), dtype=bool)
     order = np.argsort(tri_face, kind="stable")

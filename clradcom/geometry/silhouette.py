@@ -17,7 +17,7 @@ import numpy as np
 
 from clradcom.errors import ArgumentError
 
-__all__ = ["BLOCK", "block_coverage", "project_to_plane"]
+__all__ = ["BLOCK", "block_coverage", "cover_blocks", "coverage_setup", "project_to_plane"]
 
 #: Cells per block side: a block is the unit of launch (BLOCK**2 tubes, one work-group's
 #: worth) and of the coverage masks.
@@ -39,12 +39,13 @@ def project_to_plane(points, eye, axis, u, v, distance):
     return x, y, depth
 
 
-def block_coverage(tri_xy, block_size: float, origin, shape) -> np.ndarray:
-    """(shape) bool: the blocks of a grid that the 2-D triangles ``tri_xy`` (T, 3, 2) overlap.
-
-    Block (i, j) is the square [origin + (i, j) * block_size, origin + (i+1, j+1) *
-    block_size]. Triangles of (near) zero area, seen edge-on, cover nothing.
-    """
+def coverage_setup(tri_xy, block_size: float, shape, origin=(0.0, 0.0)) -> dict | None:
+    """The separating-axis data of :func:`block_coverage` for the triangles that can
+    cover a block: ``nrm`` (T, 3, 2) outward edge normals, ``off`` (T, 3) the triangle
+    lies where n.p <= off, ``radius`` (T, 3) the half block's reach along each normal,
+    ``lo`` (T, 2) first block and ``cnt`` (T, 2) blocks of each triangle's box in the
+    grid, ``n_pairs`` (T,) their products. None: nothing to test (the mask stays
+    empty). Checks the arguments."""
     tri = np.asarray(tri_xy, dtype=np.float64)
     if tri.ndim != 3 or tri.shape[1:] != (3, 2):
         raise ArgumentError(f"tri_xy must have shape (T, 3, 2), got {tri.shape}")
@@ -52,9 +53,8 @@ def block_coverage(tri_xy, block_size: float, origin, shape) -> np.ndarray:
         raise ArgumentError("must be a positive number", argument="block_size",
                             value=block_size)
     nx, ny = (int(n) for n in shape)
-    mask = np.zeros((nx, ny), dtype=bool)
     if len(tri) == 0 or nx == 0 or ny == 0:
-        return mask
+        return None
     ox, oy = (float(o) for o in origin)
     e = tri[:, [1, 2, 0]] - tri  # edges v_k -> v_{k+1}
     area2 = e[:, 0, 0] * e[:, 1, 1] - e[:, 0, 1] * e[:, 1, 0]
@@ -74,8 +74,34 @@ def block_coverage(tri_xy, block_size: float, origin, shape) -> np.ndarray:
     off = np.einsum("tkc,tkc->tk", nrm, tri)  # triangle lies where n.p <= off
     half = 0.5 * block_size
     radius = half * np.abs(nrm).sum(axis=-1)  # (T, 3): the square's reach along each normal
+    return {"nrm": nrm, "off": off, "radius": radius, "lo": lo, "cnt": cnt,
+            "n_pairs": n_pairs}
+
+
+def block_coverage(tri_xy, block_size: float, origin, shape) -> np.ndarray:
+    """(shape) bool: the blocks of a grid that the 2-D triangles ``tri_xy`` (T, 3, 2) overlap.
+
+    Block (i, j) is the square [origin + (i, j) * block_size, origin + (i+1, j+1) *
+    block_size]. Triangles of (near) zero area, seen edge-on, cover nothing. Block
+    centres are ``origin + (i + 1/2) * block_size``; a block is covered where, for all
+    three edges k, ``(n_k,x c_x + n_k,y c_y) - r_k <= off_k`` (:func:`coverage_setup`):
+    the device's kernels/silhouette.cl evaluates the same expressions.
+    """
+    return cover_blocks(coverage_setup(tri_xy, block_size, shape, origin), block_size,
+                        origin, shape)
+
+
+def cover_blocks(setup: dict | None, block_size: float, origin, shape) -> np.ndarray:
+    """:func:`block_coverage`'s mask from its :func:`coverage_setup` (the pair tests)."""
+    nx, ny = (int(n) for n in shape)
+    mask = np.zeros((nx, ny), dtype=bool)
+    if setup is None:
+        return mask
+    ox, oy = (float(o) for o in origin)
+    nrm, off, radius = setup["nrm"], setup["off"], setup["radius"]
+    lo, cnt, n_pairs = setup["lo"], setup["cnt"], setup["n_pairs"]
     start = 0
-    while start < len(tri):
+    while start < len(nrm):
         # as many triangles as keep the pair count under the chunk size (at least one)
         cum = np.cumsum(n_pairs[start:])
         stop = start + max(1, int(np.searchsorted(cum, _PAIR_CHUNK, side="right")))

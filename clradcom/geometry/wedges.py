@@ -24,6 +24,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from clradcom.errors import ArgumentError
+from clradcom.geometry.rows import unique_rows
 from clradcom.geometry.triangles import triangle_normals_and_double_areas
 
 __all__ = ["Wedges", "extract_wedges", "weld_vertices", "DiffractionPoint",
@@ -95,8 +96,7 @@ def weld_vertices(points, tol: float) -> np.ndarray:
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     if len(pts) == 0:
         return np.zeros(0, dtype=np.int64)
-    uniq, inverse = np.unique(pts, axis=0, return_inverse=True)
-    inverse = inverse.reshape(-1)
+    uniq, inverse, _ = unique_rows(pts)  # np.unique(pts, axis=0)'s, by one lexsort
     if tol <= 0 or len(uniq) == 1:
         return inverse.astype(np.int64)
     pairs = cKDTree(uniq).query_pairs(tol, output_type="ndarray")
@@ -199,8 +199,7 @@ def extract_wedges(triangles, tri_object, tri_material, angle_threshold_deg: flo
     keys = np.column_stack([obj[t_idx], np.minimum(a, b), np.maximum(a, b)])
     if len(keys) == 0:
         return _empty_wedges(stats)
-    _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
-    inverse = inverse.reshape(-1)
+    _, inverse, counts = unique_rows(keys)  # np.unique(keys, axis=0)'s, by one lexsort
     order = np.argsort(inverse, kind="stable")
     first = np.searchsorted(inverse[order], np.arange(len(counts)))
     stats["nonmanifold"] = int(np.count_nonzero(counts >= 3))

@@ -46,6 +46,7 @@ from clradcom.device.visibility import (
     edge_distances,
 )
 from clradcom.errors import ArgumentError, ArgumentTypeError, BoundaryWarning, CausticWarning
+from clradcom.geometry.rows import row_counts
 from clradcom.geometry.wedges import (
     Wedges,
     diffraction_point,
@@ -507,9 +508,10 @@ def wedges_seeing(caster, wedges: Wedges, point, samples=(0.25, 0.5, 0.75), tri_
 
 
 def _seeing(caster, wedges: Wedges, point, samples=(0.25, 0.5, 0.75), tri_face=None,
-            max_depth: int = SEEING_MAX_DEPTH):
+            max_depth: int = SEEING_MAX_DEPTH, outlines: dict | None = None):
     """(seen at the samples, kept): :func:`wedges_seeing`'s mask and the part of it the
-    sample sight lines alone decided."""
+    sample sight lines alone decided.  ``outlines``: :func:`_face_outlines`' cache, which
+    callers with one ``tri_face`` may share between points."""
     W = len(wedges)
     seen = np.zeros(W, dtype=bool)
     if W == 0:
@@ -548,7 +550,7 @@ def _seeing(caster, wedges: Wedges, point, samples=(0.25, 0.5, 0.75), tri_face=N
     s0, s1 = knots[:, :-1].ravel(), knots[:, 1:].ravel()
     b0 = prim_k.reshape(-1, 5)[:, :-1].ravel()
     b1 = prim_k.reshape(-1, 5)[:, 1:].ravel()
-    outlines: dict = {}
+    outlines = {} if outlines is None else outlines
     for depth in range(max_depth + 1):
         keep = ~seen[w_p] & (s1 > s0)
         # the face first met at either end may hide the whole piece (a car in front of a
@@ -602,8 +604,7 @@ def _face_outlines(triangles, tri_face, cache: dict):
         rows = np.concatenate([face[:, None].astype(np.float64),
                                np.where(first[:, None], a, b), np.where(first[:, None], b, a)],
                               axis=1)
-        _, inverse, counts = np.unique(rows, axis=0, return_inverse=True, return_counts=True)
-        rim = np.flatnonzero(counts[inverse.reshape(-1)] == 1)
+        rim = np.flatnonzero(row_counts(rows) == 1)
         rim = rim[np.argsort(face[rim], kind="stable")]
         n_faces = int(tri_face.max()) + 1 if len(tri_face) else 0
         cache["edges"] = e[rim]
@@ -834,8 +835,8 @@ def diffraction_candidates(caster, wedges: Wedges, tx_pos, rx_pos, tx_sequences:
 
     ``stats`` (a dict) receives ``chains_over_cap``: chains the cap left out.
     ``tri_face``: the planar face of every triangle, for :func:`wedges_seeing`;
-    ``seeing`` (a dict) keeps its masks per antenna position, for the next links of a
-    trace.
+    ``seeing`` (a dict) keeps its masks per antenna position, and the planar faces'
+    outlines, for the next links of a trace.
     """
     stats = {} if stats is None else stats
     stats.setdefault("chains_over_cap", 0)
@@ -846,7 +847,8 @@ def diffraction_candidates(caster, wedges: Wedges, tx_pos, rx_pos, tx_sequences:
     def seen_from(pos):
         key = tuple(float(x) for x in np.asarray(pos, dtype=np.float64))
         if key not in seeing:
-            seeing[key] = _seeing(caster, wedges, pos, tri_face=tri_face)
+            seeing[key] = _seeing(caster, wedges, pos, tri_face=tri_face,
+                                  outlines=seeing.setdefault("face outlines", {}))
         return seeing[key]
 
     (sampled_tx, seen_tx), (sampled_rx, seen_rx) = seen_from(tx_pos), seen_from(rx_pos)

@@ -55,15 +55,18 @@ way.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
 from clradcom.device import sbr as device_sbr
+from clradcom.device import silhouette as device_silhouette
 from clradcom.device.raycast import make_rays, spawn_origins
 from clradcom.device.visibility import surface_sees
 from clradcom.errors import ArgumentError
+from clradcom.geometry.rows import unique_rows
 from clradcom.geometry.silhouette import BLOCK, block_coverage, project_to_plane
 from clradcom.geometry.triangles import triangle_normals, triangle_normals_and_double_areas
 from clradcom.paths import InteractionType, Paths
@@ -276,10 +279,11 @@ def _project(tri, tx, axis, u, v, distance):
     return np.stack([x, y], axis=-1), depth
 
 
-def _window(tx, centre, spacing, triangles, clip=None):
+def _window(tx, centre, spacing, triangles, clip=None, cover=block_coverage):
     """One window aimed at ``centre`` covering ``triangles`` (and, when given, only
     where the ``clip`` triangles also cover): (frame, cell0, shape, mask), or None when
-    the triangles do not lie well in front of tx."""
+    the triangles do not lie well in front of tx.  ``cover``: the block raster,
+    :func:`clradcom.geometry.silhouette.block_coverage` or a device's equal one."""
     rel = centre - tx
     D = float(np.linalg.norm(rel))
     if D == 0.0:
@@ -293,7 +297,7 @@ def _window(tx, centre, spacing, triangles, clip=None):
     hi = np.floor(xy.reshape(-1, 2).max(axis=0) / spacing + 0.5).astype(np.int64) + 1
     shape = -(-(hi - lo + 1) // BLOCK)
     origin = (lo - 0.5) * spacing
-    mask = block_coverage(xy, BLOCK * spacing, origin, shape)
+    mask = cover(xy, BLOCK * spacing, origin, shape)
     if clip is not None and mask.any():
         # only blocks of the mask matter: clip triangles that project wholly beside the
         # covered blocks' rectangle cover none of them
@@ -302,8 +306,7 @@ def _window(tx, centre, spacing, triangles, clip=None):
         rect_hi = origin + (ij.max(axis=0) + 1) * (BLOCK * spacing)
         clip = clip[~_beside(clip, tx, axis, u, v, D, rect_lo, rect_hi)]
         clip = _clip_near(clip, tx, axis, MIN_DEPTH_FRACTION * D)
-        mask &= block_coverage(_project(clip, tx, axis, u, v, D)[0], BLOCK * spacing,
-                               origin, shape)
+        mask &= cover(_project(clip, tx, axis, u, v, D)[0], BLOCK * spacing, origin, shape)
     if not mask.any():
         return None
     return axis, u, v, D, lo, shape, mask
@@ -363,8 +366,12 @@ def launch_windows(geom, tx_pos, objects, spacing_m, *, mirrors: bool = True,
     centre lie in front of, clipped to that face's own silhouette.  An object too close to
     tx for one window (a guard rail beside the radar, the radar's own car) is split into
     groups of triangles (:func:`_chunks`) with a window each; triangles within their own
-    size of tx get none (a warning counts them), their PO facets stay."""
+    size of tx get none (a warning counts them), their PO facets stay.  The device engine
+    rasters large silhouettes in a kernel (:mod:`clradcom.device.silhouette`, the same
+    masks)."""
     scene = geom.scene
+    cover = (functools.partial(device_silhouette.block_coverage, geom.runtime)
+             if geom.engine == "device" else block_coverage)
     tx = np.asarray(tx_pos, dtype=np.float64)
     objects = np.asarray(list(objects), dtype=np.int64)
     spacing = np.broadcast_to(np.asarray(spacing_m, dtype=np.float64), objects.shape)
@@ -385,7 +392,7 @@ def launch_windows(geom, tx_pos, objects, spacing_m, *, mirrors: bool = True,
                           f"returns stay", stacklevel=3)
         for tris in chunks:
             c, r = bounding_sphere(tris)
-            win = _window(tx, c, s, tris)
+            win = _window(tx, c, s, tris, cover=cover)
             if win is not None:
                 direct.append((o, -1, s, win))
             # mirrors in front of which the chunk lies, whose box (grown by the chunk's
@@ -401,7 +408,7 @@ def launch_windows(geom, tx_pos, objects, spacing_m, *, mirrors: bool = True,
                                    strict=True):
                 image = tris - 2.0 * ((tris @ n) - d)[..., None] * n
                 win = _window(tx, ci, s, image,
-                              clip=scene.triangles[geom.faces.tri_face == f])
+                              clip=scene.triangles[geom.faces.tri_face == f], cover=cover)
                 if win is not None:
                     mirrored.append((o, int(f), s, win))
     wins = direct + mirrored
@@ -879,8 +886,7 @@ def block_paths(geom, windows: TubeWindows, sums: BlockSums, tx, rx, *, max_boun
     c_tx = np.asarray(tx.pattern.field(d_tx[seen]), dtype=np.complex128)
     c_rx = np.asarray(rx.pattern.field(d_rx[seen]), dtype=np.complex128)
     gain = np.einsum("pi,pij,pj->p", c_rx, c.matrix, c_tx)
-    _, group = np.unique(c.face, axis=0, return_inverse=True)
-    group = group.ravel()
+    _, group, _ = unique_rows(c.face)  # np.unique(c.face, axis=0)'s groups, by lexsort
     G = int(group.max()) + 1
     g_gain = np.zeros(G, np.complex128)
     np.add.at(g_gain, group, gain)

@@ -291,10 +291,10 @@ def prepare(geom: Geometry, tx: Radar, settings: SpecularSettings) -> Candidates
         return {}
     local = _lattice_of(settings.rays, tx.pattern)
     rot = np.asarray(tx.orientation, dtype=np.float64)
-    # local @ rot.T by columns: a (n,3) x (3,3) product that BLAS threads only slow down
-    dirs = local[:, :1] * rot[:, 0] + local[:, 1:2] * rot[:, 1] + local[:, 2:] * rot[:, 2]
-    seqs = reflection_sequences(geom.caster, geom.faces.tri_face, tx.position, dirs,
-                                settings.max_reflections)
+    # local @ rot.T by columns (a (n,3) x (3,3) product that BLAS threads only slow down),
+    # on the device, where the lattice stays between transmitters: the same rays
+    seqs = geom.caster.lattice_sequences(tx.position, local, rot, geom.faces.tri_face,
+                                         settings.max_reflections)
     return unique_candidates(seqs)
 
 
