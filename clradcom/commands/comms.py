@@ -32,6 +32,8 @@ from pathlib import Path
 
 from clradcom.commands.options import (
     add_waveform_arguments,
+    check_exact_frame_memory,
+    check_two_radars,
     command_parser,
     finite_float,
     list_of,
@@ -46,6 +48,8 @@ from clradcom.commands.options import (
     read_snapshot,
     run_tool,
     run_waveform,
+    scene_noise_figure,
+    scene_radar_indices,
     seed,
     trace_into,
 )
@@ -62,8 +66,6 @@ from clradcom.radar.comms import (
     monte_carlo,
 )
 from clradcom.radar.interference import MAX_FREQUENCY_OFFSET
-from clradcom.radar.pipeline import check_frame_memory
-from clradcom.radar.synthesis import check_noise_figure
 from clradcom.scene.reader import load_scene
 from clradcom.trace import check_launch_memory
 
@@ -123,31 +125,16 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
 
 def check_args(ap: argparse.ArgumentParser, args) -> None:
     """What argparse alone cannot refuse: the scene or a snapshot, two different radars."""
-    if (args.scene is None) == (args.snapshot is None):
-        ap.error("give either a scene file or --snapshot (exactly one)")
-    if args.tx == args.rx:
-        ap.error(f"--rx must be another radar than --tx ({args.tx!r})")
+    check_two_radars(ap, args, "--tx", "--rx")
 
 
 def scene_radars(args, scene):
     """(sender's power, receiver's noise figure) from the scene, refused by scene key."""
-    names = [r.name for r in scene.radars]
-    for option, name in (("--tx", args.tx), ("--rx", args.rx)):
-        if name not in names:
-            raise ArgumentError(f"{args.scene} has no radar of that name (radars: "
-                                f"{sorted(names)})", argument=option, value=name)
-    it, ir = names.index(args.tx), names.index(args.rx)
+    it, ir = scene_radar_indices(scene, args, "--tx", "--rx")
     if scene.radars[it].tx_power_w == 0:
         raise SceneError("the sending radar transmits nothing: there is no link to decode",
                          file=scene.source, key=f"radars[{it}].tx_power_w", value=0.0)
-    nf = scene.radars[ir].noise_figure_db
-    nf = args.noise_figure_db if nf is None else nf
-    try:
-        check_noise_figure(nf)
-    except ArgumentError as exc:
-        raise SceneError(exc.reason, file=scene.source, key=f"radars[{ir}].noise_figure_db",
-                         value=nf) from None
-    return scene.radars[it].tx_power_w, nf
+    return scene.radars[it].tx_power_w, scene_noise_figure(scene, ir, args.noise_figure_db)
 
 
 def link_paths(snap, args, source):
@@ -201,9 +188,7 @@ def run(args) -> int:
         paths = link_paths(snap, args, args.snapshot)
     print(frame, flush=True)
     check_run(args, wf)
-    check_frame_memory(wf, "exact", copies=2, argument="--subcarriers x --symbols",
-                       value=f"{wf.n_subcarriers} x {wf.n_symbols}",
-                       advice="choose fewer --subcarriers or --symbols")
+    check_exact_frame_memory(wf)
     pattern = PilotPattern.named(args.pilots, args.pilot_step)
     with staged_folder(out, inputs=[source], owned=owned) as stage:
         if args.scene is not None:

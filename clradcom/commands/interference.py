@@ -54,6 +54,8 @@ from pathlib import Path
 
 from clradcom.commands.options import (
     add_waveform_arguments,
+    check_exact_frame_memory,
+    check_two_radars,
     command_parser,
     finite_float,
     noise_figure_db,
@@ -66,6 +68,8 @@ from clradcom.commands.options import (
     read_snapshot,
     run_tool,
     run_waveform,
+    scene_noise_figure,
+    scene_radar_indices,
     seed,
     trace_into,
 )
@@ -73,7 +77,6 @@ from clradcom.errors import ArgumentError, SceneError, SnapshotError
 from clradcom.files import staged_folder
 from clradcom.presets import DEFAULT_PRESET, PRESETS
 from clradcom.radar.interference import MAX_FREQUENCY_OFFSET, two_radar_run
-from clradcom.radar.pipeline import check_frame_memory
 from clradcom.radar.plots import save_interference_images
 from clradcom.radar.report import (
     INTERFERENCE_IMAGES,
@@ -82,7 +85,6 @@ from clradcom.radar.report import (
     recovered_detections,
     write_table,
 )
-from clradcom.radar.synthesis import check_noise_figure
 from clradcom.scene.reader import load_scene
 from clradcom.trace import check_launch_memory
 
@@ -143,21 +145,13 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
 
 def check_args(ap: argparse.ArgumentParser, args) -> None:
     """What argparse alone cannot refuse: the scene or a snapshot, two different radars."""
-    if (args.scene is None) == (args.snapshot is None):
-        ap.error("give either a scene file or --snapshot (exactly one)")
-    if args.victim == args.interferer:
-        ap.error(f"--interferer must be another radar than --victim ({args.victim!r})")
+    check_two_radars(ap, args, "--victim", "--interferer")
 
 
 def scene_radars(args, scene):
     """(victim's power, interferer's power, victim's noise figure) from the scene, each
     refused by its scene key where the run could not use it."""
-    names = [r.name for r in scene.radars]
-    for option, name in (("--victim", args.victim), ("--interferer", args.interferer)):
-        if name not in names:
-            raise ArgumentError(f"{args.scene} has no radar of that name (radars: "
-                                f"{sorted(names)})", argument=option, value=name)
-    iv, id_ = names.index(args.victim), names.index(args.interferer)
+    iv, id_ = scene_radar_indices(scene, args, "--victim", "--interferer")
     va, vd = scene.radars[iv], scene.radars[id_]
     if va.tx_power_w == 0:
         raise SceneError("the victim radar transmits nothing, so it has no echoes to image",
@@ -166,13 +160,7 @@ def scene_radars(args, scene):
         raise SceneError("the interfering radar transmits nothing, so there is no "
                          "interference to show", file=scene.source,
                          key=f"radars[{id_}].tx_power_w", value=0.0)
-    nf = va.noise_figure_db if va.noise_figure_db is not None else args.noise_figure_db
-    try:
-        check_noise_figure(nf)
-    except ArgumentError as exc:
-        raise SceneError(exc.reason, file=scene.source, key=f"radars[{iv}].noise_figure_db",
-                         value=nf) from None
-    return va.tx_power_w, vd.tx_power_w, nf
+    return va.tx_power_w, vd.tx_power_w, scene_noise_figure(scene, iv, args.noise_figure_db)
 
 
 def check_offsets(args, wf) -> None:
@@ -226,9 +214,7 @@ def run(args) -> int:
         own, dl = link_paths(snap, args, args.snapshot)
     print(frame, flush=True)
     check_offsets(args, wf)
-    check_frame_memory(wf, "exact", copies=2, argument="--subcarriers x --symbols",
-                       value=f"{wf.n_subcarriers} x {wf.n_symbols}",
-                       advice="choose fewer --subcarriers or --symbols")
+    check_exact_frame_memory(wf)
     with staged_folder(out, inputs=[source], owned=owned) as stage:
         if args.scene is not None:
             snap = trace_into(stage, scene, preset_settings(args), args)

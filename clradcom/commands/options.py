@@ -39,6 +39,8 @@ from clradcom.errors import (
 from clradcom.files import OutputError
 from clradcom.mechanisms.common import ENGINES
 from clradcom.presets import DEFAULT_PRESET, PRESETS
+from clradcom.radar.pipeline import check_frame_memory
+from clradcom.radar.synthesis import check_noise_figure
 from clradcom.radar.waveform import Waveform, round_cyclic_prefix
 from clradcom.scene.motion import MAX_TIME_STEPS
 from clradcom.scene.records import MODULATIONS
@@ -264,6 +266,50 @@ def add_tracer_arguments(ap: argparse.ArgumentParser, *,
                     help="device (default) or host (the numpy reference)")
     ap.add_argument("--device", default=None, help=device_help)
     ap.set_defaults(no_sbr_mirrors=False)
+
+
+def check_two_radars(ap: argparse.ArgumentParser, args, first: str, second: str) -> None:
+    """What argparse alone cannot refuse in a command between two radars of a scene or a
+    snapshot: exactly one of the scene file and --snapshot, and two different radars
+    (the options ``first`` and ``second``, e.g. "--tx" and "--rx")."""
+    if (args.scene is None) == (args.snapshot is None):
+        ap.error("give either a scene file or --snapshot (exactly one)")
+    a = getattr(args, first.lstrip("-").replace("-", "_"))
+    if a == getattr(args, second.lstrip("-").replace("-", "_")):
+        ap.error(f"{second} must be another radar than {first} ({a!r})")
+
+
+def scene_radar_indices(scene, args, *options: str) -> list[int]:
+    """The indices in ``scene.radars`` of the radars that ``options`` (e.g. "--tx",
+    "--rx") name; one the scene lacks refused naming the option and the scene's radars."""
+    names = [r.name for r in scene.radars]
+    picked = [getattr(args, o.lstrip("-").replace("-", "_")) for o in options]
+    for option, name in zip(options, picked, strict=True):
+        if name not in names:
+            raise ArgumentError(f"{args.scene} has no radar of that name (radars: "
+                                f"{sorted(names)})", argument=option, value=name)
+    return [names.index(name) for name in picked]
+
+
+def scene_noise_figure(scene, index: int, fallback: float) -> float:
+    """Radar ``index``'s noise figure in dB (``fallback``, the option's, where the scene
+    gives none), refused by its scene key where it is not a usable one."""
+    nf = scene.radars[index].noise_figure_db
+    nf = fallback if nf is None else nf
+    try:
+        check_noise_figure(nf)
+    except ArgumentError as exc:
+        raise SceneError(exc.reason, file=scene.source,
+                         key=f"radars[{index}].noise_figure_db", value=nf) from None
+    return nf
+
+
+def check_exact_frame_memory(wf: Waveform) -> None:
+    """The frame of an exact time-domain synthesis with two copies fits in memory; else
+    refused naming --subcarriers x --symbols."""
+    check_frame_memory(wf, "exact", copies=2, argument="--subcarriers x --symbols",
+                       value=f"{wf.n_subcarriers} x {wf.n_symbols}",
+                       advice="choose fewer --subcarriers or --symbols")
 
 
 def add_waveform_arguments(ap: argparse.ArgumentParser, *,
