@@ -53,6 +53,7 @@ from pathlib import Path
 import numpy as np
 
 from clradcom.commands.options import (
+    add_frame_arguments,
     add_sequence_arguments,
     add_tracer_arguments,
     add_waveform_arguments,
@@ -61,7 +62,6 @@ from clradcom.commands.options import (
     output_folder,
     positive_float,
     run_waveform,
-    seed,
     sequence_times,
 )
 from clradcom.commands.sweep import add_cluster_arguments, cluster_text
@@ -69,7 +69,7 @@ from clradcom.commands.trace import radar_noise, settings_from_args
 from clradcom.distributed import run_drive
 from clradcom.errors import ArgumentError
 from clradcom.files import save_figure, staged_folder
-from clradcom.radar.pipeline import SYNTHESIS_METHODS, check_frame_memory
+from clradcom.radar.pipeline import check_frame_memory
 from clradcom.radar.report import write_table
 from clradcom.radar.tracking import SCORE_DTYPE, TRACK_DTYPE, score_summary
 from clradcom.radar.video import (
@@ -119,11 +119,8 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
     g.add_argument("--min-snr-db", type=finite_float, default=MIN_SNR_DB,
                    help="an object in the beam is visible when its echoes reach this SNR "
                         "(dB, default %(default)s)")
-    g.add_argument("--synthesis", choices=SYNTHESIS_METHODS, default="fast",
-                   help="fast: frequency-domain model; exact: time-domain with ICI/ISI")
-    g.add_argument("--seed", type=seed, default=0,
-                   help="seed of frame 0's OFDM data (frame k: seed + 2k; noise + 1)")
-    g.add_argument("--no-noise", action="store_true", help="leave thermal noise out")
+    add_frame_arguments(g, seed_help="seed of frame 0's OFDM data (frame k: seed + 2k; "
+                                     "noise + 1)")
     add_cluster_arguments(ap).add_argument(
         "--chunk", type=int_in(1, MAX_TIME_STEPS), default=None,
         help="consecutive steps per task (default: the steps shared out evenly, one task "

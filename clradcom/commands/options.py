@@ -39,7 +39,7 @@ from clradcom.errors import (
 from clradcom.files import OutputError
 from clradcom.mechanisms.common import ENGINES
 from clradcom.presets import DEFAULT_PRESET, PRESETS
-from clradcom.radar.pipeline import check_frame_memory
+from clradcom.radar.pipeline import SYNTHESIS_METHODS, check_frame_memory
 from clradcom.radar.synthesis import check_noise_figure
 from clradcom.radar.waveform import Waveform, round_cyclic_prefix
 from clradcom.scene.motion import MAX_TIME_STEPS
@@ -310,6 +310,16 @@ def check_exact_frame_memory(wf: Waveform) -> None:
     check_frame_memory(wf, "exact", copies=2, argument="--subcarriers x --symbols",
                        value=f"{wf.n_subcarriers} x {wf.n_symbols}",
                        advice="choose fewer --subcarriers or --symbols")
+
+
+def add_frame_arguments(ap, *, seed_help: str = "seed of the random OFDM data (an "
+                        "integer >= 0; the noise uses seed + 1)") -> None:
+    """--synthesis, --seed and --no-noise: how a radar frame is made from the paths
+    (``ap``: a parser or an argument group)."""
+    ap.add_argument("--synthesis", choices=SYNTHESIS_METHODS, default="fast",
+                    help="fast: frequency-domain model; exact: time-domain with ICI/ISI")
+    ap.add_argument("--seed", type=seed, default=0, help=seed_help)
+    ap.add_argument("--no-noise", action="store_true", help="leave thermal noise out")
 
 
 def add_waveform_arguments(ap: argparse.ArgumentParser, *,

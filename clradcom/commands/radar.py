@@ -20,17 +20,17 @@ import argparse
 from pathlib import Path
 
 from clradcom.commands.options import (
+    add_frame_arguments,
     add_waveform_arguments,
     output_folder,
     read_snapshot,
     run_waveform,
-    seed,
 )
 from clradcom.commands.trace import Stopwatch, radar_noise, radar_stage
 from clradcom.errors import ArgumentError, SnapshotError
 from clradcom.files import staged_folder
 from clradcom.plots import plot_top_view
-from clradcom.radar.pipeline import SYNTHESIS_METHODS, check_frame_memory
+from clradcom.radar.pipeline import check_frame_memory
 from clradcom.scene.reader import load_scene
 from clradcom.snapshot import Snapshot
 
@@ -48,12 +48,7 @@ def add_radar_arguments(ap: argparse.ArgumentParser) -> None:
                     help="the scene file (TOML) the snapshot was traced from")
     ap.add_argument("--out", type=output_folder, default=None,
                     help="output folder (default: the snapshot's folder)")
-    ap.add_argument("--synthesis", choices=SYNTHESIS_METHODS, default="fast",
-                    help="fast: frequency-domain model; exact: time-domain with ICI/ISI")
-    ap.add_argument("--seed", type=seed, default=0,
-                    help="seed of the random OFDM data (an integer >= 0; the noise uses "
-                         "seed + 1)")
-    ap.add_argument("--no-noise", action="store_true", help="leave thermal noise out")
+    add_frame_arguments(ap)
     add_waveform_arguments(ap)
 
 

@@ -60,6 +60,7 @@ import numpy as np
 
 from clradcom.commands.console import progress_bar, trace_steps
 from clradcom.commands.options import (
+    add_frame_arguments,
     add_waveform_arguments,
     command_parser,
     float_in,
@@ -68,7 +69,6 @@ from clradcom.commands.options import (
     positive_int,
     run_tool,
     run_waveform,
-    seed,
 )
 from clradcom.device.runtime import get_runtime
 from clradcom.errors import ArgumentError, SceneError
@@ -78,7 +78,6 @@ from clradcom.mechanisms.sbr import ACCURACY_DB_RANGE
 from clradcom.plots import plot_top_view
 from clradcom.presets import DEFAULT_PRESET, PRESETS
 from clradcom.radar.pipeline import (
-    SYNTHESIS_METHODS,
     check_frame_memory,
     process,
     radar_frame,
@@ -196,12 +195,7 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--engine", choices=ENGINES, default="device",
                     help="device (default): interactions resolved in OpenCL kernels; host: "
                          "the numpy reference the device engine is tested against")
-    ap.add_argument("--synthesis", choices=SYNTHESIS_METHODS, default="fast",
-                    help="fast: frequency-domain model; exact: time-domain with ICI/ISI")
-    ap.add_argument("--seed", type=seed, default=0,
-                    help="seed of the random OFDM data (an integer >= 0; the noise uses "
-                         "seed + 1)")
-    ap.add_argument("--no-noise", action="store_true", help="leave thermal noise out")
+    add_frame_arguments(ap)
     ap.add_argument("-q", "--quiet", action="store_true",
                     help="no progress bar (it is shown only when stderr is a terminal)")
     add_waveform_arguments(ap)
