@@ -31,6 +31,7 @@ import time
 from pathlib import Path
 
 from clradcom.commands.options import (
+    add_scene_or_snapshot_arguments,
     add_waveform_arguments,
     check_exact_frame_memory,
     check_two_radars,
@@ -40,7 +41,6 @@ from clradcom.commands.options import (
     noise_figure_db,
     non_negative_float,
     non_negative_int,
-    output_folder,
     parse_command,
     positive_float,
     positive_int,
@@ -55,7 +55,6 @@ from clradcom.commands.options import (
 )
 from clradcom.errors import ArgumentError, SceneError, SnapshotError
 from clradcom.files import save_figure, staged_folder, write_csv
-from clradcom.presets import DEFAULT_PRESET, PRESETS
 from clradcom.radar.comms import (
     COMMS_MODULATIONS,
     CSV_COLUMNS,
@@ -83,11 +82,7 @@ def parse_args(argv, prog: str | None = None):
 
 def add_arguments(ap: argparse.ArgumentParser) -> None:
     """The options of ``clradcom comms`` / tools/comms.py."""
-    ap.add_argument("scene", nargs="?", help="scene file (TOML) to trace, e.g. "
-                    "scenes/street/street.toml; leave out when giving --snapshot")
-    ap.add_argument("--snapshot", help="an existing snapshot.npz (from clradcom trace)")
-    ap.add_argument("--out", type=output_folder, default="out/comms",
-                    help="output folder (default out/comms)")
+    add_scene_or_snapshot_arguments(ap, "comms")
     ap.add_argument("--tx", default="A", help="the radar that sends (default A)")
     ap.add_argument("--rx", default="D", help="the radar that receives (default D)")
     ap.add_argument("--pilots", choices=("block", "comb"), default="block",
@@ -113,11 +108,6 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
                     help="with --snapshot: the sender's power for the link SNR (default 0.01)")
     ap.add_argument("--noise-figure-db", type=noise_figure_db, default=10.0,
                     help="with --snapshot: the receiver's noise figure (default 10 dB)")
-    ap.add_argument("--device", default=None, help="OpenCL device for tracing a scene")
-    ap.add_argument("--preset", choices=tuple(PRESETS), default=DEFAULT_PRESET,
-                    help=f"the tracer's physics when tracing a scene (default {DEFAULT_PRESET})")
-    ap.add_argument("--rays", type=positive_int, default=None,
-                    help="rays per transmitter when tracing a scene (default: the preset's)")
     ap.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     add_waveform_arguments(ap, modulations=COMMS_MODULATIONS,
                            modulation_help="data modulation, Gray mapped")

@@ -53,6 +53,7 @@ import time
 from pathlib import Path
 
 from clradcom.commands.options import (
+    add_scene_or_snapshot_arguments,
     add_waveform_arguments,
     check_exact_frame_memory,
     check_two_radars,
@@ -60,10 +61,8 @@ from clradcom.commands.options import (
     finite_float,
     noise_figure_db,
     non_negative_float,
-    output_folder,
     parse_command,
     positive_float,
-    positive_int,
     preset_settings,
     read_snapshot,
     run_tool,
@@ -75,7 +74,6 @@ from clradcom.commands.options import (
 )
 from clradcom.errors import ArgumentError, SceneError, SnapshotError
 from clradcom.files import staged_folder
-from clradcom.presets import DEFAULT_PRESET, PRESETS
 from clradcom.radar.interference import MAX_FREQUENCY_OFFSET, two_radar_run
 from clradcom.radar.plots import save_interference_images
 from clradcom.radar.report import (
@@ -103,11 +101,7 @@ def parse_args(argv, prog: str | None = None):
 
 def add_arguments(ap: argparse.ArgumentParser) -> None:
     """The options of ``clradcom interference`` / tools/interference.py."""
-    ap.add_argument("scene", nargs="?", help="scene file (TOML) to trace, e.g. "
-                    "scenes/street/street.toml; leave out when giving --snapshot")
-    ap.add_argument("--snapshot", help="an existing snapshot.npz (from tools/trace.py)")
-    ap.add_argument("--out", type=output_folder, default="out/interference",
-                    help="output folder (default out/interference)")
+    add_scene_or_snapshot_arguments(ap, "interference")
     ap.add_argument("--victim", default="A", help="the radar whose image is shown (default A)")
     ap.add_argument("--interferer", default="D", help="the interfering radar (default D)")
     ap.add_argument("--timing-offset-us", type=non_negative_float, default=4.2,
@@ -129,13 +123,6 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
                     help="with --snapshot: both radars' transmit power (default 0.01 W)")
     ap.add_argument("--noise-figure-db", type=noise_figure_db, default=10.0,
                     help="with --snapshot: A's noise figure (>= 0 dB, default 10 dB)")
-    ap.add_argument("--device", default=None, help="OpenCL device for tracing a scene")
-    ap.add_argument("--preset", choices=tuple(PRESETS), default=DEFAULT_PRESET,
-                    help=f"the tracer's physics when tracing a scene (default "
-                         f"{DEFAULT_PRESET}, as clradcom trace; see clradcom presets)")
-    ap.add_argument("--rays", type=positive_int, default=None,
-                    help="rays per transmitter when tracing a scene (default: the "
-                         "preset's, 1e6 for paper)")
     ap.add_argument("--range-max", type=positive_float, default=60.0,
                     help="range shown in the pictures, m (default 60)")
     ap.add_argument("-q", "--quiet", action="store_true",

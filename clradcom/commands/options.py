@@ -268,6 +268,25 @@ def add_tracer_arguments(ap: argparse.ArgumentParser, *,
     ap.set_defaults(no_sbr_mirrors=False)
 
 
+def add_scene_or_snapshot_arguments(ap: argparse.ArgumentParser, tool: str) -> None:
+    """The inputs and output of a command that traces a scene or reads a snapshot of one
+    (:func:`check_two_radars` refuses both or neither): the scene file, --snapshot,
+    --out (default out/``tool``), and the tracer's --device, --preset and --rays for the
+    scene."""
+    ap.add_argument("scene", nargs="?", help="scene file (TOML) to trace, e.g. "
+                    "scenes/street/street.toml; leave out when giving --snapshot")
+    ap.add_argument("--snapshot", help="an existing snapshot.npz (from clradcom trace)")
+    ap.add_argument("--out", type=output_folder, default=f"out/{tool}",
+                    help=f"output folder (default out/{tool})")
+    ap.add_argument("--device", default=None, help="OpenCL device for tracing a scene")
+    ap.add_argument("--preset", choices=tuple(PRESETS), default=DEFAULT_PRESET,
+                    help=f"the tracer's physics when tracing a scene (default "
+                         f"{DEFAULT_PRESET}, as clradcom trace; see clradcom presets)")
+    ap.add_argument("--rays", type=positive_int, default=None,
+                    help="rays per transmitter when tracing a scene (default: the "
+                         "preset's, 1e6 for paper)")
+
+
 def check_two_radars(ap: argparse.ArgumentParser, args, first: str, second: str) -> None:
     """What argparse alone cannot refuse in a command between two radars of a scene or a
     snapshot: exactly one of the scene file and --snapshot, and two different radars
