@@ -22,27 +22,65 @@ inline float3 spawn_point(float3 p, float3 n, float3 dir)
     return p + ((dot(n, dir) >= 0.0f) ? bound : -bound) * n;
 }
 
+/* A ray between bounces: where it leaves from, where it goes, the triangle it left. */
+typedef struct { float3 org; float3 dir; int last_prim; } BouncingRay;
+
+/* The ray's next specular bounce: the face it reflects off (the ray moved on past it),
+ * or -1 when it escapes. */
+CLR_INLINE int next_bounce(__global const Bvh8Node *nodes, __global const float4 *tri_verts,
+                           __global const int *tri_index, __global const int *tri_face,
+                           BouncingRay *ray)
+{
+    PreparedRay pr = prepare_ray(ray->org, ray->dir);
+    float t = INFINITY, u, v;
+    int slot = bvh_closest(nodes, tri_verts, tri_index, &pr, 0.0f, &t, &u, &v,
+                           ray->last_prim);
+    if (slot < 0) return -1;
+    ray->last_prim = tri_index[slot];
+    float3 n = slot_normal(nodes, tri_verts, slot);
+    float3 p = ray->org + t * ray->dir;
+    ray->dir = ray->dir - 2.0f * dot(ray->dir, n) * n;
+    ray->org = spawn_point(p, n, ray->dir);
+    return tri_face[ray->last_prim];
+}
+
 /* One ray's face sequence: up to max_order bounces from org along dir, the faces
  * written to out, -1 after the ray escapes. */
 CLR_INLINE void follow_ray(__global const Bvh8Node *nodes, __global const float4 *tri_verts,
                            __global const int *tri_index, __global const int *tri_face,
                            float3 org, float3 dir, const int max_order, __global int *out)
 {
-    int last_prim = -1;
+    BouncingRay ray = {org, dir, -1};
     int depth = 0;
     for (; depth < max_order; ++depth) {
-        PreparedRay pr = prepare_ray(org, dir);
-        float t = INFINITY, u, v;
-        int slot = bvh_closest(nodes, tri_verts, tri_index, &pr, 0.0f, &t, &u, &v, last_prim);
-        if (slot < 0) break;
-        last_prim = tri_index[slot];
-        out[depth] = tri_face[last_prim];
-        float3 n = slot_normal(nodes, tri_verts, slot);
-        float3 p = org + t * dir;
-        dir = dir - 2.0f * dot(dir, n) * n;
-        org = spawn_point(p, n, dir);
+        int face = next_bounce(nodes, tri_verts, tri_index, tri_face, &ray);
+        if (face < 0) break;
+        out[depth] = face;
     }
     for (; depth < max_order; ++depth) out[depth] = -1;
+}
+
+/* One ray's face sequence as the exact key of clradcom/mechanisms/specular.py:
+ * sequence_keys: digits face + 1 in base ``base``, first face most significant, 0 from
+ * the first escape or the first face repeated straight after itself on (a plane cannot
+ * reflect a ray twice in a row: the rest is a float32 re-hit of a neighbouring triangle
+ * of the face just left). The host checks that base^max_order fits a long. */
+CLR_INLINE long follow_ray_key(__global const Bvh8Node *nodes,
+                               __global const float4 *tri_verts,
+                               __global const int *tri_index, __global const int *tri_face,
+                               float3 org, float3 dir, const int max_order, const long base)
+{
+    BouncingRay ray = {org, dir, -1};
+    long key = 0;
+    int depth = 0, prev = -1;
+    for (; depth < max_order; ++depth) {
+        int face = next_bounce(nodes, tri_verts, tri_index, tri_face, &ray);
+        if (face < 0 || face == prev) break;
+        key = key * base + (long)(face + 1);
+        prev = face;
+    }
+    for (; depth < max_order; ++depth) key *= base;
+    return key;
 }
 
 __kernel void trace_reflections(__global const Bvh8Node *nodes,
@@ -62,11 +100,25 @@ __kernel void trace_reflections(__global const Bvh8Node *nodes,
 }
 
 #ifdef CLRADCOM_HAS_FP64
-/* trace_reflections of the rays lattice[first + gid] (N, 3) float64 rotated by r (row
- * major 3x3, the antenna's axes as columns): dir_j = (l0 r_j0 + l1 r_j1) + l2 r_j2 in
- * double, as the host's numpy rotation sums it (no contraction: intersect.h), then
- * rounded to float as numpy's cast rounds it, so each ray is the host-rotated one bit
- * for bit. The lattice stays on the device between transmitters and traces. */
+/* Lattice ray first + gid (N, 3) float64 rotated by r (row major 3x3, the antenna's axes
+ * as columns): dir_j = (l0 r_j0 + l1 r_j1) + l2 r_j2 in double, as the host's numpy
+ * rotation sums it (no contraction: intersect.h), then rounded to float as numpy's cast
+ * rounds it, so each ray is the host-rotated one bit for bit. */
+CLR_INLINE float3 lattice_direction(__global const double *lattice, const size_t ray,
+                                    const double r00, const double r01, const double r02,
+                                    const double r10, const double r11, const double r12,
+                                    const double r20, const double r21, const double r22)
+{
+    size_t k = 3 * ray;
+    double l0 = lattice[k], l1 = lattice[k + 1], l2 = lattice[k + 2];
+    return (float3)((float)(l0 * r00 + l1 * r01 + l2 * r02),
+                    (float)(l0 * r10 + l1 * r11 + l2 * r12),
+                    (float)(l0 * r20 + l1 * r21 + l2 * r22));
+}
+
+/* trace_reflections of the rays of a launch lattice rotated on the device
+ * (lattice_direction). The lattice stays on the device between transmitters and
+ * traces. */
 __kernel void trace_reflections_rotated(__global const Bvh8Node *nodes,
                                         __global const float4 *tri_verts,
                                         __global const int *tri_index,
@@ -83,12 +135,36 @@ __kernel void trace_reflections_rotated(__global const Bvh8Node *nodes,
 {
     int gid = get_global_id(0);
     if (gid >= n_rays) return;
-    size_t k = 3 * ((size_t)first + gid);
-    double l0 = lattice[k], l1 = lattice[k + 1], l2 = lattice[k + 2];
-    float3 dir = (float3)((float)(l0 * r00 + l1 * r01 + l2 * r02),
-                          (float)(l0 * r10 + l1 * r11 + l2 * r12),
-                          (float)(l0 * r20 + l1 * r21 + l2 * r22));
+    float3 dir = lattice_direction(lattice, (size_t)first + gid, r00, r01, r02, r10, r11,
+                                   r12, r20, r21, r22);
     follow_ray(nodes, tri_verts, tri_index, tri_face, (float3)(ox, oy, oz), dir, max_order,
                face_seq + (size_t)gid * max_order);
+}
+
+/* trace_reflections_rotated writing each ray's exact sequence key (follow_ray_key)
+ * instead of its faces: one long per ray for the host's de-duplication. */
+__kernel void trace_reflection_keys_rotated(__global const Bvh8Node *nodes,
+                                            __global const float4 *tri_verts,
+                                            __global const int *tri_index,
+                                            __global const int *tri_face,
+                                            const float ox, const float oy, const float oz,
+                                            __global const double *lattice,
+                                            const double r00, const double r01,
+                                            const double r02, const double r10,
+                                            const double r11, const double r12,
+                                            const double r20, const double r21,
+                                            const double r22,
+                                            const int first,
+                                            const int max_order,
+                                            const long base,
+                                            __global long *keys,
+                                            const int n_rays)
+{
+    int gid = get_global_id(0);
+    if (gid >= n_rays) return;
+    float3 dir = lattice_direction(lattice, (size_t)first + gid, r00, r01, r02, r10, r11,
+                                   r12, r20, r21, r22);
+    keys[gid] = follow_ray_key(nodes, tri_verts, tri_index, tri_face, (float3)(ox, oy, oz),
+                               dir, max_order, base);
 }
 #endif

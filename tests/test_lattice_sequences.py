@@ -7,6 +7,7 @@ import trimesh
 
 from clradcom.device.raycast import RayCaster
 from clradcom.errors import ArgumentError
+from clradcom.mechanisms import specular as sp
 from clradcom.mechanisms.specular import fibonacci_sphere
 from clradcom.physics.vectors import orthonormal_frame
 
@@ -49,3 +50,43 @@ def test_lattice_sequences_refuse_bad_shapes(runtime):
         caster.lattice_sequences(np.zeros(3), np.zeros((4, 2)), np.eye(3), [0], 2)
     with pytest.raises(ArgumentError, match="rotation"):
         caster.lattice_sequences(np.zeros(3), np.zeros((4, 3)), np.eye(2), [0], 2)
+
+
+def test_lattice_keys_are_the_host_keys_of_the_sequences(runtime):
+    """The device's one-key-per-ray candidate search (kernels/reflect.cl:
+    trace_reflection_keys_rotated) gives the host's exact keys of the same rays' face
+    sequences, the cut at a repeated face included, and so the same candidates."""
+    tris = _room()
+    caster = RayCaster(tris, runtime=runtime)
+    # faces of two triangles: a ray often re-hits a neighbour of the face it just left
+    # in float32, which the keys must cut exactly as the host does
+    tri_face = np.arange(len(tris), dtype=np.int32) // 2
+    local = fibonacci_sphere(5000)
+    rot = np.eye(3)[:, [2, 0, 1]]
+    origin = np.array([-1.2, 0.4, 0.3])
+    k = 5
+    base = sp.key_base(int(tri_face.max()) + 1, k)
+    seqs = caster.lattice_sequences(origin, local, rot, tri_face, k)
+    keys = caster.lattice_keys(origin, local, rot, tri_face, k, base, batch=1234)
+    np.testing.assert_array_equal(keys, sp.sequence_keys(seqs, base))
+    repeats = (seqs[:, 1:] == seqs[:, :-1]) & (seqs[:, 1:] >= 0)
+    assert repeats.any(axis=1).sum() > 100   # the cut is exercised
+    # a key's digits are its row's faces up to the first escape or repeat
+    assert np.all(keys // base ** (k - 1) - 1 == seqs[:, 0])
+    got = sp.candidates_from_keys(keys, base, k)
+    want = sp.unique_candidates(seqs)
+    assert got.keys() == want.keys()
+    for order in want:
+        np.testing.assert_array_equal(got[order], want[order])
+    assert len(want[k]) > 10
+
+
+def test_lattice_keys_refuse_an_overflowing_base(runtime):
+    caster = RayCaster(_room(), runtime=runtime)
+    tri_face = np.arange(len(caster.triangles), dtype=np.int32)
+    with pytest.raises(ArgumentError, match="base"):
+        caster.lattice_keys(np.zeros(3), np.zeros((4, 3)), np.eye(3), tri_face, 3,
+                            base=len(tri_face))   # not above every face id + 1
+    with pytest.raises(ArgumentError, match="base"):
+        caster.lattice_keys(np.zeros(3), np.zeros((4, 3)), np.eye(3), tri_face, 16,
+                            base=2**20)

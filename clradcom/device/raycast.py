@@ -314,8 +314,41 @@ class RayCaster:
         the sequences are those of the host-rotated directions bit for bit. The lattice
         is uploaded once and kept while ``local`` is the same array (a launch lattice
         shared by transmitters and traces); without fp64 the host rotates."""
-        import pyopencl as cl
+        local, r = self._check_lattice(local, rotation)
+        if not self.runtime.info.has_double or max_order < 1:
+            dirs = local[:, :1] * r[:, 0] + local[:, 1:2] * r[:, 1] + local[:, 2:] * r[:, 2]
+            return self.specular_sequences(origin, dirs, tri_face, max_order, batch)
+        out = np.empty((len(local), max_order), dtype=np.int32)
+        self._rotated_launch("trace_reflections_rotated", origin, local, r, tri_face,
+                             (np.int32(max_order),), out, batch)
+        return out
 
+    def lattice_keys(self, origin, local, rotation, tri_face, max_order: int, base: int,
+                     batch: int = 1 << 20) -> np.ndarray:
+        """(R,) int64: each of :meth:`lattice_sequences`' rows as one exact key, in one
+        launch of ``trace_reflection_keys_rotated`` (kernels/reflect.cl): the digits are
+        face + 1 in ``base``, first face most significant, and 0 from the first escape or
+        the first face that repeats the one before it
+        (:func:`clradcom.mechanisms.specular.sequence_keys`, the host's same keys).
+        ``base`` must exceed every face id + 1 and base^max_order fit in an int64; needs
+        a device with fp64."""
+        local, r = self._check_lattice(local, rotation)
+        n_faces = int(np.max(tri_face, initial=-1)) + 1
+        if not (max_order >= 1 and base > n_faces and float(base) ** max_order < 2.0**63):
+            raise ArgumentError(f"needs max_order >= 1, a base above every face id + 1 "
+                                f"({n_faces}) and base^max_order < 2^63", argument="base",
+                                value=(base, max_order))
+        if not self.runtime.info.has_double:
+            raise ArgumentError("this OpenCL device has no fp64; use lattice_sequences",
+                                argument="device",
+                                value=self.runtime.info.device_name.strip())
+        out = np.empty(len(local), dtype=np.int64)
+        self._rotated_launch("trace_reflection_keys_rotated", origin, local, r, tri_face,
+                             (np.int32(max_order), np.int64(base)), out, batch)
+        return out
+
+    @staticmethod
+    def _check_lattice(local, rotation):
         local = np.asarray(local)
         r = np.asarray(rotation, dtype=np.float64)
         if local.ndim != 2 or local.shape[1] != 3 or local.dtype != np.float64:
@@ -324,13 +357,18 @@ class RayCaster:
         if r.shape != (3, 3):
             raise ArgumentError(f"rotation must be 3 x 3, got {r.shape}", argument="rotation",
                                 value=r.shape)
-        if not self.runtime.info.has_double or max_order < 1:
-            dirs = local[:, :1] * r[:, 0] + local[:, 1:2] * r[:, 1] + local[:, 2:] * r[:, 2]
-            return self.specular_sequences(origin, dirs, tri_face, max_order, batch)
+        return local, r
+
+    def _rotated_launch(self, kernel_name, origin, local, r, tri_face, extra, out, batch):
+        """Launch ``kernel_name`` of kernels/reflect.cl over the lattice ``local`` rotated
+        by ``r`` in batches, each ray's row of ``out`` written by its work item; the
+        lattice buffer is kept while ``local`` is the same array."""
+        import pyopencl as cl
+
         rt = self.runtime
-        kernel = rt.kernel("reflect.cl", "trace_reflections_rotated", defines=self._defines())
+        kernel = rt.kernel("reflect.cl", kernel_name, defines=self._defines())
         o = np.asarray(origin, dtype=np.float64)
-        out = np.empty((len(local), max_order), dtype=np.int32)
+        row_bytes = out[:1].nbytes
         with self._lock, rt.kernel_clock():
             cached = getattr(self, "_lattice", None)
             if cached is None or cached[0] is not local:
@@ -338,14 +376,13 @@ class RayCaster:
             face_buf = rt.to_device(np.asarray(tri_face, dtype=np.int32))
             for start in range(0, len(local), batch):
                 n = min(batch, len(local) - start)
-                o_buf = rt.empty(n * max_order * 4)
+                o_buf = rt.empty(n * row_bytes)
                 size = self.LOCAL_SIZE   # whole work-groups, as in specular_sequences
                 kernel(rt.queue, (-(-n // size) * size,), (size,), self._nodes, self._tri4,
                        self._slot_prim, face_buf, np.float32(o[0]), np.float32(o[1]),
                        np.float32(o[2]), cached[1], *(np.float64(x) for x in r.ravel()),
-                       np.int32(start), np.int32(max_order), o_buf, np.int32(n))
+                       np.int32(start), *extra, o_buf, np.int32(n))
                 cl.enqueue_copy(rt.queue, out[start:start + n], o_buf)
-        return out
 
 
 class InstancedCaster(RayCaster):
@@ -515,6 +552,10 @@ class InstancedCaster(RayCaster):
     def lattice_sequences(self, *args, **kwargs) -> np.ndarray:
         self._check_placed()
         return super().lattice_sequences(*args, **kwargs)
+
+    def lattice_keys(self, *args, **kwargs) -> np.ndarray:
+        self._check_placed()
+        return super().lattice_keys(*args, **kwargs)
 
     def _check_placed(self):
         if not self._placed:

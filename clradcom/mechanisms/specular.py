@@ -132,38 +132,60 @@ def _decode_keys(key: np.ndarray, base: int, k: int) -> np.ndarray:
     return rows
 
 
+def key_base(n_faces: int, max_order: int) -> int | None:
+    """The base of exact sequence keys for face ids below ``n_faces`` (digits id + 1),
+    or None where ``max_order`` digits overflow an int64."""
+    base = int(n_faces) + 1
+    return base if max_order >= 1 and base**max_order < 2**63 else None
+
+
+def sequence_keys(face_seq: np.ndarray, base: int) -> np.ndarray:
+    """(R,) int64 exact key of each row of face ids: digits id + 1 in ``base``, first face
+    most significant, 0 (as after an escape, -1) from the first face that repeats the one
+    before it on: a planar face cannot reflect a ray twice in a row, so the rest of such a
+    ray is a float32 artefact of re-hitting a neighbouring triangle of the face it left.
+    Keys sort as the rows do lexicographically, and a prefix of k faces is the key's
+    first k digits (the device writes the same keys: RayCaster.lattice_keys)."""
+    seq = np.asarray(face_seq)
+    key = np.zeros(len(seq), dtype=np.int64)
+    cut = np.zeros(len(seq), dtype=bool)
+    for col in range(seq.shape[1]):
+        face = seq[:, col]
+        if col:
+            cut |= (face == seq[:, col - 1]) & (face >= 0)
+        key = key * base + np.where(cut, 0, face.astype(np.int64) + 1)
+    return key
+
+
+def candidates_from_keys(key: np.ndarray, base: int, max_order: int) -> dict[int, np.ndarray]:
+    """Unique face sequences of each length 1..max_order from all prefixes of the rays'
+    :func:`sequence_keys`, sorted lexicographically."""
+    out: dict[int, np.ndarray] = {}
+    key = np.unique(key)
+    for k in range(max_order, 0, -1):
+        # the k-face prefixes that have a k-th face, sorted, distinct
+        pref = key[key % base != 0]
+        out[k] = _decode_keys(np.unique(pref), base, k)
+        key //= base
+    return dict(sorted(out.items()))
+
+
 def unique_candidates(face_seq: np.ndarray) -> dict[int, np.ndarray]:
     """Unique face sequences of each length 1..max_order from all prefixes.
 
-    Sequences that reflect off one plane twice in a row are cut there: a
-    planar face cannot do that, so the rest of such a ray is a float32
-    artefact of re-hitting a neighbouring triangle of the face it left.
-    Rays repeat each other massively, so whole rows are de-duplicated first
-    and prefixes are taken from the few unique rows.  Where the face ids are few
-    enough ((max id + 2)**max_order < 2**63), each row is one exact int64 key, its
-    digits the ids + 1 in base max id + 2, first face most significant: keys sort as
-    rows do lexicographically, and a prefix of k faces is the key's first k digits.
-    Else rows are de-duplicated by checked hashes (:func:`_unique_rows`).
+    Sequences that reflect off one plane twice in a row are cut there
+    (:func:`sequence_keys`). Rays repeat each other massively, so whole rows are
+    de-duplicated first and prefixes are taken from the few unique rows.  Where the
+    face ids are few enough (:func:`key_base`), each row is one exact int64 key
+    (:func:`sequence_keys`, :func:`candidates_from_keys`). Else rows are de-duplicated
+    by checked hashes (:func:`_unique_rows`).
     """
     seq = np.ascontiguousarray(face_seq, dtype=np.int32)
     k_max = seq.shape[1]
     out: dict[int, np.ndarray] = {}
-    base = int(seq.max(initial=-1)) + 2
-    if len(seq) and k_max and base**k_max < 2**63:
-        key = np.zeros(len(seq), dtype=np.int64)
-        cut = np.zeros(len(seq), dtype=bool)
-        for col in range(k_max):
-            face = seq[:, col]
-            if col:
-                cut |= (face == seq[:, col - 1]) & (face >= 0)
-            key = key * base + np.where(cut, 0, face.astype(np.int64) + 1)
-        key = np.unique(key)
-        for k in range(k_max, 0, -1):
-            # the k-face prefixes that have a k-th face, sorted, distinct
-            pref = key[key % base != 0]
-            out[k] = _decode_keys(np.unique(pref), base, k)
-            key //= base
-        return dict(sorted(out.items()))
+    base = key_base(int(seq.max(initial=-1)) + 1, k_max)
+    if len(seq) and base is not None:
+        return candidates_from_keys(sequence_keys(seq, base), base, k_max)
     if k_max > 1:
         repeat = np.zeros(seq.shape, dtype=bool)
         repeat[:, 1:] = (seq[:, 1:] == seq[:, :-1]) & (seq[:, 1:] >= 0)
@@ -293,8 +315,15 @@ def prepare(geom: Geometry, tx: Radar, settings: SpecularSettings) -> Candidates
     rot = np.asarray(tx.orientation, dtype=np.float64)
     # local @ rot.T by columns (a (n,3) x (3,3) product that BLAS threads only slow down),
     # on the device, where the lattice stays between transmitters: the same rays
-    seqs = geom.caster.lattice_sequences(tx.position, local, rot, geom.faces.tri_face,
-                                         settings.max_reflections)
+    k = settings.max_reflections
+    base = key_base(geom.faces.n_faces, k)
+    if geom.engine == "device" and base is not None and geom.runtime.has_double:
+        # each ray's sequence leaves the device as one exact key: no (R, k) rows to
+        # download and encode on the host (the reference engine does that)
+        keys = geom.caster.lattice_keys(tx.position, local, rot, geom.faces.tri_face, k,
+                                        base)
+        return candidates_from_keys(keys, base, k)
+    seqs = geom.caster.lattice_sequences(tx.position, local, rot, geom.faces.tri_face, k)
     return unique_candidates(seqs)
 
 
