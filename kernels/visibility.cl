@@ -25,22 +25,7 @@
 #ifndef CLRADCOM_HAS_FP64
 #error "kernels/visibility.cl needs fp64 (cl_khr_fp64); the host keeps its own float64 rescue without it"
 #endif
-#ifndef DOT3_ORDER
-#error "DOT3_ORDER must be passed as -D by the host (clradcom/device/visibility.py)"
-#endif
-
-/* x.y for three terms, added as numpy's einsum("ij,ij->i") adds them here. */
-CLR_INLINE double dot3(double a0, double a1, double a2, double b0, double b1, double b2)
-{
-    double p0 = a0 * b0, p1 = a1 * b1, p2 = a2 * b2;
-#if DOT3_ORDER == 0
-    return (p0 + p1) + p2;
-#elif DOT3_ORDER == 1
-    return (p0 + p2) + p1;
-#else
-    return (p1 + p2) + p0;
-#endif
-}
+#include "dot3.h"
 
 /* The float64 scene: vertices (T*9, v0 v1 v2), unit normals (T*3,
  * triangle_normals), the planar face of every triangle, the seam flag of every

@@ -31,6 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from clradcom.device import images as device_images
 from clradcom.device.raycast import RayCaster
 from clradcom.device.visibility import confirm_paths, containing_triangles
 from clradcom.errors import ArgumentError, SurfaceContactWarning
@@ -205,19 +206,30 @@ def mirror(points, normal, offset):
     return points - 2.0 * dist[:, None] * normal
 
 
-def image_points(tx, rx, normals, offsets, seqs: np.ndarray):
+def image_points(tx, rx, normals, offsets, seqs: np.ndarray, runtime=None):
     """Exact reflection points for candidate face sequences, by the image method.
 
     tx, rx: (3,) positions; normals (F,3) unit and offsets (F,) of the
     faces' planes; seqs (C,k) face ids. Returns points (C, k+2, 3) - tx, the
     k reflection points, rx - and a mask of candidates whose every point lies
     strictly between its neighbours' image line ends (so each reflection
-    happens on the side both segments are on).
+    happens on the side both segments are on). With a ``runtime`` whose device can
+    (:func:`clradcom.device.images.available`) the points come from its kernel, the
+    same bit for bit.
     """
     seqs = np.asarray(seqs)
     C, k = seqs.shape
     tx = np.asarray(tx, dtype=np.float64)
     rx = np.asarray(rx, dtype=np.float64)
+    if runtime is not None and C and k and device_images.available(runtime):
+        points, ok, failed_last, failed_first = device_images.image_points(
+            runtime, tx, rx, normals, offsets, seqs)
+        for what, point, failed, i in (("receiver", rx, failed_last, k - 1),
+                                       ("transmitter", tx, failed_first, 0)):
+            if failed.any():
+                _warn_surface_contact(point, what, normals[seqs[:, i]],
+                                      offsets[seqs[:, i]], seqs[:, i], failed)
+        return points, ok
     points = np.empty((C, k + 2, 3))
     points[:, 0] = tx
     points[:, -1] = rx
@@ -373,7 +385,8 @@ def specular_paths(geom: Geometry, tx_pos, rx_pos, candidates, line_of_sight=Tru
         seqs = candidates[k]
         if len(seqs) == 0:
             continue
-        pts, ok = image_points(tx_pos, rx_pos, geom.faces.normal, geom.faces.offset, seqs)
+        pts, ok = image_points(tx_pos, rx_pos, geom.faces.normal, geom.faces.offset, seqs,
+                               runtime=geom.runtime if geom.engine == "device" else None)
         keep, tris = confirm_paths(geom.caster, geom.faces.tri_face, geom.faces.normal,
                                       pts, seqs, ok, engine=geom.engine)
         if keep.any():

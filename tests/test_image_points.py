@@ -1,0 +1,68 @@
+"""The image method on the device (kernels/images.cl) against the host's numpy
+reference (clradcom.mechanisms.specular.image_points): the same points bit for bit, the
+same path mask and the same warnings."""
+
+import warnings
+
+import numpy as np
+import pytest
+
+from clradcom.device import images as device_images
+from clradcom.errors import ArgumentError, SurfaceContactWarning
+from clradcom.mechanisms.specular import image_points
+
+
+def _planes(rng, n):
+    normals = rng.normal(size=(n, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    return normals, rng.uniform(-30.0, 30.0, n)
+
+
+@pytest.mark.parametrize("k", [1, 2, 5, 16])
+def test_device_image_points_are_the_hosts_bit_for_bit(runtime, k):
+    rng = np.random.default_rng(k)
+    normals, offsets = _planes(rng, 40)
+    # far from the origin, where float64 rounding shows in the last digits
+    tx = np.array([812.3, -455.1, 1.7])
+    rx = np.array([790.9, -430.4, 2.2])
+    offsets = offsets + normals @ tx
+    seqs = rng.integers(0, len(normals), (3000, k)).astype(np.int32)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SurfaceContactWarning)
+        want_pts, want_ok = image_points(tx, rx, normals, offsets, seqs)
+        got_pts, got_ok = image_points(tx, rx, normals, offsets, seqs, runtime=runtime)
+    np.testing.assert_array_equal(got_ok, want_ok)
+    np.testing.assert_array_equal(got_pts, want_pts)   # NaN-free: every step goes on
+    # random planes: some candidates are paths, some are not (at 16 random reflections
+    # none is; the points must still agree)
+    assert want_ok.sum() < len(seqs) and (k > 5 or want_ok.sum() > 0)
+
+
+def test_device_image_points_warn_as_the_host_where_an_antenna_is_on_a_face(runtime):
+    normals = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])
+    offsets = np.array([0.0, 10.0])
+    tx = np.array([0.0, 0.0, 0.0])   # on the ground plane z = 0
+    rx = np.array([5.0, 0.0, 0.0])   # on it too
+    seqs = np.array([[0], [1]], dtype=np.int32)
+    caught = {}
+    for name, rt in (("host", None), ("device", runtime)):
+        with warnings.catch_warnings(record=True) as w:
+            warnings.simplefilter("always")
+            pts, ok = image_points(tx, rx, normals, offsets, seqs, runtime=rt)
+        caught[name] = ([str(x.message) for x in w if x.category is SurfaceContactWarning],
+                        ok, pts)
+    assert caught["device"][0] == caught["host"][0]
+    assert len(caught["host"][0]) == 2   # the receiver's and the transmitter's
+    np.testing.assert_array_equal(caught["device"][1], [False, True])
+    np.testing.assert_array_equal(caught["device"][1], caught["host"][1])
+    np.testing.assert_array_equal(caught["device"][2], caught["host"][2])
+
+
+def test_device_image_points_refuse_bad_sequences(runtime):
+    normals = np.array([[0.0, 0.0, 1.0]])
+    with pytest.raises(ArgumentError, match="face ids"):
+        device_images.image_points(runtime, np.zeros(3), np.ones(3), normals, [0.0],
+                                   np.array([[1]]))
+    with pytest.raises(ArgumentError, match="seqs"):
+        device_images.image_points(runtime, np.zeros(3), np.ones(3), normals, [0.0],
+                                   np.zeros((2, device_images.MAX_ORDER + 1), np.int32))
