@@ -13,6 +13,7 @@ import pyopencl as cl
 import pytest
 from scipy.spatial.transform import Rotation
 
+from clradcom.device import visibility
 from clradcom.device.raycast import KERNEL_DEFINES, InstancedCaster, RayCaster, make_rays
 from clradcom.errors import ArgumentError
 from clradcom.geometry.instances import (
@@ -310,6 +311,16 @@ def test_cache_places_instead_of_rebuilding(runtime, placement):
         g2 = cache.at(0.8)
         cl.enqueue_copy(runtime.queue, got, g2.caster.scene_data64()["vertices"])
         np.testing.assert_array_equal(got, scene_at(scene, 0.8).triangles)
+        # so do the faces' boxes the visibility kernels cut by (and their float64 copy)
+        g = cache.at(0.0)
+        visibility._scene64_args(g.caster, g.faces.tri_face)
+        g = cache.at(0.6)
+        args = visibility._scene64_args(g.caster, g.faces.tri_face)
+        box = np.empty((g.faces.n_faces, 6))
+        cl.enqueue_copy(runtime.queue, box, args[6])
+        want = visibility.face_tables(scene_at(scene, 0.6).triangles, g.faces.tri_face)
+        np.testing.assert_array_equal(box, want["face_box"])
+        assert args[0] is g.caster.scene_data64()["vertices"]
     # a still scene gets one plain caster
     still = scene_from_dict({**spinner_doc(), "objects": spinner_doc()["objects"][:2]})
     sc = GeometryCache(still, runtime)

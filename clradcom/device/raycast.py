@@ -135,6 +135,10 @@ class RayCaster:
         self._slot_prim = rt.to_device(slot_prim)
         self._lock = threading.Lock()
         self._buffers: dict[str, tuple[int, object]] = {}
+        #: counts the placements of the triangles (InstancedCaster.place): data derived
+        #: from them elsewhere (clradcom.device.visibility's face tables) is redone when
+        #: it changes
+        self.generation = 0
         self._bounds: tuple[np.ndarray, np.ndarray] | None = None
         self._data64: dict | None = None
         self._normals: np.ndarray | None = None
@@ -431,6 +435,7 @@ class InstancedCaster(RayCaster):
         self.triangles = np.zeros((n_tri, 3, 3))
         self._lock = threading.Lock()
         self._buffers = {}
+        self.generation = 0
         self._bounds = None
         self._data64 = None
         self._normals = None
@@ -531,6 +536,7 @@ class InstancedCaster(RayCaster):
                         break
                 rt.queue.finish()
         self._placed = True
+        self.generation += 1
         #: seconds of the last place(): moved triangles and boxes, the top-level tree and
         #: head (and refits), their upload, the host and device data derived from the
         #: moved triangles

@@ -357,22 +357,31 @@ def face_tables(triangles, tri_face) -> dict:
         seam = np.zeros((0, 3), dtype=bool)
     order = np.argsort(tri_face, kind="stable")
     face_first = np.searchsorted(tri_face[order], np.arange(F + 1)).astype(np.int32)
-    face_box = np.empty((F, 6))
-    face_box[:, :3] = np.inf
-    face_box[:, 3:] = -np.inf
-    if T:
-        np.minimum.at(face_box[:, :3], tri_face, triangles.min(axis=1))
-        np.maximum.at(face_box[:, 3:], tri_face, triangles.max(axis=1))
     return {"seam": seam, "face_first": face_first, "face_tris": order.astype(np.int32),
-            "face_box": face_box}
+            "face_box": face_boxes(triangles, tri_face, F)}
 
 
-# per caster, per tri_face (its bytes): the device buffers of face_tables
+def face_boxes(triangles, tri_face, n_faces: int) -> np.ndarray:
+    """(n_faces, 6) float64: each face's vertex minima and maxima (+-inf for none)."""
+    box = np.empty((n_faces, 6))
+    box[:, :3] = np.inf
+    box[:, 3:] = -np.inf
+    if len(triangles):
+        np.minimum.at(box[:, :3], tri_face, triangles.min(axis=1))
+        np.maximum.at(box[:, 3:], tri_face, triangles.max(axis=1))
+    return box
+
+
+# per caster, per tri_face (its bytes): the device buffers of face_tables and the
+# caster's generation they were made at
 _DEVICE_TABLES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 def _scene64_args(caster: RayCaster, tri_face) -> tuple:
-    """The kernels' SCENE64_ARGS for ``tri_face``, uploaded once per caster and faces."""
+    """The kernels' SCENE64_ARGS for ``tri_face``, uploaded once per caster and faces; a
+    caster placed since (a time step of InstancedCaster) gets the float64 scene buffers
+    it holds now and its faces' boxes redone (the faces' triangles and seams stay: a
+    rigid motion moves the equal vertices of a seam alike)."""
     tri_face = np.ascontiguousarray(tri_face, dtype=np.int32)
     key = tri_face.tobytes()
     cache = _DEVICE_TABLES.setdefault(caster, {})
@@ -382,14 +391,18 @@ def _scene64_args(caster: RayCaster, tri_face) -> tuple:
                                 f"{len(caster.triangles)} triangles", argument="tri_face",
                                 value=tri_face.shape)
         tables = face_tables(caster.triangles, tri_face)
-        data64 = caster.scene_data64()
         rt = caster.runtime
-        cache[key] = (data64["vertices"], data64["normals"], rt.to_device(tri_face),
-                      rt.to_device(tables["seam"].astype(np.uint8)),
-                      rt.to_device(tables["face_first"]), rt.to_device(tables["face_tris"]),
-                      rt.to_device(tables["face_box"]), np.int32(len(tables["face_box"])),
-                      np.float64(INSIDE_TOL_REL))
-    return cache[key]
+        topology = (rt.to_device(tri_face), rt.to_device(tables["seam"].astype(np.uint8)),
+                    rt.to_device(tables["face_first"]), rt.to_device(tables["face_tris"]))
+        cache[key] = (None, topology, len(tables["face_box"]), None)
+    generation, topology, n_faces, args = cache[key]
+    if generation != caster.generation:
+        data64 = caster.scene_data64()
+        box = face_boxes(caster.triangles, tri_face, n_faces)
+        args = (data64["vertices"], data64["normals"], *topology,
+                caster.runtime.to_device(box), np.int32(n_faces), np.float64(INSIDE_TOL_REL))
+        cache[key] = (caster.generation, topology, n_faces, args)
+    return args
 
 
 def _kernel_defines() -> dict:
