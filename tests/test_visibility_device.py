@@ -217,3 +217,19 @@ def test_street_specular_confirmation_alike(device_ok):
     ref = _seam_edges(np.repeat(t, 3), np.tile(np.arange(3), len(t)), scene.triangles,
                       faces.tri_face).reshape(-1, 3)
     assert np.array_equal(face_tables(scene.triangles, faces.tri_face)["seam"][t], ref)
+
+
+def test_triangles_near_an_antenna_are_the_full_scans(runtime):
+    """antenna_blocked's per-antenna shortlist (_boxes_near) gives exactly the triangles a
+    scan of the whole scene gives, for radii below and above its cached reach."""
+    from clradcom.device import visibility
+
+    rng = np.random.default_rng(7)
+    tris = rng.uniform(-2.0, 2.0, (3000, 1, 3)) + rng.uniform(-0.05, 0.05, (3000, 3, 3))
+    caster = RayCaster(tris + 700.0, runtime=runtime)   # far out: rounding at 1e-13
+    lo, hi = caster.triangle_bounds()
+    for ant in (np.array([700.0, 700.0, 700.0]), lo[5].copy(), hi[17] + 1e-3):
+        for r in (0.0, 2e-3, 0.1, visibility.NEAR_ANTENNA_M, 0.6):
+            want = np.flatnonzero(np.all((ant >= lo - r) & (ant <= hi + r), axis=1))
+            np.testing.assert_array_equal(visibility._boxes_near(caster, ant, r), want)
+    assert len(visibility._boxes_near(caster, lo[5].copy(), 2e-3)) >= 1

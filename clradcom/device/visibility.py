@@ -123,8 +123,7 @@ def antenna_blocked(caster: RayCaster, tri_face, antennas, others, radius) -> np
         groups = [(ant, np.flatnonzero(which == i)) for i, ant in enumerate(ants)]
     for ant, rows in groups:
         r = radius[rows].max()
-        # triangles whose box lies within the radius of the antenna: the only candidates
-        near = np.flatnonzero(np.all((ant >= lo - r) & (ant <= hi + r), axis=1))
+        near = _boxes_near(caster, ant, r)
         if len(near) == 0:
             continue
         tri = triangles[near]
@@ -150,6 +149,37 @@ def antenna_blocked(caster: RayCaster, tri_face, antennas, others, radius) -> np
                                       tri_face) >= 0
         out[rows[i[inside]]] = True
     return out
+
+
+#: :func:`antenna_blocked` keeps, per antenna, the triangles whose boxes come within
+#: twice this many metres of it, and tests only those for radii up to this (its radii are
+#: millimetres: :func:`confirm_margin_m`)
+NEAR_ANTENNA_M = 0.25
+# per caster: (its generation, {antenna's bytes: triangle ids near it})
+_NEAR_ANTENNA: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _boxes_near(caster: RayCaster, ant, r) -> np.ndarray:
+    """Ascending ids of the triangles whose boxes lie within ``r`` of the point ``ant``
+    along every axis (lo - r <= ant <= hi + r). For r <= NEAR_ANTENNA_M the exact test
+    runs only on the triangles found once per antenna within 2 NEAR_ANTENNA_M, a superset
+    whatever the rounding: one scan of the scene per antenna instead of one per call."""
+    lo, hi = caster.triangle_bounds()
+    if r > NEAR_ANTENNA_M:
+        return np.flatnonzero(np.all((ant >= lo - r) & (ant <= hi + r), axis=1))
+    generation, known = _NEAR_ANTENNA.get(caster, (None, {}))
+    if generation != caster.generation:
+        known = {}
+        _NEAR_ANTENNA[caster] = (caster.generation, known)
+    key = ant.tobytes()
+    cand = known.get(key)
+    if cand is None:
+        if len(known) >= 256:   # many antennas (surface points): keep the memory bounded
+            known.clear()
+        gap = np.maximum(lo - ant, ant - hi).max(axis=1)
+        cand = np.flatnonzero(gap <= 2.0 * NEAR_ANTENNA_M)
+        known[key] = cand
+    return cand[np.all((ant >= lo[cand] - r) & (ant <= hi[cand] + r), axis=1)]
 
 
 def edge_distances(points, tri):
