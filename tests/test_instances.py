@@ -322,12 +322,13 @@ def test_cache_places_instead_of_rebuilding(runtime, placement):
         np.testing.assert_array_equal(box, want["face_box"])
         assert args[0] is g.caster.scene_data64()["vertices"]
         # and antenna_blocked's shortlist of triangles near an antenna
-        lo, hi = g.caster.triangle_bounds()
-        ant = lo[-1].copy()
-        visibility._boxes_near(g.caster, ant, 1e-3)
+        # (a corner of a moving triangle at 0.2 s, far from it at 0.6 s)
+        ant = scene_at(scene, 0.2).triangles[-1].min(axis=0)
+        assert len(visibility._boxes_near(g.caster, ant, 1e-3)) == 0
         g = cache.at(0.2)
         lo, hi = g.caster.triangle_bounds()
         want = np.flatnonzero(np.all((ant >= lo - 1e-3) & (ant <= hi + 1e-3), axis=1))
+        assert len(want)
         np.testing.assert_array_equal(visibility._boxes_near(g.caster, ant, 1e-3), want)
     # a still scene gets one plain caster
     still = scene_from_dict({**spinner_doc(), "objects": spinner_doc()["objects"][:2]})
