@@ -167,4 +167,57 @@ __kernel void trace_reflection_keys_rotated(__global const Bvh8Node *nodes,
     keys[gid] = follow_ray_key(nodes, tri_verts, tri_index, tri_face, (float3)(ox, oy, oz),
                                dir, max_order, base);
 }
+
+#ifdef cl_khr_int64_base_atomics
+#pragma OPENCL EXTENSION cl_khr_int64_base_atomics : enable
+
+/* trace_reflection_keys_rotated with the keys gathered into a set on the device instead
+ * of written per ray: an open-addressed table of 2^table_bits longs (-1: empty), linear
+ * probing from a multiplicative hash. Rays repeat each other massively (a million rays,
+ * some ten thousand distinct sequences), so most find their key already there and only
+ * read. A key that finds no slot within MAX_PROBES sets *overflow: the host then
+ * reads every ray's key instead (the set is not complete). Key 0 (no face) is left
+ * out: it proposes no candidate. */
+#define KEY_SET_MAX_PROBES 64
+__kernel void collect_reflection_keys_rotated(__global const Bvh8Node *nodes,
+                                              __global const float4 *tri_verts,
+                                              __global const int *tri_index,
+                                              __global const int *tri_face,
+                                              const float ox, const float oy,
+                                              const float oz,
+                                              __global const double *lattice,
+                                              const double r00, const double r01,
+                                              const double r02, const double r10,
+                                              const double r11, const double r12,
+                                              const double r20, const double r21,
+                                              const double r22,
+                                              const int first,
+                                              const int max_order,
+                                              const long base,
+                                              const int table_bits,
+                                              __global volatile long *table,
+                                              __global volatile int *overflow,
+                                              const int n_rays)
+{
+    int gid = get_global_id(0);
+    if (gid >= n_rays) return;
+    float3 dir = lattice_direction(lattice, (size_t)first + gid, r00, r01, r02, r10, r11,
+                                   r12, r20, r21, r22);
+    long key = follow_ray_key(nodes, tri_verts, tri_index, tri_face, (float3)(ox, oy, oz),
+                              dir, max_order, base);
+    if (key == 0) return;
+    ulong mask = ((ulong)1 << table_bits) - 1;
+    ulong slot = ((ulong)key * 0x9E3779B97F4A7C15UL) >> (64 - table_bits);
+    for (int probe = 0; probe < KEY_SET_MAX_PROBES; ++probe) {
+        long held = table[slot];
+        if (held == key) return;
+        if (held == -1) {
+            held = atom_cmpxchg(&table[slot], -1L, key);
+            if (held == -1 || held == key) return;
+        }
+        slot = (slot + 1) & mask;
+    }
+    atomic_or(overflow, 1);
+}
+#endif
 #endif

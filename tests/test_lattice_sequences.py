@@ -90,3 +90,26 @@ def test_lattice_keys_refuse_an_overflowing_base(runtime):
     with pytest.raises(ArgumentError, match="base"):
         caster.lattice_keys(np.zeros(3), np.zeros((4, 3)), np.eye(3), tri_face, 16,
                             base=2**20)
+
+
+def test_lattice_key_set_is_the_distinct_keys_and_survives_a_full_table(runtime):
+    """The device's hash set of keys (collect_reflection_keys_rotated) holds exactly the
+    distinct non-zero keys of every ray; a table too small for them is noticed and the
+    keys are then gathered on the host, with the same result."""
+    tris = _room()
+    caster = RayCaster(tris, runtime=runtime)
+    tri_face = np.arange(len(tris), dtype=np.int32) // 2
+    local = fibonacci_sphere(20000)
+    rot = np.eye(3)
+    origin = np.array([0.7, -0.4, 0.2])
+    base = sp.key_base(int(tri_face.max()) + 1, 4)
+    keys = caster.lattice_keys(origin, local, rot, tri_face, 4, base)
+    want = np.unique(keys[keys > 0])
+    assert len(want) > 200
+    np.testing.assert_array_equal(
+        caster.lattice_key_set(origin, local, rot, tri_face, 4, base, batch=7000), want)
+    # 2^6 slots for hundreds of keys: the set overflows, the host's path answers
+    np.testing.assert_array_equal(
+        caster.lattice_key_set(origin, local, rot, tri_face, 4, base, table_bits=6), want)
+    with pytest.raises(ArgumentError, match="table_bits"):
+        caster.lattice_key_set(origin, local, rot, tri_face, 4, base, table_bits=40)

@@ -337,11 +337,7 @@ class RayCaster:
         ``base`` must exceed every face id + 1 and base^max_order fit in an int64; needs
         a device with fp64."""
         local, r = self._check_lattice(local, rotation)
-        n_faces = int(np.max(tri_face, initial=-1)) + 1
-        if not (max_order >= 1 and base > n_faces and float(base) ** max_order < 2.0**63):
-            raise ArgumentError(f"needs max_order >= 1, a base above every face id + 1 "
-                                f"({n_faces}) and base^max_order < 2^63", argument="base",
-                                value=(base, max_order))
+        self._check_key_base(tri_face, max_order, base)
         if not self.runtime.info.has_double:
             raise ArgumentError("this OpenCL device has no fp64; use lattice_sequences",
                                 argument="device",
@@ -350,6 +346,54 @@ class RayCaster:
         self._rotated_launch("trace_reflection_keys_rotated", origin, local, r, tri_face,
                              (np.int32(max_order), np.int64(base)), out, batch)
         return out
+
+    def lattice_key_set(self, origin, local, rotation, tri_face, max_order: int,
+                        base: int, batch: int = 1 << 20,
+                        table_bits: int | None = None) -> np.ndarray:
+        """The distinct non-zero keys of :meth:`lattice_keys`, ascending: gathered into a
+        hash set on the device (``collect_reflection_keys_rotated``) where it has 64-bit
+        atomics, so only the set leaves the device; a set that fills up (or no such
+        atomics) falls back to every ray's key and ``np.unique`` on the host. The set
+        has 2^``table_bits`` slots (default: a quarter of the rays' count, at least
+        2^12)."""
+        local, r = self._check_lattice(local, rotation)
+        rt = self.runtime
+        if (rt.info.has_double and "cl_khr_int64_base_atomics" in rt.queue.device.extensions
+                and len(local)):
+            import pyopencl as cl
+
+            # 4 slots per expected distinct key at one distinct sequence in 16 rays
+            bits = (max(12, int(np.ceil(np.log2(max(len(local), 1) / 4))))
+                    if table_bits is None else int(table_bits))
+            if not 1 <= bits <= 30:
+                raise ArgumentError("must lie in [1, 30]", argument="table_bits", value=bits)
+            table = np.full(1 << bits, -1, dtype=np.int64)
+            table_buf = cl.Buffer(rt.context, cl.mem_flags.READ_WRITE
+                                  | cl.mem_flags.COPY_HOST_PTR, hostbuf=table)
+            overflow = np.zeros(1, dtype=np.int32)
+            overflow_buf = cl.Buffer(rt.context, cl.mem_flags.READ_WRITE
+                                     | cl.mem_flags.COPY_HOST_PTR, hostbuf=overflow)
+            self._check_key_base(tri_face, max_order, base)
+            self._rotated_launch("collect_reflection_keys_rotated", origin, local, r,
+                                 tri_face, (np.int32(max_order), np.int64(base),
+                                            np.int32(bits), table_buf, overflow_buf),
+                                 None, batch)
+            with rt.kernel_clock():
+                cl.enqueue_copy(rt.queue, table, table_buf)
+                cl.enqueue_copy(rt.queue, overflow, overflow_buf, is_blocking=True)
+            if not overflow[0]:
+                return np.sort(table[table > 0])
+        keys = self.lattice_keys(origin, local, rotation, tri_face, max_order, base, batch)
+        keys = np.unique(keys)
+        return keys[keys > 0]
+
+    @staticmethod
+    def _check_key_base(tri_face, max_order: int, base: int) -> None:
+        n_faces = int(np.max(tri_face, initial=-1)) + 1
+        if not (max_order >= 1 and base > n_faces and float(base) ** max_order < 2.0**63):
+            raise ArgumentError(f"needs max_order >= 1, a base above every face id + 1 "
+                                f"({n_faces}) and base^max_order < 2^63", argument="base",
+                                value=(base, max_order))
 
     @staticmethod
     def _check_lattice(local, rotation):
@@ -365,14 +409,16 @@ class RayCaster:
 
     def _rotated_launch(self, kernel_name, origin, local, r, tri_face, extra, out, batch):
         """Launch ``kernel_name`` of kernels/reflect.cl over the lattice ``local`` rotated
-        by ``r`` in batches, each ray's row of ``out`` written by its work item; the
-        lattice buffer is kept while ``local`` is the same array."""
+        by ``r`` in batches, each ray's row of ``out`` written by its work item (``out``
+        None: the kernel writes its results into buffers among ``extra``, which it ends
+        with, and nothing is read back here); the lattice buffer is kept while ``local``
+        is the same array."""
         import pyopencl as cl
 
         rt = self.runtime
         kernel = rt.kernel("reflect.cl", kernel_name, defines=self._defines())
         o = np.asarray(origin, dtype=np.float64)
-        row_bytes = out[:1].nbytes
+        row_bytes = 0 if out is None else out[:1].nbytes
         with self._lock, rt.kernel_clock():
             cached = getattr(self, "_lattice", None)
             if cached is None or cached[0] is not local:
@@ -380,13 +426,16 @@ class RayCaster:
             face_buf = rt.to_device(np.asarray(tri_face, dtype=np.int32))
             for start in range(0, len(local), batch):
                 n = min(batch, len(local) - start)
-                o_buf = rt.empty(n * row_bytes)
+                o_buf = () if out is None else (rt.empty(n * row_bytes),)
                 size = self.LOCAL_SIZE   # whole work-groups, as in specular_sequences
                 kernel(rt.queue, (-(-n // size) * size,), (size,), self._nodes, self._tri4,
                        self._slot_prim, face_buf, np.float32(o[0]), np.float32(o[1]),
                        np.float32(o[2]), cached[1], *(np.float64(x) for x in r.ravel()),
-                       np.int32(start), *extra, o_buf, np.int32(n))
-                cl.enqueue_copy(rt.queue, out[start:start + n], o_buf)
+                       np.int32(start), *extra, *o_buf, np.int32(n))
+                if out is not None:
+                    cl.enqueue_copy(rt.queue, out[start:start + n], o_buf[0])
+            if out is None:
+                rt.queue.finish()
 
 
 class InstancedCaster(RayCaster):
@@ -562,6 +611,10 @@ class InstancedCaster(RayCaster):
     def lattice_keys(self, *args, **kwargs) -> np.ndarray:
         self._check_placed()
         return super().lattice_keys(*args, **kwargs)
+
+    def lattice_key_set(self, *args, **kwargs) -> np.ndarray:
+        self._check_placed()
+        return super().lattice_key_set(*args, **kwargs)
 
     def _check_placed(self):
         if not self._placed:

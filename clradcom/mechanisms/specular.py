@@ -330,10 +330,11 @@ def prepare(geom: Geometry, tx: Radar, settings: SpecularSettings) -> Candidates
     k = settings.max_reflections
     base = key_base(geom.faces.n_faces, k)
     if geom.engine == "device" and base is not None and geom.runtime.has_double:
-        # each ray's sequence leaves the device as one exact key: no (R, k) rows to
-        # download and encode on the host (the reference engine does that)
-        keys = geom.caster.lattice_keys(tx.position, local, rot, geom.faces.tri_face, k,
-                                        base)
+        # each ray's sequence becomes one exact key on the device, and only the set of
+        # distinct keys leaves it: no (R, k) rows to download, encode and sort on the
+        # host (the reference engine does that)
+        keys = geom.caster.lattice_key_set(tx.position, local, rot, geom.faces.tri_face, k,
+                                           base)
         return candidates_from_keys(keys, base, k)
     seqs = geom.caster.lattice_sequences(tx.position, local, rot, geom.faces.tri_face, k)
     return unique_candidates(seqs)
