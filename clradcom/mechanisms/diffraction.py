@@ -522,22 +522,23 @@ def _seeing_many(caster, wedges: Wedges, points, samples=(0.25, 0.5, 0.75), tri_
     if not device_edges.usable(caster, engine, len(samples), max_depth) or len(wedges) == 0:
         return [_seeing(caster, wedges, p, samples, tri_face, max_depth, outlines)
                 for p in points]
-    W = len(wedges)
-    every = np.arange(W)
+    W, S = len(wedges), len(samples)
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    gate = np.zeros((len(points), W), np.uint8)
+    P = len(points)
+    # whether each point lies outside each wedge, seen from the sample points and from the
+    # midpoint: the host's arctangents (_seeing's own expressions, row by row), one call
     span = wedges.end - wedges.start
-    mid = 0.5 * (wedges.start + wedges.end)
-    long_enough = wedges.length > 2 * EDGE_CLEARANCE_M
-    for i, p in enumerate(points):
-        # whether p lies outside each wedge: the host's arctangents, as _seeing takes them
-        for k, f in enumerate(samples):
-            d = p - (wedges.start + f * span)
-            cast = _outside(wedges, every, d) & (np.linalg.norm(d, axis=1)
-                                                  > 2 * EDGE_CLEARANCE_M)
-            gate[i] |= cast.astype(np.uint8) << k
-        gate[i] |= (_outside(wedges, every, p - mid) & long_enough).astype(
-            np.uint8) << len(samples)
+    ends = np.stack([wedges.start + f * span for f in samples]
+                    + [0.5 * (wedges.start + wedges.end)])  # (S + 1, W, 3)
+    d = points[:, None, None, :] - ends[None]  # (P, S + 1, W, 3)
+    outside = _outside_every(wedges, d)
+    far = np.linalg.norm(d[:, :S].reshape(-1, 3), axis=1).reshape(P, S, W) > (
+        2 * EDGE_CLEARANCE_M)
+    outside[:, :S] &= far
+    outside[:, S] &= wedges.length > 2 * EDGE_CLEARANCE_M
+    gate = np.zeros((P, W), np.uint8)
+    for k in range(S + 1):
+        gate |= outside[:, k].astype(np.uint8) << k
     tri_face = np.arange(len(caster.triangles)) if tri_face is None else np.asarray(tri_face)
     bits = device_edges.wedges_seen(caster, tri_face, wedges.start, wedges.end,
                                     wedges.direction, wedges.length, wedges.normal0,
@@ -755,6 +756,25 @@ def _outside(wedges: Wedges, w, direction) -> np.ndarray:
     phi, _ = _snap_to_faces(phi, limit)
     perp = direction - np.einsum("ci,ci->c", direction, e)[:, None] * e
     return (phi <= limit) & (np.linalg.norm(perp, axis=1) > 0)
+
+
+def _outside_every(wedges: Wedges, direction) -> np.ndarray:
+    """:func:`_outside` of every wedge at once: ``direction`` (..., W, 3) -> (..., W) bool,
+    the same decisions bit for bit (the same float64 operations row by row, the wedge
+    arrays broadcast instead of gathered; np.mod(a, 2 pi) of an arctangent a in
+    [-pi, pi] is a + 2 pi below 0, else a (-0.0 as 0.0, which compares alike); a
+    perpendicular part's norm is > 0 exactly when one of its squares is)."""
+    e = wedges.direction
+    n0 = wedges.normal0
+    t0 = np.cross(n0, e)
+    y = np.einsum("...ci,ci->...c", direction, n0)
+    x = np.einsum("...ci,ci->...c", direction, t0)
+    a = np.arctan2(y, x)
+    phi = np.where(a < 0, a + 2 * np.pi, a)
+    limit = wedges.n * np.pi
+    phi, _ = _snap_to_faces(phi, limit)
+    perp = direction - np.einsum("...ci,ci->...c", direction, e)[..., None] * e
+    return (phi <= limit) & np.any(perp * perp > 0, axis=-1)
 
 
 def _reaches(point, other_start, other_end, start, end) -> np.ndarray:
@@ -1063,4 +1083,6 @@ def link_paths(geom: Geometry, wedges: Wedges, tx: Radar, rx: Radar,
     if stats is not None:
         for key, value in counts.items():
             stats[key] = stats.get(key, 0) + value
+    if len(parts) == 1:
+        return parts[0]
     return concat_paths(parts) if parts else Paths.empty(1)
