@@ -10,7 +10,8 @@ nested :class:`TraceSettings`, the per-transmitter caches and the link loop:
    SBR tubes of physical optics.
 3. per link, in this order: line of sight and specular reflections; physical optics
    in place of the GO returns of the objects that ask for it; diffuse scattering;
-   UTD diffraction. Their :class:`~clradcom.paths.Paths` are joined in that order.
+   UTD diffraction. Their :class:`~clradcom.paths.Paths` are joined in that order, once
+   per link (stage "join": a join copies and checks every path of the link).
 
 Geometry is float32 only inside the kernels that propose candidates and confirm
 visibility; every point, length, delay and phase of a kept path is computed in float64
@@ -283,19 +284,23 @@ def trace_scene(scene: Scene, settings: TraceSettings | None = None,
                 if extra:
                     kept = select_paths(paths, ~optics.replaced_paths(paths, shots[t_idx]))
                     paths = concat_paths([kept, *extra])
+        parts = [paths]  # joined once, after the last mechanism
         if scat.enabled and geom.caster is not None:
             step(done, len(links), f"{link_name}: scattering")
             with clock("scattering"):
-                paths = concat_paths([paths, scattering.link_paths(
+                parts.append(scattering.link_paths(
                     geom, scattering.prepare(geom, tx, scat), tx, rx, scat,
-                    stats["scattering"])])
+                    stats["scattering"]))
         if wedges is not None:
             rx_candidates = candidates_of(r_idx) if diff.max_reflections else {}
             step(done, len(links), f"{link_name}: diffraction")
             with clock("diffraction"):
-                paths = concat_paths([paths, diffraction.link_paths(
+                parts.append(diffraction.link_paths(
                     geom, wedges, tx, rx, diff, tx_candidates, rx_candidates,
-                    stats["diffraction"], go_paths=go_paths, seeing=seeing)])
+                    stats["diffraction"], go_paths=go_paths, seeing=seeing))
+        if len(parts) > 1:
+            with clock("join"):
+                paths = concat_paths(parts)
         out.append(Link(tx_name=tx.name, rx_name=rx.name, tx_index=t_idx, rx_index=r_idx,
                         paths=paths))
     step(len(links), len(links), "done")

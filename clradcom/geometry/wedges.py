@@ -109,10 +109,45 @@ def weld_vertices(points, tol: float) -> np.ndarray:
     return labels[inverse].astype(np.int64)
 
 
+def _norm3(v):
+    """np.linalg.norm(v, axis=-1) of (..., 3) vectors, bit for bit (the squares added in
+    numpy's order, (x^2 + y^2) + z^2), without the reduction's overhead on so short an
+    axis."""
+    x, y, z = v[..., 0], v[..., 1], v[..., 2]
+    return np.sqrt((x * x + y * y) + z * z)
+
+
+def _max_abs3(v):
+    """np.max(np.abs(v), axis=-1) of (..., 3) vectors (exact either way)."""
+    a = np.abs(v)
+    return np.maximum(np.maximum(a[..., 0], a[..., 1]), a[..., 2])
+
+
 def _unit(v):
-    norm = np.linalg.norm(v, axis=-1, keepdims=True)
+    norm = _norm3(v)[..., None]
     with np.errstate(invalid="ignore", divide="ignore"):
         return v / norm
+
+
+def _edge_groups(obj, lo, hi):
+    """(order, first, counts) of the edge rows (object, lesser vertex id, greater vertex
+    id), all ids >= 0: the rows sorted by key with ties in row order, where each key's run
+    starts in that order, and how many rows each key has, keys ascending as
+    np.unique(keys, axis=0) orders them.  One int64 key per row where the ids fit
+    (lexicographic order is the keys' order), else :func:`unique_rows`."""
+    span = int(max(lo.max(), hi.max())) + 1
+    if int(obj.min()) >= 0 and (int(obj.max()) + 1) * span * span < 2**62:
+        key = (obj.astype(np.int64) * span + lo) * span + hi
+        order = np.argsort(key, kind="stable")
+        srt = key[order]
+        new = np.ones(len(srt), dtype=bool)
+        new[1:] = srt[1:] != srt[:-1]
+        first = np.flatnonzero(new)
+        counts = np.diff(np.append(first, len(srt)))
+        return order, first, counts
+    _, inverse, counts = unique_rows(np.column_stack([obj, lo, hi]))
+    order = np.argsort(inverse, kind="stable")
+    return order, np.searchsorted(inverse[order], np.arange(len(counts))), counts
 
 
 def _empty_wedges(stats) -> Wedges:
@@ -173,14 +208,17 @@ def extract_wedges(triangles, tri_object, tri_material, angle_threshold_deg: flo
         return _empty_wedges(stats)
 
     pts = tri.reshape(-1, 3)
-    scale = float(np.max(np.ptp(pts, axis=0)))
+    # np.max(np.ptp(pts, axis=0)) column by column: a reduction down a (P, 3) array's
+    # short rows costs some 40x more than one down a column
+    scale = float(max(pts[:, k].max() - pts[:, k].min() for k in range(3)))
     tol = weld_tol * (scale if scale > 0 else 1.0)
     stats["weld_tol_m"] = tol
     vid = weld_vertices(pts, tol).reshape(T, 3)
 
     with np.errstate(invalid="ignore", divide="ignore"):
         tri_normal, area2 = triangle_normals_and_double_areas(tri)
-    longest = np.max(np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2), axis=1)
+    side = _norm3(tri - tri[:, [2, 0, 1]])  # np.roll(tri, 1, axis=1)'s edges
+    longest = np.maximum(np.maximum(side[:, 0], side[:, 1]), side[:, 2])
     good = (area2 > 1e-12 * longest**2) & (vid[:, 0] != vid[:, 1]) & (vid[:, 1] != vid[:, 2])
     good &= vid[:, 2] != vid[:, 0]
     stats["degenerate"] = int(T - np.count_nonzero(good))
@@ -196,23 +234,22 @@ def extract_wedges(triangles, tri_object, tri_material, angle_threshold_deg: flo
     loc = np.tile(np.arange(3), int(np.count_nonzero(good)))
     a = vid[t_idx, li[loc]]
     b = vid[t_idx, lj[loc]]
-    keys = np.column_stack([obj[t_idx], np.minimum(a, b), np.maximum(a, b)])
-    if len(keys) == 0:
+    if len(t_idx) == 0:
         return _empty_wedges(stats)
-    _, inverse, counts = unique_rows(keys)  # np.unique(keys, axis=0)'s, by one lexsort
-    order = np.argsort(inverse, kind="stable")
-    first = np.searchsorted(inverse[order], np.arange(len(counts)))
+    order, first, counts = _edge_groups(obj[t_idx], np.minimum(a, b), np.maximum(a, b))
     stats["nonmanifold"] = int(np.count_nonzero(counts >= 3))
 
+    # every row's edge p -> q and the unit in-plane direction u from it into its triangle
+    flat = tri.reshape(-1, 3)
+    p_all = flat[3 * t_idx + li[loc]]
+    q_all = flat[3 * t_idx + lj[loc]]
+    c_all = flat[3 * t_idx + lk[loc]]
+    e_all = _unit(q_all - p_all)
+    u_all = c_all - p_all
+    u_all = _unit(u_all - np.einsum("ij,ij->i", u_all, e_all)[:, None] * e_all)
+
     def edge_geometry(rows):
-        t = t_idx[rows]
-        p = tri[t, li[loc[rows]]]
-        q = tri[t, lj[loc[rows]]]
-        c = tri[t, lk[loc[rows]]]
-        e = _unit(q - p)
-        u = c - p
-        u = _unit(u - np.einsum("ij,ij->i", u, e)[:, None] * e)
-        return t, p, q, u
+        return t_idx[rows], p_all[rows], q_all[rows], u_all[rows]
 
     parts = []
     # -- creases: edges of exactly two triangles
@@ -226,7 +263,7 @@ def extract_wedges(triangles, tri_object, tri_material, angle_threshold_deg: flo
     inconsistent = (a[ra] < b[ra]) == (a[rb] < b[rb])
     stats["inconsistent"] = int(np.count_nonzero(inconsistent))
     nB[inconsistent] *= -1.0
-    opening = np.arctan2(np.linalg.norm(np.cross(uA, uB), axis=1),
+    opening = np.arctan2(_norm3(np.cross(uA, uB)),
                          np.einsum("ij,ij->i", uA, uB))  # [0, pi] between the face directions
 
     def crease(nA, nB, rows):
@@ -282,7 +319,7 @@ def extract_wedges(triangles, tri_object, tri_material, angle_threshold_deg: flo
     vs, ve = vs[srt], ve[srt]
     if merge_collinear:
         W = _merge_collinear(W, vs, ve)
-    W["length"] = np.linalg.norm(W["end"] - W["start"], axis=1)
+    W["length"] = _norm3(W["end"] - W["start"])
     out = {k: W[k] for k in _ARRAY_FIELDS}
     for k in ("tri0", "tri1", "object_id", "material0", "material1", "n_segments"):
         out[k] = out[k].astype(np.int32)
@@ -312,7 +349,7 @@ def _merge_collinear(W, vs, ve):
     ia, ib = ia[ok], ib[ok]
 
     def close(x, y):
-        return np.max(np.abs(x - y), axis=-1) < _MERGE_TOL
+        return _max_abs3(x - y) < _MERGE_TOL
 
     da, db = W["direction"][ia], W["direction"][ib]
     same_dir = close(da, db)
@@ -329,8 +366,7 @@ def _merge_collinear(W, vs, ve):
     mid_a = 0.5 * (W["start"][ia] + W["end"][ia])
     mid_b = 0.5 * (W["start"][ib] + W["end"][ib])
     sep = np.einsum("ij,ij->i", mid_b - mid_a, da)
-    ext = 0.5 * (np.linalg.norm(W["end"][ia] - W["start"][ia], axis=1)
-                 + np.linalg.norm(W["end"][ib] - W["start"][ib], axis=1))
+    ext = 0.5 * (_norm3(W["end"][ia] - W["start"][ia]) + _norm3(W["end"][ib] - W["start"][ib]))
     ok &= np.abs(np.abs(sep) - ext) <= 1e-6 * (1.0 + ext)
     ia, ib = ia[ok], ib[ok]
     if len(ia) == 0:

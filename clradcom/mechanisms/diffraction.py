@@ -37,6 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from clradcom.device import edges as device_edges
 from clradcom.device.raycast import make_rays, spawn_origins
 from clradcom.device.visibility import (
     antenna_slack,
@@ -489,7 +490,7 @@ def _warn_on_boundaries(phi, phi_p, n, grazing, sides=None):
 # candidates
 
 def wedges_seeing(caster, wedges: Wedges, point, samples=(0.25, 0.5, 0.75), tri_face=None,
-                  max_depth: int = SEEING_MAX_DEPTH) -> np.ndarray:
+                  max_depth: int = SEEING_MAX_DEPTH, engine: str = "device") -> np.ndarray:
     """Mask of wedges of which some point (away from the ends by EDGE_CLEARANCE_M, where
     Keller points may lie) may see ``point`` unobstructed from outside the wedge: a
     candidate filter that only over-accepts (the exact diffraction point is confirmed
@@ -503,15 +504,55 @@ def wedges_seeing(caster, wedges: Wedges, point, samples=(0.25, 0.5, 0.75), tri_
     (:func:`_face_covers`).  Pieces not proven so are halved (a sight line from the
     midpoint: clear -> the wedge is in) down to ``max_depth`` halvings; a wedge with a
     piece still open then is kept.  (Three samples alone dropped edges whose samples a
-    plate hid while their Keller points were in plain sight.)"""
-    return _seeing(caster, wedges, point, samples, tri_face, max_depth)[1]
+    plate hid while their Keller points were in plain sight.)
+
+    ``engine`` "device" (on a device with fp64) decides every wedge in one launch of
+    ``kernels/edges.cl`` (:func:`clradcom.device.edges.wedges_seen`), the same wedges as
+    "host", this numpy reference over float32 casts."""
+    return _seeing_many(caster, wedges, [point], samples, tri_face, max_depth,
+                        engine=engine)[0][1]
+
+
+def _seeing_many(caster, wedges: Wedges, points, samples=(0.25, 0.5, 0.75), tri_face=None,
+                 max_depth: int = SEEING_MAX_DEPTH, outlines: dict | None = None,
+                 engine: str = "device"):
+    """[(seen at the samples, kept)] per point: :func:`_seeing` for several antenna
+    positions, on the device in one launch (engine "device", where
+    :func:`clradcom.device.edges.usable`), else point by point on the host."""
+    if not device_edges.usable(caster, engine, len(samples), max_depth) or len(wedges) == 0:
+        return [_seeing(caster, wedges, p, samples, tri_face, max_depth, outlines)
+                for p in points]
+    W, S = len(wedges), len(samples)
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    P = len(points)
+    # whether each point lies outside each wedge, seen from the sample points and from the
+    # midpoint: the host's arctangents (_seeing's own expressions, row by row), one call
+    span = wedges.end - wedges.start
+    ends = np.stack([wedges.start + f * span for f in samples]
+                    + [0.5 * (wedges.start + wedges.end)])  # (S + 1, W, 3)
+    d = points[:, None, None, :] - ends[None]  # (P, S + 1, W, 3)
+    outside = _outside_every(wedges, d)
+    far = np.linalg.norm(d[:, :S].reshape(-1, 3), axis=1).reshape(P, S, W) > (
+        2 * EDGE_CLEARANCE_M)
+    outside[:, :S] &= far
+    outside[:, S] &= wedges.length > 2 * EDGE_CLEARANCE_M
+    gate = np.zeros((P, W), np.uint8)
+    for k in range(S + 1):
+        gate |= outside[:, k].astype(np.uint8) << k
+    tri_face = np.arange(len(caster.triangles)) if tri_face is None else np.asarray(tri_face)
+    bits = device_edges.wedges_seen(caster, tri_face, wedges.start, wedges.end,
+                                    wedges.direction, wedges.length, wedges.normal0,
+                                    wedges.normal1, points, samples, gate, max_depth,
+                                    EDGE_CLEARANCE_M, EDGE_LIFT_M)
+    return [((b & device_edges.SAMPLED) != 0, (b & device_edges.SEEN) != 0) for b in bits]
 
 
 def _seeing(caster, wedges: Wedges, point, samples=(0.25, 0.5, 0.75), tri_face=None,
             max_depth: int = SEEING_MAX_DEPTH, outlines: dict | None = None):
     """(seen at the samples, kept): :func:`wedges_seeing`'s mask and the part of it the
-    sample sight lines alone decided.  ``outlines``: :func:`_face_outlines`' cache, which
-    callers with one ``tri_face`` may share between points."""
+    sample sight lines alone decided, the numpy reference.  ``outlines``:
+    :func:`_face_outlines`' cache, which callers with one ``tri_face`` may share between
+    points."""
     W = len(wedges)
     seen = np.zeros(W, dtype=bool)
     if W == 0:
@@ -717,6 +758,25 @@ def _outside(wedges: Wedges, w, direction) -> np.ndarray:
     return (phi <= limit) & (np.linalg.norm(perp, axis=1) > 0)
 
 
+def _outside_every(wedges: Wedges, direction) -> np.ndarray:
+    """:func:`_outside` of every wedge at once: ``direction`` (..., W, 3) -> (..., W) bool,
+    the same decisions bit for bit (the same float64 operations row by row, the wedge
+    arrays broadcast instead of gathered; np.mod(a, 2 pi) of an arctangent a in
+    [-pi, pi] is a + 2 pi below 0, else a (-0.0 as 0.0, which compares alike); a
+    perpendicular part's norm is > 0 exactly when one of its squares is)."""
+    e = wedges.direction
+    n0 = wedges.normal0
+    t0 = np.cross(n0, e)
+    y = np.einsum("...ci,ci->...c", direction, n0)
+    x = np.einsum("...ci,ci->...c", direction, t0)
+    a = np.arctan2(y, x)
+    phi = np.where(a < 0, a + 2 * np.pi, a)
+    limit = wedges.n * np.pi
+    phi, _ = _snap_to_faces(phi, limit)
+    perp = direction - np.einsum("...ci,ci->...c", direction, e)[..., None] * e
+    return (phi <= limit) & np.any(perp * perp > 0, axis=-1)
+
+
 def _reaches(point, other_start, other_end, start, end) -> np.ndarray:
     """Keller points on edges (start, end) between ``point`` and the ends of the other
     edges reach into the finite edge for at least one end."""
@@ -822,7 +882,8 @@ def _product(parts, chunk: int):
 
 def diffraction_candidates(caster, wedges: Wedges, tx_pos, rx_pos, tx_sequences: dict,
                            rx_sequences: dict, budget: DiffractionSettings, stats=None,
-                           chunk: int = 1 << 19, tri_face=None, seeing: dict | None = None):
+                           chunk: int = 1 << 19, tri_face=None, seeing: dict | None = None,
+                           engine: str = "device"):
     """Candidate :class:`Chains` of one link, yielded in chunks of at most ``chunk``.
 
     * one diffraction: [tx's ray-found face sequence of a reflections] + wedge, or
@@ -836,7 +897,8 @@ def diffraction_candidates(caster, wedges: Wedges, tx_pos, rx_pos, tx_sequences:
     ``stats`` (a dict) receives ``chains_over_cap``: chains the cap left out.
     ``tri_face``: the planar face of every triangle, for :func:`wedges_seeing`;
     ``seeing`` (a dict) keeps its masks per antenna position, and the planar faces'
-    outlines, for the next links of a trace.
+    outlines, for the next links of a trace.  ``engine``: where :func:`wedges_seeing`
+    runs ("device": one launch for the link's new antenna positions; "host": numpy).
     """
     stats = {} if stats is None else stats
     stats.setdefault("chains_over_cap", 0)
@@ -844,14 +906,17 @@ def diffraction_candidates(caster, wedges: Wedges, tx_pos, rx_pos, tx_sequences:
         return
     seeing = {} if seeing is None else seeing
 
-    def seen_from(pos):
-        key = tuple(float(x) for x in np.asarray(pos, dtype=np.float64))
-        if key not in seeing:
-            seeing[key] = _seeing(caster, wedges, pos, tri_face=tri_face,
-                                  outlines=seeing.setdefault("face outlines", {}))
-        return seeing[key]
+    def key(pos):
+        return tuple(float(x) for x in np.asarray(pos, dtype=np.float64))
 
-    (sampled_tx, seen_tx), (sampled_rx, seen_rx) = seen_from(tx_pos), seen_from(rx_pos)
+    # the antenna positions not yet asked, in one batch
+    new = list(dict.fromkeys(k for k in (key(tx_pos), key(rx_pos)) if k not in seeing))
+    if new:
+        for k, masks in zip(new, _seeing_many(caster, wedges, new, tri_face=tri_face,
+                                              outlines=seeing.setdefault("face outlines", {}),
+                                              engine=engine), strict=True):
+            seeing[k] = masks
+    (sampled_tx, seen_tx), (sampled_rx, seen_rx) = seeing[key(tx_pos)], seeing[key(rx_pos)]
     sides = [(0, 0)] + [(a, 0) for a in range(1, budget.max_reflections + 1)] + [
         (0, b) for b in range(1, budget.max_reflections + 1)]
     for a, b in sides:
@@ -952,7 +1017,7 @@ def diffraction_link_paths(scene, faces, caster, wedges: Wedges, tx, rx, tx_sequ
     out = []
     for ch in diffraction_candidates(caster, wedges, tx.position, rx.position, tx_sequences,
                                      rx_sequences, budget, stats, tri_face=faces.tri_face,
-                                     seeing=seeing):
+                                     seeing=seeing, engine=engine):
         stats["candidates"] += len(ch)
         pts, ok = unfold_points(ch, tx.position, rx.position, faces.normal, faces.offset,
                                 wedges)
@@ -1018,4 +1083,6 @@ def link_paths(geom: Geometry, wedges: Wedges, tx: Radar, rx: Radar,
     if stats is not None:
         for key, value in counts.items():
             stats[key] = stats.get(key, 0) + value
+    if len(parts) == 1:
+        return parts[0]
     return concat_paths(parts) if parts else Paths.empty(1)
