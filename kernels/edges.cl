@@ -19,15 +19,15 @@
  * cast with the same traversal as kernels/raycast.cl; the float64 arithmetic
  * repeats the numpy reference operation for operation (FP_CONTRACT OFF, dot
  * products in numpy's order DOT3_ORDER), the point-in-face test and the seam
- * table are kernels/visibility.cl's (contains, Scene64), so the two engines
- * keep the same wedges bit for bit.
+ * table are kernels/scene64.h's (contains, Scene64, as visibility.cl uses them),
+ * so the two engines keep the same wedges bit for bit.
  *
  * Whether the antenna lies outside the wedge (an arctangent on the host) is
  * decided by the host and passed in: gate[(P * (n_samples + 1)) ...] holds,
  * per position and wedge, bit k for "sample k is outside and far enough" and
  * bit n_samples for "the antenna is outside the wedge seen from its midpoint
  * and the edge is long enough for pieces". */
-#include "visibility.cl"
+#include "scene64.h"
 
 #define EDGE_MAX_DEPTH 10
 #define EDGE_STACK (4 + 2 * (EDGE_MAX_DEPTH + 1))
