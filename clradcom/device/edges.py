@@ -71,10 +71,10 @@ def wedges_seen(caster: RayCaster, tri_face, start, end, direction, length, norm
         return rt.to_device(np.ascontiguousarray(a, dtype=np.float64))
 
     out = rt.empty(n)
-    caster.run_kernel(SOURCE, "wedges_seen", n, *visibility._scene64_args(caster, tri_face),
+    caster.run_kernel(SOURCE, "wedges_seen", n, *visibility.scene64_args(caster, tri_face),
                       vec(start), vec(end), vec(direction), vec(length), vec(normal0),
                       vec(normal1), np.float64(edge_clearance_m), np.float64(edge_lift_m),
                       vec(points), vec(samples if len(samples) else np.zeros(1)),
                       np.int32(len(samples)), rt.to_device(gate), np.int32(max_depth), out,
-                      np.int32(W), np.int32(n), defines=visibility._kernel_defines())
-    return visibility._download(caster, out, n, np.uint8).reshape(P, W)
+                      np.int32(W), np.int32(n), defines=visibility.kernel_defines())
+    return visibility.download(caster, out, n, np.uint8).reshape(P, W)

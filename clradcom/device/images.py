@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from clradcom.device.visibility import dot3_order
+from clradcom.device.visibility import dot3_order, kernel_defines
 from clradcom.errors import ArgumentError
 
 __all__ = ["MAX_ORDER", "available", "image_points"]
@@ -59,8 +59,7 @@ def image_points(runtime, tx, rx, normals, offsets, seqs):
         tx = np.asarray(tx, dtype=np.float64)
         rx = np.asarray(rx, dtype=np.float64)
         kernel = runtime.kernel(SOURCE, "image_points",
-                                defines={"DOT3_ORDER": int(dot3_order()),
-                                         "MAX_ORDER": MAX_ORDER})
+                                defines={**kernel_defines(), "MAX_ORDER": MAX_ORDER})
         out = runtime.empty(points.nbytes)
         flag_buf = runtime.empty(flags.nbytes)
         local = 64

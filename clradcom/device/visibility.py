@@ -407,11 +407,11 @@ def face_boxes(triangles, tri_face, n_faces: int) -> np.ndarray:
 _DEVICE_TABLES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
-def _scene64_args(caster: RayCaster, tri_face) -> tuple:
-    """The kernels' SCENE64_ARGS for ``tri_face``, uploaded once per caster and faces; a
-    caster placed since (a time step of InstancedCaster) gets the float64 scene buffers
-    it holds now and its faces' boxes redone (the faces' triangles and seams stay: a
-    rigid motion moves the equal vertices of a seam alike)."""
+def scene64_args(caster: RayCaster, tri_face) -> tuple:
+    """The SCENE64_ARGS of kernels/scene64.h for ``tri_face``, uploaded once per caster
+    and faces; a caster placed since (a time step of InstancedCaster) gets the float64
+    scene buffers it holds now and its faces' boxes redone (the faces' triangles and
+    seams stay: a rigid motion moves the equal vertices of a seam alike)."""
     tri_face = np.ascontiguousarray(tri_face, dtype=np.int32)
     key = tri_face.tobytes()
     cache = _DEVICE_TABLES.setdefault(caster, {})
@@ -435,11 +435,13 @@ def _scene64_args(caster: RayCaster, tri_face) -> tuple:
     return args
 
 
-def _kernel_defines() -> dict:
+def kernel_defines() -> dict:
+    """The -D defines of the kernels that include kernels/scene64.h."""
     return {"DOT3_ORDER": int(dot3_order())}
 
 
-def _download(caster: RayCaster, buf, n: int, dtype) -> np.ndarray:
+def download(caster: RayCaster, buf, n: int, dtype) -> np.ndarray:
+    """The first ``n`` elements of ``dtype`` of a device buffer, read back blocking."""
     import pyopencl as cl
 
     out = np.empty(n, dtype=dtype)
@@ -474,12 +476,12 @@ def segments_blocked_device(caster: RayCaster, tri_face, start, seg, tmin, tmax,
     ignore = None if ignore_prim is None else rt.to_device(
         np.ascontiguousarray(np.broadcast_to(ignore_prim, (S,)), dtype=np.int32))
     out = rt.empty(S)
-    caster.run_kernel("visibility.cl", "segments_blocked", S, *_scene64_args(caster, tri_face),
+    caster.run_kernel("visibility.cl", "segments_blocked", S, *scene64_args(caster, tri_face),
                       rt.to_device(rays), rt.to_device(_f64(start, S, (3,))),
                       rt.to_device(_f64(seg, S, (3,))), rt.to_device(_f64(tmin, S)),
                       rt.to_device(_f64(tmax, S)), ignore, np.int32(max_rounds),
-                      np.float64(LOOK_PAST), out, np.int32(S), defines=_kernel_defines())
-    return _download(caster, out, S, np.uint8).astype(bool)
+                      np.float64(LOOK_PAST), out, np.int32(S), defines=kernel_defines())
+    return download(caster, out, S, np.uint8).astype(bool)
 
 
 def reaches_face_device(caster: RayCaster, tri_face, start, end, faces, slack,
@@ -496,12 +498,12 @@ def reaches_face_device(caster: RayCaster, tri_face, start, end, faces, slack,
         return np.zeros(0, dtype=np.int32)
     rt = caster.runtime
     out = rt.empty(4 * S)
-    caster.run_kernel("visibility.cl", "reach_faces", S, *_scene64_args(caster, tri_face),
+    caster.run_kernel("visibility.cl", "reach_faces", S, *scene64_args(caster, tri_face),
                       rt.to_device(rays), rt.to_device(_f64(end, S, (3,))),
                       rt.to_device(np.ascontiguousarray(np.broadcast_to(faces, (S,)),
                                                         dtype=np.int32)),
-                      rt.to_device(slack), out, np.int32(S), defines=_kernel_defines())
-    return _download(caster, out, S, np.int32)
+                      rt.to_device(slack), out, np.int32(S), defines=kernel_defines())
+    return download(caster, out, S, np.int32)
 
 
 # --------------------------------------------------------------------------------------
