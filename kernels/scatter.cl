@@ -3,7 +3,11 @@
  *
  *   tile_centres   the tiles of the scattering triangles: centroid (double) and triangle
  *   tile_sight     front side and float32 sight line of every tile centre to tx and rx
- *   tile_lambert   Lambertian power of the tiles both ends see, compacted (atomic counter)
+ *   tile_lambert   Lambertian power of the tiles both ends see (rows listed by the host)
+ *   tile_fields    the direct paths tx -> tile -> rx of those rows: length, Doppler,
+ *                  antenna directions, polarimetric matrix for Gamma = 1, the pieces of
+ *                  Gamma (Fresnel coefficients and the tx basis' TE/TM projections), and
+ *                  whether a float64 antenna end is left for the host to decide
  *
  * Every position is double, computed with the host's operations in the host's order
  * (FP_CONTRACT is off, intersect.h), so a tile centre, a spawned origin and the float32
@@ -11,6 +15,13 @@
  * clradcom/device/visibility.py: surface_sees) bit for bit. Only the sight casts are
  * float32, as on the host; the float64 antenna-end check stays on the host. */
 #include "intersect.h"
+
+/* em.h's Fresnel coefficients, in double (scatter.cl needs fp64) */
+typedef double real;
+typedef double2 real2;
+typedef double3 real3;
+#define CLRADCOM_REAL_DEFINED 1
+#include "em.h"
 
 #ifndef CLRADCOM_HAS_FP64
 #error "scatter.cl needs cl_khr_fp64 (the host falls back to its numpy path without it)"
@@ -138,26 +149,25 @@ __kernel void tile_sight(__global const Bvh8Node *nodes, __global const float4 *
     flags[g] = out;
 }
 
-/* The tiles both ends see (flags == 3), packed in any order by an atomic counter with
- * their centre and Lambertian power for isotropic antennas and Gamma = 1:
+/* Lambertian power of the tiles both ends see, rows[r] listing them in tile order (the
+ * host's flatnonzero of flags == 3), for isotropic antennas and Gamma = 1:
  *   power = scale S^2 A cos(theta_i) cos(theta_s) / (r_i^2 r_s^2),
- * scale = lambda^2 / (16 pi^3) (docs/scattering.md), the bound the host's threshold
- * pre-cut uses. counter[0] ends as the number of such tiles. */
+ * scale = lambda^2 / (16 pi^3) (docs/scattering.md); the centre comes along. */
 __kernel void tile_lambert(__global const Bvh8Node *nodes, __global const float4 *tri4,
                            __global const int *slot_prim,
                            __global const double *centres, __global const int *tile_tri,
                            __global const double *normals,      /* (K, 3) unit */
                            __global const double *tile_area,    /* (K,) one tile's area */
                            __global const double *scattering,   /* (K,) S */
-                           __global const uchar *flags,
+                           __global const int *rows, const int n_rows,
                            const double tx_x, const double tx_y, const double tx_z,
                            const double rx_x, const double rx_y, const double rx_z,
-                           const double scale, const int n_tiles,
-                           __global int *counter, __global int *out_tile,
+                           const double scale,
                            __global double *out_centre, __global double *out_power)
 {
-    int g = get_global_id(0);
-    if (g >= n_tiles || flags[g] != 3) return;
+    int r = get_global_id(0);
+    if (r >= n_rows) return;
+    int g = rows[r];
     int k = tile_tri[g];
     double3 q = (double3)(centres[3 * (size_t)g], centres[3 * (size_t)g + 1],
                           centres[3 * (size_t)g + 2]);
@@ -169,9 +179,243 @@ __kernel void tile_lambert(__global const Bvh8Node *nodes, __global const float4
     double cos_i = clamp(-dot(dt, n) / ri, 0.0, 1.0);
     double cos_s = clamp(dot(dr, n) / rs, 0.0, 1.0);
     double S = scattering[k];
-    double power = scale * S * S * tile_area[k] * cos_i * cos_s / (ri2 * rs2);
-    int row = atomic_inc(counter);
-    out_tile[row] = g;
-    for (int c = 0; c < 3; ++c) out_centre[3 * (size_t)row + c] = centres[3 * (size_t)g + c];
-    out_power[row] = power;
+    out_power[r] = scale * S * S * tile_area[k] * cos_i * cos_s / (ri2 * rs2);
+    for (int c = 0; c < 3; ++c) out_centre[3 * (size_t)r + c] = centres[3 * (size_t)g + c];
+}
+
+/* em.h's fresnel (em.py: fresnel_coefficients) with |z| as sqrt(x^2 + y^2) instead of
+ * hypot, which PoCL calls out of line (40 ns a row of tile_fields, a fifth of it); a
+ * permittivity is far from overflowing the squares. */
+CLR_INLINE void tile_fresnel(cplx eps, double cos_theta, int pec, cplx *r_te, cplx *r_tm)
+{
+    if (pec) { *r_te = (cplx)(-1.0, 0.0); *r_tm = (cplx)(1.0, 0.0); return; }
+    double c = fmin(fmax(fabs(cos_theta), 0.0), 1.0);
+    cplx z = (cplx)((eps.x - 1.0) + c * c, eps.y);
+    double m = sqrt(z.x * z.x + z.y * z.y);
+    cplx a = (cplx)(0.0, 0.0);
+    if (m != 0.0) {   /* principal square root (Re >= 0), as numpy's */
+        double re = sqrt(0.5 * (m + fabs(z.x)));
+        double im = 0.5 * z.y / re;
+        a = (z.x >= 0.0) ? (cplx)(re, im) : (cplx)(fabs(im), (z.y >= 0.0) ? re : -re);
+    }
+    a.y = -fabs(a.y);
+    cplx cc = (cplx)(c, 0.0);
+    cplx den_te = cc + a;
+    cplx epsc = c_scale(eps, c);
+    cplx den_tm = epsc + a;
+    *r_te = (den_te.x == 0.0 && den_te.y == 0.0) ? (cplx)(0.0, 0.0) : c_div(cc - a, den_te);
+    *r_tm = (den_tm.x == 0.0 && den_tm.y == 0.0) ? (cplx)(0.0, 0.0) : c_div(epsc - a, den_tm);
+}
+
+/* scattering.py: _te_basis - TE = k x n / |k x n| (along the normal: n x a, a the x axis
+ * unless |n_x| >= 0.9, then the y axis), TM = TE x k */
+CLR_INLINE void te_tm(double3 k, double3 n, double3 *te, double3 *tm)
+{
+    double3 t = cross(k, n);
+    double len = sqrt(dot(t, t));
+    if (len < 1e-9) {
+        double3 a = (fabs(n.x) < 0.9) ? (double3)(1.0, 0.0, 0.0) : (double3)(0.0, 1.0, 0.0);
+        t = cross(n, a);
+        len = sqrt(dot(t, t));
+    }
+    *te = t / len;
+    *tm = cross(*te, k);
+}
+
+/* em.py: _antenna_basis_world - theta_hat, phi_hat of an antenna frame R (row-major, its
+ * columns the local axes in world) at world direction d, in world; and the local
+ * direction d R (unnormalised, as the host passes it to the pattern). The cosines and
+ * sines of theta and phi from the components, as kernels/sbr.cl: antenna_basis. */
+CLR_INLINE void frame_basis(double3 d, __global const double *R, double3 *loc, double3 *th,
+                            double3 *ph)
+{
+    double3 dl = (double3)((d.x * R[0] + d.y * R[3]) + d.z * R[6],
+                           (d.x * R[1] + d.y * R[4]) + d.z * R[7],
+                           (d.x * R[2] + d.y * R[5]) + d.z * R[8]);
+    *loc = dl;
+    dl /= sqrt(dot(dl, dl));
+    double ct = fmin(fmax(dl.z, -1.0), 1.0);
+    double st = sqrt(dl.x * dl.x + dl.y * dl.y);
+    double cp = (st > 0.0) ? dl.x / st : (signbit(dl.x) ? -1.0 : 1.0);
+    double sp = (st > 0.0) ? dl.y / st : 0.0;
+    double3 t = (double3)(ct * cp, ct * sp, -st), p = (double3)(-sp, cp, 0.0);
+    *th = (double3)(dot((double3)(R[0], R[1], R[2]), t), dot((double3)(R[3], R[4], R[5]), t),
+                    dot((double3)(R[6], R[7], R[8]), t));
+    *ph = (double3)(dot((double3)(R[0], R[1], R[2]), p), dot((double3)(R[3], R[4], R[5]), p),
+                    dot((double3)(R[6], R[7], R[8]), p));
+}
+
+/* Might visibility.py: antenna_blocked call the segment ant -> other blocked? Only a
+ * triangle of the antenna's near list (within the radius of it, the antenna off its
+ * plane: chosen on the host) whose plane the segment crosses strictly between its ends
+ * within `radius` of the antenna can; whether the crossing lies inside the triangle is
+ * left to the host (true here means "the host decides", false "not blocked"). */
+CLR_INLINE bool antenna_end_open(double3 ant, double3 other, double radius,
+                                 __global const int *near, int n_near,
+                                 __global const double *tri_v, __global const double *tri_n)
+{
+    double3 seg = other - ant;
+    double seg_len = sqrt(dot(seg, seg));
+    for (int i = 0; i < n_near; ++i) {
+        int t = near[i];
+        double3 n = (double3)(tri_n[3 * t], tri_n[3 * t + 1], tri_n[3 * t + 2]);
+        double3 v0 = (double3)(tri_v[9 * t], tri_v[9 * t + 1], tri_v[9 * t + 2]);
+        double d_ant = dot(n, ant - v0);
+        double d_other = dot(n, other - v0);
+        if (!(d_ant * d_other < 0.0)) continue;
+        double x = d_ant / (d_ant - d_other);
+        if (x * seg_len <= radius * (1.0 + 1e-9)) return true;
+    }
+    return false;
+}
+
+/* The spawned origin of a ray from tile centre q (normal nrm) toward a, as tile_sees. */
+CLR_INLINE double3 spawned(double3 q, double3 nrm, double3 a)
+{
+    double3 dir = a - q;
+    double m = fmax(fmax(fabs(q.x), fabs(q.y)), fabs(q.z));
+    double bound = ((double)SPAWN_OFFSET_ROUNDOFFS * 0x1p-24) * (m + 1.0);
+    double s = (nrm.x * dir.x + nrm.y * dir.y) + nrm.z * dir.z;
+    double side = (s < 0.0) ? -1.0 : 1.0;
+    double n_len = sqrt((nrm.x * nrm.x + nrm.y * nrm.y) + nrm.z * nrm.z);
+    if (n_len == 0.0) n_len = 1.0;
+    return q + (side * bound / n_len) * nrm;
+}
+
+/* Columns of tile_fields' rows, from the host (clradcom/device/scatter.py: FIELD_COLUMNS,
+ * which reads them by the same names): TF_POWER Lambertian power (isotropic antennas,
+ * Gamma = 1); TF_CENTRE (3) the tile centre q; TF_LENGTH L = r_i + r_s; TF_DOPPLER
+ * -(1/lambda) dL/dt; TF_TX_DIR (3) k_dep in tx's frame (k_dep R_tx); TF_RX_DIR (3) -k_arr
+ * in rx's frame; TF_MATRIX (2x2 complex, re im) M for Gamma = 1, [[VV, VH], [HV, HH]];
+ * TF_PROJ (2x2) [theta_t, phi_t] . te_i, then . tm_i; TF_FRESNEL r_te, r_tm (re im) at the
+ * tile; TF_UNDECIDED 1 where an antenna end is left to the host's float64 test;
+ * TILE_FIELDS doubles a row. */
+#ifndef TILE_FIELDS
+#error "the TF_* columns and TILE_FIELDS must be passed as -D by the host"
+#endif
+
+/* The direct path tx -> tile -> rx through each tile rows[r] both ends see, one row of
+ * TILE_FIELDS doubles each (clradcom/mechanisms/scattering.py: _path_rows, tile_transfer
+ * and em.path_gains with no mirror on either side; the formulas and their sources are
+ * there and in docs/scattering.md):
+ *   M = (lambda/4 pi) e^{-jkL} / (r_i r_s) S sqrt(A cos_i cos_s / pi) b_rx^T X b_tx,
+ *   X = e^{j chi1} sqrt(1 - K) R0 + e^{j chi2} sqrt(K) [s]x R0,
+ *   R0 = -te_s te_i^T + tm_s tm_i^T,
+ * for Gamma = 1: Gamma depends on tx's pattern (the polarisation arriving at the tile),
+ * which the host applies, as it applies both patterns to the SBR kernel's matrices.
+ * `link` holds tx (3), rx (3), v_tx (3), v_rx (3), R_tx (9), R_rx (9), then
+ * 2 pi / lambda, lambda / 4 pi, lambda, lambda^2 / 16 pi^3 (30-33), and the antenna-end
+ * radii of tx and rx (34, 35); `tri_par` per traced triangle S, K_x, eps', -eps'', pec,
+ * v (3), omega (3), rotation centre (3); `phases` (n_rows, 2) each row's chi1, chi2 (drawn on
+ * the host for every tile, gathered for the rows). */
+__kernel void tile_fields(__global const Bvh8Node *nodes, __global const float4 *tri4,
+                          __global const int *slot_prim,
+                          __global const double *centres, __global const int *tile_tri,
+                          __global const double *normals,   /* (K, 3) unit */
+                          __global const double *tile_area, /* (K,) */
+                          __global const double *tri_par,   /* (K, 14) */
+                          __global const double *phases,    /* (n_rows, 2) */
+                          __global const double *link,      /* (36,) */
+                          __global const int *near_first,   /* (3,): tx's, rx's near lists */
+                          __global const int *near_tri,
+                          __global const double *tri_v,     /* scene triangles, float64 */
+                          __global const double *tri_n,
+                          __global const int *rows, const int n_rows,
+                          __global double *out)             /* (n_rows, TILE_FIELDS) */
+{
+    int r = get_global_id(0);
+    if (r >= n_rows) return;
+    int g = rows[r];
+    int k = tile_tri[g];
+    __global const double *lk = link;
+    double3 tx = (double3)(lk[0], lk[1], lk[2]), rx = (double3)(lk[3], lk[4], lk[5]);
+    double3 v_tx = (double3)(lk[6], lk[7], lk[8]), v_rx = (double3)(lk[9], lk[10], lk[11]);
+    double two_pi_lambda = lk[30], lambda_4pi = lk[31], lambda = lk[32];
+    double3 q = (double3)(centres[3 * (size_t)g], centres[3 * (size_t)g + 1],
+                          centres[3 * (size_t)g + 2]);
+    double3 n = (double3)(normals[3 * k], normals[3 * k + 1], normals[3 * k + 2]);
+    __global const double *tp = tri_par + 14 * (size_t)k;
+    double S = tp[0], Kx = tp[1];
+    cplx eps = (cplx)(tp[2], tp[3]);
+    int pec = tp[4] != 0.0;
+    double3 v_obj = (double3)(tp[5], tp[6], tp[7]), omega = (double3)(tp[8], tp[9], tp[10]);
+    double3 rot_c = (double3)(tp[11], tp[12], tp[13]);
+    double A = tile_area[k];
+
+    double3 dt = q - tx, dr = rx - q;
+    double ri2 = dot(dt, dt), rs2 = dot(dr, dr);
+    double ri = sqrt(ri2), rs = sqrt(rs2);
+    double3 ki = dt / ri, s = dr / rs;
+    double cos_i = clamp(-dot(ki, n), 0.0, 1.0);
+    double cos_s = clamp(dot(s, n), 0.0, 1.0);
+    double L = ri + rs;
+    __global double *o = out + (size_t)r * TILE_FIELDS;
+    o[TF_POWER] = lk[33] * S * S * A * clamp(-dot(dt, n) / ri, 0.0, 1.0)
+                  * clamp(dot(dr, n) / rs, 0.0, 1.0) / (ri2 * rs2);
+    o[TF_CENTRE] = q.x;
+    o[TF_CENTRE + 1] = q.y;
+    o[TF_CENTRE + 2] = q.z;
+    o[TF_LENGTH] = L;
+
+    /* Doppler: the tile is a material point of its object (v + omega x (q - c)) */
+    double3 v_q = v_obj + cross(omega, q - rot_c);
+    o[TF_DOPPLER] = -(dot(v_q - v_tx, ki) + dot(v_rx - v_q, s)) / lambda;
+
+    /* Fresnel at the tile for the host's Gamma */
+    cplx r_te, r_tm;
+    tile_fresnel(eps, fabs(dot(ki, n)), pec, &r_te, &r_tm);
+    o[TF_FRESNEL] = r_te.x;
+    o[TF_FRESNEL + 1] = r_te.y;
+    o[TF_FRESNEL + 2] = r_tm.x;
+    o[TF_FRESNEL + 3] = r_tm.y;
+
+    double3 d_tx, th_t, ph_t, d_rx, th_r, ph_r;
+    frame_basis(ki, lk + 12, &d_tx, &th_t, &ph_t);
+    frame_basis(-s, lk + 21, &d_rx, &th_r, &ph_r);
+    o[TF_TX_DIR] = d_tx.x;
+    o[TF_TX_DIR + 1] = d_tx.y;
+    o[TF_TX_DIR + 2] = d_tx.z;
+    o[TF_RX_DIR] = d_rx.x;
+    o[TF_RX_DIR + 1] = d_rx.y;
+    o[TF_RX_DIR + 2] = d_rx.z;
+
+    double3 te_i, tm_i, te_s, tm_s;
+    te_tm(ki, n, &te_i, &tm_i);
+    te_tm(s, n, &te_s, &tm_s);
+    o[TF_PROJ] = dot(th_t, te_i);
+    o[TF_PROJ + 1] = dot(ph_t, te_i);
+    o[TF_PROJ + 2] = dot(th_t, tm_i);
+    o[TF_PROJ + 3] = dot(ph_t, tm_i);
+
+    /* M for Gamma = 1 */
+    double c1, c2, cp;
+    double s1 = sincos(phases[2 * (size_t)r], &c1), s2 = sincos(phases[2 * (size_t)r + 1], &c2);
+    double co = sqrt(1.0 - Kx), cx = sqrt(Kx);
+    cplx e1 = (cplx)(c1, s1) * co, e2 = (cplx)(c2, s2) * cx;
+    double amp = lambda_4pi / (ri * rs) * S * sqrt(A * cos_i * cos_s / M_PI);
+    double sp = sincos(two_pi_lambda * L, &cp);
+    cplx rot = (cplx)(cp, -sp) * amp;
+    double3 b_tx[2] = {th_t, ph_t}, b_rx[2] = {th_r, ph_r};
+    for (int j = 0; j < 2; ++j) {
+        double3 v = -te_s * dot(te_i, b_tx[j]) + tm_s * dot(tm_i, b_tx[j]);
+        double3 w = cross(s, v);
+        for (int i = 0; i < 2; ++i) {
+            cplx x = e1 * dot(b_rx[i], v) + e2 * dot(b_rx[i], w);
+            cplx m = c_mul(rot, x);
+            o[TF_MATRIX + 4 * i + 2 * j] = m.x;
+            o[TF_MATRIX + 4 * i + 2 * j + 1] = m.y;
+        }
+    }
+
+    /* the float64 antenna ends of the sight lines (visibility.py: antenna_blocked) */
+    bool undecided = false;
+    int nt = near_first[1] - near_first[0];
+    if (nt > 0)
+        undecided = antenna_end_open(tx, spawned(q, n, tx), link[34], near_tri + near_first[0],
+                                     nt, tri_v, tri_n);
+    int nr = near_first[2] - near_first[1];
+    if (!undecided && nr > 0)
+        undecided = antenna_end_open(rx, spawned(q, n, rx), link[35],
+                                     near_tri + near_first[1], nr, tri_v, tri_n);
+    o[TF_UNDECIDED] = undecided ? 1.0 : 0.0;
 }

@@ -50,7 +50,7 @@ from clradcom.device.visibility import (
     reaches_face,
     surface_sees,
 )
-from clradcom.errors import ArgumentError
+from clradcom.errors import ArgumentError, NearFieldWarning
 from clradcom.geometry.triangles import (
     point_triangle_distance,
     triangle_areas,
@@ -384,49 +384,27 @@ def _host_tiles(geom, tris, tri_sel, size, seed, mask, tx_pos, rx_pos, mr, monos
         else:
             idx = np.flatnonzero(front_r)
             vis_r[idx] = _visible(geom, q, nrm, tri_ids, idx, rx_pos)
-    return q, area, nrm, tri_ids, phases, vis_t, vis_r, np.flatnonzero(vis_t & vis_r), None
+    return q, area, nrm, tri_ids, phases, vis_t, vis_r, np.flatnonzero(vis_t & vis_r)
 
 
-def _device_tiles(geom, tris, tri_sel, size, seed, mask, tx_pos, rx_pos, mr, monostatic):
-    """The same as :func:`_host_tiles` from the kernels of :mod:`clradcom.device.scatter`.
+def _device_tiles(geom, tris, tri_sel, size, seed, mask, tx_pos, rx_pos, monostatic):
+    """The same as :func:`_host_tiles` with reflections around the tiles (``max_reflections``
+    >= 1) from the kernels of :mod:`clradcom.device.scatter`.
 
-    Tiles, front sides and the float32 sight casts run on the device; the host keeps the
+    Tiles, front sides and the float32 sight casts run on the device; every tile's centre
+    and flags come back (the reflected legs start from any of them); the host keeps the
     per-triangle numbers (subdivisions, normals, areas: O(triangles)), the random phases
-    and the float64 antenna ends of the tiles the casts let through. With
-    ``max_reflections`` 0 only the tiles both ends see come back, with their Lambertian
-    power (the last item, for the threshold's pre-cut); with 1 or 2 every tile's centre
-    and flags (the reflected legs start from any of them) and no power."""
+    and the float64 antenna ends of the tiles the casts let through."""
+    nrm_t, tile_area, ns, first, phases_all, k = _traced_triangles(tris, tri_sel, size, seed,
+                                                                   mask)
     scene = geom.scene
-    with np.errstate(invalid="ignore", divide="ignore"):  # such triangles are refused below
-        nrm_t, two_a = triangle_normals_and_double_areas(tris)
-    if np.any(two_a == 0) or not np.all(np.isfinite(two_a)):
-        raise ArgumentError("degenerate or non-finite triangle")
-    ns = _subdivisions(tris, size)
-    counts = ns * ns
-    first = np.concatenate([[0], np.cumsum(counts)])
-    # phases drawn for every tile before any selection, as on the host
-    phases_all = np.random.default_rng(seed).uniform(0.0, 2.0 * np.pi, size=(int(first[-1]), 2))
-    k = np.arange(len(tris)) if mask is None else np.flatnonzero(mask[tri_sel])
-    tile_area = 0.5 * two_a / (ns * ns)
     S = scene.material_scattering[scene.tri_material[tri_sel]]
     sight = device_scatter.tile_sight(geom.caster, tris[k], nrm_t[k], tile_area[k], S[k],
                                       tri_sel[k], ns[k], tx_pos, rx_pos, scene.wavelength_m,
-                                      all_ends=mr >= 1, monostatic=monostatic)
-    first_k = np.concatenate([[0], np.cumsum(counts[k])])
-
-    def per_tile(t):
-        # traced tiles t -> their triangle (index into tris) and tile index among all tiles
-        j = np.searchsorted(first_k, t, side="right") - 1
-        return k[j], first[k[j]] + (t - first_k[j])
-
-    if mr == 0:
-        kk, glob = per_tile(sight.tile)
-        q, nrm = sight.centre, nrm_t[kk]
-        seen = _antenna_clear(geom, q, nrm, tx_pos)
-        seen[seen] = _antenna_clear(geom, q[seen], nrm[seen], rx_pos)
-        return (q, tile_area[kk], nrm, tri_sel[kk], phases_all[glob], seen, seen,
-                np.flatnonzero(seen), sight.power)
-    kk, glob = per_tile(np.arange(len(sight.flags)))
+                                      all_ends=True, monostatic=monostatic)
+    first_k = np.concatenate([[0], np.cumsum(ns[k] * ns[k])])
+    j = np.searchsorted(first_k, np.arange(len(sight.flags)), side="right") - 1
+    kk, glob = k[j], first[k[j]] + (np.arange(len(sight.flags)) - first_k[j])
     q, nrm = sight.centres, nrm_t[kk]
     vis_t = (sight.flags & device_scatter.SEES_TX) != 0
     vis_t[vis_t] = _antenna_clear(geom, q[vis_t], nrm[vis_t], tx_pos)
@@ -436,31 +414,135 @@ def _device_tiles(geom, tris, tri_sel, size, seed, mask, tx_pos, rx_pos, mr, mon
         vis_r = (sight.flags & device_scatter.SEES_RX) != 0
         vis_r[vis_r] = _antenna_clear(geom, q[vis_r], nrm[vis_r], rx_pos)
     return (q, tile_area[kk], nrm, tri_sel[kk], phases_all[glob], vis_t, vis_r,
-            np.flatnonzero(vis_t & vis_r), None)
+            np.flatnonzero(vis_t & vis_r))
 
 
-#: rows whose exact gains give the lower bound of a link's strongest |a| (pre-cut)
-_PRECUT_ROWS = 64
+def _traced_triangles(tris, tri_sel, size, seed, mask):
+    """Per scattering triangle: normals, one tile's area, subdivisions n, the index of its
+    first tile among all tiles (K+1,); the phases of all tiles (drawn for every tile before
+    any selection, as on the host); the traced triangles k (indices into ``tris``)."""
+    with np.errstate(invalid="ignore", divide="ignore"):  # such triangles are refused below
+        nrm_t, two_a = triangle_normals_and_double_areas(tris)
+    if np.any(two_a == 0) or not np.all(np.isfinite(two_a)):
+        raise ArgumentError("degenerate or non-finite triangle")
+    ns = _subdivisions(tris, size)
+    counts = ns * ns
+    first = np.concatenate([[0], np.cumsum(counts)])
+    phases_all = np.random.default_rng(seed).uniform(0.0, 2.0 * np.pi, size=(int(first[-1]), 2))
+    k = np.arange(len(tris)) if mask is None else np.flatnonzero(mask[tri_sel])
+    return nrm_t, 0.5 * two_a / counts, ns, first, phases_all, k
 
 
-def _gain_bound(scene, tx, rx, qt, nt, tid, tx_pos, rx_pos, power):
-    """Upper bounds of |a| of direct paths through tiles qt (normals nt, triangles tid)
-    from their Lambertian power (isotropic antennas, Gamma = 1): Gamma is a mean of
-    |r_te|^2 and |r_tm|^2, so at most the larger; the polarisation map X stretches a field
-    by at most sqrt(1 - K) + sqrt(K); and |c_rx . T c_tx| <= |c_rx| |T| |c_tx| with |c|^2
-    the directivities along the path. 1e-6 covers rounding."""
-    mat = scene.tri_material[tid]
-    k_dep = unit(qt - tx_pos)
-    k_arr = unit(rx_pos - qt)
-    cos_i = np.abs(np.einsum("pi,pi->p", k_dep, nt))
-    r_te, r_tm = em.fresnel_coefficients(scene.material_eps_r[mat], cos_i,
-                                         scene.material_pec[mat])
-    gamma = np.maximum(np.abs(r_te), np.abs(r_tm))
-    g_t = np.asarray(tx.pattern.gain(k_dep @ np.asarray(tx.orientation)), dtype=np.float64)
-    g_r = np.asarray(rx.pattern.gain(-k_arr @ np.asarray(rx.orientation)), dtype=np.float64)
-    K = scene.material_cross_pol_share[mat]
-    pol = (np.sqrt(1.0 - K) + np.sqrt(K)) ** 2
-    return gamma * np.sqrt(power * pol * g_t * g_r) * (1.0 + 1e-6)
+def _object_motion(scene):
+    """(velocity, angular velocity, rotation centre), each (objects, 3), of the scene's
+    objects: a material point p of object i moves with v_i + omega_i x (p - c_i)
+    (:meth:`clradcom.scene.records.Scene.point_velocity`)."""
+    n = len(scene.objects)
+    omega = np.zeros((n, 3))
+    centre = np.zeros((n, 3))
+    for i, o in enumerate(scene.objects):
+        if o.motion is not None and o.motion.angular_velocity_deg_s is not None:
+            omega[i] = o.motion.angular_velocity
+            centre[i] = o.motion.rotation_centre
+    return np.asarray(scene.object_velocity, dtype=np.float64).reshape(n, 3), omega, centre
+
+
+def _device_direct_paths(geom, tx, rx, tris, tri_sel, size, seed, mask, tx_pos, rx_pos,
+                         monostatic, threshold_db, reference_gain):
+    """Direct paths tx -> tile -> rx (``max_reflections`` 0) with their fields from the
+    kernels (:func:`clradcom.device.scatter.tile_sight` with ``tile_fields``): ``(Paths,
+    n_dropped)`` as :func:`scattering_paths` returns them.
+
+    The kernel gives each row its length, Doppler, antenna directions, polarimetric
+    matrix for Gamma = 1, Fresnel coefficients and the tx basis' TE/TM projections at the
+    tile; here the antenna patterns are applied (as to the SBR kernel's matrices), Gamma
+    for the polarisation tx sends (:func:`_path_rows`' rule), and the threshold. Rows
+    whose float64 antenna end the kernel leaves open (a triangle within millimetres of an
+    antenna) are decided by :func:`_antenna_clear`, the host's test."""
+    scene = geom.scene
+    nrm_t, tile_area, ns, first, phases_all, k = _traced_triangles(tris, tri_sel, size, seed,
+                                                                   mask)
+    tid_k = tri_sel[k]
+    mat = scene.tri_material[tid_k]
+    obj = scene.tri_object[tid_k]
+    eps = np.asarray(scene.material_eps_r, dtype=np.complex128)[mat]
+    pec = (np.asarray(scene.material_pec, dtype=bool)[mat] | np.isinf(eps.real)
+           | np.isinf(eps.imag))
+    v_obj, omega, centre = _object_motion(scene)
+    S = scene.material_scattering[mat]
+    tri_par = np.column_stack([S, scene.material_cross_pol_share[mat], eps.real, eps.imag,
+                               pec.astype(np.float64), v_obj[obj], omega[obj], centre[obj]])
+    inputs = device_scatter.FieldInputs(
+        tri_par=tri_par, glob_first=first[k], phases=phases_all, tx_velocity=tx.velocity,
+        rx_velocity=rx.velocity, tx_frame=tx.orientation, rx_frame=rx.orientation)
+    sight = device_scatter.tile_sight(geom.caster, tris[k], nrm_t[k], tile_area[k], S,
+                                      tid_k, ns[k], tx_pos, rx_pos, scene.wavelength_m,
+                                      all_ends=False, monostatic=monostatic, fields=inputs)
+    F = sight.fields
+
+    def col(name, rows=slice(None)):
+        first, width = device_scatter.FIELD_COLUMNS[name]
+        return F[rows, first] if width == 1 else F[rows, first:first + width]
+
+    j = sight.triangle
+    open_ = np.flatnonzero(sight.column("undecided") != 0)
+    if len(open_):  # a triangle near an antenna: the host's float64 test decides
+        q, nrm = col("centre", open_), nrm_t[k[j[open_]]]
+        clear = _antenna_clear(geom, q, nrm, tx_pos)
+        clear[clear] = _antenna_clear(geom, q[clear], nrm[clear], rx_pos)
+        keep = np.ones(len(F), dtype=bool)
+        keep[open_[~clear]] = False
+        F, j = F[keep], j[keep]
+    P = len(F)
+    if P == 0:
+        return Paths.empty(1), 0
+    c_tx = np.asarray(tx.pattern.field(col("tx_dir")), dtype=np.complex128)
+    c_rx = np.asarray(rx.pattern.field(col("rx_dir")), dtype=np.complex128)
+    proj, fres = col("proj"), col("fresnel").view(np.complex128)
+    e_te = c_tx[:, 0] * proj[:, 0] + c_tx[:, 1] * proj[:, 1]
+    e_tm = c_tx[:, 0] * proj[:, 2] + c_tx[:, 1] * proj[:, 3]
+    r_te, r_tm = fres[:, 0], fres[:, 1]
+    p_in = np.abs(e_te) ** 2 + np.abs(e_tm) ** 2
+    g2 = np.where(p_in > 0,
+                  (np.abs(r_te * e_te) ** 2 + np.abs(r_tm * e_tm) ** 2) / np.where(p_in > 0,
+                                                                               p_in, 1.0),
+                  0.5 * (np.abs(r_te) ** 2 + np.abs(r_tm) ** 2))
+    gamma = np.sqrt(g2)
+    M0 = col("matrix").view(np.complex128)  # (P, 4): VV, VH, HV, HH for Gamma = 1
+    gain = gamma * (c_rx[:, 0] * (M0[:, 0] * c_tx[:, 0] + M0[:, 1] * c_tx[:, 1])
+                    + c_rx[:, 1] * (M0[:, 2] * c_tx[:, 0] + M0[:, 3] * c_tx[:, 1]))
+    L = col("length")
+    _check_lengths(L, scene.wavelength_m)
+    mag = np.abs(gain)
+    thr = 10.0 ** (-abs(float(threshold_db)) / 20.0)
+    top = float(np.abs(reference_gain)) if reference_gain is not None else mag.max()
+    sel = np.flatnonzero((mag > 0) & (mag >= top * thr))
+    m = len(sel)
+    kk = k[j[sel]]
+    tid = tri_sel[kk]
+    pts = np.empty((m, 3, 3))
+    pts[:, 0] = tx_pos
+    pts[:, 1] = col("centre", sel)
+    pts[:, 2] = rx_pos
+    paths = Paths(gain=gain[sel], matrix=(gamma[sel, None] * M0[sel]).reshape(m, 2, 2),
+                  delay_s=em.delay_s(L[sel]), doppler_hz=col("doppler", sel),
+                  n_interactions=np.ones(m, np.int16),
+                  interaction=np.full((m, 1), int(InteractionType.SCATTERING), np.int8),
+                  points=pts, object_id=scene.tri_object[tid][:, None],
+                  face_id=tid[:, None])
+    return paths, int(P - m)
+
+
+def _check_lengths(L, wavelength):
+    """:func:`clradcom.physics.em.polarimetric_matrix`'s checks of path lengths L (m)."""
+    if np.any(~np.isfinite(L)) or np.any(L <= 0):
+        raise ArgumentError("path lengths L must be finite and > 0")
+    short = L < wavelength
+    if short.any():
+        i = int(np.argmin(L))
+        warnings.warn(f"{int(short.sum())} path(s) shorter than a wavelength (L[{i}] = "
+                      f"{L[i]!r} m < lambda = {wavelength!r} m): the far-field spreading "
+                      "lambda/(4 pi L) does not hold there", NearFieldWarning, stacklevel=4)
 
 
 def _mirror_dyads(scene, faces, face, k_in):
@@ -587,13 +669,16 @@ def scattering_paths(geom, tx, rx, *, tile_size_m=None, threshold_db=-60.0, seed
         warnings.warn("scattering tiles: the OpenCL device has no fp64, so they are resolved "
                       "by the host's numpy path (engine 'host')", RuntimeWarning, stacklevel=2)
         on_device = False
+    if on_device and mr == 0:
+        return _device_direct_paths(geom, tx, rx, tris, tri_sel, size, seed, mask, tx_pos,
+                                    rx_pos, monostatic, threshold_db, reference_gain)
     if on_device:
-        tiles = _device_tiles(geom, tris, tri_sel, size, seed, mask, tx_pos, rx_pos, mr,
+        tiles = _device_tiles(geom, tris, tri_sel, size, seed, mask, tx_pos, rx_pos,
                               monostatic)
     else:
         tiles = _host_tiles(geom, tris, tri_sel, size, seed, mask, tx_pos, rx_pos, mr,
                             monostatic)
-    q, area, nrm, tri_ids, phases, vis_t, vis_r, direct, power = tiles
+    q, area, nrm, tri_ids, phases, vis_t, vis_r, direct = tiles
     N = len(q)
 
     def block(t, pre=None, suf=None):
@@ -629,23 +714,8 @@ def scattering_paths(geom, tx, rx, *, tile_size_m=None, threshold_db=-60.0, seed
         return Paths.empty(1), 0
     thr = 10.0 ** (-abs(float(threshold_db)) / 20.0)
     top = float(np.abs(reference_gain)) if reference_gain is not None else None
-    rows = np.arange(P)
-    if power is not None and mr == 0:
-        # the device's Lambertian power bounds every direct path's |a| from above: rows
-        # below the threshold of a lower bound of the strongest |a| (the exact gains of
-        # the rows with the largest bounds) are never emitted, so their fields are skipped
-        t = cols[0]
-        bound = _gain_bound(scene, tx, rx, q[t], nrm[t], tri_ids[t], tx_pos, rx_pos, power[t])
-        lower = top
-        if lower is None:
-            best = np.sort(np.argsort(-bound, kind="stable")[:_PRECUT_ROWS])
-            lower = float(np.abs(_path_rows(geom, tx, rx, q, area, nrm, tri_ids, phases,
-                                            [c[best] for c in cols])[0]).max())
-        rows = np.flatnonzero(bound >= lower * thr)
-        if len(rows) == 0:
-            return Paths.empty(1), int(P)
     gain, M, L, doppler, nk, code, pts, oid, fid = _path_rows(
-        geom, tx, rx, q, area, nrm, tri_ids, phases, [c[rows] for c in cols])
+        geom, tx, rx, q, area, nrm, tri_ids, phases, cols)
     mag = np.abs(gain)
     if top is None:
         top = mag.max()
