@@ -70,10 +70,16 @@ __all__ = ["make_tiles", "choose_tile_size", "tile_transfer", "mirror_faces", "r
 DEFAULT_ACCURACY = 0.05
 
 
-def _subdivisions(triangles, tile_size_m):
+def _longest_edges(triangles):
     v = np.asarray(triangles, dtype=np.float64).reshape(-1, 3, 3)
-    edges = np.linalg.norm(v[:, [1, 2, 0]] - v, axis=-1)
-    return np.maximum(1, np.ceil(edges.max(axis=1) / float(tile_size_m) - 1e-9)).astype(np.int64)
+    return np.linalg.norm(v[:, [1, 2, 0]] - v, axis=-1).max(axis=1)
+
+
+def _subdivisions(triangles, tile_size_m, longest=None):
+    """n per triangle: ceil(longest edge / tile size) (``longest``: the triangles'
+    :func:`_longest_edges`, when known)."""
+    longest = _longest_edges(triangles) if longest is None else longest
+    return np.maximum(1, np.ceil(longest / float(tile_size_m) - 1e-9)).astype(np.int64)
 
 
 def make_tiles(triangles, tile_size_m):
@@ -234,8 +240,8 @@ def tile_transfer(centres, areas, normals, tx_pos, rx_pos, scattering, gamma,
     return amp[:, None, None] * X, L, ki, s
 
 
-def _estimate_count(triangles, size):
-    return int(np.sum(_subdivisions(triangles, size) ** 2))
+def _estimate_count(triangles, size, longest=None):
+    return int(np.sum(_subdivisions(triangles, size, longest) ** 2))
 
 
 #: Reflecting faces smaller than this (m^2) take no part in scattering paths (see
@@ -420,12 +426,13 @@ def _device_tiles(geom, tris, tri_sel, size, seed, mask, tx_pos, rx_pos, monosta
 def _traced_triangles(tris, tri_sel, size, seed, mask):
     """Per scattering triangle: normals, one tile's area, subdivisions n, the index of its
     first tile among all tiles (K+1,); the phases of all tiles (drawn for every tile before
-    any selection, as on the host); the traced triangles k (indices into ``tris``)."""
+    any selection, as on the host); the traced triangles k (indices into ``tris``).
+    ``size`` is (tile size, the triangles' longest edges)."""
     with np.errstate(invalid="ignore", divide="ignore"):  # such triangles are refused below
         nrm_t, two_a = triangle_normals_and_double_areas(tris)
     if np.any(two_a == 0) or not np.all(np.isfinite(two_a)):
         raise ArgumentError("degenerate or non-finite triangle")
-    ns = _subdivisions(tris, size)
+    ns = _subdivisions(tris, *size)
     counts = ns * ns
     first = np.concatenate([[0], np.cumsum(counts)])
     phases_all = np.random.default_rng(seed).uniform(0.0, 2.0 * np.pi, size=(int(first[-1]), 2))
@@ -497,7 +504,10 @@ def _device_direct_paths(geom, tx, rx, tris, tri_sel, size, seed, mask, tx_pos, 
     if P == 0:
         return Paths.empty(1), 0
     c_tx = np.asarray(tx.pattern.field(col("tx_dir")), dtype=np.complex128)
-    c_rx = np.asarray(rx.pattern.field(col("rx_dir")), dtype=np.complex128)
+    if rx is tx:  # -k_arr = k_dep bit for bit (tile_fields negates exactly): the same field
+        c_rx = c_tx
+    else:
+        c_rx = np.asarray(rx.pattern.field(col("rx_dir")), dtype=np.complex128)
     proj, fres = col("proj"), col("fresnel").view(np.complex128)
     e_te = c_tx[:, 0] * proj[:, 0] + c_tx[:, 1] * proj[:, 1]
     e_tm = c_tx[:, 0] * proj[:, 2] + c_tx[:, 1] * proj[:, 3]
@@ -642,19 +652,20 @@ def scattering_paths(geom, tx, rx, *, tile_size_m=None, threshold_db=-60.0, seed
     tx_pos = np.asarray(tx.position, dtype=np.float64)
     rx_pos = np.asarray(rx.position, dtype=np.float64)
     tris = scene.triangles[tri_sel]
+    longest = _longest_edges(tris)
     lam = scene.wavelength_m
     if tile_size_m is None:
         cen = tris.mean(axis=1)
         d = min(np.linalg.norm(cen - tx_pos, axis=-1).min(),
                 np.linalg.norm(cen - rx_pos, axis=-1).min())
         size = choose_tile_size(lam, max(d, lam), accuracy)
-        cnt = _estimate_count(tris, size)
+        cnt = _estimate_count(tris, size, longest)
         while cnt > max_tiles:
             size *= 1.05 * math.sqrt(cnt / max_tiles)
-            cnt = _estimate_count(tris, size)
+            cnt = _estimate_count(tris, size, longest)
     else:
         size = float(tile_size_m)
-        cnt = _estimate_count(tris, size)
+        cnt = _estimate_count(tris, size, longest)
         if cnt > max_tiles:
             raise ArgumentError(f"tile_size_m={size} gives {cnt} tiles > max_tiles={max_tiles}")
     mask = None
@@ -670,10 +681,10 @@ def scattering_paths(geom, tx, rx, *, tile_size_m=None, threshold_db=-60.0, seed
                       "by the host's numpy path (engine 'host')", RuntimeWarning, stacklevel=2)
         on_device = False
     if on_device and mr == 0:
-        return _device_direct_paths(geom, tx, rx, tris, tri_sel, size, seed, mask, tx_pos,
-                                    rx_pos, monostatic, threshold_db, reference_gain)
+        return _device_direct_paths(geom, tx, rx, tris, tri_sel, (size, longest), seed, mask,
+                                    tx_pos, rx_pos, monostatic, threshold_db, reference_gain)
     if on_device:
-        tiles = _device_tiles(geom, tris, tri_sel, size, seed, mask, tx_pos, rx_pos,
+        tiles = _device_tiles(geom, tris, tri_sel, (size, longest), seed, mask, tx_pos, rx_pos,
                               monostatic)
     else:
         tiles = _host_tiles(geom, tris, tri_sel, size, seed, mask, tx_pos, rx_pos, mr,
