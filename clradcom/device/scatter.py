@@ -25,8 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from clradcom.device.raycast import RayCaster
-from clradcom.device.sbr import near_triangles
-from clradcom.device.visibility import SIGHT_STOP, confirm_margin_m
+from clradcom.device.visibility import ON_FACE_TOL_REL, SIGHT_STOP, confirm_margin_m
 from clradcom.errors import ArgumentError
 
 __all__ = ["FIELD_COLUMNS", "FieldInputs", "TileSight", "has_fp64", "tile_sight"]
@@ -219,7 +218,7 @@ def _tile_fields(caster, fields: FieldInputs, d_centres, d_tri, within, triangle
     if not np.all(np.isfinite(link)):
         raise ArgumentError("velocities and antenna frames must be finite",
                             argument="fields", value=link.tolist())
-    near_first, near_tri = near_triangles(caster, ends)
+    near_first, near_tri = _near_lists(caster, ends, radius, same=bool(np.all(ends[0] == ends[1])))
     data64 = caster.scene_data64()
     d_out = rt.empty(R * FIELD_WIDTH * 8)
 
@@ -236,3 +235,25 @@ def _tile_fields(caster, fields: FieldInputs, d_centres, d_tri, within, triangle
     out = np.empty((R, FIELD_WIDTH), dtype=np.float64)
     cl.enqueue_copy(rt.queue, out, d_out, is_blocking=True)
     return out
+
+
+def _near_lists(caster: RayCaster, ends, radius, *, same: bool):
+    """CSR lists ``(first (3,), triangles)`` of the triangles that may block the last
+    ``radius[e]`` metres at antenna ``ends[e]`` in :func:`clradcom.device.visibility.
+    antenna_blocked`: boxes within the radius, the antenna off their plane. A superset
+    of that test's own choice (radius and tolerance widened by rounding), since a row
+    the kernel finds near none of them is clear for good and the others go to that test.
+    ``same``: both ends are one antenna (one box test)."""
+    lo, hi = caster.triangle_bounds()
+    normals = caster.normals64()
+    lists = []
+    for e, ant in enumerate(ends):
+        if e == 1 and same:
+            lists.append(lists[0])
+            break
+        r = float(radius[e]) * (1.0 + 1e-9) + 1e-12
+        near = np.flatnonzero(np.all((ant >= lo - r) & (ant <= hi + r), axis=1))
+        d_ant = np.einsum("ij,ij->i", normals[near], ant - caster.triangles[near, 0])
+        lists.append(near[np.abs(d_ant) > 0.5 * ON_FACE_TOL_REL * (1.0 + np.abs(ant).max())])
+    first = np.array([0, len(lists[0]), len(lists[0]) + len(lists[1])], dtype=np.int32)
+    return first, np.concatenate(lists).astype(np.int32)
