@@ -324,3 +324,14 @@ def test_without_fp64_the_host_path_runs_and_says_so(runtime, monkeypatch):
     want = scattering_paths(host, A, A, tile_size_m=0.5)
     assert got[1] == want[1]
     np.testing.assert_array_equal(got[0].gain, want[0].gain)
+
+
+def test_scattering_triangles_are_kept_per_scene_until_its_arrays_change():
+    sc = wall_scene()
+    st = scattering._scattering_triangles(sc)
+    assert scattering._scattering_triangles(sc) is st  # computed once per scene
+    sel = np.flatnonzero(sc.material_scattering[sc.tri_material] > 0)
+    np.testing.assert_array_equal(st.sel, sel)
+    np.testing.assert_array_equal(st.longest, scattering._longest_edges(sc.triangles[sel]))
+    sc.material_scattering = np.zeros_like(sc.material_scattering)  # a new array: recomputed
+    assert len(scattering._scattering_triangles(sc).sel) == 0

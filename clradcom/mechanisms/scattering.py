@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import math
 import warnings
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -393,7 +394,7 @@ def _host_tiles(geom, tris, tri_sel, size, seed, mask, tx_pos, rx_pos, mr, monos
     return q, area, nrm, tri_ids, phases, vis_t, vis_r, np.flatnonzero(vis_t & vis_r)
 
 
-def _device_tiles(geom, tris, tri_sel, size, seed, mask, tx_pos, rx_pos, monostatic):
+def _device_tiles(geom, st, size, seed, mask, tx_pos, rx_pos, monostatic):
     """The same as :func:`_host_tiles` with reflections around the tiles (``max_reflections``
     >= 1) from the kernels of :mod:`clradcom.device.scatter`.
 
@@ -401,9 +402,9 @@ def _device_tiles(geom, tris, tri_sel, size, seed, mask, tx_pos, rx_pos, monosta
     and flags come back (the reflected legs start from any of them); the host keeps the
     per-triangle numbers (subdivisions, normals, areas: O(triangles)), the random phases
     and the float64 antenna ends of the tiles the casts let through."""
-    nrm_t, tile_area, ns, first, phases_all, k = _traced_triangles(tris, tri_sel, size, seed,
-                                                                   mask)
+    nrm_t, tile_area, ns, first, phases_all, k = _traced_triangles(st, size, seed, mask)
     scene = geom.scene
+    tris, tri_sel = st.tris, st.sel
     S = scene.material_scattering[scene.tri_material[tri_sel]]
     sight = device_scatter.tile_sight(geom.caster, tris[k], nrm_t[k], tile_area[k], S[k],
                                       tri_sel[k], ns[k], tx_pos, rx_pos, scene.wavelength_m,
@@ -423,21 +424,58 @@ def _device_tiles(geom, tris, tri_sel, size, seed, mask, tx_pos, rx_pos, monosta
             np.flatnonzero(vis_t & vis_r))
 
 
-def _traced_triangles(tris, tri_sel, size, seed, mask):
-    """Per scattering triangle: normals, one tile's area, subdivisions n, the index of its
-    first tile among all tiles (K+1,); the phases of all tiles (drawn for every tile before
-    any selection, as on the host); the traced triangles k (indices into ``tris``).
-    ``size`` is (tile size, the triangles' longest edges)."""
-    with np.errstate(invalid="ignore", divide="ignore"):  # such triangles are refused below
-        nrm_t, two_a = triangle_normals_and_double_areas(tris)
-    if np.any(two_a == 0) or not np.all(np.isfinite(two_a)):
+def _traced_triangles(st, size, seed, mask):
+    """Per scattering triangle (``st``, :func:`_scattering_triangles`): normals, one tile's
+    area, subdivisions n at tile edge ``size``, the index of its first tile among all tiles
+    (K+1,); the phases of all tiles (drawn for every tile before any selection, as on the
+    host); the traced triangles k (indices into ``st.tris``)."""
+    if st.degenerate:
         raise ArgumentError("degenerate or non-finite triangle")
-    ns = _subdivisions(tris, *size)
+    ns = _subdivisions(st.tris, size, st.longest)
     counts = ns * ns
     first = np.concatenate([[0], np.cumsum(counts)])
     phases_all = np.random.default_rng(seed).uniform(0.0, 2.0 * np.pi, size=(int(first[-1]), 2))
-    k = np.arange(len(tris)) if mask is None else np.flatnonzero(mask[tri_sel])
-    return nrm_t, 0.5 * two_a / counts, ns, first, phases_all, k
+    k = np.arange(len(st.tris)) if mask is None else np.flatnonzero(mask[st.sel])
+    return st.normals, 0.5 * st.two_a / counts, ns, first, phases_all, k
+
+
+@dataclass(frozen=True, eq=False)
+class _ScatterTriangles:
+    """A scene's scattering triangles (material S > 0) and what every link needs of them."""
+
+    triangles: np.ndarray  # the scene arrays they were taken from (identity checked)
+    tri_material: np.ndarray
+    material_scattering: np.ndarray
+    sel: np.ndarray  # (T_s,) scene triangle ids
+    tris: np.ndarray  # (T_s, 3, 3)
+    longest: np.ndarray  # longest edges
+    centroids: np.ndarray
+    normals: np.ndarray  # unit
+    two_a: np.ndarray  # twice the areas
+    degenerate: bool
+
+
+# per scene: its _ScatterTriangles (computed on the first link, kept while the scene lives)
+_TRIANGLES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _scattering_triangles(scene) -> _ScatterTriangles:
+    """The scene's :class:`_ScatterTriangles`, computed once per scene (again if its
+    triangle, material or scattering arrays were replaced)."""
+    st = _TRIANGLES.get(scene)
+    if (st is not None and st.triangles is scene.triangles
+            and st.tri_material is scene.tri_material
+            and st.material_scattering is scene.material_scattering):
+        return st
+    sel = np.flatnonzero(scene.material_scattering[scene.tri_material] > 0)
+    tris = scene.triangles[sel]
+    with np.errstate(invalid="ignore", divide="ignore"):  # such triangles are refused later
+        nrm, two_a = triangle_normals_and_double_areas(tris)
+    st = _ScatterTriangles(scene.triangles, scene.tri_material, scene.material_scattering,
+                           sel, tris, _longest_edges(tris), tris.mean(axis=1), nrm, two_a,
+                           bool(np.any(two_a == 0) or not np.all(np.isfinite(two_a))))
+    _TRIANGLES[scene] = st
+    return st
 
 
 def _object_motion(scene):
@@ -454,8 +492,8 @@ def _object_motion(scene):
     return np.asarray(scene.object_velocity, dtype=np.float64).reshape(n, 3), omega, centre
 
 
-def _device_direct_paths(geom, tx, rx, tris, tri_sel, size, seed, mask, tx_pos, rx_pos,
-                         monostatic, threshold_db, reference_gain):
+def _device_direct_paths(geom, tx, rx, st, size, seed, mask, tx_pos, rx_pos, monostatic,
+                         threshold_db, reference_gain):
     """Direct paths tx -> tile -> rx (``max_reflections`` 0) with their fields from the
     kernels (:func:`clradcom.device.scatter.tile_sight` with ``tile_fields``): ``(Paths,
     n_dropped)`` as :func:`scattering_paths` returns them.
@@ -467,8 +505,8 @@ def _device_direct_paths(geom, tx, rx, tris, tri_sel, size, seed, mask, tx_pos, 
     whose float64 antenna end the kernel leaves open (a triangle within millimetres of an
     antenna) are decided by :func:`_antenna_clear`, the host's test."""
     scene = geom.scene
-    nrm_t, tile_area, ns, first, phases_all, k = _traced_triangles(tris, tri_sel, size, seed,
-                                                                   mask)
+    nrm_t, tile_area, ns, first, phases_all, k = _traced_triangles(st, size, seed, mask)
+    tris, tri_sel = st.tris, st.sel
     tid_k = tri_sel[k]
     mat = scene.tri_material[tid_k]
     obj = scene.tri_object[tid_k]
@@ -645,17 +683,15 @@ def scattering_paths(geom, tx, rx, *, tile_size_m=None, threshold_db=-60.0, seed
     scene = geom.scene
     if geom.caster is None or len(scene.triangles) == 0:
         return Paths.empty(1), 0
-    S_mat = scene.material_scattering
-    tri_sel = np.flatnonzero(S_mat[scene.tri_material] > 0)
+    st = _scattering_triangles(scene)
+    tri_sel, tris, longest = st.sel, st.tris, st.longest
     if len(tri_sel) == 0:
         return Paths.empty(1), 0
     tx_pos = np.asarray(tx.position, dtype=np.float64)
     rx_pos = np.asarray(rx.position, dtype=np.float64)
-    tris = scene.triangles[tri_sel]
-    longest = _longest_edges(tris)
     lam = scene.wavelength_m
     if tile_size_m is None:
-        cen = tris.mean(axis=1)
+        cen = st.centroids
         d = min(np.linalg.norm(cen - tx_pos, axis=-1).min(),
                 np.linalg.norm(cen - rx_pos, axis=-1).min())
         size = choose_tile_size(lam, max(d, lam), accuracy)
@@ -681,11 +717,10 @@ def scattering_paths(geom, tx, rx, *, tile_size_m=None, threshold_db=-60.0, seed
                       "by the host's numpy path (engine 'host')", RuntimeWarning, stacklevel=2)
         on_device = False
     if on_device and mr == 0:
-        return _device_direct_paths(geom, tx, rx, tris, tri_sel, (size, longest), seed, mask,
-                                    tx_pos, rx_pos, monostatic, threshold_db, reference_gain)
+        return _device_direct_paths(geom, tx, rx, st, size, seed, mask, tx_pos, rx_pos,
+                                    monostatic, threshold_db, reference_gain)
     if on_device:
-        tiles = _device_tiles(geom, tris, tri_sel, (size, longest), seed, mask, tx_pos, rx_pos,
-                              monostatic)
+        tiles = _device_tiles(geom, st, size, seed, mask, tx_pos, rx_pos, monostatic)
     else:
         tiles = _host_tiles(geom, tris, tri_sel, size, seed, mask, tx_pos, rx_pos, mr,
                             monostatic)
