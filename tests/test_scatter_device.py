@@ -2,6 +2,7 @@
 the host's numpy reference (engine "host"): the same tiles, the same sight decisions, the
 same paths, the same channel."""
 
+import dataclasses
 import math
 from pathlib import Path
 
@@ -333,5 +334,8 @@ def test_scattering_triangles_are_kept_per_scene_until_its_arrays_change():
     sel = np.flatnonzero(sc.material_scattering[sc.tri_material] > 0)
     np.testing.assert_array_equal(st.sel, sel)
     np.testing.assert_array_equal(st.longest, scattering._longest_edges(sc.triangles[sel]))
-    sc.material_scattering = np.zeros_like(sc.material_scattering)  # a new array: recomputed
+    sc.materials = [dataclasses.replace(m, scattering_coefficient=0.0)
+                    for m in sc.materials]  # S changed: recomputed
     assert len(scattering._scattering_triangles(sc).sel) == 0
+    sc.tri_material = sc.tri_material.copy()  # a new array: recomputed
+    assert scattering._scattering_triangles(sc) is not st

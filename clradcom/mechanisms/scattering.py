@@ -445,7 +445,7 @@ class _ScatterTriangles:
 
     triangles: np.ndarray  # the scene arrays they were taken from (identity checked)
     tri_material: np.ndarray
-    material_scattering: np.ndarray
+    material_scattering: np.ndarray  # the materials' S (values checked)
     sel: np.ndarray  # (T_s,) scene triangle ids
     tris: np.ndarray  # (T_s, 3, 3)
     longest: np.ndarray  # longest edges
@@ -461,18 +461,19 @@ _TRIANGLES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 def _scattering_triangles(scene) -> _ScatterTriangles:
     """The scene's :class:`_ScatterTriangles`, computed once per scene (again if its
-    triangle, material or scattering arrays were replaced)."""
+    triangle or material arrays were replaced or its materials' S changed)."""
     st = _TRIANGLES.get(scene)
+    S = scene.material_scattering
     if (st is not None and st.triangles is scene.triangles
             and st.tri_material is scene.tri_material
-            and st.material_scattering is scene.material_scattering):
+            and np.array_equal(st.material_scattering, S)):
         return st
-    sel = np.flatnonzero(scene.material_scattering[scene.tri_material] > 0)
+    sel = np.flatnonzero(S[scene.tri_material] > 0)
     tris = scene.triangles[sel]
     with np.errstate(invalid="ignore", divide="ignore"):  # such triangles are refused later
         nrm, two_a = triangle_normals_and_double_areas(tris)
-    st = _ScatterTriangles(scene.triangles, scene.tri_material, scene.material_scattering,
-                           sel, tris, _longest_edges(tris), tris.mean(axis=1), nrm, two_a,
+    st = _ScatterTriangles(scene.triangles, scene.tri_material, S, sel, tris,
+                           _longest_edges(tris), tris.mean(axis=1), nrm, two_a,
                            bool(np.any(two_a == 0) or not np.all(np.isfinite(two_a))))
     _TRIANGLES[scene] = st
     return st
