@@ -339,3 +339,23 @@ def test_scattering_triangles_are_kept_per_scene_until_its_arrays_change():
     assert len(scattering._scattering_triangles(sc).sel) == 0
     sc.tri_material = sc.tri_material.copy()  # a new array: recomputed
     assert scattering._scattering_triangles(sc) is not st
+
+
+def test_near_lists_hold_the_triangles_antenna_blocked_tests(runtime):
+    """The kernel's near lists (kept per plain caster and position) hold every triangle
+    that visibility.antenna_blocked would test at the antenna: the plate just in front of
+    it, not the wall 6 m away."""
+    from clradcom.device.sbr import near_triangles
+    from clradcom.device.visibility import confirm_margin_m
+
+    sc = plate_scene(True)
+    caster = build_geometry(sc, runtime).caster
+    ant = np.asarray(sc.radars[0].position, dtype=np.float64)
+    ends = np.array([ant, ant + [0.0, 0.0, 5.0]])
+    radius = [2.0 * float(confirm_margin_m(e[None])[0]) for e in ends]
+    for _ in range(2):  # computed, then from the cache
+        first, tris = device_scatter._near_lists(caster, ends, radius)
+        want_first, want = near_triangles(caster, ends)
+        np.testing.assert_array_equal(first, want_first)
+        np.testing.assert_array_equal(tris, want)
+        assert len(tris) == 2 and set(sc.tri_object[tris]) == {1}  # the plate's two

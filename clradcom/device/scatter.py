@@ -20,6 +20,7 @@ double throughout.
 from __future__ import annotations
 
 import math
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -218,7 +219,7 @@ def _tile_fields(caster, fields: FieldInputs, d_centres, d_tri, within, triangle
     if not np.all(np.isfinite(link)):
         raise ArgumentError("velocities and antenna frames must be finite",
                             argument="fields", value=link.tolist())
-    near_first, near_tri = _near_lists(caster, ends, radius, same=bool(np.all(ends[0] == ends[1])))
+    near_first, near_tri = _near_lists(caster, ends, radius)
     data64 = caster.scene_data64()
     d_out = rt.empty(R * FIELD_WIDTH * 8)
 
@@ -237,23 +238,34 @@ def _tile_fields(caster, fields: FieldInputs, d_centres, d_tri, within, triangle
     return out
 
 
-def _near_lists(caster: RayCaster, ends, radius, *, same: bool):
+# per plain RayCaster (whose triangles never move; an InstancedCaster's do, and its near
+# lists are computed each time): the near lists of antenna positions already asked for;
+# at most _NEAR_KEEP positions
+_NEAR: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+_NEAR_KEEP = 64
+
+
+def _near_lists(caster: RayCaster, ends, radius):
     """CSR lists ``(first (3,), triangles)`` of the triangles that may block the last
     ``radius[e]`` metres at antenna ``ends[e]`` in :func:`clradcom.device.visibility.
     antenna_blocked`: boxes within the radius, the antenna off their plane. A superset
     of that test's own choice (radius and tolerance widened by rounding), since a row
     the kernel finds near none of them is clear for good and the others go to that test.
-    ``same``: both ends are one antenna (one box test)."""
-    lo, hi = caster.triangle_bounds()
-    normals = caster.normals64()
+    Kept per caster and antenna position (a trace asks for the same few again) where
+    the caster's triangles cannot move."""
+    cache = _NEAR.setdefault(caster, {}) if type(caster) is RayCaster else {}
     lists = []
-    for e, ant in enumerate(ends):
-        if e == 1 and same:
-            lists.append(lists[0])
-            break
-        r = float(radius[e]) * (1.0 + 1e-9) + 1e-12
-        near = np.flatnonzero(np.all((ant >= lo - r) & (ant <= hi + r), axis=1))
-        d_ant = np.einsum("ij,ij->i", normals[near], ant - caster.triangles[near, 0])
-        lists.append(near[np.abs(d_ant) > 0.5 * ON_FACE_TOL_REL * (1.0 + np.abs(ant).max())])
+    for ant, rad in zip(ends, radius, strict=True):
+        key = (ant.tobytes(), float(rad))
+        if key not in cache:
+            lo, hi = caster.triangle_bounds()
+            r = float(rad) * (1.0 + 1e-9) + 1e-12
+            near = np.flatnonzero(np.all((ant >= lo - r) & (ant <= hi + r), axis=1))
+            d_ant = np.einsum("ij,ij->i", caster.normals64()[near],
+                              ant - caster.triangles[near, 0])
+            if len(cache) >= _NEAR_KEEP:
+                cache.clear()
+            cache[key] = near[np.abs(d_ant) > 0.5 * ON_FACE_TOL_REL * (1.0 + np.abs(ant).max())]
+        lists.append(cache[key])
     first = np.array([0, len(lists[0]), len(lists[0]) + len(lists[1])], dtype=np.int32)
     return first, np.concatenate(lists).astype(np.int32)
