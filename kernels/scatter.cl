@@ -321,6 +321,7 @@ __kernel void tile_fields(__global const Bvh8Node *nodes, __global const float4 
                           __global const double *tri_v,     /* scene triangles, float64 */
                           __global const double *tri_n,
                           __global const int *rows, const int n_rows,
+                          const int monostatic,             /* rx is tx (same frame too) */
                           __global double *out)             /* (n_rows, TILE_FIELDS) */
 {
     int r = get_global_id(0);
@@ -371,7 +372,13 @@ __kernel void tile_fields(__global const Bvh8Node *nodes, __global const float4 
 
     double3 d_tx, th_t, ph_t, d_rx, th_r, ph_r;
     frame_basis(ki, lk + 12, &d_tx, &th_t, &ph_t);
-    frame_basis(-s, lk + 21, &d_rx, &th_r, &ph_r);
+    if (monostatic) {   /* rx is tx: -s = ki bit for bit (rx - q = -(q - tx), r_s = r_i) */
+        d_rx = d_tx;
+        th_r = th_t;
+        ph_r = ph_t;
+    } else {
+        frame_basis(-s, lk + 21, &d_rx, &th_r, &ph_r);
+    }
     o[TF_TX_DIR] = d_tx.x;
     o[TF_TX_DIR + 1] = d_tx.y;
     o[TF_TX_DIR + 2] = d_tx.z;
@@ -382,10 +389,11 @@ __kernel void tile_fields(__global const Bvh8Node *nodes, __global const float4 
     double3 te_i, tm_i, te_s, tm_s;
     te_tm(ki, n, &te_i, &tm_i);
     te_tm(s, n, &te_s, &tm_s);
-    o[TF_PROJ] = dot(th_t, te_i);
-    o[TF_PROJ + 1] = dot(ph_t, te_i);
-    o[TF_PROJ + 2] = dot(th_t, tm_i);
-    o[TF_PROJ + 3] = dot(ph_t, tm_i);
+    double Tt[2] = {dot(th_t, te_i), dot(ph_t, te_i)}, Tm[2] = {dot(th_t, tm_i), dot(ph_t, tm_i)};
+    o[TF_PROJ] = Tt[0];
+    o[TF_PROJ + 1] = Tt[1];
+    o[TF_PROJ + 2] = Tm[0];
+    o[TF_PROJ + 3] = Tm[1];
 
     /* M for Gamma = 1 */
     double c1, c2, cp;
@@ -395,17 +403,18 @@ __kernel void tile_fields(__global const Bvh8Node *nodes, __global const float4 
     double amp = lambda_4pi / (ri * rs) * S * sqrt(A * cos_i * cos_s / M_PI);
     double sp = sincos(two_pi_lambda * L, &cp);
     cplx rot = (cplx)(cp, -sp) * amp;
-    double3 b_tx[2] = {th_t, ph_t}, b_rx[2] = {th_r, ph_r};
-    for (int j = 0; j < 2; ++j) {
-        double3 v = -te_s * dot(te_i, b_tx[j]) + tm_s * dot(tm_i, b_tx[j]);
-        double3 w = cross(s, v);
-        for (int i = 0; i < 2; ++i) {
-            cplx x = e1 * dot(b_rx[i], v) + e2 * dot(b_rx[i], w);
+    /* b_rx_i^T R0 b_tx_j = -Rt_i Tt_j + Rm_i Tm_j and b_rx_i . (s x R0 b_tx_j) =
+     * Rm_i Tt_j + Rt_i Tm_j, with Rt_i, Rm_i = b_rx_i . te_s, tm_s and Tt_j, Tm_j =
+     * te_i, tm_i . b_tx_j (s x te_s = -tm_s as tm_s = te_s x s; s x tm_s = te_s up to
+     * (b_rx . s)(s . te_s), zero to rounding as b_rx is transverse to s) */
+    double Rt[2] = {dot(th_r, te_s), dot(ph_r, te_s)}, Rm[2] = {dot(th_r, tm_s), dot(ph_r, tm_s)};
+    for (int i = 0; i < 2; ++i)
+        for (int j = 0; j < 2; ++j) {
+            cplx x = e1 * (Rm[i] * Tm[j] - Rt[i] * Tt[j]) + e2 * (Rm[i] * Tt[j] + Rt[i] * Tm[j]);
             cplx m = c_mul(rot, x);
             o[TF_MATRIX + 4 * i + 2 * j] = m.x;
             o[TF_MATRIX + 4 * i + 2 * j + 1] = m.y;
         }
-    }
 
     /* the float64 antenna ends of the sight lines (visibility.py: antenna_blocked) */
     bool undecided = false;

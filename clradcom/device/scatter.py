@@ -220,6 +220,10 @@ def _tile_fields(caster, fields: FieldInputs, d_centres, d_tri, within, triangle
         raise ArgumentError("velocities and antenna frames must be finite",
                             argument="fields", value=link.tolist())
     near_first, near_tri = _near_lists(caster, ends, radius)
+    # one antenna at both ends (position and frame): the kernel takes rx's basis from tx's
+    mono = bool(np.array_equal(ends[0], ends[1])
+                and np.array_equal(np.asarray(fields.tx_frame, np.float64),
+                                   np.asarray(fields.rx_frame, np.float64)))
     data64 = caster.scene_data64()
     d_out = rt.empty(R * FIELD_WIDTH * 8)
 
@@ -231,8 +235,8 @@ def _tile_fields(caster, fields: FieldInputs, d_centres, d_tri, within, triangle
                       dev(tri_par, np.float64),
                       dev(phases, np.float64), dev(link, np.float64),
                       dev(near_first, np.int32), dev(near_tri, np.int32),
-                      data64["vertices"], data64["normals"], d_rows, np.int32(R), d_out,
-                      defines=DEFINES)
+                      data64["vertices"], data64["normals"], d_rows, np.int32(R),
+                      np.int32(mono), d_out, defines=DEFINES)
     out = np.empty((R, FIELD_WIDTH), dtype=np.float64)
     cl.enqueue_copy(rt.queue, out, d_out, is_blocking=True)
     return out
