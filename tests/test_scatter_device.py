@@ -342,7 +342,7 @@ def test_scattering_triangles_are_kept_per_scene_until_its_arrays_change():
 
 
 def test_near_lists_hold_the_triangles_antenna_blocked_tests(runtime):
-    """The kernel's near lists (kept per plain caster and position) hold every triangle
+    """The kernel's near lists (kept per caster placement and position) hold every triangle
     that visibility.antenna_blocked would test at the antenna: the plate just in front of
     it, not the wall 6 m away."""
     from clradcom.device.sbr import near_triangles
@@ -359,3 +359,7 @@ def test_near_lists_hold_the_triangles_antenna_blocked_tests(runtime):
         np.testing.assert_array_equal(first, want_first)
         np.testing.assert_array_equal(tris, want)
         assert len(tris) == 2 and set(sc.tri_object[tris]) == {1}  # the plate's two
+    kept = device_scatter._NEAR[caster][1]
+    caster.generation += 1  # as InstancedCaster.place() does: the lists are made again
+    device_scatter._near_lists(caster, ends, radius)
+    assert device_scatter._NEAR[caster][1] is not kept

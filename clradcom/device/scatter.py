@@ -242,9 +242,8 @@ def _tile_fields(caster, fields: FieldInputs, d_centres, d_tri, within, triangle
     return out
 
 
-# per plain RayCaster (whose triangles never move; an InstancedCaster's do, and its near
-# lists are computed each time): the near lists of antenna positions already asked for;
-# at most _NEAR_KEEP positions
+# per caster: (its generation, {(antenna's bytes, radius): near list}), redone when the
+# caster's triangles are placed again (InstancedCaster.place); at most _NEAR_KEEP entries
 _NEAR: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 _NEAR_KEEP = 64
 
@@ -255,9 +254,12 @@ def _near_lists(caster: RayCaster, ends, radius):
     antenna_blocked`: boxes within the radius, the antenna off their plane. A superset
     of that test's own choice (radius and tolerance widened by rounding), since a row
     the kernel finds near none of them is clear for good and the others go to that test.
-    Kept per caster and antenna position (a trace asks for the same few again) where
-    the caster's triangles cannot move."""
-    cache = _NEAR.setdefault(caster, {}) if type(caster) is RayCaster else {}
+    Kept per caster placement and antenna position (a trace asks for the same few
+    again)."""
+    generation, cache = _NEAR.get(caster, (None, {}))
+    if generation != caster.generation:
+        cache = {}
+        _NEAR[caster] = (caster.generation, cache)
     lists = []
     for ant, rad in zip(ends, radius, strict=True):
         key = (ant.tobytes(), float(rad))
