@@ -191,11 +191,17 @@ def test_threshold_keeps_the_hosts_paths_and_dropped_count(runtime, threshold_db
     assert_same_paths(scattering_paths(device, A, A, **kw), hst, f"threshold {threshold_db}")
 
 
-def turning_scene():
+def turning_scene(origin=(0.0, 0.0, 0.0)):
     """The leafy wall turning about a vertical axis (tiles move with v + omega x r), radars
     with tilted frames, cosine patterns and a slanted (A) and a circular (B) polarisation
     (not circular at a monostatic radar, whose single-bounce returns cancel), a rough PEC
-    car box that scatters too."""
+    car box that scatters too. ``origin`` shifts every position (and the rotation
+    centre)."""
+    o = np.asarray(origin, dtype=np.float64)
+
+    def at(*p):
+        return (np.asarray(p, dtype=np.float64) + o).tolist()
+
     return scene_from_dict({
         "scene": {"name": "turning", "carrier_hz": 24e9},
         "materials": [
@@ -205,28 +211,30 @@ def turning_scene():
              "cross_pol_share": 0.1}],
         "objects": [
             {"name": "road", "material": "concrete_road", "shape": "plane",
-             "size": [30.0, 20.0], "position": [8.0, 0.0, 0.0]},
+             "size": [30.0, 20.0], "position": at(8.0, 0.0, 0.0)},
             {"name": "wall", "material": "leaves", "shape": "box",
-             "extents": [12.0, 0.4, 3.0], "position": [8.0, 6.0, 1.5],
+             "extents": [12.0, 0.4, 3.0], "position": at(8.0, 6.0, 1.5),
              "velocity": [0.3, 0.0, 0.0], "angular_velocity_deg_s": [0.0, 0.0, 20.0],
-             "rotation_centre": [8.0, 9.0, 0.0]},
+             "rotation_centre": at(8.0, 9.0, 0.0)},
             {"name": "car", "material": "rough_metal", "shape": "box",
-             "extents": [3.8, 1.8, 1.5], "position": [9.0, 2.5, 0.75],
+             "extents": [3.8, 1.8, 1.5], "position": at(9.0, 2.5, 0.75),
              "velocity": [-5.0, 0.0, 0.0]}],
-        "radars": [{"name": "A", "position": [1.0, 0.0, 0.6], "velocity": [8.0, 0.5, 0.0],
+        "radars": [{"name": "A", "position": at(1.0, 0.0, 0.6), "velocity": [8.0, 0.5, 0.0],
                     "orientation_deg": [10.0, -5.0, 35.0],
                     "pattern": {"type": "cosine", "q": 2.0}, "polarization": [0.6, 0.8]},
-                   {"name": "B", "role": "rx", "position": [15.0, 1.0, 0.8],
+                   {"name": "B", "role": "rx", "position": at(15.0, 1.0, 0.8),
                     "orientation_deg": [0.0, 3.0, 150.0],
                     "pattern": {"type": "cosine", "q": 1.0}, "polarization": "RHCP"}]})
 
 
-def test_direct_fields_with_turning_tiles_tilted_antennas_and_pec(runtime):
+@pytest.mark.parametrize("origin", [(0.0, 0.0, 0.0), (1000.0, -700.0, 20.0)])
+def test_direct_fields_with_turning_tiles_tilted_antennas_and_pec(runtime, origin):
     """tile_fields against the host's _path_rows where every term of a direct path is
     exercised: turning tiles (Doppler with omega x r), tilted antenna frames, patterns
     that vary along the rows, a circular and a slanted polarisation (Gamma and the
-    cross-polar share act on them), a PEC and a lossy scatterer."""
-    sc = turning_scene()
+    cross-polar share act on them), a PEC and a lossy scatterer; also 1.2 km from the
+    origin, where the phases still agree to 1e-12 (lengths and phases in double)."""
+    sc = turning_scene(origin)
     device, host = engines(sc, runtime)
     A, B = sc.radars
     for tx, rx in ((A, A), (A, B), (B, A)):
