@@ -350,9 +350,8 @@ def test_scattering_triangles_are_kept_per_scene_until_its_arrays_change():
 
 
 def test_near_lists_hold_the_triangles_antenna_blocked_tests(runtime):
-    """The kernel's near lists (kept per caster placement and position) hold every triangle
-    that visibility.antenna_blocked would test at the antenna: the plate just in front of
-    it, not the wall 6 m away."""
+    """The kernel's near lists hold every triangle that visibility.antenna_blocked would
+    test at the antenna: the plate just in front of it, not the wall 6 m away."""
     from clradcom.device.sbr import near_triangles
     from clradcom.device.visibility import confirm_margin_m
 
@@ -361,13 +360,9 @@ def test_near_lists_hold_the_triangles_antenna_blocked_tests(runtime):
     ant = np.asarray(sc.radars[0].position, dtype=np.float64)
     ends = np.array([ant, ant + [0.0, 0.0, 5.0]])
     radius = [2.0 * float(confirm_margin_m(e[None])[0]) for e in ends]
-    for _ in range(2):  # computed, then from the cache
+    for _ in range(2):  # the boxes scanned, then from the per-antenna shortlist
         first, tris = device_scatter._near_lists(caster, ends, radius)
         want_first, want = near_triangles(caster, ends)
         np.testing.assert_array_equal(first, want_first)
         np.testing.assert_array_equal(tris, want)
         assert len(tris) == 2 and set(sc.tri_object[tris]) == {1}  # the plate's two
-    kept = device_scatter._NEAR[caster][1]
-    caster.generation += 1  # as InstancedCaster.place() does: the lists are made again
-    device_scatter._near_lists(caster, ends, radius)
-    assert device_scatter._NEAR[caster][1] is not kept

@@ -20,13 +20,17 @@ double throughout.
 from __future__ import annotations
 
 import math
-import weakref
 from dataclasses import dataclass
 
 import numpy as np
 
 from clradcom.device.raycast import RayCaster
-from clradcom.device.visibility import ON_FACE_TOL_REL, SIGHT_STOP, confirm_margin_m
+from clradcom.device.visibility import (
+    ON_FACE_TOL_REL,
+    SIGHT_STOP,
+    antenna_near_triangles,
+    confirm_margin_m,
+)
 from clradcom.errors import ArgumentError
 
 __all__ = ["FIELD_COLUMNS", "FieldInputs", "TileSight", "has_fp64", "tile_sight"]
@@ -242,36 +246,14 @@ def _tile_fields(caster, fields: FieldInputs, d_centres, d_tri, within, triangle
     return out
 
 
-# per caster: (its generation, {(antenna's bytes, radius): near list}), redone when the
-# caster's triangles are placed again (InstancedCaster.place); at most _NEAR_KEEP entries
-_NEAR: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
-_NEAR_KEEP = 64
-
-
 def _near_lists(caster: RayCaster, ends, radius):
     """CSR lists ``(first (3,), triangles)`` of the triangles that may block the last
     ``radius[e]`` metres at antenna ``ends[e]`` in :func:`clradcom.device.visibility.
-    antenna_blocked`: boxes within the radius, the antenna off their plane. A superset
-    of that test's own choice (radius and tolerance widened by rounding), since a row
-    the kernel finds near none of them is clear for good and the others go to that test.
-    Kept per caster placement and antenna position (a trace asks for the same few
-    again)."""
-    generation, cache = _NEAR.get(caster, (None, {}))
-    if generation != caster.generation:
-        cache = {}
-        _NEAR[caster] = (caster.generation, cache)
-    lists = []
-    for ant, rad in zip(ends, radius, strict=True):
-        key = (ant.tobytes(), float(rad))
-        if key not in cache:
-            lo, hi = caster.triangle_bounds()
-            r = float(rad) * (1.0 + 1e-9) + 1e-12
-            near = np.flatnonzero(np.all((ant >= lo - r) & (ant <= hi + r), axis=1))
-            d_ant = np.einsum("ij,ij->i", caster.normals64()[near],
-                              ant - caster.triangles[near, 0])
-            if len(cache) >= _NEAR_KEEP:
-                cache.clear()
-            cache[key] = near[np.abs(d_ant) > 0.5 * ON_FACE_TOL_REL * (1.0 + np.abs(ant).max())]
-        lists.append(cache[key])
+    antenna_blocked`: a superset of that test's own choice (radius and tolerance widened
+    by rounding), since a row the kernel finds near none of them is clear for good and
+    the others go to that test."""
+    lists = [antenna_near_triangles(caster, ant, float(rad) * (1.0 + 1e-9) + 1e-12,
+                                    0.5 * ON_FACE_TOL_REL)
+             for ant, rad in zip(ends, radius, strict=True)]
     first = np.array([0, len(lists[0]), len(lists[0]) + len(lists[1])], dtype=np.int32)
     return first, np.concatenate(lists).astype(np.int32)

@@ -122,17 +122,12 @@ def antenna_blocked(caster: RayCaster, tri_face, antennas, others, radius) -> np
         which = which.reshape(-1)
         groups = [(ant, np.flatnonzero(which == i)) for i, ant in enumerate(ants)]
     for ant, rows in groups:
-        r = radius[rows].max()
-        near = _boxes_near(caster, ant, r)
+        near = antenna_near_triangles(caster, ant, radius[rows].max())
         if len(near) == 0:
             continue
         tri = triangles[near]
-        n = triangle_normals(tri)
+        n = caster.normals64()[near]
         d_ant = np.einsum("ij,ij->i", n, ant - tri[:, 0])  # (N,)
-        off = np.abs(d_ant) > ON_FACE_TOL_REL * (1.0 + np.abs(ant).max())
-        near, n, d_ant, tri = near[off], n[off], d_ant[off], tri[off]
-        if len(near) == 0:
-            continue
         other = others[rows]
         d_other = (other @ n.T) - np.einsum("ij,ij->i", n, tri[:, 0])[None, :]  # (R, N)
         on_other = np.abs(d_other) <= ON_FACE_TOL_REL * (1.0 + np.abs(other).max(axis=1))[:, None]
@@ -180,6 +175,19 @@ def _boxes_near(caster: RayCaster, ant, r) -> np.ndarray:
         cand = np.flatnonzero(gap <= 2.0 * NEAR_ANTENNA_M)
         known[key] = cand
     return cand[np.all((ant >= lo[cand] - r) & (ant <= hi[cand] + r), axis=1)]
+
+
+def antenna_near_triangles(caster: RayCaster, antenna, radius,
+                           on_face_tol: float = ON_FACE_TOL_REL) -> np.ndarray:
+    """Ascending ids of the triangles :func:`antenna_blocked` tests for the segments at
+    ``antenna`` (3,) within ``radius`` (m): their boxes within the radius of it along
+    every axis, and the antenna farther than ``on_face_tol`` x (1 + its largest
+    coordinate) from their plane. Kernels that decide the antenna ends themselves take
+    these lists (kernels/sbr.cl, kernels/scatter.cl)."""
+    ant = np.asarray(antenna, dtype=np.float64)
+    near = _boxes_near(caster, ant, float(radius))
+    d_ant = np.einsum("ij,ij->i", caster.normals64()[near], ant - caster.triangles[near, 0])
+    return near[np.abs(d_ant) > on_face_tol * (1.0 + np.abs(ant).max())]
 
 
 def edge_distances(points, tri):
