@@ -1,11 +1,20 @@
-/* The blocks of a launch window's grid that projected triangles cover: the pair test of
- * clradcom/geometry/silhouette.py: block_coverage on the device. Work item = one
- * triangle; it walks the blocks of its box in the grid (lo, cnt) and marks those that no
- * edge normal separates from it: (n_x c_x + n_y c_y) - r <= off for all three edges, with
- * the block centre c = origin + (i + 1/2) * block. The host computes the normals, offsets
- * and reaches (silhouette.py: coverage_setup) and the kernel evaluates the test's
- * expressions in double without contraction, as numpy does, so the mask is the host's
- * bit for bit. Several triangles may mark one block: each writes the same 1. */
+/* SBR launch windows on the device (clradcom/device/silhouette.py), double precision
+ * without contraction so that every result is numpy's bit for bit:
+ *
+ * block_cover: the blocks of the windows' grids that projected triangles cover, the pair
+ * test of clradcom/geometry/silhouette.py: cover_blocks_many. Work item = one triangle
+ * of any window; it walks the blocks of its box in its window's grid (lo, cnt) and marks
+ * those that no edge normal separates from it: (n_x c_x + n_y c_y) - r <= off for all
+ * three edges, with the block centre c = origin + (i + 1/2) * block. The host computes
+ * the normals, offsets and reaches (silhouette.py: coverage_setup_many). Several
+ * triangles may mark one block: each writes the same 1.
+ *
+ * beside_cull: the mirror windows' clip triangles that lie wholly beyond one side plane
+ * of the pyramid from the eye through the rectangle of the window's covered blocks
+ * (clradcom/mechanisms/sbr.py: _beside, the same expressions). Work item = one (window,
+ * triangle) pair: window w's pairs are pair_start[w] .. pair_start[w+1]-1, its triangles
+ * tri_index[tri_start[w] + k]. */
+#include "fastmath.h"
 #ifdef cl_khr_fp64
 #pragma OPENCL EXTENSION cl_khr_fp64 : enable
 #pragma OPENCL FP_CONTRACT OFF
@@ -15,12 +24,20 @@ __kernel void block_cover(__global const double *nrm,     /* (T, 3, 2) */
                           __global const double *radius,  /* (T, 3) */
                           __global const long *lo,        /* (T, 2) first block */
                           __global const long *cnt,       /* (T, 2) blocks of the box */
-                          const double ox, const double oy, const double block,
-                          const long ny, const int n_tri,
-                          __global uchar *mask)            /* (nx, ny) */
+                          __global const long *window,    /* (T,) grid of the triangle */
+                          __global const double *origin,  /* (W, 2) */
+                          __global const double *block,   /* (W,) block side */
+                          __global const long *ny,        /* (W,) blocks along y */
+                          __global const long *mask_off,  /* (W,) first cell */
+                          const int n_tri,
+                          __global uchar *mask)            /* concatenated (nx, ny) */
 {
     int t = get_global_id(0);
     if (t >= n_tri) return;
+    long g = window[t];
+    double ox = origin[2 * g], oy = origin[2 * g + 1], bs = block[g];
+    long row = ny[g];
+    __global uchar *m = mask + mask_off[g];
     double n0x = nrm[6 * t], n0y = nrm[6 * t + 1];
     double n1x = nrm[6 * t + 2], n1y = nrm[6 * t + 3];
     double n2x = nrm[6 * t + 4], n2y = nrm[6 * t + 5];
@@ -30,14 +47,53 @@ __kernel void block_cover(__global const double *nrm,     /* (T, 3, 2) */
     long ci = cnt[2 * t], cj = cnt[2 * t + 1];
     for (long a = 0; a < ci; ++a) {
         long bi = i0 + a;
-        double cx = ox + ((double)bi + 0.5) * block;
+        double cx = ox + ((double)bi + 0.5) * bs;
         for (long b = 0; b < cj; ++b) {
             long bj = j0 + b;
-            double cy = oy + ((double)bj + 0.5) * block;
+            double cy = oy + ((double)bj + 0.5) * bs;
             if ((n0x * cx + n0y * cy) - r0 <= o0 && (n1x * cx + n1y * cy) - r1 <= o1
                 && (n2x * cx + n2y * cy) - r2 <= o2)
-                mask[bi * ny + bj] = 1;
+                m[bi * row + bj] = 1;
         }
     }
+}
+
+__kernel void beside_cull(__global const double *tri,     /* (N, 3, 3) triangles */
+                          __global const int *tri_index,  /* triangles of the windows */
+                          __global const long *tri_start, /* (W,) first in tri_index */
+                          __global const long *pair_start,/* (W + 1,) first pair */
+                          const int n_win,
+                          __global const double *frame,   /* (W, 10): axis, u, v, D */
+                          __global const double *rect,    /* (W, 4): lo x, lo y, hi x, hi y */
+                          const double ex, const double ey, const double ez,
+                          __global uchar *beside)         /* (pairs,) 1: culled */
+{
+    long p = get_global_id(0);
+    if (p >= pair_start[n_win]) return;
+    int lo_w = 0, hi_w = n_win - 1;   /* the last window whose first pair is <= p */
+    while (lo_w < hi_w) {
+        int mid = (lo_w + hi_w + 1) / 2;
+        if (pair_start[mid] <= p) lo_w = mid; else hi_w = mid - 1;
+    }
+    int w = lo_w;
+    __global const double *f = frame + 10 * w;
+    __global const double *r = rect + 4 * w;
+    __global const double *v = tri + 9 * (long)tri_index[tri_start[w] + (p - pair_start[w])];
+    double D = f[9];
+    double lx = r[0], ly = r[1], hx = r[2], hy = r[3];
+    double reach = (fmax(fabs(lx), fabs(ly)) + fmax(fabs(hx), fabs(hy))) + D;
+    int right = 1, left = 1, top = 1, bottom = 1;
+    for (int k = 0; k < 3; ++k) {
+        double rx = v[3 * k] - ex, ry = v[3 * k + 1] - ey, rz = v[3 * k + 2] - ez;
+        double depth = (rx * f[0] + ry * f[1]) + rz * f[2];
+        double x = D * ((rx * f[3] + ry * f[4]) + rz * f[5]);
+        double y = D * ((rx * f[6] + ry * f[7]) + rz * f[8]);
+        double margin = 1e-9 * ((fabs(x) + fabs(y)) + reach * fabs(depth));
+        right &= (x - hx * depth) > margin;
+        left &= (lx * depth - x) > margin;
+        top &= (y - hy * depth) > margin;
+        bottom &= (ly * depth - y) > margin;
+    }
+    beside[p] = (uchar)(right | left | top | bottom);
 }
 #endif

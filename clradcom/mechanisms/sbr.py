@@ -67,7 +67,7 @@ from clradcom.device.raycast import make_rays, spawn_origins
 from clradcom.device.visibility import surface_sees
 from clradcom.errors import ArgumentError
 from clradcom.geometry.rows import unique_rows
-from clradcom.geometry.silhouette import BLOCK, block_coverage, project_to_plane
+from clradcom.geometry.silhouette import BLOCK, cover_blocks_many, coverage_setup_many
 from clradcom.geometry.triangles import triangle_normals, triangle_normals_and_double_areas
 from clradcom.paths import InteractionType, Paths
 from clradcom.physics import em
@@ -229,23 +229,34 @@ class TubeWindows:
                            block_j=zi)
 
 
-def _clip_near(tri, eye, axis, near):
+def _dot3(a, b):
+    """a.b over the last axis as ((a0 b0 + a1 b1) + a2 b2): the order kernels/silhouette.cl
+    uses, so the launch windows' tests are the device's bit for bit."""
+    return (a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1]) + a[..., 2] * b[..., 2]
+
+
+def _clip_near(tri, eye, axis, near, return_index: bool = False):
     """Triangles (T,3,3) clipped to the half-space (p - eye).axis >= near (0, 1 or 2
     triangles each): a face that reaches behind the eye still projects.  A straddling
     triangle becomes the polygon of its vertices in front and its edges' crossings, in
-    edge order, fanned from its first vertex."""
+    edge order, fanned from its first vertex.  ``axis`` (3,) or one per triangle (T,3),
+    ``near`` a number or (T,); ``return_index``: also the input triangle of each output."""
     tri = np.asarray(tri, dtype=np.float64)
-    depth = (tri - eye) @ axis
-    front = depth >= near
+    axis = np.asarray(axis, dtype=np.float64)
+    near = np.broadcast_to(np.asarray(near, dtype=np.float64), (len(tri),))
+    depth = _dot3(tri - eye, axis[:, None, :] if axis.ndim == 2 else axis)
+    front = depth >= near[:, None]
     n_front = front.sum(axis=1)
     part = (n_front > 0) & (n_front < 3)
-    s, d, f = tri[part], depth[part], front[part]
+    idx = np.arange(len(tri))
+    s, d, f, nr, ip = tri[part], depth[part], front[part], near[part], idx[part]
+    whole = n_front == 3
     if len(s) == 0:
-        return tri[n_front == 3]
+        return (tri[whole], idx[whole]) if return_index else tri[whole]
     nxt = [1, 2, 0]
     b, db, fb = s[:, nxt], d[:, nxt], f[:, nxt]
     with np.errstate(divide="ignore", invalid="ignore"):
-        cut = s + ((near - d) / (db - d))[..., None] * (b - s)   # edge k's crossing
+        cut = s + ((nr[:, None] - d) / (db - d))[..., None] * (b - s)   # edge k's crossing
     # per edge k: vertex k if in front, then the crossing if the edge crosses
     cand = np.stack([s, cut], axis=2).reshape(len(s), 6, 3)
     valid = np.stack([f, f != fb], axis=2).reshape(len(s), 6)
@@ -256,60 +267,68 @@ def _clip_near(tri, eye, axis, near):
     second = poly[quad][:, [0, 2, 3]]
     # the loop this replaces gave each straddler its fan triangles in turn; the order
     # of triangles does not matter to a coverage mask, the order of vertices is kept
-    return np.concatenate([tri[n_front == 3], first, second])
+    out = np.concatenate([tri[whole], first, second])
+    if return_index:
+        return out, np.concatenate([idx[whole], ip, ip[quad]])
+    return out
+
+
+def beside_pairs(triangles, tri_index, tri_start, pair_start, frame, rect, eye,
+                 chunk: int = 1 << 18) -> np.ndarray:
+    """(pairs,) bool: for window w's clip triangles ``triangles[tri_index[tri_start[w] +
+    k]]``, k < ``pair_start[w+1] - pair_start[w]``, whether the triangle lies wholly
+    beyond one side plane of the pyramid from ``eye`` through the rectangle ``rect[w]``
+    (lo x, lo y, hi x, hi y) of the window plane (``frame[w]``: axis, u, v, distance), by
+    more than rounding: its part in front of the eye projects outside the rectangle.
+    kernels/silhouette.cl: beside_cull is the device's twin (the same expressions)."""
+    pair_start = np.asarray(pair_start, dtype=np.int64)
+    counts = np.diff(pair_start)
+    n = int(pair_start[-1])
+    out = np.zeros(n, dtype=bool)
+    frame = np.asarray(frame, dtype=np.float64)
+    rect = np.asarray(rect, dtype=np.float64)
+    reach = (np.maximum(np.abs(rect[:, 0]), np.abs(rect[:, 1]))
+             + np.maximum(np.abs(rect[:, 2]), np.abs(rect[:, 3]))) + frame[:, 9]
+    w_all = np.repeat(np.arange(len(counts)), counts)
+    for a in range(0, n, chunk):
+        w = w_all[a:a + chunk]
+        p = np.arange(a, a + len(w))
+        rel = triangles[tri_index[np.asarray(tri_start)[w] + (p - pair_start[w])]] - eye
+        f = frame[w][:, None, :]
+        D = f[..., 9]
+        depth = _dot3(rel, f[..., 0:3])
+        x = D * _dot3(rel, f[..., 3:6])
+        y = D * _dot3(rel, f[..., 6:9])
+        margin = 1e-9 * ((np.abs(x) + np.abs(y)) + reach[w][:, None] * np.abs(depth))
+        r = rect[w][:, None, :]
+        out[a:a + len(w)] = (np.all(x - r[..., 2] * depth > margin, axis=1)
+                             | np.all(r[..., 0] * depth - x > margin, axis=1)
+                             | np.all(y - r[..., 3] * depth > margin, axis=1)
+                             | np.all(r[..., 1] * depth - y > margin, axis=1))
+    return out
 
 
 def _beside(tri, eye, axis, u, v, distance, lo, hi):
-    """(T,) bool: triangles (T,3,3) that lie wholly beyond one side plane of the pyramid
-    from ``eye`` through the rectangle [lo, hi] (x, y) of the window plane, by more than
-    rounding: their part in front of the eye projects outside the rectangle."""
+    """(T,) bool: :func:`beside_pairs` of one window's triangles (T,3,3)."""
+    tri = np.asarray(tri, dtype=np.float64)
+    frame = np.concatenate([axis, u, v, [distance]])[None]
+    return beside_pairs(tri, np.arange(len(tri)), np.zeros(1, np.int64),
+                        np.array([0, len(tri)]), frame,
+                        np.concatenate([lo, hi])[None], np.asarray(eye, np.float64))
+
+
+def _project(tri, eye, axis, u, v, distance):
+    """Central projection of triangles (T,3,3) from ``eye`` onto their windows' planes
+    (one axis, u, v (T,3) and distance (T,) per triangle): xy (T,3,2) and depth (T,3),
+    x = distance (p - eye).u / depth as :func:`clradcom.geometry.silhouette.project_to_plane`
+    with the dot products of :func:`_dot3`."""
     rel = np.asarray(tri, dtype=np.float64) - eye
-    depth = rel @ axis
-    x, y = distance * (rel @ u), distance * (rel @ v)
-    margin = 1e-9 * (np.abs(x) + np.abs(y) + (np.abs(lo).max() + np.abs(hi).max()
-                                               + distance) * np.abs(depth))
-    return (np.all(x - hi[0] * depth > margin, axis=1)
-            | np.all(lo[0] * depth - x > margin, axis=1)
-            | np.all(y - hi[1] * depth > margin, axis=1)
-            | np.all(lo[1] * depth - y > margin, axis=1))
-
-
-def _project(tri, tx, axis, u, v, distance):
-    x, y, depth = project_to_plane(tri, tx, axis, u, v, distance)
+    depth = _dot3(rel, axis[:, None, :])
+    D = distance[:, None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x = D * _dot3(rel, u[:, None, :]) / depth
+        y = D * _dot3(rel, v[:, None, :]) / depth
     return np.stack([x, y], axis=-1), depth
-
-
-def _window(tx, centre, spacing, triangles, clip=None, cover=block_coverage):
-    """One window aimed at ``centre`` covering ``triangles`` (and, when given, only
-    where the ``clip`` triangles also cover): (frame, cell0, shape, mask), or None when
-    the triangles do not lie well in front of tx.  ``cover``: the block raster,
-    :func:`clradcom.geometry.silhouette.block_coverage` or a device's equal one."""
-    rel = centre - tx
-    D = float(np.linalg.norm(rel))
-    if D == 0.0:
-        return None
-    axis = rel / D
-    u, v = orthonormal_frame(axis)
-    xy, depth = _project(triangles, tx, axis, u, v, D)
-    if len(xy) == 0 or depth.min() < MIN_DEPTH_FRACTION * D:
-        return None
-    lo = np.floor(xy.reshape(-1, 2).min(axis=0) / spacing + 0.5).astype(np.int64) - 1
-    hi = np.floor(xy.reshape(-1, 2).max(axis=0) / spacing + 0.5).astype(np.int64) + 1
-    shape = -(-(hi - lo + 1) // BLOCK)
-    origin = (lo - 0.5) * spacing
-    mask = cover(xy, BLOCK * spacing, origin, shape)
-    if clip is not None and mask.any():
-        # only blocks of the mask matter: clip triangles that project wholly beside the
-        # covered blocks' rectangle cover none of them
-        ij = np.argwhere(mask)
-        rect_lo = origin + ij.min(axis=0) * (BLOCK * spacing)
-        rect_hi = origin + (ij.max(axis=0) + 1) * (BLOCK * spacing)
-        clip = clip[~_beside(clip, tx, axis, u, v, D, rect_lo, rect_hi)]
-        clip = _clip_near(clip, tx, axis, MIN_DEPTH_FRACTION * D)
-        mask &= cover(_project(clip, tx, axis, u, v, D)[0], BLOCK * spacing, origin, shape)
-    if not mask.any():
-        return None
-    return axis, u, v, D, lo, shape, mask
 
 
 def _mirror_faces(geom, objects, tx):
@@ -366,19 +385,21 @@ def launch_windows(geom, tx_pos, objects, spacing_m, *, mirrors: bool = True,
     centre lie in front of, clipped to that face's own silhouette.  An object too close to
     tx for one window (a guard rail beside the radar, the radar's own car) is split into
     groups of triangles (:func:`_chunks`) with a window each; triangles within their own
-    size of tx get none (a warning counts them), their PO facets stay.  The device engine
-    rasters large silhouettes in a kernel (:mod:`clradcom.device.silhouette`, the same
+    size of tx get none (a warning counts them), their PO facets stay.  All windows are
+    made at once (:func:`_make_windows`); the device engine runs their block rasters and
+    the mirror windows' clip cull in kernels (:mod:`clradcom.device.silhouette`, the same
     masks)."""
     scene = geom.scene
-    cover = (functools.partial(device_silhouette.block_coverage, geom.runtime)
-             if geom.engine == "device" else block_coverage)
+    runtime = geom.runtime if geom.engine == "device" else None
+    if runtime is not None and not runtime.has_double:
+        runtime = None
     tx = np.asarray(tx_pos, dtype=np.float64)
     objects = np.asarray(list(objects), dtype=np.int64)
     spacing = np.broadcast_to(np.asarray(spacing_m, dtype=np.float64), objects.shape)
     if np.any(~np.isfinite(spacing) | (spacing <= 0)):
         raise ArgumentError("must be positive numbers", argument="spacing_m",
                             value=spacing_m)
-    direct, mirrored = [], []
+    direct, mirrored = [], []   # candidate windows: (object, face, spacing, centre, tris)
     face_ids, face_n, face_d, face_lo, face_hi = (
         _mirror_faces(geom, objects, tx) if mirrors
         else (np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3)),
@@ -392,9 +413,7 @@ def launch_windows(geom, tx_pos, objects, spacing_m, *, mirrors: bool = True,
                           f"returns stay", stacklevel=3)
         for tris in chunks:
             c, r = bounding_sphere(tris)
-            win = _window(tx, c, s, tris, cover=cover)
-            if win is not None:
-                direct.append((o, -1, s, win))
+            direct.append((o, -1, s, c, tris))
             # mirrors in front of which the chunk lies, whose box (grown by the chunk's
             # radius) the line of sight to the chunk's image crosses
             h_c = face_n @ c - face_d
@@ -407,29 +426,154 @@ def launch_windows(geom, tx_pos, objects, spacing_m, *, mirrors: bool = True,
             for f, n, d, ci in zip(face_ids[near], face_n[near], face_d[near], c_img[near],
                                    strict=True):
                 image = tris - 2.0 * ((tris @ n) - d)[..., None] * n
-                win = _window(tx, ci, s, image,
-                              clip=scene.triangles[geom.faces.tri_face == f], cover=cover)
-                if win is not None:
-                    mirrored.append((o, int(f), s, win))
-    wins = direct + mirrored
-    if not wins:
+                mirrored.append((o, int(f), s, ci, image))
+    return _make_windows(geom, runtime, tx, direct + mirrored)
+
+
+def _face_triangles(geom):
+    """Scene triangles grouped by planar face: (order, start (F+1,)) - face f's triangles
+    are ``order[start[f]:start[f+1]]`` in scene order.  Cached on ``geom.faces``."""
+    faces = geom.faces
+    got = getattr(faces, "_sbr_face_triangles", None)
+    if got is None or got[0] is not faces.tri_face:
+        order = np.argsort(faces.tri_face, kind="stable")
+        start = np.zeros(faces.n_faces + 1, np.int64)
+        np.cumsum(np.bincount(faces.tri_face, minlength=faces.n_faces), out=start[1:])
+        got = (faces.tri_face, order, start)
+        try:
+            faces._sbr_face_triangles = got
+        except AttributeError:   # a frozen or slotted faces object: recompute each time
+            pass
+    return got[1], got[2]
+
+
+def _make_windows(geom, runtime, tx, cands) -> TubeWindows:
+    """The candidate windows ``cands`` (object, mirror face or -1, pitch, centre,
+    triangles (T,3,3) to cover) as :class:`TubeWindows`, all at once: a window is aimed at
+    its centre, its grid spans its triangles' projection plus a cell, its mask marks the
+    blocks they cover (and, for a mirror window, that the mirror face's own triangles,
+    culled by the pyramid through the covered blocks' rectangle and clipped at the near
+    plane, cover too).  A window whose triangles do not all lie MIN_DEPTH_FRACTION of its
+    distance in front of tx, or whose mask is empty, is dropped.  ``runtime``: the
+    device that rasters and culls (None: numpy), with the same results bit for bit."""
+    if not cands:
         return TubeWindows.empty(tx)
-    offsets = np.cumsum([0] + [int(w[3][6].size) for w in wins])
-    blocks = [np.argwhere(w[3][6]) for w in wins]
+    W = len(cands)
+    spacing = np.array([c[2] for c in cands], dtype=np.float64)
+    counts = np.array([len(c[4]) for c in cands], dtype=np.int64)
+    tris = np.concatenate([c[4] for c in cands]).astype(np.float64, copy=False)
+    win = np.repeat(np.arange(W), counts)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    rel = np.array([c[3] for c in cands], dtype=np.float64) - tx
+    # a window's distance as one vector's norm gives it (a BLAS dot, not a row sum)
+    D = np.array([float(np.linalg.norm(r)) for r in rel])
+    ok = D != 0.0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        axis = rel / np.where(ok, D, 1.0)[:, None]
+        u, v = orthonormal_frame(axis)
+    xy, depth = _project(tris, tx, axis[win], u[win], v[win], D[win])
+    ok &= ~(np.minimum.reduceat(depth.min(axis=1), starts) < MIN_DEPTH_FRACTION * D)
+    with np.errstate(invalid="ignore"):
+        lo_xy = np.stack([np.minimum.reduceat(xy[..., k].min(axis=1), starts)
+                          for k in (0, 1)], axis=1)
+        hi_xy = np.stack([np.maximum.reduceat(xy[..., k].max(axis=1), starts)
+                          for k in (0, 1)], axis=1)
+        ok &= np.all(np.isfinite(lo_xy) & np.isfinite(hi_xy), axis=1)
+        lo = np.floor(np.where(ok[:, None], lo_xy, 0.0) / spacing[:, None] + 0.5
+                      ).astype(np.int64) - 1
+        hi = np.floor(np.where(ok[:, None], hi_xy, 0.0) / spacing[:, None] + 0.5
+                      ).astype(np.int64) + 1
+    shape = np.where(ok[:, None], -(-(hi - lo + 1) // BLOCK), 0)
+    origin = (lo - 0.5) * spacing[:, None]
+    block = BLOCK * spacing
+    sizes = shape[:, 0] * shape[:, 1]
+    offset = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+    total = int(sizes.sum())
+    ny = shape[:, 1]
+    if runtime is not None:
+        cover = functools.partial(device_silhouette.cover_blocks_many, runtime)
+    else:
+        cover = cover_blocks_many
+    sel = ok[win]
+    mask = cover(coverage_setup_many(xy[sel], win[sel], block, origin, shape), block,
+                 origin, ny, offset, total)
+    cell_win = np.repeat(np.arange(W), sizes)
+    mirror = ok & (np.array([c[1] for c in cands]) >= 0)
+    mirror &= np.bincount(cell_win[mask], minlength=W) > 0
+    m = np.flatnonzero(mirror)
+    if len(m):
+        mask &= _clip_masks(geom, runtime, tx, cands, m, cell_win, mask, axis, u, v, D,
+                            origin, block, shape, offset, total, cover)
+    per_window = np.bincount(cell_win[mask], minlength=W)
+    keep = ok & (per_window > 0)
+    if not keep.any():
+        return TubeWindows.empty(tx)
+    k = np.flatnonzero(keep)
+    masks = mask[keep[cell_win]]
+    kept_sizes = sizes[k]
+    kept_offset = np.concatenate([[0], np.cumsum(kept_sizes)[:-1]])
+    covered = np.flatnonzero(masks)
+    bw = np.repeat(np.arange(len(k)), per_window[k])   # covered cells are window-ordered
+    local = covered - kept_offset[bw]
     return TubeWindows(
-        tx=tx, axis=np.array([w[3][0] for w in wins]), u=np.array([w[3][1] for w in wins]),
-        v=np.array([w[3][2] for w in wins]), distance=np.array([w[3][3] for w in wins]),
-        spacing=np.array([w[2] for w in wins], dtype=np.float64),
-        cell0=np.array([w[3][4] for w in wins], dtype=np.int64),
-        shape=np.array([w[3][5] for w in wins], dtype=np.int64),
-        mask_offset=offsets[:-1].astype(np.int64),
-        masks=np.concatenate([w[3][6].ravel() for w in wins]).astype(np.uint8),
-        object_id=np.array([w[0] for w in wins], dtype=np.int32),
-        mirror_face=np.array([w[1] for w in wins], dtype=np.int32),
-        block_window=np.concatenate([np.full(len(b), i, np.int32)
-                                     for i, b in enumerate(blocks)]),
-        block_i=np.concatenate([b[:, 0] for b in blocks]).astype(np.int32),
-        block_j=np.concatenate([b[:, 1] for b in blocks]).astype(np.int32))
+        tx=tx, axis=axis[k], u=u[k], v=v[k], distance=D[k], spacing=spacing[k],
+        cell0=lo[k], shape=shape[k].astype(np.int64), mask_offset=kept_offset.astype(np.int64),
+        masks=masks.astype(np.uint8),
+        object_id=np.array([cands[i][0] for i in k], dtype=np.int32),
+        mirror_face=np.array([cands[i][1] for i in k], dtype=np.int32),
+        block_window=bw.astype(np.int32), block_i=(local // ny[k][bw]).astype(np.int32),
+        block_j=(local % ny[k][bw]).astype(np.int32))
+
+
+def _clip_masks(geom, runtime, tx, cands, m, cell_win, mask, axis, u, v, D, origin, block,
+                shape, offset, total, cover) -> np.ndarray:
+    """(total,) bool: where the mirror windows ``m`` may keep their blocks - the blocks
+    their mirror faces' own triangles cover (culled beside the covered blocks' rectangle
+    by :func:`beside_pairs`, clipped at the near plane by :func:`_clip_near`); True in
+    every other window's cells."""
+    covered = np.flatnonzero(mask)
+    cw = cell_win[covered]
+    local = covered - offset[cw]
+    bi, bj = local // shape[cw, 1], local % shape[cw, 1]
+    # covered cells are window-ordered, the direct windows' first: from the first mirror
+    # window's on, every covered cell is a mirror window's, so each reduceat group holds
+    # exactly one window's cells
+    first = np.searchsorted(cw, m)
+    ij_lo = np.stack([np.minimum.reduceat(bi, first), np.minimum.reduceat(bj, first)], 1)
+    ij_hi = np.stack([np.maximum.reduceat(bi, first), np.maximum.reduceat(bj, first)], 1)
+    rect_lo = origin[m] + ij_lo * block[m][:, None]
+    rect_hi = origin[m] + (ij_hi + 1) * block[m][:, None]
+    order, fstart = _face_triangles(geom)
+    face = np.array([cands[i][1] for i in m], dtype=np.int64)
+    used, inv = np.unique(face, return_inverse=True)
+    n_used = fstart[used + 1] - fstart[used]
+    tri_index = np.concatenate([order[fstart[f]:fstart[f + 1]] for f in used])
+    used_start = np.concatenate([[0], np.cumsum(n_used)[:-1]])
+    tri_start = used_start[inv]
+    pair_count = n_used[inv]
+    pair_start = np.concatenate([[0], np.cumsum(pair_count)])
+    triangles = geom.scene.triangles
+    frame = np.column_stack([axis[m], u[m], v[m], D[m]])
+    rect = np.column_stack([rect_lo, rect_hi])
+    if runtime is not None:
+        # the triangles of the used faces only travel to the device
+        beside = device_silhouette.beside_cull(
+            runtime, triangles[tri_index], np.arange(len(tri_index)), tri_start,
+            pair_start, frame, rect, tx)
+    else:
+        beside = beside_pairs(triangles, tri_index, tri_start, pair_start, frame, rect, tx)
+    p = np.flatnonzero(~beside)
+    pw = np.searchsorted(pair_start, p, side="right") - 1
+    clip = triangles[tri_index[tri_start[pw] + (p - pair_start[pw])]]
+    clip, src = _clip_near(clip, tx, axis[m][pw], MIN_DEPTH_FRACTION * D[m][pw],
+                           return_index=True)
+    cwin = m[pw[src]]
+    xy, _ = _project(clip, tx, axis[cwin], u[cwin], v[cwin], D[cwin])
+    allowed = cover(coverage_setup_many(xy, cwin, block, origin, shape), block, origin,
+                    shape[:, 1], offset, total)
+    in_mirror = np.zeros(len(D), dtype=bool)
+    in_mirror[m] = True
+    return allowed | ~in_mirror[cell_win]
 
 
 def blocks_in_pattern(windows: TubeWindows, tx) -> TubeWindows:
