@@ -584,25 +584,37 @@ def blocks_in_pattern(windows: TubeWindows, tx) -> TubeWindows:
         return windows
     w = windows.block_window.astype(np.int64)
     s = windows.spacing[w]
-    keep = np.zeros(len(w), dtype=bool)
-    for fx, fy in ((0.0, 0.0), (0.0, 1.0), (1.0, 0.0), (1.0, 1.0), (0.5, 0.5)):
-        x = (windows.cell0[w, 0] + windows.block_i * BLOCK - 0.5 + fx * BLOCK) * s
-        y = (windows.cell0[w, 1] + windows.block_j * BLOCK - 0.5 + fy * BLOCK) * s
-        d = (windows.distance[w, None] * windows.axis[w] + x[:, None] * windows.u[w]
-             + y[:, None] * windows.v[w])
-        d /= np.linalg.norm(d, axis=1, keepdims=True)
-        keep |= np.asarray(tx.pattern.gain(d @ np.asarray(tx.orientation))) > 0
+    # each window's frame turned into tx's antenna frame once, the points' directions
+    # summed there without a matrix product per point (numpy's BLAS takes threads for
+    # large ones, slow on a loaded machine); the centres first, then the corners of the
+    # blocks whose centre lies outside
+    o = np.asarray(tx.orientation, dtype=np.float64)
+    a_l, u_l, v_l = ((f[:, :, None] * o[None]).sum(axis=1)
+                     for f in (windows.axis, windows.u, windows.v))
+    a_l = windows.distance[:, None] * a_l
+
+    def seen(blk, fx, fy):
+        g = w[blk]
+        x = (windows.cell0[g, 0] + windows.block_i[blk] * BLOCK - 0.5 + fx * BLOCK) * s[blk]
+        y = (windows.cell0[g, 1] + windows.block_j[blk] * BLOCK - 0.5 + fy * BLOCK) * s[blk]
+        d = a_l[g] + x[..., None] * u_l[g] + y[..., None] * v_l[g]
+        d /= np.linalg.norm(d, axis=-1, keepdims=True)
+        return np.asarray(tx.pattern.gain(d.reshape(-1, 3))).reshape(x.shape) > 0
+
+    keep = seen(np.arange(len(w)), 0.5, 0.5)
+    rest = np.flatnonzero(~keep)
+    if len(rest):
+        keep[rest] = np.any(seen(rest, np.array([[0.0], [0.0], [1.0], [1.0]]),
+                                 np.array([[0.0], [1.0], [0.0], [1.0]])), axis=0)
     if keep.all():
         return windows
     return dataclasses.replace(windows, block_window=windows.block_window[keep],
                                block_i=windows.block_i[keep], block_j=windows.block_j[keep])
 
 
-def window_tubes(windows: TubeWindows, tubes) -> tuple[TubeGrid, np.ndarray]:
-    """The tubes ``tubes`` (indices, see :class:`TubeWindows`) as a :class:`TubeGrid`
-    (directions, solid angles spacing^2 cos^3(alpha)/D^2, edges), and which of them their
-    window owns (False: an earlier window covers the direction, or its cell lies outside
-    its own window's mask, never the case for enumerated tubes)."""
+def _tube_directions(windows: TubeWindows, tubes):
+    """Tubes ``tubes``' windows (int64), unit directions (N,3) and cos of their angle off
+    their window's axis, as :func:`window_tubes` computes them."""
     tubes = np.asarray(tubes, dtype=np.int64)
     blk, cell = np.divmod(tubes, BLOCK * BLOCK)
     w = windows.block_window[blk].astype(np.int64)
@@ -612,12 +624,20 @@ def window_tubes(windows: TubeWindows, tubes) -> tuple[TubeGrid, np.ndarray]:
     vec = (D[:, None] * windows.axis[w] + (i * s)[:, None] * windows.u[w]
            + (j * s)[:, None] * windows.v[w])
     dist = np.linalg.norm(vec, axis=1)
-    d = vec / dist[:, None]
-    cos_a = D / dist
+    return w, vec / dist[:, None], D / dist
+
+
+def window_tubes(windows: TubeWindows, tubes) -> tuple[TubeGrid, np.ndarray]:
+    """The tubes ``tubes`` (indices, see :class:`TubeWindows`) as a :class:`TubeGrid`
+    (directions, solid angles spacing^2 cos^3(alpha)/D^2, edges), and which of them their
+    window owns (False: an earlier window covers the direction, or its cell lies outside
+    its own window's mask, never the case for enumerated tubes)."""
+    w, d, cos_a = _tube_directions(windows, tubes)
+    s, D = windows.spacing[w], windows.distance[w]
     a = windows.u[w]
     e1 = a - np.einsum("ij,ij->i", d, a)[:, None] * d
     e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
-    owned = np.ones(len(tubes), dtype=bool)
+    owned = np.ones(len(w), dtype=bool)
     overlaps = earlier_overlaps(windows)
     for k in range(windows.n_windows - 1):
         later = overlaps[w, k]
@@ -981,24 +1001,60 @@ def device_block_sums(geom, windows: TubeWindows, tx, receivers, max_bounces: in
                      point=rec["point"], tri=rec["tri"][:, :max_bounces].astype(np.int32))
 
 
+def _bounce_points(geom, tx_pos, directions, max_bounces: int) -> np.ndarray:
+    """(R, max_bounces, 3) the bounce points of rays from tx along ``directions`` (NaN
+    past a ray's last bounce): :func:`shoot_tubes`' walk, its arithmetic for the points
+    and directions unchanged, without the tubes' edges, lengths and transfer chains."""
+    tris_all = geom.scene.triangles
+    R = len(directions)
+    tx = np.asarray(tx_pos, dtype=np.float64)
+    idx = np.arange(R)
+    pos = np.broadcast_to(tx, (R, 3))
+    org = pos
+    d = directions
+    hist = np.full((R, max_bounces, 3), np.nan)
+    for m in range(1, max_bounces + 1):
+        if len(idx) == 0 or geom.caster is None:
+            break
+        tri = geom.caster.closest_hit(make_rays(org, d))["prim"].astype(np.int64)
+        hit = tri >= 0
+        idx, pos, d, tri = idx[hit], pos[hit], d[hit], tri[hit]
+        # the normals of the hit triangles only: row for row triangle_normals' of all
+        n = triangle_normals(tris_all[tri])
+        dn = np.einsum("ij,ij->i", d, n)
+        good = np.abs(dn) > 1e-9  # grazing hits carry no footprint
+        idx, pos, d, tri, n, dn = (a[good] for a in (idx, pos, d, tri, n, dn))
+        if len(idx) == 0:
+            break
+        t = np.einsum("ij,ij->i", tris_all[tri, 0] - pos, n) / dn
+        ahead = t > 0
+        if not ahead.all():
+            idx, pos, d, tri, n, dn, t = (a[ahead] for a in (idx, pos, d, tri, n, dn, t))
+            if len(idx) == 0:
+                break
+        p = pos + t[:, None] * d
+        hist[idx, m - 1] = p
+        if m == max_bounces:
+            break
+        d = d - 2.0 * dn[:, None] * n
+        pos = p
+        org = spawn_origins(p, n, d)
+    return hist
+
+
 def _replay(geom, windows: TubeWindows, tubes, bounces, max_bounces: int):
     """Bounce points (P, max_bounces, 3) of tubes ``tubes`` up to their bounce
     ``bounces``, re-shot on the host (the engines are deterministic, so a tube retraces
-    its path; points past the bounce are NaN)."""
+    its path; points past the bounce are NaN, and all of a tube's when it does not reach
+    that bounce)."""
     tubes = np.asarray(tubes, dtype=np.int64)
     bounces = np.asarray(bounces, dtype=np.int64)
     uniq, inv = np.unique(tubes, return_inverse=True)
-    grid, _ = window_tubes(windows, uniq)
-    hits = shoot_tubes(geom, windows.tx, grid, max_bounces, first_bounce=1)
-    hist = np.full((len(tubes), max_bounces, 3), np.nan)
-    if len(hits.tube) == 0:
-        return hist
-    key = hits.tube.astype(np.int64) * (max_bounces + 1) + hits.bounce
-    order = np.argsort(key)
-    want = inv.reshape(-1) * (max_bounces + 1) + bounces
-    pos = np.minimum(np.searchsorted(key[order], want), len(order) - 1)
-    found = key[order][pos] == want
-    hist[found] = hits.history[order[pos[found]]]
+    hist = _bounce_points(geom, windows.tx, _tube_directions(windows, uniq)[1],
+                          max_bounces)[inv.reshape(-1)]
+    reached = ~np.isnan(hist[np.arange(len(tubes)), bounces - 1, 0])
+    hist[np.arange(max_bounces)[None, :] >= bounces[:, None]] = np.nan
+    hist[~reached] = np.nan
     return hist
 
 
@@ -1018,7 +1074,7 @@ def block_paths(geom, windows: TubeWindows, sums: BlockSums, tx, rx, *, max_boun
     scene = geom.scene
     if len(sums) == 0:
         return Paths.empty(max_bounces)
-    k_dep = window_tubes(windows, sums.tube)[0].directions
+    k_dep = _tube_directions(windows, sums.tube)[1]
     k_arr = np.asarray(rx.position, np.float64) - sums.point
     k_arr /= np.linalg.norm(k_arr, axis=1, keepdims=True)
     d_tx = k_dep @ np.asarray(tx.orientation)
