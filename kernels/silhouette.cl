@@ -58,6 +58,65 @@ __kernel void block_cover(__global const double *nrm,     /* (T, 3, 2) */
     }
 }
 
+/* block_cover with the separating-axis data computed here, per triangle, by
+ * clradcom/geometry/silhouette.py: coverage_setup_many's expressions: the projected
+ * triangle (xy, 3 x 2) of grid `window`; triangles of (near) zero area or wholly outside
+ * the grid mark nothing. */
+__kernel void block_cover_xy(__global const double *xy,      /* (T, 3, 2) */
+                             __global const long *window,    /* (T,) */
+                             __global const double *origin,  /* (W, 2) */
+                             __global const double *block,   /* (W,) */
+                             __global const long *shape,     /* (W, 2) */
+                             __global const long *mask_off,  /* (W,) */
+                             const int n_tri,
+                             __global uchar *mask)
+{
+    int t = get_global_id(0);
+    if (t >= n_tri) return;
+    long g = window[t];
+    double ox = origin[2 * g], oy = origin[2 * g + 1], bs = block[g];
+    long nx = shape[2 * g], row = shape[2 * g + 1];
+    __global const double *q = xy + 6 * t;
+    double px[3] = {q[0], q[2], q[4]}, py[3] = {q[1], q[3], q[5]};
+    double ex[3], ey[3];
+    for (int k = 0; k < 3; ++k) {
+        int k1 = (k + 1) % 3;
+        ex[k] = px[k1] - px[k];
+        ey[k] = py[k1] - py[k];
+    }
+    double area2 = ex[0] * ey[1] - ey[0] * ex[1];
+    double scale = fmax(fmax(fmax(fabs(ex[0]), fabs(ey[0])), fmax(fabs(ex[1]), fabs(ey[1]))),
+                        fmax(fabs(ex[2]), fabs(ey[2])));
+    if (!(fabs(area2) > 1e-12 * scale * scale)) return;
+    double lo_x = fmin(fmin(px[0], px[1]), px[2]), hi_x = fmax(fmax(px[0], px[1]), px[2]);
+    double lo_y = fmin(fmin(py[0], py[1]), py[2]), hi_y = fmax(fmax(py[0], py[1]), py[2]);
+    long i0 = (long)floor((lo_x - ox) / bs), i1 = (long)floor((hi_x - ox) / bs);
+    long j0 = (long)floor((lo_y - oy) / bs), j1 = (long)floor((hi_y - oy) / bs);
+    i0 = max(i0, 0L); j0 = max(j0, 0L);
+    i1 = min(i1, nx - 1); j1 = min(j1, row - 1);
+    if (i1 < i0 || j1 < j0) return;
+    double sgn = (area2 > 0.0) ? 1.0 : -1.0;
+    double nxk[3], nyk[3], o[3], r[3];
+    double half_bs = 0.5 * bs;
+    for (int k = 0; k < 3; ++k) {
+        nxk[k] = ey[k] * sgn;
+        nyk[k] = -ex[k] * sgn;
+        o[k] = nxk[k] * px[k] + nyk[k] * py[k];
+        r[k] = half_bs * (fabs(nxk[k]) + fabs(nyk[k]));
+    }
+    __global uchar *m = mask + mask_off[g];
+    for (long bi = i0; bi <= i1; ++bi) {
+        double cx = ox + ((double)bi + 0.5) * bs;
+        for (long bj = j0; bj <= j1; ++bj) {
+            double cy = oy + ((double)bj + 0.5) * bs;
+            if ((nxk[0] * cx + nyk[0] * cy) - r[0] <= o[0]
+                && (nxk[1] * cx + nyk[1] * cy) - r[1] <= o[1]
+                && (nxk[2] * cx + nyk[2] * cy) - r[2] <= o[2])
+                m[bi * row + bj] = 1;
+        }
+    }
+}
+
 __kernel void beside_cull(__global const double *tri,     /* (N, 3, 3) triangles */
                           __global const int *tri_index,  /* triangles of the windows */
                           __global const long *tri_start, /* (W,) first in tri_index */

@@ -18,6 +18,7 @@ from clradcom.geometry.silhouette import (
     BLOCK,
     block_coverage,
     cover_blocks_many,
+    cover_xy_many,
     coverage_setup_many,
 )
 from clradcom.mechanisms import sbr
@@ -174,6 +175,12 @@ def test_many_grid_raster_is_each_grids_bit_for_bit(runtime):
     want = cover_blocks_many(setup, block, origin, shape[:, 1], offset, sizes.sum())
     got = device_silhouette.cover_blocks_many(runtime, setup, block, origin, shape[:, 1],
                                               offset, sizes.sum(), min_pairs=0)
+    np.testing.assert_array_equal(got, want)
+    # the kernel that computes the separating-axis data itself (the launch's)
+    tri[8:10, 2] = tri[8:10, 0] + 0.5 * (tri[8:10, 1] - tri[8:10, 0])  # edge-on: no area
+    want = cover_xy_many(tri, win, block, origin, shape, offset, sizes.sum())
+    got = device_silhouette.cover_xy_many(runtime, tri, win, block, origin, shape, offset,
+                                          sizes.sum())
     np.testing.assert_array_equal(got, want)
     for w in range(3):
         one = block_coverage(tri[win == w], block[w], origin[w], shape[w])

@@ -18,7 +18,8 @@ import numpy as np
 from clradcom.device.runtime import Runtime
 from clradcom.geometry import silhouette as host
 
-__all__ = ["DEVICE_MIN_PAIRS", "beside_cull", "block_coverage", "cover_blocks_many"]
+__all__ = ["DEVICE_MIN_PAIRS", "beside_cull", "block_coverage", "cover_blocks_many",
+           "cover_xy_many"]
 
 SOURCE = "silhouette.cl"
 #: below this many (triangle, block) pairs the host's numpy test is the faster
@@ -102,3 +103,29 @@ def beside_cull(runtime: Runtime, triangles, tri_index, tri_start, pair_start, f
                np.float64(e[0]), np.float64(e[1]), np.float64(e[2]), buf)
         cl.enqueue_copy(runtime.queue, out, buf, is_blocking=True)
     return out.view(bool)
+
+
+def cover_xy_many(runtime: Runtime, tri_xy, window, block_size, origin, shape, offset,
+                  size: int) -> np.ndarray:
+    """(size,) bool: :func:`clradcom.geometry.silhouette.cover_xy_many` of the same
+    arguments in one launch, each triangle's separating-axis data computed in the kernel
+    (block_cover_xy) as coverage_setup_many computes them; the host's where the device
+    has no fp64."""
+    import pyopencl as cl
+
+    if not runtime.has_double:
+        return host.cover_xy_many(tri_xy, window, block_size, origin, shape, offset, size)
+    n = len(tri_xy)
+    mask = np.zeros(int(size), dtype=np.uint8)
+    if n == 0 or size == 0:
+        return mask.view(bool)
+    kernel = runtime.kernel(SOURCE, "block_cover_xy")
+    mf = cl.mem_flags
+    args = [_in(runtime, tri_xy, np.float64), _in(runtime, window, np.int64),
+            _in(runtime, origin, np.float64), _in(runtime, block_size, np.float64),
+            _in(runtime, shape, np.int64), _in(runtime, offset, np.int64)]
+    out = cl.Buffer(runtime.context, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=mask)
+    with runtime.kernel_clock():
+        kernel(runtime.queue, (-(-n // LOCAL) * LOCAL,), (LOCAL,), *args, np.int32(n), out)
+        cl.enqueue_copy(runtime.queue, mask, out, is_blocking=True)
+    return mask.view(bool)

@@ -17,8 +17,8 @@ import numpy as np
 
 from clradcom.errors import ArgumentError
 
-__all__ = ["BLOCK", "block_coverage", "cover_blocks", "cover_blocks_many", "coverage_setup",
-           "coverage_setup_many", "project_to_plane"]
+__all__ = ["BLOCK", "block_coverage", "cover_blocks", "cover_blocks_many", "cover_xy_many",
+           "coverage_setup", "coverage_setup_many", "project_to_plane"]
 
 #: Cells per block side: a block is the unit of launch (BLOCK**2 tubes, one work-group's
 #: worth) and of the coverage masks.
@@ -155,3 +155,14 @@ def cover_blocks_many(setup: dict | None, block_size, origin, ny, offset,
         mask[offset[g] + bi * ny[g] + bj] = True
         start = stop
     return mask
+
+
+def cover_xy_many(tri_xy, window, block_size, origin, shape, offset, size: int) -> np.ndarray:
+    """(size,) bool: the concatenated masks (grid w's row-major (nx, ny) mask at
+    ``offset[w]``) of the projected triangles ``tri_xy`` (T, 3, 2), triangle t on grid
+    ``window[t]`` (``block_size`` (W,), ``origin`` (W, 2), ``shape`` (W, 2)):
+    :func:`coverage_setup_many` then :func:`cover_blocks_many`. The device's
+    kernels/silhouette.cl: block_cover_xy evaluates the same expressions."""
+    shape = np.asarray(shape, dtype=np.int64)
+    return cover_blocks_many(coverage_setup_many(tri_xy, window, block_size, origin, shape),
+                             block_size, origin, shape[:, 1], offset, size)

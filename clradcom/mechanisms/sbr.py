@@ -67,8 +67,12 @@ from clradcom.device.raycast import make_rays, spawn_origins
 from clradcom.device.visibility import surface_sees
 from clradcom.errors import ArgumentError
 from clradcom.geometry.rows import unique_rows
-from clradcom.geometry.silhouette import BLOCK, cover_blocks_many, coverage_setup_many
-from clradcom.geometry.triangles import triangle_normals, triangle_normals_and_double_areas
+from clradcom.geometry.silhouette import BLOCK, cover_xy_many
+from clradcom.geometry.triangles import (
+    triangle_double_areas,
+    triangle_normals,
+    triangle_normals_and_double_areas,
+)
 from clradcom.paths import InteractionType, Paths
 from clradcom.physics import em
 from clradcom.physics.po import penetrable_po_operator, sinc
@@ -336,7 +340,7 @@ def _mirror_faces(geom, objects, tx):
     MIRROR_MIN_AREA_M2 that tx lies in front of: (face ids, unit normals toward tx,
     offsets)."""
     scene, faces = geom.scene, geom.faces
-    _, area2 = triangle_normals_and_double_areas(scene.triangles)
+    area2 = triangle_double_areas(scene.triangles)
     area = np.bincount(faces.tri_face, 0.5 * np.nan_to_num(area2), faces.n_faces)
     ids = np.flatnonzero((area >= MIRROR_MIN_AREA_M2) & ~np.isin(faces.object_id, objects))
     n, d = faces.normal[ids], faces.offset[ids]
@@ -344,15 +348,15 @@ def _mirror_faces(geom, objects, tx):
     keep = np.abs(side) > 1e-9 * (1.0 + np.abs(tx).max())
     ids, n, d, side = ids[keep], n[keep], d[keep], side[keep]
     sgn = np.sign(side)
-    # each face's bounding box, to skip the mirrors an image's line of sight misses
-    lo = np.full((len(ids), 3), np.inf)
-    hi = np.full((len(ids), 3), -np.inf)
-    slot = np.full(faces.n_faces, -1)
-    slot[ids] = np.arange(len(ids))
-    tri_slot = slot[faces.tri_face]
-    on = tri_slot >= 0
-    np.minimum.at(lo, tri_slot[on], scene.triangles[on].min(axis=1))
-    np.maximum.at(hi, tri_slot[on], scene.triangles[on].max(axis=1))
+    # each face's bounding box, to skip the mirrors an image's line of sight misses: the
+    # faces' triangles in face order, reduced per face
+    order, start = _face_triangles(geom)
+    count = start[ids + 1] - start[ids]
+    tris = scene.triangles[order[np.repeat(start[ids] - np.cumsum(count) + count, count)
+                                 + np.arange(count.sum())]]
+    first = np.cumsum(count) - count
+    lo = np.minimum.reduceat(tris.min(axis=1), first) if len(ids) else np.zeros((0, 3))
+    hi = np.maximum.reduceat(tris.max(axis=1), first) if len(ids) else np.zeros((0, 3))
     return ids, n * sgn[:, None], d * sgn, lo, hi
 
 
@@ -491,12 +495,11 @@ def _make_windows(geom, runtime, tx, cands) -> TubeWindows:
     total = int(sizes.sum())
     ny = shape[:, 1]
     if runtime is not None:
-        cover = functools.partial(device_silhouette.cover_blocks_many, runtime)
+        cover = functools.partial(device_silhouette.cover_xy_many, runtime)
     else:
-        cover = cover_blocks_many
+        cover = cover_xy_many
     sel = ok[win]
-    mask = cover(coverage_setup_many(xy[sel], win[sel], block, origin, shape), block,
-                 origin, ny, offset, total)
+    mask = cover(xy[sel], win[sel], block, origin, shape, offset, total)
     cell_win = np.repeat(np.arange(W), sizes)
     mirror = ok & (np.array([c[1] for c in cands]) >= 0)
     mirror &= np.bincount(cell_win[mask], minlength=W) > 0
@@ -569,8 +572,7 @@ def _clip_masks(geom, runtime, tx, cands, m, cell_win, mask, axis, u, v, D, orig
                            return_index=True)
     cwin = m[pw[src]]
     xy, _ = _project(clip, tx, axis[cwin], u[cwin], v[cwin], D[cwin])
-    allowed = cover(coverage_setup_many(xy, cwin, block, origin, shape), block, origin,
-                    shape[:, 1], offset, total)
+    allowed = cover(xy, cwin, block, origin, shape, offset, total)
     in_mirror = np.zeros(len(D), dtype=bool)
     in_mirror[m] = True
     return allowed | ~in_mirror[cell_win]
