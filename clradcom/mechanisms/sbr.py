@@ -585,29 +585,43 @@ def blocks_in_pattern(windows: TubeWindows, tx) -> TubeWindows:
     if len(windows.block_window) == 0:
         return windows
     w = windows.block_window.astype(np.int64)
-    s = windows.spacing[w]
     # each window's frame turned into tx's antenna frame once, the points' directions
     # summed there without a matrix product per point (numpy's BLAS takes threads for
-    # large ones, slow on a loaded machine); the centres first, then the corners of the
-    # blocks whose centre lies outside
+    # large ones, slow on a loaded machine). Corners are shared by up to four blocks: each
+    # corner of the windows' block lattices that a block needs is tested once (its
+    # coordinates are the same half-integers, so the same numbers), then the centres of
+    # the blocks with no corner inside.
     o = np.asarray(tx.orientation, dtype=np.float64)
     a_l, u_l, v_l = ((f[:, :, None] * o[None]).sum(axis=1)
                      for f in (windows.axis, windows.u, windows.v))
     a_l = windows.distance[:, None] * a_l
 
-    def seen(blk, fx, fy):
-        g = w[blk]
-        x = (windows.cell0[g, 0] + windows.block_i[blk] * BLOCK - 0.5 + fx * BLOCK) * s[blk]
-        y = (windows.cell0[g, 1] + windows.block_j[blk] * BLOCK - 0.5 + fy * BLOCK) * s[blk]
-        d = a_l[g] + x[..., None] * u_l[g] + y[..., None] * v_l[g]
+    def seen(g, i, j, f):
+        x = (windows.cell0[g, 0] + i * BLOCK - 0.5 + f * BLOCK) * windows.spacing[g]
+        y = (windows.cell0[g, 1] + j * BLOCK - 0.5 + f * BLOCK) * windows.spacing[g]
+        d = a_l[g] + x[:, None] * u_l[g] + y[:, None] * v_l[g]
         d /= np.linalg.norm(d, axis=-1, keepdims=True)
-        return np.asarray(tx.pattern.gain(d.reshape(-1, 3))).reshape(x.shape) > 0
+        return np.asarray(tx.pattern.gain(d)) > 0
 
-    keep = seen(np.arange(len(w)), 0.5, 0.5)
+    bi = windows.block_i.astype(np.int64)
+    bj = windows.block_j.astype(np.int64)
+    row = windows.shape[:, 1] + 1
+    size = (windows.shape[:, 0] + 1) * row
+    off = np.cumsum(size) - size
+    base = off[w] + bi * row[w] + bj
+    corners = (base, base + 1, base + row[w], base + row[w] + 1)
+    needed = np.zeros(int(size.sum()), dtype=bool)
+    for c in corners:
+        needed[c] = True
+    at = np.flatnonzero(needed)
+    g = np.searchsorted(off, at, side="right") - 1
+    g_row = row[g]
+    inside = np.zeros(len(needed), dtype=bool)
+    inside[at] = seen(g, (at - off[g]) // g_row, (at - off[g]) % g_row, 0.0)
+    keep = inside[corners[0]] | inside[corners[1]] | inside[corners[2]] | inside[corners[3]]
     rest = np.flatnonzero(~keep)
     if len(rest):
-        keep[rest] = np.any(seen(rest, np.array([[0.0], [0.0], [1.0], [1.0]]),
-                                 np.array([[0.0], [1.0], [0.0], [1.0]])), axis=0)
+        keep[rest] = seen(w[rest], bi[rest], bj[rest], 0.5)
     if keep.all():
         return windows
     return dataclasses.replace(windows, block_window=windows.block_window[keep],
