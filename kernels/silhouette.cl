@@ -58,6 +58,43 @@ __kernel void block_cover(__global const double *nrm,     /* (T, 3, 2) */
     }
 }
 
+/* The windows' triangles projected centrally from the eye onto their windows' planes,
+ * clradcom/mechanisms/sbr.py: _project's expressions (dot products summed (x + y) + z,
+ * x = (D (p - eye).u) / depth): xy (T, 3, 2) and per triangle the extents (T, 5) that
+ * the host reduces per window: the least depth, x min, x max, y min, y max. */
+__kernel void project_windows(__global const double *tri,    /* (T, 3, 3) */
+                              __global const long *window,   /* (T,) */
+                              __global const double *frame,  /* (W, 10): axis, u, v, D */
+                              const double ex, const double ey, const double ez,
+                              const int n_tri,
+                              __global double *xy,           /* (T, 3, 2) */
+                              __global double *ext)          /* (T, 5) */
+{
+    int t = get_global_id(0);
+    if (t >= n_tri) return;
+    __global const double *f = frame + 10 * window[t];
+    __global const double *v = tri + 9 * (long)t;
+    double D = f[9];
+    double dmin = 0.0, x0 = 0.0, x1 = 0.0, y0 = 0.0, y1 = 0.0;
+    for (int k = 0; k < 3; ++k) {
+        double rx = v[3 * k] - ex, ry = v[3 * k + 1] - ey, rz = v[3 * k + 2] - ez;
+        double depth = (rx * f[0] + ry * f[1]) + rz * f[2];
+        double x = D * ((rx * f[3] + ry * f[4]) + rz * f[5]) / depth;
+        double y = D * ((rx * f[6] + ry * f[7]) + rz * f[8]) / depth;
+        xy[6 * (long)t + 2 * k] = x;
+        xy[6 * (long)t + 2 * k + 1] = y;
+        if (k == 0) {
+            dmin = depth; x0 = x; x1 = x; y0 = y; y1 = y;
+        } else {
+            dmin = fmin(dmin, depth); x0 = fmin(x0, x); x1 = fmax(x1, x);
+            y0 = fmin(y0, y); y1 = fmax(y1, y);
+        }
+    }
+    ext[5 * (long)t] = dmin;
+    ext[5 * (long)t + 1] = x0; ext[5 * (long)t + 2] = x1;
+    ext[5 * (long)t + 3] = y0; ext[5 * (long)t + 4] = y1;
+}
+
 /* block_cover with the separating-axis data computed here, per triangle, by
  * clradcom/geometry/silhouette.py: coverage_setup_many's expressions: the projected
  * triangle (xy, 3 x 2) of grid `window`; triangles of (near) zero area or wholly outside

@@ -11,6 +11,7 @@ import dataclasses
 import warnings
 
 import numpy as np
+import pyopencl as cl
 import pytest
 
 from clradcom.device import silhouette as device_silhouette
@@ -199,3 +200,29 @@ def test_windows_keep_their_fields_types(runtime):
     empty = sbr.TubeWindows.empty(w.tx)
     for f in dataclasses.fields(w):
         assert kinds[f.name] == np.asarray(getattr(empty, f.name)).dtype, f.name
+
+
+def test_projection_kernel_is_numpys_bit_for_bit(runtime):
+    """project_windows against sbr._project on triangles of several windows: the same
+    xy bit for bit, and the extents are the triangles' own minima and maxima."""
+    rng = np.random.default_rng(9)
+    tri = rng.normal(size=(700, 3, 3)) * [3.0, 3.0, 2.0] + [0.5, -0.3, 9.0]
+    eye = np.array([0.2, 0.1, -0.4])
+    axes = rng.normal(size=(4, 3)) * 0.3 + [0.0, 0.0, 1.0]
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    u, v = orthonormal_frame(axes)
+    D = rng.uniform(3.0, 15.0, 4)
+    win = np.sort(rng.integers(0, 4, len(tri)))
+    buf, ext = device_silhouette.project_windows(
+        runtime, tri, win, np.column_stack([axes, u, v, D]), eye)
+    xy = np.empty((len(tri), 3, 2))
+    cl.enqueue_copy(runtime.queue, xy, buf, is_blocking=True)
+    want, depth = sbr._project(tri, eye, axes[win], u[win], v[win], D[win])
+    np.testing.assert_array_equal(xy, want)
+    np.testing.assert_array_equal(ext, np.column_stack([
+        depth.min(axis=1), want[..., 0].min(axis=1), want[..., 0].max(axis=1),
+        want[..., 1].min(axis=1), want[..., 1].max(axis=1)]))
+    # one window's projection by hand: x = D (p - eye).u / depth
+    rel = tri[win == 2] - eye
+    x = D[2] * (rel @ u[2]) / (rel @ axes[2])
+    np.testing.assert_allclose(xy[win == 2][..., 0], x, rtol=1e-12, atol=1e-12)

@@ -19,7 +19,7 @@ from clradcom.device.runtime import Runtime
 from clradcom.geometry import silhouette as host
 
 __all__ = ["DEVICE_MIN_PAIRS", "beside_cull", "block_coverage", "cover_blocks_many",
-           "cover_xy_many"]
+           "cover_xy_many", "project_windows"]
 
 SOURCE = "silhouette.cl"
 #: below this many (triangle, block) pairs the host's numpy test is the faster
@@ -110,18 +110,25 @@ def cover_xy_many(runtime: Runtime, tri_xy, window, block_size, origin, shape, o
     """(size,) bool: :func:`clradcom.geometry.silhouette.cover_xy_many` of the same
     arguments in one launch, each triangle's separating-axis data computed in the kernel
     (block_cover_xy) as coverage_setup_many computes them; the host's where the device
-    has no fp64."""
+    has no fp64. ``tri_xy`` may be :func:`project_windows`' device buffer, which holds
+    every candidate window's triangles: a window of shape (0, 0) gets no mark."""
     import pyopencl as cl
 
-    if not runtime.has_double:
-        return host.cover_xy_many(tri_xy, window, block_size, origin, shape, offset, size)
-    n = len(tri_xy)
+    if isinstance(tri_xy, cl.Buffer):   # projected on the device (project_windows)
+        n = len(window)
+        xy_buf = tri_xy
+    else:
+        if not runtime.has_double:
+            return host.cover_xy_many(tri_xy, window, block_size, origin, shape, offset,
+                                      size)
+        n = len(tri_xy)
+        xy_buf = _in(runtime, tri_xy, np.float64) if n else None
     mask = np.zeros(int(size), dtype=np.uint8)
     if n == 0 or size == 0:
         return mask.view(bool)
     kernel = runtime.kernel(SOURCE, "block_cover_xy")
     mf = cl.mem_flags
-    args = [_in(runtime, tri_xy, np.float64), _in(runtime, window, np.int64),
+    args = [xy_buf, _in(runtime, window, np.int64),
             _in(runtime, origin, np.float64), _in(runtime, block_size, np.float64),
             _in(runtime, shape, np.int64), _in(runtime, offset, np.int64)]
     out = cl.Buffer(runtime.context, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=mask)
@@ -129,3 +136,28 @@ def cover_xy_many(runtime: Runtime, tri_xy, window, block_size, origin, shape, o
         kernel(runtime.queue, (-(-n // LOCAL) * LOCAL,), (LOCAL,), *args, np.int32(n), out)
         cl.enqueue_copy(runtime.queue, mask, out, is_blocking=True)
     return mask.view(bool)
+
+
+def project_windows(runtime: Runtime, triangles, window, frame, eye):
+    """The triangles (T,3,3) of windows ``window`` (T,) projected onto their planes
+    (``frame`` (W, 10): axis, u, v, distance) from ``eye`` in one launch, as
+    :func:`clradcom.mechanisms.sbr._project` does: (device buffer of xy (T,3,2), extents
+    (T,5) on the host: least depth, x min, x max, y min, y max). Needs fp64."""
+    import pyopencl as cl
+
+    n = len(triangles)
+    ext = np.empty((n, 5), dtype=np.float64)
+    mf = cl.mem_flags
+    xy = cl.Buffer(runtime.context, mf.READ_WRITE, size=max(1, n) * 48)
+    if n == 0:
+        return xy, ext
+    kernel = runtime.kernel(SOURCE, "project_windows")
+    ext_buf = cl.Buffer(runtime.context, mf.WRITE_ONLY, size=ext.nbytes)
+    e = np.asarray(eye, dtype=np.float64)
+    with runtime.kernel_clock():
+        kernel(runtime.queue, (-(-n // LOCAL) * LOCAL,), (LOCAL,),
+               _in(runtime, triangles, np.float64), _in(runtime, window, np.int64),
+               _in(runtime, frame, np.float64), np.float64(e[0]), np.float64(e[1]),
+               np.float64(e[2]), np.int32(n), xy, ext_buf)
+        cl.enqueue_copy(runtime.queue, ext, ext_buf, is_blocking=True)
+    return xy, ext

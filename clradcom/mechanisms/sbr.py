@@ -475,13 +475,19 @@ def _make_windows(geom, runtime, tx, cands) -> TubeWindows:
     with np.errstate(divide="ignore", invalid="ignore"):
         axis = rel / np.where(ok, D, 1.0)[:, None]
         u, v = orthonormal_frame(axis)
-    xy, depth = _project(tris, tx, axis[win], u[win], v[win], D[win])
-    ok &= ~(np.minimum.reduceat(depth.min(axis=1), starts) < MIN_DEPTH_FRACTION * D)
+    if runtime is not None:
+        # projected on the device, kept there for the raster; the extents come back
+        xy, ext = device_silhouette.project_windows(
+            runtime, tris, win, np.column_stack([axis, u, v, D]), tx)
+    else:
+        xy, depth = _project(tris, tx, axis[win], u[win], v[win], D[win])
+        ext = np.column_stack([depth.min(axis=1), xy[..., 0].min(axis=1),
+                               xy[..., 0].max(axis=1), xy[..., 1].min(axis=1),
+                               xy[..., 1].max(axis=1)])
+    ok &= ~(np.minimum.reduceat(ext[:, 0], starts) < MIN_DEPTH_FRACTION * D)
     with np.errstate(invalid="ignore"):
-        lo_xy = np.stack([np.minimum.reduceat(xy[..., k].min(axis=1), starts)
-                          for k in (0, 1)], axis=1)
-        hi_xy = np.stack([np.maximum.reduceat(xy[..., k].max(axis=1), starts)
-                          for k in (0, 1)], axis=1)
+        lo_xy = np.minimum.reduceat(ext[:, [1, 3]], starts, axis=0)
+        hi_xy = np.maximum.reduceat(ext[:, [2, 4]], starts, axis=0)
         ok &= np.all(np.isfinite(lo_xy) & np.isfinite(hi_xy), axis=1)
         lo = np.floor(np.where(ok[:, None], lo_xy, 0.0) / spacing[:, None] + 0.5
                       ).astype(np.int64) - 1
@@ -498,8 +504,11 @@ def _make_windows(geom, runtime, tx, cands) -> TubeWindows:
         cover = functools.partial(device_silhouette.cover_xy_many, runtime)
     else:
         cover = cover_xy_many
-    sel = ok[win]
-    mask = cover(xy[sel], win[sel], block, origin, shape, offset, total)
+    if runtime is not None:
+        mask = cover(xy, win, block, origin, shape, offset, total)
+    else:
+        sel = ok[win]
+        mask = cover(xy[sel], win[sel], block, origin, shape, offset, total)
     cell_win = np.repeat(np.arange(W), sizes)
     mirror = ok & (np.array([c[1] for c in cands]) >= 0)
     mirror &= np.bincount(cell_win[mask], minlength=W) > 0
