@@ -89,7 +89,8 @@ def launch_loop(geom, tx, objects, spacing):
             near &= (h_c > 0) & (np.linalg.norm(c_img - tx, axis=1) > sbr.CHUNK_CLEARANCE * r)
             for f, n, d, ci in zip(face_ids[near], face_n[near], face_d[near], c_img[near],
                                    strict=True):
-                image = tris - 2.0 * ((tris @ n) - d)[..., None] * n
+                h = (tris[..., 0] * n[0] + tris[..., 1] * n[1]) + tris[..., 2] * n[2]
+                image = tris - 2.0 * (h - d)[..., None] * n
                 win = window_loop(tx, ci, spacing, image,
                                   clip=scene.triangles[geom.faces.tri_face == f])
                 if win is not None:

@@ -57,6 +57,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import warnings
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -338,26 +339,51 @@ def _project(tri, eye, axis, u, v, distance):
 def _mirror_faces(geom, objects, tx):
     """Planar faces of the environment (objects not in ``objects``) of at least
     MIRROR_MIN_AREA_M2 that tx lies in front of: (face ids, unit normals toward tx,
-    offsets)."""
-    scene, faces = geom.scene, geom.faces
-    area2 = triangle_double_areas(scene.triangles)
-    area = np.bincount(faces.tri_face, 0.5 * np.nan_to_num(area2), faces.n_faces)
-    ids = np.flatnonzero((area >= MIRROR_MIN_AREA_M2) & ~np.isin(faces.object_id, objects))
+    offsets, boxes' lower and upper corners)."""
+    faces = geom.faces
+    data = _face_data(geom)
+    ids = np.flatnonzero((data["area"] >= MIRROR_MIN_AREA_M2)
+                         & ~np.isin(faces.object_id, objects))
     n, d = faces.normal[ids], faces.offset[ids]
     side = n @ tx - d
     keep = np.abs(side) > 1e-9 * (1.0 + np.abs(tx).max())
     ids, n, d, side = ids[keep], n[keep], d[keep], side[keep]
     sgn = np.sign(side)
-    # each face's bounding box, to skip the mirrors an image's line of sight misses: the
-    # faces' triangles in face order, reduced per face
-    order, start = _face_triangles(geom)
-    count = start[ids + 1] - start[ids]
-    tris = scene.triangles[order[np.repeat(start[ids] - np.cumsum(count) + count, count)
-                                 + np.arange(count.sum())]]
-    first = np.cumsum(count) - count
-    lo = np.minimum.reduceat(tris.min(axis=1), first) if len(ids) else np.zeros((0, 3))
-    hi = np.maximum.reduceat(tris.max(axis=1), first) if len(ids) else np.zeros((0, 3))
-    return ids, n * sgn[:, None], d * sgn, lo, hi
+    return ids, n * sgn[:, None], d * sgn, data["lo"][ids], data["hi"][ids]
+
+
+#: per Geometry (by id, dropped when it is collected): :func:`_face_data`
+_FACE_DATA: dict[int, dict] = {}
+
+
+def _face_data(geom) -> dict:
+    """What the launch needs of the planar faces, the same for every transmitter, computed
+    once per :class:`~clradcom.mechanisms.common.Geometry` (a moved scene is a new one):
+    ``order``, ``start`` (face f's triangles are ``order[start[f]:start[f+1]]``, in scene
+    order), ``area`` (F,) and each face's box ``lo``, ``hi`` (F, 3)."""
+    key = id(geom)
+    got = _FACE_DATA.get(key)
+    if got is not None and got["geom"]() is geom:
+        return got
+    scene, faces = geom.scene, geom.faces
+    order = np.argsort(faces.tri_face, kind="stable")
+    count = np.bincount(faces.tri_face, minlength=faces.n_faces)
+    start = np.zeros(faces.n_faces + 1, np.int64)
+    np.cumsum(count, out=start[1:])
+    area2 = triangle_double_areas(scene.triangles)
+    area = np.bincount(faces.tri_face, 0.5 * np.nan_to_num(area2), faces.n_faces)
+    lo = np.full((faces.n_faces, 3), np.inf)
+    hi = np.full((faces.n_faces, 3), -np.inf)
+    some = count > 0
+    if some.any():
+        tris = scene.triangles[order]
+        lo[some] = np.minimum.reduceat(tris.min(axis=1), start[:-1][some])
+        hi[some] = np.maximum.reduceat(tris.max(axis=1), start[:-1][some])
+    got = {"geom": weakref.ref(geom), "order": order, "start": start, "area": area,
+           "lo": lo, "hi": hi}
+    _FACE_DATA[key] = got
+    weakref.finalize(geom, _FACE_DATA.pop, key, None)
+    return got
 
 
 def _chunks(tris, tx) -> tuple[list[np.ndarray], int]:
@@ -427,28 +453,15 @@ def launch_windows(geom, tx_pos, objects, spacing_m, *, mirrors: bool = True,
                 cross_at = tx + (h_tx / (h_tx + h_c))[:, None] * (c_img - tx)
             near = np.all((cross_at >= face_lo - r) & (cross_at <= face_hi + r), axis=1)
             near &= (h_c > 0) & (np.linalg.norm(c_img - tx, axis=1) > CHUNK_CLEARANCE * r)
-            for f, n, d, ci in zip(face_ids[near], face_n[near], face_d[near], c_img[near],
-                                   strict=True):
-                image = tris - 2.0 * ((tris @ n) - d)[..., None] * n
+            if not near.any():
+                continue
+            # the chunk's images in all those mirrors at once
+            n = face_n[near][:, None, None, :]
+            h = _dot3(tris[None], n) - face_d[near][:, None, None]
+            images = tris[None] - 2.0 * h[..., None] * n
+            for f, ci, image in zip(face_ids[near], c_img[near], images, strict=True):
                 mirrored.append((o, int(f), s, ci, image))
     return _make_windows(geom, runtime, tx, direct + mirrored)
-
-
-def _face_triangles(geom):
-    """Scene triangles grouped by planar face: (order, start (F+1,)) - face f's triangles
-    are ``order[start[f]:start[f+1]]`` in scene order.  Cached on ``geom.faces``."""
-    faces = geom.faces
-    got = getattr(faces, "_sbr_face_triangles", None)
-    if got is None or got[0] is not faces.tri_face:
-        order = np.argsort(faces.tri_face, kind="stable")
-        start = np.zeros(faces.n_faces + 1, np.int64)
-        np.cumsum(np.bincount(faces.tri_face, minlength=faces.n_faces), out=start[1:])
-        got = (faces.tri_face, order, start)
-        try:
-            faces._sbr_face_triangles = got
-        except AttributeError:   # a frozen or slotted faces object: recompute each time
-            pass
-    return got[1], got[2]
 
 
 def _make_windows(geom, runtime, tx, cands) -> TubeWindows:
@@ -555,7 +568,8 @@ def _clip_masks(geom, runtime, tx, cands, m, cell_win, mask, axis, u, v, D, orig
     ij_hi = np.stack([np.maximum.reduceat(bi, first), np.maximum.reduceat(bj, first)], 1)
     rect_lo = origin[m] + ij_lo * block[m][:, None]
     rect_hi = origin[m] + (ij_hi + 1) * block[m][:, None]
-    order, fstart = _face_triangles(geom)
+    data = _face_data(geom)
+    order, fstart = data["order"], data["start"]
     face = np.array([cands[i][1] for i in m], dtype=np.int64)
     used, inv = np.unique(face, return_inverse=True)
     n_used = fstart[used + 1] - fstart[used]
