@@ -1110,9 +1110,20 @@ def block_paths(geom, windows: TubeWindows, sums: BlockSums, tx, rx, *, max_boun
     is consistent with the points.  Groups more than |min_relative_db| below the
     strongest of the link are dropped.
     """
-    scene = geom.scene
-    if len(sums) == 0:
+    groups = _block_groups(windows, sums, tx, rx, min_relative_db)
+    if groups is None:
         return Paths.empty(max_bounces)
+    return _block_finish(geom, groups, tx, rx, max_bounces, _replay(
+        geom, windows, groups["tube"], groups["nk"], max_bounces))
+
+
+def _block_groups(windows: TubeWindows, sums: BlockSums, tx, rx,
+                  min_relative_db: float) -> dict | None:
+    """:func:`block_paths` up to the replay: the rows in both patterns summed per face
+    sequence, the strong groups' representatives (``tube``, bounce ``nk``) and what
+    :func:`_block_finish` needs; None where no row is seen."""
+    if len(sums) == 0:
+        return None
     k_dep = _tube_directions(windows, sums.tube)[1]
     k_arr = np.asarray(rx.position, np.float64) - sums.point
     k_arr /= np.linalg.norm(k_arr, axis=1, keepdims=True)
@@ -1120,7 +1131,7 @@ def block_paths(geom, windows: TubeWindows, sums: BlockSums, tx, rx, *, max_boun
     d_rx = -k_arr @ np.asarray(rx.orientation)
     seen = (np.asarray(tx.pattern.gain(d_tx)) > 0) & (np.asarray(rx.pattern.gain(d_rx)) > 0)
     if not seen.any():
-        return Paths.empty(max_bounces)
+        return None
     c = sums.select(np.flatnonzero(seen))
     c_tx = np.asarray(tx.pattern.field(d_tx[seen]), dtype=np.complex128)
     c_rx = np.asarray(rx.pattern.field(d_rx[seen]), dtype=np.complex128)
@@ -1143,11 +1154,19 @@ def block_paths(geom, windows: TubeWindows, sums: BlockSums, tx, rx, *, max_boun
     strong = mag >= mag.max() * 10.0 ** (-abs(float(min_relative_db)) / 20.0)
     strong &= mag > 0
     rep_s = rep[strong]
+    return {"c": c, "g_gain": g_gain[strong], "g_M": g_M[strong], "rep_s": rep_s,
+            "tube": c.tube[rep_s], "nk": c.bounce[rep_s].astype(np.int64)}
+
+
+def _block_finish(geom, groups: dict, tx, rx, max_bounces: int, replayed) -> Paths:
+    """:func:`block_paths` after the replay: the strong groups of :func:`_block_groups`
+    as :class:`Paths`, their earlier bounce points ``replayed`` (:func:`_replay`)."""
+    scene = geom.scene
+    c, rep_s, nk = groups["c"], groups["rep_s"], groups["nk"]
     P = len(rep_s)
-    nk = c.bounce[rep_s].astype(np.int64)
     pts = np.full((P, max_bounces + 2, 3), np.nan)
     pts[:, 0] = tx.position
-    pts[:, 1:max_bounces + 1] = _replay(geom, windows, c.tube[rep_s], nk, max_bounces)
+    pts[:, 1:max_bounces + 1] = replayed
     # the footprint itself as the engine computed it (the replay agrees to rounding)
     pts[np.arange(P), nk] = c.point[rep_s]
     pts[np.arange(P), nk + 1] = rx.position
@@ -1160,7 +1179,8 @@ def block_paths(geom, windows: TubeWindows, sums: BlockSums, tx, rx, *, max_boun
     vel[np.arange(P), nk + 1] = rx.velocity
     doppler = em.doppler_hz(pts, vel, scene.wavelength_m, num_interactions=nk)
     active = tri_ids >= 0
-    return Paths(gain=g_gain[strong], matrix=g_M[strong], delay_s=em.delay_s(c.length[rep_s]),
+    return Paths(gain=groups["g_gain"], matrix=groups["g_M"],
+                 delay_s=em.delay_s(c.length[rep_s]),
                  doppler_hz=doppler, n_interactions=nk.astype(np.int16),
                  interaction=np.where(active, int(InteractionType.SBR), 0
                                       ).astype(np.int8),
@@ -1176,6 +1196,11 @@ class SbrTubes:
     receivers: np.ndarray
     sums: BlockSums
     max_bounces: int
+    #: the receivers as given to :func:`shoot_sbr` (None: positions only)
+    radars: list | None = None
+    #: :func:`sbr_paths`' paths of every receiver, made together on the first call
+    _paths: dict = dataclasses.field(default_factory=dict, init=False, repr=False,
+                                     compare=False)
 
     def receiver_index(self, rx_pos) -> int:
         hit = np.flatnonzero(np.all(self.receivers == np.asarray(rx_pos, np.float64),
@@ -1259,7 +1284,8 @@ def shoot_sbr(geom, tx, objects, receivers, *, spacing_wavelengths: float | None
     else:
         sums = host_block_sums(geom, windows, tx, receivers, max_bounces, first_bounce,
                                record)
-    return SbrTubes(windows=windows, receivers=rx_pos, sums=sums, max_bounces=max_bounces)
+    return SbrTubes(windows=windows, receivers=rx_pos, sums=sums, max_bounces=max_bounces,
+                    radars=receivers)
 
 
 def sbr_paths(geom, tx, rx, *, objects, spacing_wavelengths: float | None = None,
@@ -1287,6 +1313,34 @@ def sbr_paths(geom, tx, rx, *, objects, spacing_wavelengths: float | None = None
     if len(sums) == 0:
         return Paths.empty(shot.max_bounces)
     r = shot.receiver_index(rx.position)
+    if shot.radars is not None and shot.radars[r] is rx:
+        # every receiver's paths at once, their replays in one walk; each handed out once
+        key = (float(min_relative_db), r)
+        cached = shot._paths.pop(key, None)
+        if cached is not None and cached[0] is geom and cached[1] is tx:
+            return cached[2]
+        made = _shot_paths(geom, shot, tx, min_relative_db)
+        for k, p in enumerate(made):
+            if k != r:
+                shot._paths[(float(min_relative_db), k)] = (geom, tx, p)
+        return made[r]
     return block_paths(geom, shot.windows, sums.select(np.flatnonzero(sums.receiver == r)),
                        tx, rx, max_bounces=shot.max_bounces,
                        min_relative_db=min_relative_db)
+
+
+def _shot_paths(geom, shot: SbrTubes, tx, min_relative_db: float) -> list[Paths]:
+    """:func:`block_paths` of every receiver of ``shot`` (its ``radars``), the
+    representatives' bounce points replayed in one :func:`_replay` for all."""
+    sums, windows, mb = shot.sums, shot.windows, shot.max_bounces
+    groups = [_block_groups(windows, sums.select(np.flatnonzero(sums.receiver == r)), tx,
+                            rx, min_relative_db) for r, rx in enumerate(shot.radars)]
+    live = [g for g in groups if g is not None]
+    if not live:
+        return [Paths.empty(mb) for _ in groups]
+    replayed = _replay(geom, windows, np.concatenate([g["tube"] for g in live]),
+                       np.concatenate([g["nk"] for g in live]), mb)
+    cut = np.cumsum([len(g["tube"]) for g in live])[:-1]
+    parts = iter(np.split(replayed, cut))
+    return [Paths.empty(mb) if g is None else _block_finish(geom, g, tx, rx, mb, next(parts))
+            for g, rx in zip(groups, shot.radars, strict=True)]

@@ -1,0 +1,42 @@
+"""sbr_paths with a shot kept across receivers makes every receiver's paths at once (one
+replay of the representatives' bounce points for all): each must be block_paths' of its
+own receiver's rows bit for bit, and each is handed out once."""
+
+from __future__ import annotations
+
+import dataclasses
+import warnings
+
+import numpy as np
+
+from clradcom.mechanisms import sbr
+from clradcom.mechanisms.common import build_geometry
+from clradcom.scene import load_scene
+
+STREET = "scenes/street/street.toml"
+
+
+def test_shot_paths_are_each_receivers_block_paths(runtime):
+    scene = load_scene(STREET)
+    geom = build_geometry(scene, runtime, engine="device")
+    cars = [i for i, o in enumerate(scene.objects) if o.name.startswith("car")]
+    radars = list(scene.radars)
+    tx = radars[1]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        shot = sbr.shoot_sbr(geom, tx, cars, radars, spacing_wavelengths=2.0, max_bounces=3)
+    assert shot.radars is not None and len(shot.sums) > 0
+    got = [sbr.sbr_paths(geom, tx, rx, objects=cars, max_bounces=3, shot=shot)
+           for rx in radars]
+    assert shot._paths == {}   # every receiver's paths handed out
+    for r, rx in enumerate(radars):
+        rows = shot.sums.select(np.flatnonzero(shot.sums.receiver == r))
+        want = sbr.block_paths(geom, shot.windows, rows, tx, rx, max_bounces=3)
+        assert got[r].n_paths == want.n_paths > 0
+        for f in dataclasses.fields(want):
+            np.testing.assert_array_equal(getattr(got[r], f.name), getattr(want, f.name),
+                                          err_msg=f.name)
+    # asked again, a receiver's paths are made anew, the same
+    again = sbr.sbr_paths(geom, tx, radars[0], objects=cars, max_bounces=3, shot=shot)
+    np.testing.assert_array_equal(again.gain, got[0].gain)
+    np.testing.assert_array_equal(again.points, got[0].points)
