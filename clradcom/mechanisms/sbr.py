@@ -1117,31 +1117,36 @@ def block_paths(geom, windows: TubeWindows, sums: BlockSums, tx, rx, *, max_boun
         geom, windows, groups["tube"], groups["nk"], max_bounces))
 
 
-def _block_groups(windows: TubeWindows, sums: BlockSums, tx, rx,
-                  min_relative_db: float) -> dict | None:
+def _block_groups(windows: TubeWindows, sums: BlockSums, tx, rx, min_relative_db: float,
+                  rows=None) -> dict | None:
     """:func:`block_paths` up to the replay: the rows in both patterns summed per face
     sequence, the strong groups' representatives (``tube``, bounce ``nk``) and what
-    :func:`_block_finish` needs; None where no row is seen."""
-    if len(sums) == 0:
+    :func:`_block_finish` needs; None where no row is seen.  ``rows``: the rows of
+    ``sums`` that are rx's (default all)."""
+    rows = np.arange(len(sums)) if rows is None else np.asarray(rows)
+    if len(rows) == 0:
         return None
-    k_dep = _tube_directions(windows, sums.tube)[1]
-    k_arr = np.asarray(rx.position, np.float64) - sums.point
+    k_dep = _tube_directions(windows, sums.tube[rows])[1]
+    k_arr = np.asarray(rx.position, np.float64) - sums.point[rows]
     k_arr /= np.linalg.norm(k_arr, axis=1, keepdims=True)
     d_tx = k_dep @ np.asarray(tx.orientation)
     d_rx = -k_arr @ np.asarray(rx.orientation)
     seen = (np.asarray(tx.pattern.gain(d_tx)) > 0) & (np.asarray(rx.pattern.gain(d_rx)) > 0)
     if not seen.any():
         return None
-    c = sums.select(np.flatnonzero(seen))
+    c = sums.select(rows[seen])
     c_tx = np.asarray(tx.pattern.field(d_tx[seen]), dtype=np.complex128)
     c_rx = np.asarray(rx.pattern.field(d_rx[seen]), dtype=np.complex128)
     gain = np.einsum("pi,pij,pj->p", c_rx, c.matrix, c_tx)
     _, group, _ = unique_rows(c.face)  # np.unique(c.face, axis=0)'s groups, by lexsort
     G = int(group.max()) + 1
-    g_gain = np.zeros(G, np.complex128)
-    np.add.at(g_gain, group, gain)
-    g_M = np.zeros((G, 2, 2), np.complex128)
-    np.add.at(g_M, group, c.matrix)
+    # np.add.at's sums, row by row in order, as bincounts of the real and imaginary parts
+    g_gain = np.empty(G, np.complex128)
+    g_gain.real = np.bincount(group, gain.real, G)
+    g_gain.imag = np.bincount(group, gain.imag, G)
+    parts = np.ascontiguousarray(c.matrix).view(np.float64).reshape(len(group), 8)
+    g_M = np.bincount((group[:, None] * 8 + np.arange(8)).ravel(), parts.ravel(), G * 8
+                      ).view(np.complex128).reshape(G, 2, 2)
     w = np.bincount(group, c.weight, G)
     mean_L = np.bincount(group, c.weighted_length, G) / np.where(w > 0, w, 1.0)
     order = np.lexsort((np.arange(len(group)), np.abs(c.length - mean_L[group]), group))
@@ -1333,8 +1338,9 @@ def _shot_paths(geom, shot: SbrTubes, tx, min_relative_db: float) -> list[Paths]
     """:func:`block_paths` of every receiver of ``shot`` (its ``radars``), the
     representatives' bounce points replayed in one :func:`_replay` for all."""
     sums, windows, mb = shot.sums, shot.windows, shot.max_bounces
-    groups = [_block_groups(windows, sums.select(np.flatnonzero(sums.receiver == r)), tx,
-                            rx, min_relative_db) for r, rx in enumerate(shot.radars)]
+    groups = [_block_groups(windows, sums, tx, rx, min_relative_db,
+                            rows=np.flatnonzero(sums.receiver == r))
+              for r, rx in enumerate(shot.radars)]
     live = [g for g in groups if g is not None]
     if not live:
         return [Paths.empty(mb) for _ in groups]
