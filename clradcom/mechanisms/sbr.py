@@ -391,20 +391,32 @@ def _chunks(tris, tx) -> tuple[list[np.ndarray], int]:
     away, so each projects onto one window plane well in front of tx: the whole set when
     it does, else halves split at the median centroid along the longest axis, and so on.
     A single triangle that still holds tx that close is dropped: (groups, dropped)."""
+    groups, dropped = _chunk_spheres(tris, tx)
+    return [g[0] for g in groups], dropped
+
+
+def _chunk_spheres(tris, tx) -> tuple[list[tuple], int]:
+    """:func:`_chunks` with each group's :func:`bounding_sphere`: ([(tris, centre,
+    radius)], dropped); the centroids are computed once and split with the triangles."""
+    out: list[tuple] = []
     if len(tris) == 0:
-        return [], 0
+        return out, 0
+    dropped = _split(tris, tris.mean(axis=1), np.asarray(tx, dtype=np.float64), out)
+    return out, dropped
+
+
+def _split(tris, cen, tx, out) -> int:
     c, r = bounding_sphere(tris)
     if np.linalg.norm(c - tx) >= CHUNK_CLEARANCE * r:
-        return [tris], 0
+        out.append((tris, c, r))
+        return 0
     if len(tris) == 1:
-        return [], 1
-    cen = tris.mean(axis=1)
+        return 1
     axis = int(np.argmax(np.ptp(cen, axis=0)))
     order = np.argsort(cen[:, axis], kind="stable")
     half = len(tris) // 2
-    a, da = _chunks(tris[order[:half]], tx)
-    b, db = _chunks(tris[order[half:]], tx)
-    return a + b, da + db
+    lo, hi = order[:half], order[half:]
+    return _split(tris[lo], cen[lo], tx, out) + _split(tris[hi], cen[hi], tx, out)
 
 
 def launch_windows(geom, tx_pos, objects, spacing_m, *, mirrors: bool = True,
@@ -435,14 +447,13 @@ def launch_windows(geom, tx_pos, objects, spacing_m, *, mirrors: bool = True,
         else (np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3)),
               np.zeros((0, 3))))
     for o, s in zip(objects, spacing, strict=True):
-        chunks, dropped = _chunks(scene.triangles[scene.tri_object == o], tx)
+        chunks, dropped = _chunk_spheres(scene.triangles[scene.tri_object == o], tx)
         if dropped:
             warnings.warn(f"SBR launches no tubes at {dropped} triangle(s) of object "
                           f"{scene.objects[o].name!r}: transmitter {tx_name!r} lies within "
                           f"their own size of them (a radar mounted on it); their PO facet "
                           f"returns stay", stacklevel=3)
-        for tris in chunks:
-            c, r = bounding_sphere(tris)
+        for tris, c, r in chunks:
             direct.append((o, -1, s, c, tris))
             # mirrors in front of which the chunk lies, whose box (grown by the chunk's
             # radius) the line of sight to the chunk's image crosses
