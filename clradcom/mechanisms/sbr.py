@@ -72,7 +72,6 @@ from clradcom.geometry.silhouette import BLOCK, cover_xy_many
 from clradcom.geometry.triangles import (
     triangle_double_areas,
     triangle_normals,
-    triangle_normals_and_double_areas,
 )
 from clradcom.paths import InteractionType, Paths
 from clradcom.physics import em
@@ -1230,8 +1229,7 @@ class SbrTubes:
 def feature_size_m(geom, objects) -> np.ndarray:
     """Per object, the side sqrt(A) of its planar faces (``geom.faces``) below which lies
     FEATURE_AREA_SHARE of its area: the size of the small faces its corners are made of."""
-    _, area2 = triangle_normals_and_double_areas(geom.scene.triangles)
-    area = np.bincount(geom.faces.tri_face, 0.5 * np.nan_to_num(area2), geom.faces.n_faces)
+    area = _face_data(geom)["area"]
     out = []
     for o in objects:
         a = area[(geom.faces.object_id == o) & (area > 0)]
