@@ -269,7 +269,13 @@ def shoot_and_radiate(caster: RayCaster, scene, tri_face, windows, tx_frame, rec
             cl.enqueue_copy(rt.queue, rec, out_buf)
             parts.append(rec)
     rec = np.concatenate(parts) if parts else np.zeros(0, dtype=dtype)
-    rec = rec[np.lexsort((rec["ordinal"], rec["tube"] // cells))]
+    if len(rec):
+        # by block, then emission order: lexsort's order, from one int64 key whose
+        # records come nearly sorted (a stable sort runs through them)
+        key = (rec["tube"] // cells) * (int(rec["ordinal"].max()) + 1) + rec["ordinal"]
+        order = np.argsort(key, kind="stable")
+        if np.any(order != np.arange(len(order))):
+            rec = rec[order]
     if fp64:
         return rec
     # double-float: lengths and points back to float64, the rest widened
