@@ -227,3 +227,28 @@ def test_projection_kernel_is_numpys_bit_for_bit(runtime):
     rel = tri[win == 2] - eye
     x = D[2] * (rel @ u[2]) / (rel @ axes[2])
     np.testing.assert_allclose(xy[win == 2][..., 0], x, rtol=1e-12, atol=1e-12)
+
+
+def test_blocks_in_pattern_keep_the_blocks_seen_at_a_corner_or_the_centre(runtime):
+    """blocks_in_pattern (each lattice corner once, then the centres) against its
+    definition evaluated block by block: a block stays where tx's pattern has gain at one
+    of its four corners or its centre."""
+    scene = load_scene(STREET)
+    geom = build_geometry(scene, runtime, engine="device")
+    tx = scene.radars[scene.radar_index("A")]
+    cars = [i for i, o in enumerate(scene.objects) if o.name.startswith("car")]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        w = sbr.launch_windows(geom, tx.position, cars, 2 * scene.wavelength_m)
+    got = sbr.blocks_in_pattern(w, tx)
+    g = w.block_window.astype(np.int64)
+    keep = np.zeros(len(g), dtype=bool)
+    for fx, fy in ((0.0, 0.0), (0.0, 1.0), (1.0, 0.0), (1.0, 1.0), (0.5, 0.5)):
+        x = (w.cell0[g, 0] + w.block_i * BLOCK - 0.5 + fx * BLOCK) * w.spacing[g]
+        y = (w.cell0[g, 1] + w.block_j * BLOCK - 0.5 + fy * BLOCK) * w.spacing[g]
+        d = w.distance[g, None] * w.axis[g] + x[:, None] * w.u[g] + y[:, None] * w.v[g]
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        keep |= np.asarray(tx.pattern.gain(d @ np.asarray(tx.orientation))) > 0
+    assert 0 < keep.sum() < len(keep)
+    for key in ("block_window", "block_i", "block_j"):
+        np.testing.assert_array_equal(getattr(got, key), getattr(w, key)[keep])
