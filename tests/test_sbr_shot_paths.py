@@ -40,3 +40,15 @@ def test_shot_paths_are_each_receivers_block_paths(runtime):
     again = sbr.sbr_paths(geom, tx, radars[0], objects=cars, max_bounces=3, shot=shot)
     np.testing.assert_array_equal(again.gain, got[0].gain)
     np.testing.assert_array_equal(again.points, got[0].points)
+
+
+def test_face_groups_are_unique_rows_inverse():
+    """The face sequences' groups by one int64 key per row (and by unique_rows where the
+    keys would not fit) number the rows as np.unique(axis=0) does."""
+    rng = np.random.default_rng(1)
+    for K, hi in ((5, 30), (3, 5000), (5, 4972), (2, 3), (6, 2**20)):
+        f = rng.integers(-1, hi, size=(4000, K)).astype(np.int32)
+        f[rng.random((4000, K)) < 0.3] = -1
+        f[:1000] = f[1000:2000]
+        want = np.unique(f, axis=0, return_inverse=True)[1].reshape(-1)
+        np.testing.assert_array_equal(sbr._face_groups(f), want)

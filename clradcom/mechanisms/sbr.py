@@ -1127,6 +1127,22 @@ def block_paths(geom, windows: TubeWindows, sums: BlockSums, tx, rx, *, max_boun
         geom, windows, groups["tube"], groups["nk"], max_bounces))
 
 
+def _face_groups(face) -> np.ndarray:
+    """(N,) each row's group among the distinct rows of ``face`` (N, K) (face ids >= -1),
+    numbered in lexicographic order: ``np.unique(face, axis=0, return_inverse=True)``'s
+    inverse. Where the rows fit one int64 in base max + 2 (the street's 4,972 faces at
+    K = 5 do), one sort of those keys; else :func:`clradcom.geometry.rows.unique_rows`."""
+    face = np.asarray(face)
+    K = face.shape[1]
+    base = int(face.max(initial=-1)) + 2
+    if base ** K >= 2**63:
+        return unique_rows(face)[1]
+    key = np.zeros(len(face), dtype=np.int64)
+    for k in range(K):
+        key = key * base + (face[:, k].astype(np.int64) + 1)
+    return np.unique(key, return_inverse=True)[1].reshape(-1)
+
+
 def _block_groups(windows: TubeWindows, sums: BlockSums, tx, rx, min_relative_db: float,
                   rows=None) -> dict | None:
     """:func:`block_paths` up to the replay: the rows in both patterns summed per face
@@ -1148,7 +1164,7 @@ def _block_groups(windows: TubeWindows, sums: BlockSums, tx, rx, min_relative_db
     c_tx = np.asarray(tx.pattern.field(d_tx[seen]), dtype=np.complex128)
     c_rx = np.asarray(rx.pattern.field(d_rx[seen]), dtype=np.complex128)
     gain = np.einsum("pi,pij,pj->p", c_rx, c.matrix, c_tx)
-    _, group, _ = unique_rows(c.face)  # np.unique(c.face, axis=0)'s groups, by lexsort
+    group = _face_groups(c.face)
     G = int(group.max()) + 1
     # np.add.at's sums, row by row in order, as bincounts of the real and imaginary parts
     g_gain = np.empty(G, np.complex128)
