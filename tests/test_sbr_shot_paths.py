@@ -5,6 +5,7 @@ own receiver's rows bit for bit, and each is handed out once."""
 from __future__ import annotations
 
 import dataclasses
+import pickle
 import warnings
 
 import numpy as np
@@ -40,6 +41,10 @@ def test_shot_paths_are_each_receivers_block_paths(runtime):
     again = sbr.sbr_paths(geom, tx, radars[0], objects=cars, max_bounces=3, shot=shot)
     np.testing.assert_array_equal(again.gain, got[0].gain)
     np.testing.assert_array_equal(again.points, got[0].points)
+    # the paths made ahead (which hold the geometry) stay out of a pickled shot
+    assert len(shot._paths) == 1
+    copy = pickle.loads(pickle.dumps(shot))
+    assert copy._paths == {} and len(copy.sums) == len(shot.sums)
 
 
 def test_face_groups_are_unique_rows_inverse():

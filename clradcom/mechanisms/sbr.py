@@ -1233,6 +1233,12 @@ class SbrTubes:
     _paths: dict = dataclasses.field(default_factory=dict, init=False, repr=False,
                                      compare=False)
 
+    def __getstate__(self) -> dict:
+        # the paths made ahead hold the geometry (device buffers): not pickled
+        state = self.__dict__.copy()
+        state["_paths"] = {}
+        return state
+
     def receiver_index(self, rx_pos) -> int:
         hit = np.flatnonzero(np.all(self.receivers == np.asarray(rx_pos, np.float64),
                                     axis=1))
