@@ -10,8 +10,10 @@ from clradcom.mechanisms import sbr
 
 
 def clip_near_loop(tri, eye, axis, near):
-    """The per-triangle clip the vectorised one replaced (commit 6ffe190)."""
-    depth = (tri - eye) @ axis
+    """The per-triangle clip the vectorised one replaced (commit 6ffe190), its depths
+    summed in the launch kernels' order ((x + y) + z) as the vectorised clip now does."""
+    rel = tri - eye
+    depth = (rel[..., 0] * axis[0] + rel[..., 1] * axis[1]) + rel[..., 2] * axis[2]
     front = depth >= near
     out = [tri[front.all(axis=1)]]
     part = front.any(axis=1) & ~front.all(axis=1)

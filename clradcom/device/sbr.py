@@ -162,7 +162,10 @@ def near_triangles(caster: RayCaster, antennas) -> tuple[np.ndarray, np.ndarray]
     first, tris = [0], []
     for ant in np.asarray(antennas, dtype=np.float64).reshape(-1, 3):
         r = 2.0 * float(confirm_margin_m(ant[None])[0])
-        near = np.flatnonzero(np.all((ant >= lo - r) & (ant <= hi + r), axis=1))
+        # the box test axis by axis on the triangles left (the same comparisons)
+        near = np.flatnonzero((ant[0] >= lo[:, 0] - r) & (ant[0] <= hi[:, 0] + r))
+        for k in (1, 2):
+            near = near[(ant[k] >= lo[near, k] - r) & (ant[k] <= hi[near, k] + r)]
         d_ant = np.einsum("ij,ij->i", normals[near], ant - triangles[near, 0])
         near = near[np.abs(d_ant) > ON_FACE_TOL_REL * (1.0 + np.abs(ant).max())]
         tris.append(near)
@@ -266,7 +269,13 @@ def shoot_and_radiate(caster: RayCaster, scene, tri_face, windows, tx_frame, rec
             cl.enqueue_copy(rt.queue, rec, out_buf)
             parts.append(rec)
     rec = np.concatenate(parts) if parts else np.zeros(0, dtype=dtype)
-    rec = rec[np.lexsort((rec["ordinal"], rec["tube"] // cells))]
+    if len(rec):
+        # by block, then emission order: lexsort's order, from one int64 key whose
+        # records come nearly sorted (a stable sort runs through them)
+        key = (rec["tube"] // cells) * (int(rec["ordinal"].max()) + 1) + rec["ordinal"]
+        order = np.argsort(key, kind="stable")
+        if np.any(order != np.arange(len(order))):
+            rec = rec[order]
     if fp64:
         return rec
     # double-float: lengths and points back to float64, the rest widened

@@ -57,6 +57,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import warnings
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -67,8 +68,11 @@ from clradcom.device.raycast import make_rays, spawn_origins
 from clradcom.device.visibility import surface_sees
 from clradcom.errors import ArgumentError
 from clradcom.geometry.rows import unique_rows
-from clradcom.geometry.silhouette import BLOCK, block_coverage, project_to_plane
-from clradcom.geometry.triangles import triangle_normals, triangle_normals_and_double_areas
+from clradcom.geometry.silhouette import BLOCK, cover_xy_many
+from clradcom.geometry.triangles import (
+    triangle_double_areas,
+    triangle_normals,
+)
 from clradcom.paths import InteractionType, Paths
 from clradcom.physics import em
 from clradcom.physics.po import penetrable_po_operator, sinc
@@ -229,23 +233,34 @@ class TubeWindows:
                            block_j=zi)
 
 
-def _clip_near(tri, eye, axis, near):
+def _dot3(a, b):
+    """a.b over the last axis as ((a0 b0 + a1 b1) + a2 b2): the order kernels/silhouette.cl
+    uses, so the launch windows' tests are the device's bit for bit."""
+    return (a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1]) + a[..., 2] * b[..., 2]
+
+
+def _clip_near(tri, eye, axis, near, return_index: bool = False):
     """Triangles (T,3,3) clipped to the half-space (p - eye).axis >= near (0, 1 or 2
     triangles each): a face that reaches behind the eye still projects.  A straddling
     triangle becomes the polygon of its vertices in front and its edges' crossings, in
-    edge order, fanned from its first vertex."""
+    edge order, fanned from its first vertex.  ``axis`` (3,) or one per triangle (T,3),
+    ``near`` a number or (T,); ``return_index``: also the input triangle of each output."""
     tri = np.asarray(tri, dtype=np.float64)
-    depth = (tri - eye) @ axis
-    front = depth >= near
+    axis = np.asarray(axis, dtype=np.float64)
+    near = np.broadcast_to(np.asarray(near, dtype=np.float64), (len(tri),))
+    depth = _dot3(tri - eye, axis[:, None, :] if axis.ndim == 2 else axis)
+    front = depth >= near[:, None]
     n_front = front.sum(axis=1)
     part = (n_front > 0) & (n_front < 3)
-    s, d, f = tri[part], depth[part], front[part]
+    idx = np.arange(len(tri))
+    s, d, f, nr, ip = tri[part], depth[part], front[part], near[part], idx[part]
+    whole = n_front == 3
     if len(s) == 0:
-        return tri[n_front == 3]
+        return (tri[whole], idx[whole]) if return_index else tri[whole]
     nxt = [1, 2, 0]
     b, db, fb = s[:, nxt], d[:, nxt], f[:, nxt]
     with np.errstate(divide="ignore", invalid="ignore"):
-        cut = s + ((near - d) / (db - d))[..., None] * (b - s)   # edge k's crossing
+        cut = s + ((nr[:, None] - d) / (db - d))[..., None] * (b - s)   # edge k's crossing
     # per edge k: vertex k if in front, then the crossing if the edge crosses
     cand = np.stack([s, cut], axis=2).reshape(len(s), 6, 3)
     valid = np.stack([f, f != fb], axis=2).reshape(len(s), 6)
@@ -256,85 +271,118 @@ def _clip_near(tri, eye, axis, near):
     second = poly[quad][:, [0, 2, 3]]
     # the loop this replaces gave each straddler its fan triangles in turn; the order
     # of triangles does not matter to a coverage mask, the order of vertices is kept
-    return np.concatenate([tri[n_front == 3], first, second])
+    out = np.concatenate([tri[whole], first, second])
+    if return_index:
+        return out, np.concatenate([idx[whole], ip, ip[quad]])
+    return out
+
+
+def beside_pairs(triangles, tri_index, tri_start, pair_start, frame, rect, eye,
+                 chunk: int = 1 << 18) -> np.ndarray:
+    """(pairs,) bool: for window w's clip triangles ``triangles[tri_index[tri_start[w] +
+    k]]``, k < ``pair_start[w+1] - pair_start[w]``, whether the triangle lies wholly
+    beyond one side plane of the pyramid from ``eye`` through the rectangle ``rect[w]``
+    (lo x, lo y, hi x, hi y) of the window plane (``frame[w]``: axis, u, v, distance), by
+    more than rounding: its part in front of the eye projects outside the rectangle.
+    kernels/silhouette.cl: beside_cull is the device's twin (the same expressions)."""
+    pair_start = np.asarray(pair_start, dtype=np.int64)
+    counts = np.diff(pair_start)
+    n = int(pair_start[-1])
+    out = np.zeros(n, dtype=bool)
+    frame = np.asarray(frame, dtype=np.float64)
+    rect = np.asarray(rect, dtype=np.float64)
+    reach = (np.maximum(np.abs(rect[:, 0]), np.abs(rect[:, 1]))
+             + np.maximum(np.abs(rect[:, 2]), np.abs(rect[:, 3]))) + frame[:, 9]
+    w_all = np.repeat(np.arange(len(counts)), counts)
+    for a in range(0, n, chunk):
+        w = w_all[a:a + chunk]
+        p = np.arange(a, a + len(w))
+        rel = triangles[tri_index[np.asarray(tri_start)[w] + (p - pair_start[w])]] - eye
+        f = frame[w][:, None, :]
+        D = f[..., 9]
+        depth = _dot3(rel, f[..., 0:3])
+        x = D * _dot3(rel, f[..., 3:6])
+        y = D * _dot3(rel, f[..., 6:9])
+        margin = 1e-9 * ((np.abs(x) + np.abs(y)) + reach[w][:, None] * np.abs(depth))
+        r = rect[w][:, None, :]
+        out[a:a + len(w)] = (np.all(x - r[..., 2] * depth > margin, axis=1)
+                             | np.all(r[..., 0] * depth - x > margin, axis=1)
+                             | np.all(y - r[..., 3] * depth > margin, axis=1)
+                             | np.all(r[..., 1] * depth - y > margin, axis=1))
+    return out
 
 
 def _beside(tri, eye, axis, u, v, distance, lo, hi):
-    """(T,) bool: triangles (T,3,3) that lie wholly beyond one side plane of the pyramid
-    from ``eye`` through the rectangle [lo, hi] (x, y) of the window plane, by more than
-    rounding: their part in front of the eye projects outside the rectangle."""
+    """(T,) bool: :func:`beside_pairs` of one window's triangles (T,3,3)."""
+    tri = np.asarray(tri, dtype=np.float64)
+    frame = np.concatenate([axis, u, v, [distance]])[None]
+    return beside_pairs(tri, np.arange(len(tri)), np.zeros(1, np.int64),
+                        np.array([0, len(tri)]), frame,
+                        np.concatenate([lo, hi])[None], np.asarray(eye, np.float64))
+
+
+def _project(tri, eye, axis, u, v, distance):
+    """Central projection of triangles (T,3,3) from ``eye`` onto their windows' planes
+    (one axis, u, v (T,3) and distance (T,) per triangle): xy (T,3,2) and depth (T,3),
+    x = distance (p - eye).u / depth as :func:`clradcom.geometry.silhouette.project_to_plane`
+    with the dot products of :func:`_dot3`."""
     rel = np.asarray(tri, dtype=np.float64) - eye
-    depth = rel @ axis
-    x, y = distance * (rel @ u), distance * (rel @ v)
-    margin = 1e-9 * (np.abs(x) + np.abs(y) + (np.abs(lo).max() + np.abs(hi).max()
-                                               + distance) * np.abs(depth))
-    return (np.all(x - hi[0] * depth > margin, axis=1)
-            | np.all(lo[0] * depth - x > margin, axis=1)
-            | np.all(y - hi[1] * depth > margin, axis=1)
-            | np.all(lo[1] * depth - y > margin, axis=1))
-
-
-def _project(tri, tx, axis, u, v, distance):
-    x, y, depth = project_to_plane(tri, tx, axis, u, v, distance)
+    depth = _dot3(rel, axis[:, None, :])
+    D = distance[:, None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x = D * _dot3(rel, u[:, None, :]) / depth
+        y = D * _dot3(rel, v[:, None, :]) / depth
     return np.stack([x, y], axis=-1), depth
-
-
-def _window(tx, centre, spacing, triangles, clip=None, cover=block_coverage):
-    """One window aimed at ``centre`` covering ``triangles`` (and, when given, only
-    where the ``clip`` triangles also cover): (frame, cell0, shape, mask), or None when
-    the triangles do not lie well in front of tx.  ``cover``: the block raster,
-    :func:`clradcom.geometry.silhouette.block_coverage` or a device's equal one."""
-    rel = centre - tx
-    D = float(np.linalg.norm(rel))
-    if D == 0.0:
-        return None
-    axis = rel / D
-    u, v = orthonormal_frame(axis)
-    xy, depth = _project(triangles, tx, axis, u, v, D)
-    if len(xy) == 0 or depth.min() < MIN_DEPTH_FRACTION * D:
-        return None
-    lo = np.floor(xy.reshape(-1, 2).min(axis=0) / spacing + 0.5).astype(np.int64) - 1
-    hi = np.floor(xy.reshape(-1, 2).max(axis=0) / spacing + 0.5).astype(np.int64) + 1
-    shape = -(-(hi - lo + 1) // BLOCK)
-    origin = (lo - 0.5) * spacing
-    mask = cover(xy, BLOCK * spacing, origin, shape)
-    if clip is not None and mask.any():
-        # only blocks of the mask matter: clip triangles that project wholly beside the
-        # covered blocks' rectangle cover none of them
-        ij = np.argwhere(mask)
-        rect_lo = origin + ij.min(axis=0) * (BLOCK * spacing)
-        rect_hi = origin + (ij.max(axis=0) + 1) * (BLOCK * spacing)
-        clip = clip[~_beside(clip, tx, axis, u, v, D, rect_lo, rect_hi)]
-        clip = _clip_near(clip, tx, axis, MIN_DEPTH_FRACTION * D)
-        mask &= cover(_project(clip, tx, axis, u, v, D)[0], BLOCK * spacing, origin, shape)
-    if not mask.any():
-        return None
-    return axis, u, v, D, lo, shape, mask
 
 
 def _mirror_faces(geom, objects, tx):
     """Planar faces of the environment (objects not in ``objects``) of at least
     MIRROR_MIN_AREA_M2 that tx lies in front of: (face ids, unit normals toward tx,
-    offsets)."""
-    scene, faces = geom.scene, geom.faces
-    _, area2 = triangle_normals_and_double_areas(scene.triangles)
-    area = np.bincount(faces.tri_face, 0.5 * np.nan_to_num(area2), faces.n_faces)
-    ids = np.flatnonzero((area >= MIRROR_MIN_AREA_M2) & ~np.isin(faces.object_id, objects))
+    offsets, boxes' lower and upper corners)."""
+    faces = geom.faces
+    data = _face_data(geom)
+    ids = np.flatnonzero((data["area"] >= MIRROR_MIN_AREA_M2)
+                         & ~np.isin(faces.object_id, objects))
     n, d = faces.normal[ids], faces.offset[ids]
     side = n @ tx - d
     keep = np.abs(side) > 1e-9 * (1.0 + np.abs(tx).max())
     ids, n, d, side = ids[keep], n[keep], d[keep], side[keep]
     sgn = np.sign(side)
-    # each face's bounding box, to skip the mirrors an image's line of sight misses
-    lo = np.full((len(ids), 3), np.inf)
-    hi = np.full((len(ids), 3), -np.inf)
-    slot = np.full(faces.n_faces, -1)
-    slot[ids] = np.arange(len(ids))
-    tri_slot = slot[faces.tri_face]
-    on = tri_slot >= 0
-    np.minimum.at(lo, tri_slot[on], scene.triangles[on].min(axis=1))
-    np.maximum.at(hi, tri_slot[on], scene.triangles[on].max(axis=1))
-    return ids, n * sgn[:, None], d * sgn, lo, hi
+    return ids, n * sgn[:, None], d * sgn, data["lo"][ids], data["hi"][ids]
+
+
+#: per Geometry (by id, dropped when it is collected): :func:`_face_data`
+_FACE_DATA: dict[int, dict] = {}
+
+
+def _face_data(geom) -> dict:
+    """What the launch needs of the planar faces, the same for every transmitter, computed
+    once per :class:`~clradcom.mechanisms.common.Geometry` (a moved scene is a new one):
+    ``order``, ``start`` (face f's triangles are ``order[start[f]:start[f+1]]``, in scene
+    order), ``area`` (F,) and each face's box ``lo``, ``hi`` (F, 3)."""
+    key = id(geom)
+    got = _FACE_DATA.get(key)
+    if got is not None and got["geom"]() is geom:
+        return got
+    scene, faces = geom.scene, geom.faces
+    order = np.argsort(faces.tri_face, kind="stable")
+    count = np.bincount(faces.tri_face, minlength=faces.n_faces)
+    start = np.zeros(faces.n_faces + 1, np.int64)
+    np.cumsum(count, out=start[1:])
+    area2 = triangle_double_areas(scene.triangles)
+    area = np.bincount(faces.tri_face, 0.5 * np.nan_to_num(area2), faces.n_faces)
+    lo = np.full((faces.n_faces, 3), np.inf)
+    hi = np.full((faces.n_faces, 3), -np.inf)
+    some = count > 0
+    if some.any():
+        tris = scene.triangles[order]
+        lo[some] = np.minimum.reduceat(tris.min(axis=1), start[:-1][some])
+        hi[some] = np.maximum.reduceat(tris.max(axis=1), start[:-1][some])
+    got = {"geom": weakref.ref(geom), "order": order, "start": start, "area": area,
+           "lo": lo, "hi": hi}
+    _FACE_DATA[key] = got
+    weakref.finalize(geom, _FACE_DATA.pop, key, None)
+    return got
 
 
 def _chunks(tris, tx) -> tuple[list[np.ndarray], int]:
@@ -342,20 +390,32 @@ def _chunks(tris, tx) -> tuple[list[np.ndarray], int]:
     away, so each projects onto one window plane well in front of tx: the whole set when
     it does, else halves split at the median centroid along the longest axis, and so on.
     A single triangle that still holds tx that close is dropped: (groups, dropped)."""
+    groups, dropped = _chunk_spheres(tris, tx)
+    return [g[0] for g in groups], dropped
+
+
+def _chunk_spheres(tris, tx) -> tuple[list[tuple], int]:
+    """:func:`_chunks` with each group's :func:`bounding_sphere`: ([(tris, centre,
+    radius)], dropped); the centroids are computed once and split with the triangles."""
+    out: list[tuple] = []
     if len(tris) == 0:
-        return [], 0
+        return out, 0
+    dropped = _split(tris, tris.mean(axis=1), np.asarray(tx, dtype=np.float64), out)
+    return out, dropped
+
+
+def _split(tris, cen, tx, out) -> int:
     c, r = bounding_sphere(tris)
     if np.linalg.norm(c - tx) >= CHUNK_CLEARANCE * r:
-        return [tris], 0
+        out.append((tris, c, r))
+        return 0
     if len(tris) == 1:
-        return [], 1
-    cen = tris.mean(axis=1)
+        return 1
     axis = int(np.argmax(np.ptp(cen, axis=0)))
     order = np.argsort(cen[:, axis], kind="stable")
     half = len(tris) // 2
-    a, da = _chunks(tris[order[:half]], tx)
-    b, db = _chunks(tris[order[half:]], tx)
-    return a + b, da + db
+    lo, hi = order[:half], order[half:]
+    return _split(tris[lo], cen[lo], tx, out) + _split(tris[hi], cen[hi], tx, out)
 
 
 def launch_windows(geom, tx_pos, objects, spacing_m, *, mirrors: bool = True,
@@ -366,35 +426,34 @@ def launch_windows(geom, tx_pos, objects, spacing_m, *, mirrors: bool = True,
     centre lie in front of, clipped to that face's own silhouette.  An object too close to
     tx for one window (a guard rail beside the radar, the radar's own car) is split into
     groups of triangles (:func:`_chunks`) with a window each; triangles within their own
-    size of tx get none (a warning counts them), their PO facets stay.  The device engine
-    rasters large silhouettes in a kernel (:mod:`clradcom.device.silhouette`, the same
+    size of tx get none (a warning counts them), their PO facets stay.  All windows are
+    made at once (:func:`_make_windows`); the device engine runs their block rasters and
+    the mirror windows' clip cull in kernels (:mod:`clradcom.device.silhouette`, the same
     masks)."""
     scene = geom.scene
-    cover = (functools.partial(device_silhouette.block_coverage, geom.runtime)
-             if geom.engine == "device" else block_coverage)
+    runtime = geom.runtime if geom.engine == "device" else None
+    if runtime is not None and not runtime.has_double:
+        runtime = None
     tx = np.asarray(tx_pos, dtype=np.float64)
     objects = np.asarray(list(objects), dtype=np.int64)
     spacing = np.broadcast_to(np.asarray(spacing_m, dtype=np.float64), objects.shape)
     if np.any(~np.isfinite(spacing) | (spacing <= 0)):
         raise ArgumentError("must be positive numbers", argument="spacing_m",
                             value=spacing_m)
-    direct, mirrored = [], []
+    direct, mirrored = [], []   # candidate windows: (object, face, spacing, centre, tris)
     face_ids, face_n, face_d, face_lo, face_hi = (
         _mirror_faces(geom, objects, tx) if mirrors
         else (np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3)),
               np.zeros((0, 3))))
     for o, s in zip(objects, spacing, strict=True):
-        chunks, dropped = _chunks(scene.triangles[scene.tri_object == o], tx)
+        chunks, dropped = _chunk_spheres(scene.triangles[scene.tri_object == o], tx)
         if dropped:
             warnings.warn(f"SBR launches no tubes at {dropped} triangle(s) of object "
                           f"{scene.objects[o].name!r}: transmitter {tx_name!r} lies within "
                           f"their own size of them (a radar mounted on it); their PO facet "
                           f"returns stay", stacklevel=3)
-        for tris in chunks:
-            c, r = bounding_sphere(tris)
-            win = _window(tx, c, s, tris, cover=cover)
-            if win is not None:
-                direct.append((o, -1, s, win))
+        for tris, c, r in chunks:
+            direct.append((o, -1, s, c, tris))
             # mirrors in front of which the chunk lies, whose box (grown by the chunk's
             # radius) the line of sight to the chunk's image crosses
             h_c = face_n @ c - face_d
@@ -404,32 +463,152 @@ def launch_windows(geom, tx_pos, objects, spacing_m, *, mirrors: bool = True,
                 cross_at = tx + (h_tx / (h_tx + h_c))[:, None] * (c_img - tx)
             near = np.all((cross_at >= face_lo - r) & (cross_at <= face_hi + r), axis=1)
             near &= (h_c > 0) & (np.linalg.norm(c_img - tx, axis=1) > CHUNK_CLEARANCE * r)
-            for f, n, d, ci in zip(face_ids[near], face_n[near], face_d[near], c_img[near],
-                                   strict=True):
-                image = tris - 2.0 * ((tris @ n) - d)[..., None] * n
-                win = _window(tx, ci, s, image,
-                              clip=scene.triangles[geom.faces.tri_face == f], cover=cover)
-                if win is not None:
-                    mirrored.append((o, int(f), s, win))
-    wins = direct + mirrored
-    if not wins:
+            if not near.any():
+                continue
+            # the chunk's images in all those mirrors at once
+            n = face_n[near][:, None, None, :]
+            h = _dot3(tris[None], n) - face_d[near][:, None, None]
+            images = tris[None] - 2.0 * h[..., None] * n
+            for f, ci, image in zip(face_ids[near], c_img[near], images, strict=True):
+                mirrored.append((o, int(f), s, ci, image))
+    return _make_windows(geom, runtime, tx, direct + mirrored)
+
+
+def _make_windows(geom, runtime, tx, cands) -> TubeWindows:
+    """The candidate windows ``cands`` (object, mirror face or -1, pitch, centre,
+    triangles (T,3,3) to cover) as :class:`TubeWindows`, all at once: a window is aimed at
+    its centre, its grid spans its triangles' projection plus a cell, its mask marks the
+    blocks they cover (and, for a mirror window, that the mirror face's own triangles,
+    culled by the pyramid through the covered blocks' rectangle and clipped at the near
+    plane, cover too).  A window whose triangles do not all lie MIN_DEPTH_FRACTION of its
+    distance in front of tx, or whose mask is empty, is dropped.  ``runtime``: the
+    device that rasters and culls (None: numpy), with the same results bit for bit."""
+    if not cands:
         return TubeWindows.empty(tx)
-    offsets = np.cumsum([0] + [int(w[3][6].size) for w in wins])
-    blocks = [np.argwhere(w[3][6]) for w in wins]
+    W = len(cands)
+    spacing = np.array([c[2] for c in cands], dtype=np.float64)
+    counts = np.array([len(c[4]) for c in cands], dtype=np.int64)
+    tris = np.concatenate([c[4] for c in cands]).astype(np.float64, copy=False)
+    win = np.repeat(np.arange(W), counts)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    rel = np.array([c[3] for c in cands], dtype=np.float64) - tx
+    # a window's distance as one vector's norm gives it (a BLAS dot, not a row sum)
+    D = np.array([float(np.linalg.norm(r)) for r in rel])
+    ok = D != 0.0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        axis = rel / np.where(ok, D, 1.0)[:, None]
+        u, v = orthonormal_frame(axis)
+    if runtime is not None:
+        # projected on the device, kept there for the raster; the extents come back
+        xy, ext = device_silhouette.project_windows(
+            runtime, tris, win, np.column_stack([axis, u, v, D]), tx)
+    else:
+        xy, depth = _project(tris, tx, axis[win], u[win], v[win], D[win])
+        ext = np.column_stack([depth.min(axis=1), xy[..., 0].min(axis=1),
+                               xy[..., 0].max(axis=1), xy[..., 1].min(axis=1),
+                               xy[..., 1].max(axis=1)])
+    ok &= ~(np.minimum.reduceat(ext[:, 0], starts) < MIN_DEPTH_FRACTION * D)
+    with np.errstate(invalid="ignore"):
+        lo_xy = np.minimum.reduceat(ext[:, [1, 3]], starts, axis=0)
+        hi_xy = np.maximum.reduceat(ext[:, [2, 4]], starts, axis=0)
+        ok &= np.all(np.isfinite(lo_xy) & np.isfinite(hi_xy), axis=1)
+        lo = np.floor(np.where(ok[:, None], lo_xy, 0.0) / spacing[:, None] + 0.5
+                      ).astype(np.int64) - 1
+        hi = np.floor(np.where(ok[:, None], hi_xy, 0.0) / spacing[:, None] + 0.5
+                      ).astype(np.int64) + 1
+    shape = np.where(ok[:, None], -(-(hi - lo + 1) // BLOCK), 0)
+    origin = (lo - 0.5) * spacing[:, None]
+    block = BLOCK * spacing
+    sizes = shape[:, 0] * shape[:, 1]
+    offset = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+    total = int(sizes.sum())
+    ny = shape[:, 1]
+    if runtime is not None:
+        cover = functools.partial(device_silhouette.cover_xy_many, runtime)
+    else:
+        cover = cover_xy_many
+    if runtime is not None:
+        mask = cover(xy, win, block, origin, shape, offset, total)
+    else:
+        sel = ok[win]
+        mask = cover(xy[sel], win[sel], block, origin, shape, offset, total)
+    cell_win = np.repeat(np.arange(W), sizes)
+    mirror = ok & (np.array([c[1] for c in cands]) >= 0)
+    mirror &= np.bincount(cell_win[mask], minlength=W) > 0
+    m = np.flatnonzero(mirror)
+    if len(m):
+        mask &= _clip_masks(geom, runtime, tx, cands, m, cell_win, mask, axis, u, v, D,
+                            origin, block, shape, offset, total, cover)
+    per_window = np.bincount(cell_win[mask], minlength=W)
+    keep = ok & (per_window > 0)
+    if not keep.any():
+        return TubeWindows.empty(tx)
+    k = np.flatnonzero(keep)
+    masks = mask[keep[cell_win]]
+    kept_sizes = sizes[k]
+    kept_offset = np.concatenate([[0], np.cumsum(kept_sizes)[:-1]])
+    covered = np.flatnonzero(masks)
+    bw = np.repeat(np.arange(len(k)), per_window[k])   # covered cells are window-ordered
+    local = covered - kept_offset[bw]
     return TubeWindows(
-        tx=tx, axis=np.array([w[3][0] for w in wins]), u=np.array([w[3][1] for w in wins]),
-        v=np.array([w[3][2] for w in wins]), distance=np.array([w[3][3] for w in wins]),
-        spacing=np.array([w[2] for w in wins], dtype=np.float64),
-        cell0=np.array([w[3][4] for w in wins], dtype=np.int64),
-        shape=np.array([w[3][5] for w in wins], dtype=np.int64),
-        mask_offset=offsets[:-1].astype(np.int64),
-        masks=np.concatenate([w[3][6].ravel() for w in wins]).astype(np.uint8),
-        object_id=np.array([w[0] for w in wins], dtype=np.int32),
-        mirror_face=np.array([w[1] for w in wins], dtype=np.int32),
-        block_window=np.concatenate([np.full(len(b), i, np.int32)
-                                     for i, b in enumerate(blocks)]),
-        block_i=np.concatenate([b[:, 0] for b in blocks]).astype(np.int32),
-        block_j=np.concatenate([b[:, 1] for b in blocks]).astype(np.int32))
+        tx=tx, axis=axis[k], u=u[k], v=v[k], distance=D[k], spacing=spacing[k],
+        cell0=lo[k], shape=shape[k].astype(np.int64), mask_offset=kept_offset.astype(np.int64),
+        masks=masks.astype(np.uint8),
+        object_id=np.array([cands[i][0] for i in k], dtype=np.int32),
+        mirror_face=np.array([cands[i][1] for i in k], dtype=np.int32),
+        block_window=bw.astype(np.int32), block_i=(local // ny[k][bw]).astype(np.int32),
+        block_j=(local % ny[k][bw]).astype(np.int32))
+
+
+def _clip_masks(geom, runtime, tx, cands, m, cell_win, mask, axis, u, v, D, origin, block,
+                shape, offset, total, cover) -> np.ndarray:
+    """(total,) bool: where the mirror windows ``m`` may keep their blocks - the blocks
+    their mirror faces' own triangles cover (culled beside the covered blocks' rectangle
+    by :func:`beside_pairs`, clipped at the near plane by :func:`_clip_near`); True in
+    every other window's cells."""
+    covered = np.flatnonzero(mask)
+    cw = cell_win[covered]
+    local = covered - offset[cw]
+    bi, bj = local // shape[cw, 1], local % shape[cw, 1]
+    # covered cells are window-ordered, the direct windows' first: from the first mirror
+    # window's on, every covered cell is a mirror window's, so each reduceat group holds
+    # exactly one window's cells
+    first = np.searchsorted(cw, m)
+    ij_lo = np.stack([np.minimum.reduceat(bi, first), np.minimum.reduceat(bj, first)], 1)
+    ij_hi = np.stack([np.maximum.reduceat(bi, first), np.maximum.reduceat(bj, first)], 1)
+    rect_lo = origin[m] + ij_lo * block[m][:, None]
+    rect_hi = origin[m] + (ij_hi + 1) * block[m][:, None]
+    data = _face_data(geom)
+    order, fstart = data["order"], data["start"]
+    face = np.array([cands[i][1] for i in m], dtype=np.int64)
+    used, inv = np.unique(face, return_inverse=True)
+    n_used = fstart[used + 1] - fstart[used]
+    tri_index = np.concatenate([order[fstart[f]:fstart[f + 1]] for f in used])
+    used_start = np.concatenate([[0], np.cumsum(n_used)[:-1]])
+    tri_start = used_start[inv]
+    pair_count = n_used[inv]
+    pair_start = np.concatenate([[0], np.cumsum(pair_count)])
+    triangles = geom.scene.triangles
+    frame = np.column_stack([axis[m], u[m], v[m], D[m]])
+    rect = np.column_stack([rect_lo, rect_hi])
+    if runtime is not None:
+        # the triangles of the used faces only travel to the device
+        beside = device_silhouette.beside_cull(
+            runtime, triangles[tri_index], np.arange(len(tri_index)), tri_start,
+            pair_start, frame, rect, tx)
+    else:
+        beside = beside_pairs(triangles, tri_index, tri_start, pair_start, frame, rect, tx)
+    p = np.flatnonzero(~beside)
+    pw = np.searchsorted(pair_start, p, side="right") - 1
+    clip = triangles[tri_index[tri_start[pw] + (p - pair_start[pw])]]
+    clip, src = _clip_near(clip, tx, axis[m][pw], MIN_DEPTH_FRACTION * D[m][pw],
+                           return_index=True)
+    cwin = m[pw[src]]
+    xy, _ = _project(clip, tx, axis[cwin], u[cwin], v[cwin], D[cwin])
+    allowed = cover(xy, cwin, block, origin, shape, offset, total)
+    in_mirror = np.zeros(len(D), dtype=bool)
+    in_mirror[m] = True
+    return allowed | ~in_mirror[cell_win]
 
 
 def blocks_in_pattern(windows: TubeWindows, tx) -> TubeWindows:
@@ -439,26 +618,52 @@ def blocks_in_pattern(windows: TubeWindows, tx) -> TubeWindows:
     if len(windows.block_window) == 0:
         return windows
     w = windows.block_window.astype(np.int64)
-    s = windows.spacing[w]
-    keep = np.zeros(len(w), dtype=bool)
-    for fx, fy in ((0.0, 0.0), (0.0, 1.0), (1.0, 0.0), (1.0, 1.0), (0.5, 0.5)):
-        x = (windows.cell0[w, 0] + windows.block_i * BLOCK - 0.5 + fx * BLOCK) * s
-        y = (windows.cell0[w, 1] + windows.block_j * BLOCK - 0.5 + fy * BLOCK) * s
-        d = (windows.distance[w, None] * windows.axis[w] + x[:, None] * windows.u[w]
-             + y[:, None] * windows.v[w])
-        d /= np.linalg.norm(d, axis=1, keepdims=True)
-        keep |= np.asarray(tx.pattern.gain(d @ np.asarray(tx.orientation))) > 0
+    # each window's frame turned into tx's antenna frame once, the points' directions
+    # summed there without a matrix product per point (numpy's BLAS takes threads for
+    # large ones, slow on a loaded machine). Corners are shared by up to four blocks: each
+    # corner of the windows' block lattices that a block needs is tested once (its
+    # coordinates are the same half-integers, so the same numbers), then the centres of
+    # the blocks with no corner inside.
+    o = np.asarray(tx.orientation, dtype=np.float64)
+    a_l, u_l, v_l = ((f[:, :, None] * o[None]).sum(axis=1)
+                     for f in (windows.axis, windows.u, windows.v))
+    a_l = windows.distance[:, None] * a_l
+
+    def seen(g, i, j, f):
+        x = (windows.cell0[g, 0] + i * BLOCK - 0.5 + f * BLOCK) * windows.spacing[g]
+        y = (windows.cell0[g, 1] + j * BLOCK - 0.5 + f * BLOCK) * windows.spacing[g]
+        d = a_l[g] + x[:, None] * u_l[g] + y[:, None] * v_l[g]
+        d /= np.linalg.norm(d, axis=-1, keepdims=True)
+        return np.asarray(tx.pattern.gain(d)) > 0
+
+    bi = windows.block_i.astype(np.int64)
+    bj = windows.block_j.astype(np.int64)
+    row = windows.shape[:, 1] + 1
+    size = (windows.shape[:, 0] + 1) * row
+    off = np.cumsum(size) - size
+    base = off[w] + bi * row[w] + bj
+    corners = (base, base + 1, base + row[w], base + row[w] + 1)
+    needed = np.zeros(int(size.sum()), dtype=bool)
+    for c in corners:
+        needed[c] = True
+    at = np.flatnonzero(needed)
+    g = np.searchsorted(off, at, side="right") - 1
+    g_row = row[g]
+    inside = np.zeros(len(needed), dtype=bool)
+    inside[at] = seen(g, (at - off[g]) // g_row, (at - off[g]) % g_row, 0.0)
+    keep = inside[corners[0]] | inside[corners[1]] | inside[corners[2]] | inside[corners[3]]
+    rest = np.flatnonzero(~keep)
+    if len(rest):
+        keep[rest] = seen(w[rest], bi[rest], bj[rest], 0.5)
     if keep.all():
         return windows
     return dataclasses.replace(windows, block_window=windows.block_window[keep],
                                block_i=windows.block_i[keep], block_j=windows.block_j[keep])
 
 
-def window_tubes(windows: TubeWindows, tubes) -> tuple[TubeGrid, np.ndarray]:
-    """The tubes ``tubes`` (indices, see :class:`TubeWindows`) as a :class:`TubeGrid`
-    (directions, solid angles spacing^2 cos^3(alpha)/D^2, edges), and which of them their
-    window owns (False: an earlier window covers the direction, or its cell lies outside
-    its own window's mask, never the case for enumerated tubes)."""
+def _tube_directions(windows: TubeWindows, tubes):
+    """Tubes ``tubes``' windows (int64), unit directions (N,3) and cos of their angle off
+    their window's axis, as :func:`window_tubes` computes them."""
     tubes = np.asarray(tubes, dtype=np.int64)
     blk, cell = np.divmod(tubes, BLOCK * BLOCK)
     w = windows.block_window[blk].astype(np.int64)
@@ -468,12 +673,20 @@ def window_tubes(windows: TubeWindows, tubes) -> tuple[TubeGrid, np.ndarray]:
     vec = (D[:, None] * windows.axis[w] + (i * s)[:, None] * windows.u[w]
            + (j * s)[:, None] * windows.v[w])
     dist = np.linalg.norm(vec, axis=1)
-    d = vec / dist[:, None]
-    cos_a = D / dist
+    return w, vec / dist[:, None], D / dist
+
+
+def window_tubes(windows: TubeWindows, tubes) -> tuple[TubeGrid, np.ndarray]:
+    """The tubes ``tubes`` (indices, see :class:`TubeWindows`) as a :class:`TubeGrid`
+    (directions, solid angles spacing^2 cos^3(alpha)/D^2, edges), and which of them their
+    window owns (False: an earlier window covers the direction, or its cell lies outside
+    its own window's mask, never the case for enumerated tubes)."""
+    w, d, cos_a = _tube_directions(windows, tubes)
+    s, D = windows.spacing[w], windows.distance[w]
     a = windows.u[w]
     e1 = a - np.einsum("ij,ij->i", d, a)[:, None] * d
     e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
-    owned = np.ones(len(tubes), dtype=bool)
+    owned = np.ones(len(w), dtype=bool)
     overlaps = earlier_overlaps(windows)
     for k in range(windows.n_windows - 1):
         later = overlaps[w, k]
@@ -837,24 +1050,60 @@ def device_block_sums(geom, windows: TubeWindows, tx, receivers, max_bounces: in
                      point=rec["point"], tri=rec["tri"][:, :max_bounces].astype(np.int32))
 
 
+def _bounce_points(geom, tx_pos, directions, max_bounces: int) -> np.ndarray:
+    """(R, max_bounces, 3) the bounce points of rays from tx along ``directions`` (NaN
+    past a ray's last bounce): :func:`shoot_tubes`' walk, its arithmetic for the points
+    and directions unchanged, without the tubes' edges, lengths and transfer chains."""
+    tris_all = geom.scene.triangles
+    R = len(directions)
+    tx = np.asarray(tx_pos, dtype=np.float64)
+    idx = np.arange(R)
+    pos = np.broadcast_to(tx, (R, 3))
+    org = pos
+    d = directions
+    hist = np.full((R, max_bounces, 3), np.nan)
+    for m in range(1, max_bounces + 1):
+        if len(idx) == 0 or geom.caster is None:
+            break
+        tri = geom.caster.closest_hit(make_rays(org, d))["prim"].astype(np.int64)
+        hit = tri >= 0
+        idx, pos, d, tri = idx[hit], pos[hit], d[hit], tri[hit]
+        # the normals of the hit triangles only: row for row triangle_normals' of all
+        n = triangle_normals(tris_all[tri])
+        dn = np.einsum("ij,ij->i", d, n)
+        good = np.abs(dn) > 1e-9  # grazing hits carry no footprint
+        idx, pos, d, tri, n, dn = (a[good] for a in (idx, pos, d, tri, n, dn))
+        if len(idx) == 0:
+            break
+        t = np.einsum("ij,ij->i", tris_all[tri, 0] - pos, n) / dn
+        ahead = t > 0
+        if not ahead.all():
+            idx, pos, d, tri, n, dn, t = (a[ahead] for a in (idx, pos, d, tri, n, dn, t))
+            if len(idx) == 0:
+                break
+        p = pos + t[:, None] * d
+        hist[idx, m - 1] = p
+        if m == max_bounces:
+            break
+        d = d - 2.0 * dn[:, None] * n
+        pos = p
+        org = spawn_origins(p, n, d)
+    return hist
+
+
 def _replay(geom, windows: TubeWindows, tubes, bounces, max_bounces: int):
     """Bounce points (P, max_bounces, 3) of tubes ``tubes`` up to their bounce
     ``bounces``, re-shot on the host (the engines are deterministic, so a tube retraces
-    its path; points past the bounce are NaN)."""
+    its path; points past the bounce are NaN, and all of a tube's when it does not reach
+    that bounce)."""
     tubes = np.asarray(tubes, dtype=np.int64)
     bounces = np.asarray(bounces, dtype=np.int64)
     uniq, inv = np.unique(tubes, return_inverse=True)
-    grid, _ = window_tubes(windows, uniq)
-    hits = shoot_tubes(geom, windows.tx, grid, max_bounces, first_bounce=1)
-    hist = np.full((len(tubes), max_bounces, 3), np.nan)
-    if len(hits.tube) == 0:
-        return hist
-    key = hits.tube.astype(np.int64) * (max_bounces + 1) + hits.bounce
-    order = np.argsort(key)
-    want = inv.reshape(-1) * (max_bounces + 1) + bounces
-    pos = np.minimum(np.searchsorted(key[order], want), len(order) - 1)
-    found = key[order][pos] == want
-    hist[found] = hits.history[order[pos[found]]]
+    hist = _bounce_points(geom, windows.tx, _tube_directions(windows, uniq)[1],
+                          max_bounces)[inv.reshape(-1)]
+    reached = ~np.isnan(hist[np.arange(len(tubes)), bounces - 1, 0])
+    hist[np.arange(max_bounces)[None, :] >= bounces[:, None]] = np.nan
+    hist[~reached] = np.nan
     return hist
 
 
@@ -871,27 +1120,59 @@ def block_paths(geom, windows: TubeWindows, sums: BlockSums, tx, rx, *, max_boun
     is consistent with the points.  Groups more than |min_relative_db| below the
     strongest of the link are dropped.
     """
-    scene = geom.scene
-    if len(sums) == 0:
+    groups = _block_groups(windows, sums, tx, rx, min_relative_db)
+    if groups is None:
         return Paths.empty(max_bounces)
-    k_dep = window_tubes(windows, sums.tube)[0].directions
-    k_arr = np.asarray(rx.position, np.float64) - sums.point
+    return _block_finish(geom, groups, tx, rx, max_bounces, _replay(
+        geom, windows, groups["tube"], groups["nk"], max_bounces))
+
+
+def _face_groups(face) -> np.ndarray:
+    """(N,) each row's group among the distinct rows of ``face`` (N, K) (face ids >= -1),
+    numbered in lexicographic order: ``np.unique(face, axis=0, return_inverse=True)``'s
+    inverse. Where the rows fit one int64 in base max + 2 (the street's 4,972 faces at
+    K = 5 do), one sort of those keys; else :func:`clradcom.geometry.rows.unique_rows`."""
+    face = np.asarray(face)
+    K = face.shape[1]
+    base = int(face.max(initial=-1)) + 2
+    if base ** K >= 2**63:
+        return unique_rows(face)[1]
+    key = np.zeros(len(face), dtype=np.int64)
+    for k in range(K):
+        key = key * base + (face[:, k].astype(np.int64) + 1)
+    return np.unique(key, return_inverse=True)[1].reshape(-1)
+
+
+def _block_groups(windows: TubeWindows, sums: BlockSums, tx, rx, min_relative_db: float,
+                  rows=None) -> dict | None:
+    """:func:`block_paths` up to the replay: the rows in both patterns summed per face
+    sequence, the strong groups' representatives (``tube``, bounce ``nk``) and what
+    :func:`_block_finish` needs; None where no row is seen.  ``rows``: the rows of
+    ``sums`` that are rx's (default all)."""
+    rows = np.arange(len(sums)) if rows is None else np.asarray(rows)
+    if len(rows) == 0:
+        return None
+    k_dep = _tube_directions(windows, sums.tube[rows])[1]
+    k_arr = np.asarray(rx.position, np.float64) - sums.point[rows]
     k_arr /= np.linalg.norm(k_arr, axis=1, keepdims=True)
     d_tx = k_dep @ np.asarray(tx.orientation)
     d_rx = -k_arr @ np.asarray(rx.orientation)
     seen = (np.asarray(tx.pattern.gain(d_tx)) > 0) & (np.asarray(rx.pattern.gain(d_rx)) > 0)
     if not seen.any():
-        return Paths.empty(max_bounces)
-    c = sums.select(np.flatnonzero(seen))
+        return None
+    c = sums.select(rows[seen])
     c_tx = np.asarray(tx.pattern.field(d_tx[seen]), dtype=np.complex128)
     c_rx = np.asarray(rx.pattern.field(d_rx[seen]), dtype=np.complex128)
     gain = np.einsum("pi,pij,pj->p", c_rx, c.matrix, c_tx)
-    _, group, _ = unique_rows(c.face)  # np.unique(c.face, axis=0)'s groups, by lexsort
+    group = _face_groups(c.face)
     G = int(group.max()) + 1
-    g_gain = np.zeros(G, np.complex128)
-    np.add.at(g_gain, group, gain)
-    g_M = np.zeros((G, 2, 2), np.complex128)
-    np.add.at(g_M, group, c.matrix)
+    # np.add.at's sums, row by row in order, as bincounts of the real and imaginary parts
+    g_gain = np.empty(G, np.complex128)
+    g_gain.real = np.bincount(group, gain.real, G)
+    g_gain.imag = np.bincount(group, gain.imag, G)
+    parts = np.ascontiguousarray(c.matrix).view(np.float64).reshape(len(group), 8)
+    g_M = np.bincount((group[:, None] * 8 + np.arange(8)).ravel(), parts.ravel(), G * 8
+                      ).view(np.complex128).reshape(G, 2, 2)
     w = np.bincount(group, c.weight, G)
     mean_L = np.bincount(group, c.weighted_length, G) / np.where(w > 0, w, 1.0)
     order = np.lexsort((np.arange(len(group)), np.abs(c.length - mean_L[group]), group))
@@ -904,11 +1185,19 @@ def block_paths(geom, windows: TubeWindows, sums: BlockSums, tx, rx, *, max_boun
     strong = mag >= mag.max() * 10.0 ** (-abs(float(min_relative_db)) / 20.0)
     strong &= mag > 0
     rep_s = rep[strong]
+    return {"c": c, "g_gain": g_gain[strong], "g_M": g_M[strong], "rep_s": rep_s,
+            "tube": c.tube[rep_s], "nk": c.bounce[rep_s].astype(np.int64)}
+
+
+def _block_finish(geom, groups: dict, tx, rx, max_bounces: int, replayed) -> Paths:
+    """:func:`block_paths` after the replay: the strong groups of :func:`_block_groups`
+    as :class:`Paths`, their earlier bounce points ``replayed`` (:func:`_replay`)."""
+    scene = geom.scene
+    c, rep_s, nk = groups["c"], groups["rep_s"], groups["nk"]
     P = len(rep_s)
-    nk = c.bounce[rep_s].astype(np.int64)
     pts = np.full((P, max_bounces + 2, 3), np.nan)
     pts[:, 0] = tx.position
-    pts[:, 1:max_bounces + 1] = _replay(geom, windows, c.tube[rep_s], nk, max_bounces)
+    pts[:, 1:max_bounces + 1] = replayed
     # the footprint itself as the engine computed it (the replay agrees to rounding)
     pts[np.arange(P), nk] = c.point[rep_s]
     pts[np.arange(P), nk + 1] = rx.position
@@ -921,7 +1210,8 @@ def block_paths(geom, windows: TubeWindows, sums: BlockSums, tx, rx, *, max_boun
     vel[np.arange(P), nk + 1] = rx.velocity
     doppler = em.doppler_hz(pts, vel, scene.wavelength_m, num_interactions=nk)
     active = tri_ids >= 0
-    return Paths(gain=g_gain[strong], matrix=g_M[strong], delay_s=em.delay_s(c.length[rep_s]),
+    return Paths(gain=groups["g_gain"], matrix=groups["g_M"],
+                 delay_s=em.delay_s(c.length[rep_s]),
                  doppler_hz=doppler, n_interactions=nk.astype(np.int16),
                  interaction=np.where(active, int(InteractionType.SBR), 0
                                       ).astype(np.int8),
@@ -937,6 +1227,17 @@ class SbrTubes:
     receivers: np.ndarray
     sums: BlockSums
     max_bounces: int
+    #: the receivers as given to :func:`shoot_sbr` (None: positions only)
+    radars: list | None = None
+    #: :func:`sbr_paths`' paths of every receiver, made together on the first call
+    _paths: dict = dataclasses.field(default_factory=dict, init=False, repr=False,
+                                     compare=False)
+
+    def __getstate__(self) -> dict:
+        # the paths made ahead hold the geometry (device buffers): not pickled
+        state = self.__dict__.copy()
+        state["_paths"] = {}
+        return state
 
     def receiver_index(self, rx_pos) -> int:
         hit = np.flatnonzero(np.all(self.receivers == np.asarray(rx_pos, np.float64),
@@ -950,8 +1251,7 @@ class SbrTubes:
 def feature_size_m(geom, objects) -> np.ndarray:
     """Per object, the side sqrt(A) of its planar faces (``geom.faces``) below which lies
     FEATURE_AREA_SHARE of its area: the size of the small faces its corners are made of."""
-    _, area2 = triangle_normals_and_double_areas(geom.scene.triangles)
-    area = np.bincount(geom.faces.tri_face, 0.5 * np.nan_to_num(area2), geom.faces.n_faces)
+    area = _face_data(geom)["area"]
     out = []
     for o in objects:
         a = area[(geom.faces.object_id == o) & (area > 0)]
@@ -1020,7 +1320,8 @@ def shoot_sbr(geom, tx, objects, receivers, *, spacing_wavelengths: float | None
     else:
         sums = host_block_sums(geom, windows, tx, receivers, max_bounces, first_bounce,
                                record)
-    return SbrTubes(windows=windows, receivers=rx_pos, sums=sums, max_bounces=max_bounces)
+    return SbrTubes(windows=windows, receivers=rx_pos, sums=sums, max_bounces=max_bounces,
+                    radars=receivers)
 
 
 def sbr_paths(geom, tx, rx, *, objects, spacing_wavelengths: float | None = None,
@@ -1048,6 +1349,35 @@ def sbr_paths(geom, tx, rx, *, objects, spacing_wavelengths: float | None = None
     if len(sums) == 0:
         return Paths.empty(shot.max_bounces)
     r = shot.receiver_index(rx.position)
+    if shot.radars is not None and shot.radars[r] is rx:
+        # every receiver's paths at once, their replays in one walk; each handed out once
+        key = (float(min_relative_db), r)
+        cached = shot._paths.pop(key, None)
+        if cached is not None and cached[0] is geom and cached[1] is tx:
+            return cached[2]
+        made = _shot_paths(geom, shot, tx, min_relative_db)
+        for k, p in enumerate(made):
+            if k != r:
+                shot._paths[(float(min_relative_db), k)] = (geom, tx, p)
+        return made[r]
     return block_paths(geom, shot.windows, sums.select(np.flatnonzero(sums.receiver == r)),
                        tx, rx, max_bounces=shot.max_bounces,
                        min_relative_db=min_relative_db)
+
+
+def _shot_paths(geom, shot: SbrTubes, tx, min_relative_db: float) -> list[Paths]:
+    """:func:`block_paths` of every receiver of ``shot`` (its ``radars``), the
+    representatives' bounce points replayed in one :func:`_replay` for all."""
+    sums, windows, mb = shot.sums, shot.windows, shot.max_bounces
+    groups = [_block_groups(windows, sums, tx, rx, min_relative_db,
+                            rows=np.flatnonzero(sums.receiver == r))
+              for r, rx in enumerate(shot.radars)]
+    live = [g for g in groups if g is not None]
+    if not live:
+        return [Paths.empty(mb) for _ in groups]
+    replayed = _replay(geom, windows, np.concatenate([g["tube"] for g in live]),
+                       np.concatenate([g["nk"] for g in live]), mb)
+    cut = np.cumsum([len(g["tube"]) for g in live])[:-1]
+    parts = iter(np.split(replayed, cut))
+    return [Paths.empty(mb) if g is None else _block_finish(geom, g, tx, rx, mb, next(parts))
+            for g, rx in zip(groups, shot.radars, strict=True)]
