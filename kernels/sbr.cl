@@ -28,6 +28,10 @@ typedef float3 real3;
 #endif
 #define CLRADCOM_REAL_DEFINED 1
 #include "em.h"
+#if PRECISE_MODE == 2
+/* sight lines re-decided in float64 where float32 calls them blocked */
+#include "scene64.h"
+#endif
 
 #ifndef SPAWN_OFFSET_ROUNDOFFS
 #error "SPAWN_OFFSET_ROUNDOFFS must be passed as -D by the host"
@@ -299,6 +303,18 @@ __kernel void sbr_blocks(__global const Bvh8Node *nodes,
                          __global const pelem *tx_and_k,    /* tx position (3), wavenumber */
                          __global const int *near_first,    /* R+1: receiver r's near triangles */
                          __global const int *near_tri,
+#if PRECISE_MODE == 2
+                         /* scene64.h's face tables (tri_v, tri_n, tri_face are its
+                          * vertices, normals and faces), for the float64 sight rounds */
+                         __global const uchar *seam,
+                         __global const int *face_first,
+                         __global const int *face_tris,
+                         __global const double *face_box,
+                         const int n_faces,
+                         const int rescue_rounds,
+                         const double look_past,
+                         const double sight_hi,     /* 1 - SIGHT_STOP */
+#endif
                          const real on_face_tol_rel,   /* visibility.py: ON_FACE_TOL_REL */
                          const real inside_tol_rel,    /* visibility.py: INSIDE_TOL_REL */
                          const real confirm_tol_m,     /* visibility.py: CONFIRM_TOL_M */
@@ -333,6 +349,12 @@ __kernel void sbr_blocks(__global const Bvh8Node *nodes,
 
     SbrRecord table[SBR_GROUPS];
     int n_groups = 0, ordinal = 0;
+#if PRECISE_MODE == 2
+    Scene64 s64;
+    s64.vert = tri_v; s64.normal = tri_n; s64.tri_face = tri_face; s64.seam = seam;
+    s64.face_first = face_first; s64.face_tris = face_tris; s64.face_box = face_box;
+    s64.n_faces = n_faces; s64.inside_tol = inside_tol_rel;
+#endif
 
     for (int cell = 0; cell < SBR_CELLS; ++cell) {
         long tube = blk * SBR_CELLS + cell;
@@ -408,8 +430,20 @@ __kernel void sbr_blocks(__global const Bvh8Node *nodes,
                     /* visibility.py: surface_sees - the sight line from just off the
                      * facet, stopping SIGHT_STOP short of the antenna, the facet ignored */
                     pvec sorg = spawn(p, n_lit, sdir);
-                    PreparedRay sr = prepare_ray(pv_float3(sorg), to_float3(pv_real(pv_sub(rx, sorg))));
-                    if (bvh_any(nodes, tri4, slot_prim, &sr, 0.0f, sight_tmax, tri, -1)) continue;
+                    pvec sseg = pv_sub(rx, sorg);
+                    PreparedRay sr = prepare_ray(pv_float3(sorg), to_float3(pv_real(sseg)));
+                    if (bvh_any(nodes, tri4, slot_prim, &sr, 0.0f, sight_tmax, tri, -1)) {
+#if PRECISE_MODE == 2
+                        /* visibility.py: blocked_in_float64, the facet skipped first */
+                        if (blocked_in_float64(nodes, tri4, slot_prim, &s64, &sr, sight_tmax,
+                                               sorg.x, sorg.y, sorg.z, sseg.x, sseg.y,
+                                               sseg.z, 0.0, sight_hi, tri, rescue_rounds,
+                                               look_past))
+                            continue;
+#else
+                        continue;
+#endif
+                    }
                     int n_near = near_first[r + 1] - near_first[r];
                     if (n_near > 0) {
                         real3 ar = fabs(pv_real(rx));

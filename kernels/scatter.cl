@@ -12,8 +12,9 @@
  * Every position is double, computed with the host's operations in the host's order
  * (FP_CONTRACT is off, intersect.h), so a tile centre, a spawned origin and the float32
  * ray cast from it are the host's (clradcom/mechanisms/scattering.py: make_tiles,
- * clradcom/device/visibility.py: surface_sees) bit for bit. Only the sight casts are
- * float32, as on the host; the float64 antenna-end check stays on the host. */
+ * clradcom/device/visibility.py: surface_sees) bit for bit. The sight casts are float32
+ * with the float64 re-decision of a "blocked", as on the host; the float64 antenna-end
+ * check stays on the host. */
 #include "intersect.h"
 
 /* em.h's Fresnel coefficients, in double (scatter.cl needs fp64) */
@@ -26,6 +27,8 @@ typedef double3 real3;
 #ifndef CLRADCOM_HAS_FP64
 #error "scatter.cl needs cl_khr_fp64 (the host falls back to its numpy path without it)"
 #endif
+/* sight lines re-decided in float64 where float32 calls them blocked */
+#include "scene64.h"
 #ifndef SPAWN_OFFSET_ROUNDOFFS
 #error "SPAWN_OFFSET_ROUNDOFFS must be passed as -D by the host"
 #endif
@@ -81,10 +84,14 @@ __kernel void tile_centres(__global const Bvh8Node *nodes, __global const float4
 
 /* Does the tile centre q (normal nrm, triangle prim) see the antenna at a? The host's
  * surface_sees: origin spawned off the surface toward a (raycast.spawn_origins), float32
- * ray origin -> a, stopping at tmax (1 - SIGHT_STOP) of it, prim itself ignored. */
+ * ray origin -> a, stopping at tmax (1 - SIGHT_STOP) of it, prim itself ignored; a
+ * float32 "blocked" re-decided in float64 (scene64.h: blocked_in_float64, the segment
+ * origin -> a up to hi = 1 - SIGHT_STOP). */
 CLR_INLINE bool tile_sees(__global const Bvh8Node *nodes, __global const float4 *tri4,
-                          __global const int *slot_prim, const double *q,
-                          const double *nrm, int prim, const double *a, float tmax)
+                          __global const int *slot_prim, const Scene64 *s64,
+                          const int rounds, const double look_past, const double hi,
+                          const double *q, const double *nrm, int prim, const double *a,
+                          float tmax)
 {
     double dir[3] = {a[0] - q[0], a[1] - q[1], a[2] - q[2]};
     double m = fabs(q[0]);
@@ -102,15 +109,22 @@ CLR_INLINE bool tile_sees(__global const Bvh8Node *nodes, __global const float4 
     float3 d32 = (float3)((float)(a[0] - org[0]), (float)(a[1] - org[1]),
                           (float)(a[2] - org[2]));
     PreparedRay pr = prepare_ray(o32, d32);
-    return !bvh_any(nodes, tri4, slot_prim, &pr, 0.0f, tmax, prim, -1);
+    if (!bvh_any(nodes, tri4, slot_prim, &pr, 0.0f, tmax, prim, -1))
+        return true;
+    return !blocked_in_float64(nodes, tri4, slot_prim, s64, &pr, tmax, org[0], org[1],
+                               org[2], a[0] - org[0], a[1] - org[1], a[2] - org[2], 0.0,
+                               hi, prim, rounds, look_past);
 }
 
 /* flags[g]: bit 0 the tile's front faces tx and tx sees it, bit 1 the same for rx
  * (front: n . (end - q) > 0). all_ends == 0 (direct paths only): a tile counts only when
  * both fronts face their ends, and rx is cast only where tx sees it (bit 1 then means
  * both). all_ends == 1: each end on its own; monostatic (tx == rx) copies bit 0. */
+#define TILE_SEES(end) \
+    tile_sees(nodes, tri4, slot_prim, &s64, rounds, look_past, hi, q, nrm, p, end, tmax)
 __kernel void tile_sight(__global const Bvh8Node *nodes, __global const float4 *tri4,
-                         __global const int *slot_prim,
+                         __global const int *slot_prim, SCENE64_ARGS,
+                         const int rounds, const double look_past, const double hi,
                          __global const double *centres, __global const int *tile_tri,
                          __global const double *normals,   /* (K, 3) unit */
                          __global const int *prim,         /* (K,) scene triangle */
@@ -132,22 +146,24 @@ __kernel void tile_sight(__global const Bvh8Node *nodes, __global const float4 *
                     + nrm[2] * (rx[2] - q[2])) > 0.0;
     int p = prim[k];
     uchar out = 0;
+    SCENE64_INIT(s64);
     if (all_ends == 0) {
-        if (front_t && front_r && tile_sees(nodes, tri4, slot_prim, q, nrm, p, tx, tmax)) {
+        if (front_t && front_r && TILE_SEES(tx)) {
             out = 1;
-            if (monostatic || tile_sees(nodes, tri4, slot_prim, q, nrm, p, rx, tmax))
+            if (monostatic || TILE_SEES(rx))
                 out |= 2;
         }
     } else {
-        if (front_t && tile_sees(nodes, tri4, slot_prim, q, nrm, p, tx, tmax))
+        if (front_t && TILE_SEES(tx))
             out = 1;
         if (monostatic)
             out |= (uchar)(out << 1);
-        else if (front_r && tile_sees(nodes, tri4, slot_prim, q, nrm, p, rx, tmax))
+        else if (front_r && TILE_SEES(rx))
             out |= 2;
     }
     flags[g] = out;
 }
+#undef TILE_SEES
 
 /* Lambertian power of the tiles both ends see, rows[r] listing them in tile order (the
  * host's flatnonzero of flags == 3), for isotropic antennas and Gamma = 1:

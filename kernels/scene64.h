@@ -101,6 +101,42 @@ CLR_INLINE int contains(const Scene64 *s, int face, int guess, double px, double
     s.face_first = face_first; s.face_tris = face_tris; s.face_box = face_box;        \
     s.n_faces = n_faces; s.inside_tol = inside_tol
 
+/* visibility.py: blocked_in_float64 for one segment start + t seg (float64, t in
+ * [lo, hi]) whose float32 cast pr (up to tmax32) an any-hit called blocked: up to
+ * max_rounds closest float32 hits past lo, each crossed with its triangle's plane in
+ * float64. Blocked once a face holds a crossing; clear when no hit is left; blocked
+ * still when undecided after max_rounds. The first round ignores the triangle skip
+ * (the surface a sight line leaves; -1: none), each later one the last blocker looked
+ * past. */
+CLR_INLINE bool blocked_in_float64(__global const Bvh8Node *nodes,
+                                   __global const float4 *tri4,
+                                   __global const int *slot_prim, const Scene64 *s,
+                                   const PreparedRay *pr, float tmax32, double s0,
+                                   double s1, double s2, double g0, double g1, double g2,
+                                   double lo, double hi, int skip, int max_rounds,
+                                   double look_past)
+{
+    for (int round = 0; round < max_rounds; ++round) {
+        float t = tmax32, u, v;
+        int slot = bvh_closest(nodes, tri4, slot_prim, pr, (float)lo, &t, &u, &v, skip);
+        if (slot < 0)
+            return false;
+        int prim = slot_prim[slot];
+        __global const double *w = s->vert + 9 * prim;
+        double a0 = w[3] - w[0], a1 = w[4] - w[1], a2 = w[5] - w[2];
+        double b0 = w[6] - w[0], b1 = w[7] - w[1], b2 = w[8] - w[2];
+        double n0 = a1 * b2 - a2 * b1, n1 = a2 * b0 - a0 * b2, n2 = a0 * b1 - a1 * b0;
+        double denom = dot3(n0, n1, n2, g0, g1, g2);
+        double tc = dot3(n0, n1, n2, w[0] - s0, w[1] - s1, w[2] - s2) / denom;
+        if (isfinite(tc) && tc >= lo && tc <= hi &&
+            contains(s, s->tri_face[prim], prim, s0 + tc * g0, s1 + tc * g1, s2 + tc * g2) >= 0)
+            return true;   /* the face holds the crossing */
+        lo = fmax(lo, (double)t * look_past);
+        skip = prim;
+    }
+    return true;
+}
+
 CLR_INLINE PreparedRay prepare_packed(const Ray *ray)
 {
     return prepare_ray((float3)(ray->org[0], ray->org[1], ray->org[2]),

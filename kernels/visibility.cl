@@ -24,10 +24,9 @@
 
 /* blocked[i] = 1 where something blocks segment i: rays[i] is its float32 cast
  * (make_rays of start, seg, tmin, tmax), start/seg/tmin/tmax the same in float64.
- * ignore_prim (NULL: none) is skipped by the any-hit; with max_rounds = 0 a
- * float32 hit stands (surface_sees), otherwise it is re-decided in float64 as
- * blocked_in_float64 does, looking past a triangle whose face misses the
- * crossing, for at most max_rounds hits (then it stays blocked). */
+ * ignore_prim (NULL: none) is skipped by the any-hit and by the first float64 round (the
+ * surface a sight line leaves); with max_rounds = 0 a float32 hit stands, otherwise it
+ * is re-decided in float64 (scene64.h: blocked_in_float64). */
 __kernel void segments_blocked(__global const Bvh8Node *nodes, __global const float4 *tri4,
                                __global const int *slot_prim, SCENE64_ARGS,
                                __global const Ray *rays, __global const double *start,
@@ -41,37 +40,15 @@ __kernel void segments_blocked(__global const Bvh8Node *nodes, __global const fl
     SCENE64_INIT(s);
     Ray ray = rays[i];
     PreparedRay pr = prepare_packed(&ray);
-    if (!bvh_any(nodes, tri4, slot_prim, &pr, ray.tmin, ray.tmax,
-                 ignore_prim ? ignore_prim[i] : -1, -1)) {
+    int skip = ignore_prim ? ignore_prim[i] : -1;
+    if (!bvh_any(nodes, tri4, slot_prim, &pr, ray.tmin, ray.tmax, skip, -1)) {
         blocked[i] = 0;
         return;
     }
-    double s0 = start[3 * i], s1 = start[3 * i + 1], s2 = start[3 * i + 2];
-    double g0 = seg[3 * i], g1 = seg[3 * i + 1], g2 = seg[3 * i + 2];
-    double lo = tmin[i], hi = tmax[i];
-    int skip = -1;
-    uchar out = 1;   /* undecided after max_rounds: blocked */
-    for (int round = 0; round < max_rounds; ++round) {
-        float t = ray.tmax, u, v;
-        int slot = bvh_closest(nodes, tri4, slot_prim, &pr, (float)lo, &t, &u, &v, skip);
-        if (slot < 0) {
-            out = 0;
-            break;
-        }
-        int prim = slot_prim[slot];
-        __global const double *w = vert + 9 * prim;
-        double a0 = w[3] - w[0], a1 = w[4] - w[1], a2 = w[5] - w[2];
-        double b0 = w[6] - w[0], b1 = w[7] - w[1], b2 = w[8] - w[2];
-        double n0 = a1 * b2 - a2 * b1, n1 = a2 * b0 - a0 * b2, n2 = a0 * b1 - a1 * b0;
-        double denom = dot3(n0, n1, n2, g0, g1, g2);
-        double tc = dot3(n0, n1, n2, w[0] - s0, w[1] - s1, w[2] - s2) / denom;
-        if (isfinite(tc) && tc >= lo && tc <= hi &&
-            contains(&s, tri_face[prim], prim, s0 + tc * g0, s1 + tc * g1, s2 + tc * g2) >= 0)
-            break;   /* the face holds the crossing: blocked */
-        lo = fmax(lo, (double)t * look_past);
-        skip = prim;
-    }
-    blocked[i] = out;
+    blocked[i] = blocked_in_float64(nodes, tri4, slot_prim, &s, &pr, ray.tmax,
+                                    start[3 * i], start[3 * i + 1], start[3 * i + 2],
+                                    seg[3 * i], seg[3 * i + 1], seg[3 * i + 2], tmin[i],
+                                    tmax[i], skip, max_rounds, look_past) ? 1 : 0;
 }
 
 /* tri[i]: the triangle of face faces[i] holding end[i] where the segment

@@ -366,3 +366,47 @@ def test_near_lists_hold_the_triangles_antenna_blocked_tests(runtime):
         np.testing.assert_array_equal(first, want_first)
         np.testing.assert_array_equal(tris, want)
         assert len(tris) == 2 and set(sc.tri_object[tris]) == {1}  # the plate's two
+
+
+def test_tile_sight_past_a_rim_is_decided_in_float64(runtime):
+    """A tile centre whose sight line to tx passes a wall's rim closer than float32
+    resolution (1 km from the origin): where the float32 cast calls it blocked, the
+    kernel re-decides it in float64 as the host's surface_sees does (clear above the
+    rim, blocked below it); a float32 "clear" stands, on both engines alike."""
+    from clradcom.device.raycast import RayCaster
+    from clradcom.device.visibility import surface_sees
+
+    base = np.array([1000.0, 1000.0, 1000.0])
+    top = base[2] + 1.0
+    wall = np.array([[[0, -1, 0], [0, 1, 0], [0, 1, 1]], [[0, -1, 0], [0, 1, 1], [0, -1, 1]]],
+                    dtype=np.float64) + base
+    # one small triangle per offset, facing +x, its centroid 2 delta above the rim's
+    # height at x = -5: the line to tx (x = +5, at the rim's height) meets the wall at
+    # about delta above the rim
+    deltas = np.array([-3e-5, -1e-5, -3e-6, -1e-7, 1e-7, 3e-6, 1e-5, 3e-5])
+    facets = np.array([[[-5, -0.1, -0.1], [-5, 0.1, -0.1], [-5, 0.0, 0.2]]]) + base
+    facets = np.repeat(facets, len(deltas), axis=0)
+    facets[:, :, 2] += (top - base[2]) + 2.0 * deltas[:, None]
+    tris = np.concatenate([wall, facets])
+    caster = RayCaster(tris, runtime=runtime)
+    tri_face = np.concatenate([[0, 0], 1 + np.arange(len(deltas))])
+    tx = base + [5.0, 0.0, 1.0]
+    rx = base + [-20.0, 0.0, 1.0]   # behind the facets: only tx matters here
+    K = len(deltas)
+    normals = np.tile([1.0, 0.0, 0.0], (K, 1))
+    sight = device_scatter.tile_sight(
+        caster, facets, normals, np.ones(K), np.ones(K), 2 + np.arange(K), np.ones(K, int),
+        tx, rx, 0.0125, all_ends=True, monostatic=False, tri_face=tri_face)
+    seen = (sight.flags & device_scatter.SEES_TX) != 0
+    host = surface_sees(caster, sight.centres, normals, tx, 2 + np.arange(K),
+                        tri_face=tri_face, engine="host")
+    np.testing.assert_array_equal(seen, host)
+    c = sight.centres
+    crossing = c[:, 2] + (tx[2] - c[:, 2]) * (base[0] - c[:, 0]) / (tx[0] - c[:, 0])
+    org = spawn_origins(c, normals, tx - c)
+    rays = make_rays(org, tx - org, 0.0, 1.0 - SIGHT_STOP)
+    blocked32 = caster.occluded(rays, ignore_prim=2 + np.arange(K))
+    np.testing.assert_array_equal(seen[blocked32], (crossing > top)[blocked32])
+    np.testing.assert_array_equal(seen[~blocked32], True)
+    # some float32 "blocked" lines pass above the rim: the rescue is what sees them
+    assert np.any(blocked32 & seen)

@@ -12,14 +12,14 @@ import numpy as np
 import pytest
 from geometry_helpers import plate_tris
 
-from clradcom.device.raycast import RayCaster, make_rays
+from clradcom.device.raycast import RayCaster, make_rays, spawn_origins
 from clradcom.device.visibility import (
+    SIGHT_STOP,
     _seam_edges,
     confirm_slack,
     dot3_order,
     face_tables,
     reaches_face,
-    segments_blocked_device,
     segments_clear,
     surface_sees,
     uses_device,
@@ -160,10 +160,6 @@ def test_engine_is_checked_and_no_fp64_means_the_host():
     assert not uses_device(caster, "device")
     with pytest.raises(ArgumentError, match="engine"):
         uses_device(caster, "gpu")
-    # the float64 rounds ignore no triangle: a surface's own triangle needs no rounds
-    with pytest.raises(ArgumentError, match="max_rounds"):
-        segments_blocked_device(caster, np.zeros(1, int), np.zeros((1, 3)), np.ones((1, 3)),
-                                0.0, 1.0, ignore_prim=np.zeros(1, int))
 
 
 def _same_paths(a, b):
@@ -233,3 +229,34 @@ def test_triangles_near_an_antenna_are_the_full_scans(runtime):
             want = np.flatnonzero(np.all((ant >= lo - r) & (ant <= hi + r), axis=1))
             np.testing.assert_array_equal(visibility._boxes_near(caster, ant, r), want)
     assert len(visibility._boxes_near(caster, lo[5].copy(), 2e-3)) >= 1
+
+
+def test_surface_sight_lines_past_a_rim_are_decided_in_float64(runtime):
+    """A sight line from a facet that passes a wall's rim closer than float32 resolution
+    (1 km from the origin): a float32 "blocked" is re-decided as the float64 geometry
+    has it (clear above the rim, blocked below it), on both engines alike; a float32
+    "clear" stands (here there is none below the rim)."""
+    base = np.array([1000.0, 1000.0, 1000.0])
+    top = base[2] + 1.0
+    wall = np.array([[[0, -1, 0], [0, 1, 0], [0, 1, 1]], [[0, -1, 0], [0, 1, 1], [0, -1, 1]]],
+                    dtype=np.float64) + base
+    facet = np.array([[[-5, -1, 0], [-5, 1, 0], [-5, 0, 2]]], dtype=np.float64) + base
+    tris = np.concatenate([wall, facet])
+    caster = RayCaster(tris, runtime=runtime)
+    tri_face = np.array([0, 0, 1])
+    deltas = np.array([-3e-5, -1e-5, -3e-6, -1e-7, 1e-7, 3e-6, 1e-5, 3e-5])
+    points = np.stack([np.full(len(deltas), base[0] - 5.0), np.full(len(deltas), base[1]),
+                       top + deltas], axis=1)
+    targets = points + [10.0, 0.0, 0.0]
+    normals = np.broadcast_to([1.0, 0.0, 0.0], points.shape)
+    ignore = np.full(len(deltas), 2)
+    exact = deltas > 0   # a horizontal sight line above the wall's top rim is clear
+    for engine in ("host", "device"):
+        got = np.array([surface_sees(caster, points[i:i + 1], normals[i:i + 1], targets[i],
+                                     ignore[i:i + 1], tri_face=tri_face, engine=engine)[0]
+                        for i in range(len(deltas))])
+        np.testing.assert_array_equal(got, exact, err_msg=engine)
+    # some float32 "blocked" lines pass above the rim: the rescue is what sees them
+    org = spawn_origins(points, normals, targets - points)
+    rays = make_rays(org, targets - org, 0.0, 1.0 - SIGHT_STOP)
+    assert np.any(caster.occluded(rays, ignore_prim=ignore) & exact)

@@ -18,9 +18,13 @@ from clradcom.device.raycast import KERNEL_DEFINES, RayCaster
 from clradcom.device.visibility import (
     CONFIRM_TOL_M,
     INSIDE_TOL_REL,
+    LOOK_PAST,
     ON_FACE_TOL_REL,
+    RESCUE_ROUNDS,
     SIGHT_STOP,
     confirm_margin_m,
+    dot3_order,
+    scene64_args,
 )
 from clradcom.errors import ArgumentError
 from clradcom.geometry.silhouette import BLOCK
@@ -109,6 +113,8 @@ def _defines(max_bounces: int, precision: str) -> dict:
         out["CLRADCOM_NO_FP64"] = 1
     elif precision == CONTROL_PRECISION:
         out["CLRADCOM_PRECISE_FLOAT32"] = 1
+    else:
+        out["DOT3_ORDER"] = int(dot3_order() or 0)
     return out
 
 
@@ -233,6 +239,11 @@ def shoot_and_radiate(caster: RayCaster, scene, tri_face, windows, tx_frame, rec
             dev(np.asarray(rx_frames, np.float64).reshape(-1, 9), real),
             dev(np.asarray(tx_frame, np.float64).reshape(9), real), precise(tx_and_k),
             dev(near_first, np.int32), dev(near_tri, np.int32)]
+    if fp64:
+        # the face tables of the float64 sight rounds (kernels/scene64.h)
+        seam, face_first, face_tris, face_box, n_faces = scene64_args(caster, tri_face)[3:8]
+        bufs += [seam, face_first, face_tris, face_box, n_faces, np.int32(RESCUE_ROUNDS),
+                 np.float64(LOOK_PAST), np.float64(1.0 - SIGHT_STOP)]
     sight_tmax = np.float32(1.0 - SIGHT_STOP)
     cells = BLOCK * BLOCK
     blocks_per_batch = max(1, int(batch_tubes) // cells)

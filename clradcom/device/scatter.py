@@ -26,10 +26,14 @@ import numpy as np
 
 from clradcom.device.raycast import RayCaster
 from clradcom.device.visibility import (
+    LOOK_PAST,
     ON_FACE_TOL_REL,
+    RESCUE_ROUNDS,
     SIGHT_STOP,
     antenna_near_triangles,
     confirm_margin_m,
+    dot3_order,
+    scene64_args,
 )
 from clradcom.errors import ArgumentError
 
@@ -46,6 +50,11 @@ FIELD_COLUMNS = {"power": (0, 1), "centre": (1, 3), "length": (4, 1), "doppler":
 FIELD_WIDTH = 29
 DEFINES = {**{f"TF_{k.upper()}": v[0] for k, v in FIELD_COLUMNS.items()},
            "TILE_FIELDS": FIELD_WIDTH}
+
+
+def _defines() -> dict:
+    """DEFINES and the dot-product order of the float64 sight rounds (scene64.h)."""
+    return {**DEFINES, "DOT3_ORDER": int(dot3_order() or 0)}
 #: per traced triangle: S, K_x, eps' and -eps'' (eps_r's real and imaginary parts), PEC
 #: (0/1), the object's velocity (3), angular velocity (3, rad/s) and rotation centre (3)
 TRI_PAR_WIDTH = 14
@@ -108,7 +117,8 @@ def _xyz(name, value):
 
 def tile_sight(caster: RayCaster, vertices, normals, tile_area, scattering, prim, subdivisions,
                tx_pos, rx_pos, wavelength, *, all_ends: bool, monostatic: bool,
-               want_tiles: bool = False, fields: FieldInputs | None = None) -> TileSight:
+               want_tiles: bool = False, fields: FieldInputs | None = None,
+               tri_face=None) -> TileSight:
     """Tiles of K triangles, their sight of tx and rx and their Lambertian power.
 
     vertices (K,3,3), normals (K,3) unit, tile_area (K,) the area of one of the triangle's
@@ -118,6 +128,8 @@ def tile_sight(caster: RayCaster, vertices, normals, tile_area, scattering, prim
     their own (flags and centres come back, ``want_tiles`` implied). ``monostatic``:
     tx == rx, rx's casts are tx's. ``fields``: the rows come with their direct paths'
     fields (``tile_fields``, :attr:`TileSight.fields`; power and centre from it too).
+    ``tri_face``: the planar face of every scene triangle, against which a float32
+    "blocked" sight line is re-decided in float64 (default: every triangle its own).
     """
     import pyopencl as cl
 
@@ -159,10 +171,14 @@ def tile_sight(caster: RayCaster, vertices, normals, tile_area, scattering, prim
     d_flags = rt.empty(N)
     run = caster.run_kernel
     run(SOURCE, "tile_centres", N, d_vert, d_first, d_n, np.int32(K), np.int32(N), d_centres,
-        d_tri, defines=DEFINES)
-    run(SOURCE, "tile_sight", N, d_centres, d_tri, d_nrm, d_prim, *tx, *rx,
+        d_tri, defines=_defines())
+    if tri_face is None:
+        tri_face = np.arange(len(caster.triangles))
+    run(SOURCE, "tile_sight", N, *scene64_args(caster, tri_face), np.int32(RESCUE_ROUNDS),
+        np.float64(LOOK_PAST), np.float64(1.0 - SIGHT_STOP), d_centres, d_tri, d_nrm, d_prim,
+        *tx, *rx,
         np.float32(1.0 - SIGHT_STOP), np.int32(bool(all_ends)), np.int32(bool(monostatic)),
-        np.int32(N), d_flags, defines=DEFINES)
+        np.int32(N), d_flags, defines=_defines())
     flags = np.empty(N, dtype=np.uint8)
     cl.enqueue_copy(rt.queue, flags, d_flags, is_blocking=True)
     rows = np.flatnonzero(flags == SEES_TX | SEES_RX)  # tile order
@@ -181,7 +197,7 @@ def tile_sight(caster: RayCaster, vertices, normals, tile_area, scattering, prim
             d_power = rt.empty(R * 8)
             scale = np.float64(float(wavelength) ** 2 / (16.0 * math.pi ** 3))
             run(SOURCE, "tile_lambert", R, d_centres, d_tri, d_nrm, d_area, d_S, d_rows,
-                np.int32(R), *tx, *rx, scale, d_centre, d_power, defines=DEFINES)
+                np.int32(R), *tx, *rx, scale, d_centre, d_power, defines=_defines())
             cl.enqueue_copy(rt.queue, out.centre, d_centre, is_blocking=False)
             cl.enqueue_copy(rt.queue, out.power, d_power, is_blocking=False)
         else:
@@ -240,7 +256,7 @@ def _tile_fields(caster, fields: FieldInputs, d_centres, d_tri, within, triangle
                       dev(phases, np.float64), dev(link, np.float64),
                       dev(near_first, np.int32), dev(near_tri, np.int32),
                       data64["vertices"], data64["normals"], d_rows, np.int32(R),
-                      np.int32(mono), d_out, defines=DEFINES)
+                      np.int32(mono), d_out, defines=_defines())
     out = np.empty((R, FIELD_WIDTH), dtype=np.float64)
     cl.enqueue_copy(rt.queue, out, d_out, is_blocking=True)
     return out

@@ -290,7 +290,7 @@ def containing_triangles(points, faces, prims, triangles, tri_face):
 
 
 def blocked_in_float64(caster: RayCaster, tri_face, start, seg, tmax,
-                       max_rounds: int = RESCUE_ROUNDS, tmin=0.0):
+                       max_rounds: int = RESCUE_ROUNDS, tmin=0.0, ignore_prim=None):
     """Re-decide segments a float32 any-hit cast called blocked: (S,) bool.
 
     A segment that passes an edge closer than float32 resolution (tens of um at 1 km) may be
@@ -301,6 +301,8 @@ def blocked_in_float64(caster: RayCaster, tri_face, start, seg, tmax,
     crossing lies inside the triangle's face (:func:`containing_triangles`, so a ray
     through a seam of a tessellated wall stays blocked); otherwise it looks past that
     triangle.  Segments still undecided after ``max_rounds`` stay blocked.
+    ``ignore_prim`` (S,): a triangle the first round skips (the surface a sight line
+    leaves, as the any-hit cast skipped it).
     """
     start = np.asarray(start, dtype=np.float64)
     seg = np.asarray(seg, dtype=np.float64)
@@ -308,7 +310,8 @@ def blocked_in_float64(caster: RayCaster, tri_face, start, seg, tmax,
     blocked = np.ones(len(start), dtype=bool)
     todo = np.arange(len(start))
     tmin = np.broadcast_to(np.asarray(tmin, dtype=np.float64), (len(start),)).copy()
-    ignore = np.full(len(start), -1, dtype=np.int32)
+    ignore = (np.full(len(start), -1, dtype=np.int32) if ignore_prim is None else
+              np.broadcast_to(np.asarray(ignore_prim), (len(start),)).astype(np.int32))
     for _ in range(max_rounds):
         if len(todo) == 0:
             break
@@ -469,14 +472,11 @@ def segments_blocked_device(caster: RayCaster, tri_face, start, seg, tmin, tmax,
 
     A float32 "blocked" is re-decided on the device in float64 as
     :func:`blocked_in_float64` does (up to ``max_rounds`` blockers; 0: the float32 answer
-    stands).  ``ignore_prim`` (S,) skips the surface a segment leaves (any-hit only: it
-    needs ``max_rounds`` = 0)."""
+    stands).  ``ignore_prim`` (S,) skips the surface a segment leaves (the any-hit and
+    the first float64 round)."""
     start = np.asarray(start, dtype=np.float64)
     seg = np.asarray(seg, dtype=np.float64)
     S = len(start)
-    if ignore_prim is not None and max_rounds:
-        raise ArgumentError("the float64 rounds ignore no triangle: pass max_rounds=0 "
-                            "with ignore_prim", argument="max_rounds", value=max_rounds)
     rays = make_rays(start, seg, tmin=tmin, tmax=tmax)
     if S == 0:
         return np.zeros(0, dtype=bool)
@@ -661,8 +661,10 @@ def surface_sees(caster: RayCaster, points, normals, targets, ignore_prim, *,
     Otherwise the target is an antenna: the cast stops SIGHT_STOP of its length short
     and :func:`antenna_blocked` decides the last :func:`confirm_margin_m` in float64
     against the planar faces ``tri_face`` (default: every triangle its own face).
-    The cast is float32 on both engines (no float64 rescue yet: ``engine`` only picks
-    the kernel, :func:`segments_blocked_device` with no rounds, or the any-hit cast).
+    A float32 "blocked" is re-decided in float64 (:func:`blocked_in_float64`, the
+    surface's triangle skipped in its first round; on the device in the same launch,
+    :func:`segments_blocked_device`), against the faces ``tri_face``: a sight line that
+    grazes a rim within float32 rounding is decided as the float64 geometry has it.
     """
     points = np.asarray(points, dtype=np.float64)
     targets = np.asarray(targets, dtype=np.float64)
@@ -677,9 +679,15 @@ def surface_sees(caster: RayCaster, points, normals, targets, ignore_prim, *,
     ignore = np.asarray(ignore_prim).astype(np.int32)
     if uses_device(caster, engine):
         sees = ~segments_blocked_device(caster, tri_face, org, sight, 0.0, 1.0 - stop,
-                                        ignore_prim=ignore, max_rounds=0)
+                                        ignore_prim=ignore)
     else:
         sees = ~caster.occluded(make_rays(org, sight, 0.0, 1.0 - stop), ignore_prim=ignore)
+        if not sees.all():
+            b = ~sees
+            tmax = np.broadcast_to(1.0 - stop, (len(org),))
+            sees[b] = ~blocked_in_float64(caster, np.asarray(tri_face), org[b], sight[b],
+                                          tmax[b], ignore_prim=np.broadcast_to(
+                                              ignore, (len(org),))[b])
     if stop_short_m is None and sees.any():
         # the target is an antenna: what lies just before it is decided in float64
         t = np.broadcast_to(targets, org.shape)

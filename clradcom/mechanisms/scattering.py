@@ -340,7 +340,7 @@ def reflection_legs(geom, end, q, nrm, tri_ids, tiles, face_ids, lo, hi):
     if len(idx):
         good[idx] = surface_sees(geom.caster, q[tile[idx]], nrm[tile[idx]], p[idx],
                                  tri_ids[tile[idx]], stop_short_m=confirm_margin_m(p[idx]),
-                                 engine=geom.engine)
+                                 tri_face=geom.faces.tri_face, engine=geom.engine)
     return tile[good], face[good], p[good], img[good], prim[good].astype(np.int64)
 
 
@@ -408,7 +408,8 @@ def _device_tiles(geom, st, size, seed, mask, tx_pos, rx_pos, monostatic):
     S = scene.material_scattering[scene.tri_material[tri_sel]]
     sight = device_scatter.tile_sight(geom.caster, tris[k], nrm_t[k], tile_area[k], S[k],
                                       tri_sel[k], ns[k], tx_pos, rx_pos, scene.wavelength_m,
-                                      all_ends=True, monostatic=monostatic)
+                                      all_ends=True, monostatic=monostatic,
+                                      tri_face=geom.faces.tri_face)
     first_k = np.concatenate([[0], np.cumsum(ns[k] * ns[k])])
     j = np.searchsorted(first_k, np.arange(len(sight.flags)), side="right") - 1
     kk, glob = k[j], first[k[j]] + (np.arange(len(sight.flags)) - first_k[j])
@@ -523,7 +524,8 @@ def _device_direct_paths(geom, tx, rx, st, size, seed, mask, tx_pos, rx_pos, mon
         rx_velocity=rx.velocity, tx_frame=tx.orientation, rx_frame=rx.orientation)
     sight = device_scatter.tile_sight(geom.caster, tris[k], nrm_t[k], tile_area[k], S,
                                       tid_k, ns[k], tx_pos, rx_pos, scene.wavelength_m,
-                                      all_ends=False, monostatic=monostatic, fields=inputs)
+                                      all_ends=False, monostatic=monostatic, fields=inputs,
+                                      tri_face=geom.faces.tri_face)
     F = sight.fields
 
     def col(name, rows=slice(None)):
