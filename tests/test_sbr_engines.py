@@ -446,3 +446,54 @@ def test_double_float_engine_keeps_phases_1_km_from_the_origin(runtime, carrier)
         assert c.n_paths == h.n_paths
         bad = np.degrees(np.angle(c.gain[strong] / h.gain[strong]))
         assert np.abs(bad).max() > 1.0, bad
+
+
+def test_tube_sight_past_a_rim_is_decided_in_float64_on_both_engines(runtime):
+    """A tube hit whose sight line to the receiver passes a screen's rim by less than
+    float32 resolution, 1 km from the origin: where the float32 cast calls it blocked,
+    the SBR kernel re-decides it in float64 as the host's surface_sees does (the line
+    passes above the rim: seen), and the two engines' block sums stay equal."""
+    from test_po_sbr import quad, tri_object
+
+    from clradcom.device.raycast import make_rays, spawn_origins
+    from clradcom.device.visibility import SIGHT_STOP, surface_sees
+
+    base = np.array([1000.0, 1000.0, 1000.0])
+    X, Y, Z = np.eye(3)
+    plate = tri_object("plate", [quad(base - 0.1 * Y - 0.1 * Z, 0.2 * Y, 0.2 * Z, 1, 1, X)])
+    tx_pos, rx_pos = base + 5.0 * X, base + 5.0 * X + 5.0 * Y + 2.0 * Z
+    radars = [tx_pos, rx_pos]
+    scene = scene_of([plate], radars)
+    geom = build_geometry(scene, runtime, engine="host")
+    tx = scene.radars[0]
+    windows = sbr.blocks_in_pattern(sbr.launch_windows(
+        geom, tx.position, [0], sbr.object_spacing_m(geom, [0], 0.5, 0.5)), tx)
+    grid, owned = sbr.window_tubes(windows, np.arange(windows.n_tubes))
+    hits = sbr.shoot_tubes(geom, tx.position, grid, 1, 1, np.ones(2, bool))
+    rescued = 0
+    for k in np.linspace(0, len(hits.point) - 1, 4).astype(int):
+        p0 = hits.point[k]
+        org = spawn_origins(p0[None], X[None], (rx_pos - p0)[None])[0]
+        seg = rx_pos - org
+        mid = org + 0.5 * seg
+        across = np.cross(seg, Z)
+        across /= np.linalg.norm(across)
+        for delta in (1e-7, 1e-6, 3e-6):
+            # a screen across the sight line at its middle, its top rim delta below it
+            top = mid - delta * Z
+            screen = tri_object("screen", [quad(top - 0.3 * across - 0.3 * Z, 0.6 * across,
+                                                0.3 * Z, 1, 1, seg)])
+            sc = scene_of([plate, screen], radars)
+            geoms = both_engines(sc, runtime)
+            got = shots(geoms, sc.radars[0], [0], [sc.radars[1]], spacing_wavelengths=0.5,
+                        max_bounces=1, first_bounce=1)
+            assert_same_sums(got["host"].sums, got["device"].sums)
+            caster = geoms["host"].caster
+            ray = make_rays(org[None], seg[None], 0.0, 1.0 - SIGHT_STOP)
+            blocked32 = caster.occluded(ray, ignore_prim=np.array([hits.triangle[k]]))[0]
+            seen = surface_sees(caster, p0[None], X[None], rx_pos,
+                                np.array([hits.triangle[k]]), leave_direction=seg[None],
+                                tri_face=geoms["host"].faces.tri_face, engine="host")[0]
+            assert seen   # the float64 line passes above the rim
+            rescued += bool(blocked32)
+    assert rescued > 0   # some of these lines the float32 cast alone would have blocked
