@@ -16,6 +16,7 @@ from clradcom.device.raycast import RayCaster, make_rays, spawn_origins
 from clradcom.device.visibility import (
     SIGHT_STOP,
     _seam_edges,
+    confirm_paths,
     confirm_slack,
     dot3_order,
     face_tables,
@@ -207,6 +208,26 @@ def test_street_specular_confirmation_alike(device_ok):
         assert np.array_equal(a.points, b.points, equal_nan=True)
         kept += a.n_paths
     assert kept > 5
+    # every order of a link confirmed in one batch is each order confirmed on its own
+    rx = scene.radars[1]
+    per_order, rows = [], []
+    for k, seqs in cands.items():
+        pts, ok = specular.image_points(tx.position, rx.position, geom.faces.normal,
+                                        geom.faces.offset, seqs)
+        per_order.append(confirm_paths(geom.caster, geom.faces.tri_face, geom.faces.normal,
+                                       pts, seqs, ok))
+        pad = np.full((len(seqs), 5, 3), np.nan)
+        pad[:, :k + 2] = pts
+        rows.append((pad, np.pad(seqs, ((0, 0), (0, 3 - k)), constant_values=-1), ok,
+                     np.full(len(seqs), k)))
+    pts, seqs, ok, n = (np.concatenate(x) for x in zip(*rows, strict=True))
+    keep, tris = confirm_paths(geom.caster, geom.faces.tri_face, geom.faces.normal, pts,
+                               seqs, ok, n_interactions=n)
+    np.testing.assert_array_equal(keep, np.concatenate([a for a, _ in per_order]))
+    assert keep.sum() >= 3 and len(set(n[keep].tolist())) >= 2   # paths of several orders
+    bounds = np.cumsum([0] + [len(a) for a, _ in per_order])
+    for (_, t), k, lo, hi in zip(per_order, cands, bounds[:-1], bounds[1:], strict=True):
+        np.testing.assert_array_equal(tris[lo:hi, :k], t)
     # the seam table on a sample of the street's triangles is the host's
     T = len(scene.triangles)
     t = np.random.default_rng(0).choice(T, 200, replace=False)

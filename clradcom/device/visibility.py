@@ -603,7 +603,8 @@ def confirm_segments(caster: RayCaster, tri_face, start, end, length, *, face, t
 
 
 def confirm_paths(caster: RayCaster, tri_face, face_normals, points: np.ndarray,
-                  seqs: np.ndarray, ok: np.ndarray | None = None, engine: str = "device"):
+                  seqs: np.ndarray, ok: np.ndarray | None = None, engine: str = "device",
+                  n_interactions: np.ndarray | None = None):
     """Mask of candidate paths whose every segment is confirmed by a ray cast.
 
     Returns (keep (C,) bool, triangles (C, k) int32): the scene triangle each
@@ -615,8 +616,11 @@ def confirm_paths(caster: RayCaster, tri_face, face_normals, points: np.ndarray,
     (:func:`segments_clear`). Segments leave reflection points from just off
     the face, on the side they leave into. The casts leave out the
     :func:`confirm_margin_m` next to the transmitter (points[:, 0]) and the
-    receiver (points[:, -1]); :func:`antenna_blocked` decides those in float64.
-    ``engine``: see :func:`segments_clear`.
+    receiver (the path's last point); :func:`antenna_blocked` decides those in float64.
+    ``n_interactions`` (C,): candidates of several orders at once, row c holding
+    n_interactions[c] <= k reflections (its receiver at points[c, n + 1], seqs[c, :n]
+    its faces; the rest padding): each segment index is confirmed for every row in one
+    batch. Default: every row has k. ``engine``: see :func:`segments_clear`.
     """
     tri_face = np.asarray(tri_face)
     C, k2, _ = points.shape
@@ -625,8 +629,11 @@ def confirm_paths(caster: RayCaster, tri_face, face_normals, points: np.ndarray,
     triangles = np.full((C, k), -1, dtype=np.int32)
     if C == 0:
         return keep, triangles
+    n_row = (np.full(C, k, dtype=np.int64) if n_interactions is None
+             else np.asarray(n_interactions, dtype=np.int64))
     idx = np.flatnonzero(keep)
     for i in range(k + 1):
+        idx = idx[n_row[idx] >= i]
         if len(idx) == 0:
             break
         start = points[idx, i]
@@ -637,12 +644,21 @@ def confirm_paths(caster: RayCaster, tri_face, face_normals, points: np.ndarray,
             tmin = 0.0
         else:  # leaving the transmitter
             tmin = antenna_slack(start, length)
-        good, tri = confirm_segments(caster, tri_face, start, end, length,
-                                     face=seqs[idx, i] if i < k else None, tmin=tmin,
-                                     stop=confirm_slack(end, length), at_tx=i == 0,
-                                     at_rx=i == k, engine=engine)
-        if i < k:
-            triangles[idx, i] = tri
+        last = n_row[idx] == i
+        tmin = np.broadcast_to(tmin, (len(idx),))
+        good = np.zeros(len(idx), dtype=bool)
+        for part, face in ((~last, seqs[idx, i] if i < k else None), (last, None)):
+            if not part.any():
+                continue
+            rows = np.flatnonzero(part)
+            g, tri = confirm_segments(caster, tri_face, start[rows], end[rows], length[rows],
+                                      face=None if face is None else face[rows],
+                                      tmin=tmin[rows], stop=confirm_slack(end[rows],
+                                                                          length[rows]),
+                                      at_tx=i == 0, at_rx=face is None, engine=engine)
+            good[rows] = g
+            if tri is not None:
+                triangles[idx[rows], i] = tri
         keep[idx[~good]] = False
         idx = idx[good]
     triangles[~keep] = -1

@@ -371,40 +371,38 @@ def specular_paths(geom: Geometry, tx_pos, rx_pos, candidates, line_of_sight=Tru
     tx_pos = np.asarray(tx_pos, dtype=np.float64)
     rx_pos = np.asarray(rx_pos, dtype=np.float64)
     k_max = max(candidates.keys(), default=0)
+    # every candidate of the link (the line of sight first, then the orders ascending)
+    # padded to k_max reflections, confirmed in one batch per segment index
     blocks = []
     if line_of_sight and np.linalg.norm(rx_pos - tx_pos) > 0:
-        pts = np.stack([tx_pos, rx_pos])[None]
-        if geom.caster is None:  # free space: nothing can block it
-            keep = np.ones(1, dtype=bool)
-        else:
-            keep, _ = confirm_paths(geom.caster, geom.faces.tri_face, geom.faces.normal,
-                                       pts, np.zeros((1, 0), dtype=np.int32),
-                                       engine=geom.engine)
-        if keep[0]:
-            blocks.append((pts, np.zeros((1, 0), np.int32), np.zeros((1, 0), np.int32)))
+        blocks.append((np.stack([tx_pos, rx_pos])[None], np.zeros((1, 0), np.int32),
+                       np.ones(1, dtype=bool)))
     for k in sorted(candidates):
         seqs = candidates[k]
-        if len(seqs) == 0:
-            continue
-        pts, ok = image_points(tx_pos, rx_pos, geom.faces.normal, geom.faces.offset, seqs,
-                               runtime=geom.runtime if geom.engine == "device" else None)
-        keep, tris = confirm_paths(geom.caster, geom.faces.tri_face, geom.faces.normal,
-                                      pts, seqs, ok, engine=geom.engine)
-        if keep.any():
-            blocks.append((pts[keep], seqs[keep], tris[keep]))
+        if len(seqs):
+            pts, ok = image_points(tx_pos, rx_pos, geom.faces.normal, geom.faces.offset, seqs,
+                                   runtime=geom.runtime if geom.engine == "device" else None)
+            blocks.append((pts, seqs, ok))
     P = sum(len(b[0]) for b in blocks)
     points = np.full((P, k_max + 2, 3), np.nan)
     n_int = np.zeros(P, dtype=np.int16)
     faces = np.full((P, k_max), -1, dtype=np.int32)
-    triangles = np.full((P, k_max), -1, dtype=np.int32)
+    ok = np.zeros(P, dtype=bool)
     row = 0
-    for pts, seqs, tris in blocks:
+    for pts, seqs, good in blocks:
         n, k = len(pts), seqs.shape[1]
         points[row:row + n, :k + 2] = pts
         n_int[row:row + n] = k
         faces[row:row + n, :k] = seqs
-        triangles[row:row + n, :k] = tris
+        ok[row:row + n] = good
         row += n
+    if geom.caster is None:  # free space: nothing can block the line of sight
+        keep, triangles = ok & (n_int == 0), np.full((P, k_max), -1, dtype=np.int32)
+    else:
+        keep, triangles = confirm_paths(geom.caster, geom.faces.tri_face, geom.faces.normal,
+                                        points, faces, ok, engine=geom.engine,
+                                        n_interactions=n_int)
+    points, n_int, faces, triangles = points[keep], n_int[keep], faces[keep], triangles[keep]
     return PathGeometry(points=points, n_interactions=n_int, faces=faces, triangles=triangles)
 
 
