@@ -116,56 +116,41 @@ CLR_INLINE float3 lattice_direction(__global const double *lattice, const size_t
                     (float)(l0 * r20 + l1 * r21 + l2 * r22));
 }
 
+/* The arguments every kernel over a rotated launch lattice starts with: the BVH, the
+ * faces, the origin, the lattice (N, 3) and its rotation r (row major), the first ray
+ * of the batch and the most reflections; LATTICE_DIRECTION is work item gid's ray. */
+#define ROTATED_LATTICE_ARGS                                                            \
+    __global const Bvh8Node *nodes, __global const float4 *tri_verts,                   \
+    __global const int *tri_index, __global const int *tri_face,                        \
+    const float ox, const float oy, const float oz, __global const double *lattice,     \
+    const double r00, const double r01, const double r02, const double r10,             \
+    const double r11, const double r12, const double r20, const double r21,             \
+    const double r22, const int first, const int max_order
+#define LATTICE_DIRECTION(gid)                                                          \
+    lattice_direction(lattice, (size_t)first + (gid), r00, r01, r02, r10, r11, r12, r20, \
+                      r21, r22)
+
 /* trace_reflections of the rays of a launch lattice rotated on the device
  * (lattice_direction). The lattice stays on the device between transmitters and
  * traces. */
-__kernel void trace_reflections_rotated(__global const Bvh8Node *nodes,
-                                        __global const float4 *tri_verts,
-                                        __global const int *tri_index,
-                                        __global const int *tri_face,
-                                        const float ox, const float oy, const float oz,
-                                        __global const double *lattice,
-                                        const double r00, const double r01, const double r02,
-                                        const double r10, const double r11, const double r12,
-                                        const double r20, const double r21, const double r22,
-                                        const int first,
-                                        const int max_order,
-                                        __global int *face_seq,
+__kernel void trace_reflections_rotated(ROTATED_LATTICE_ARGS, __global int *face_seq,
                                         const int n_rays)
 {
     int gid = get_global_id(0);
     if (gid >= n_rays) return;
-    float3 dir = lattice_direction(lattice, (size_t)first + gid, r00, r01, r02, r10, r11,
-                                   r12, r20, r21, r22);
-    follow_ray(nodes, tri_verts, tri_index, tri_face, (float3)(ox, oy, oz), dir, max_order,
-               face_seq + (size_t)gid * max_order);
+    follow_ray(nodes, tri_verts, tri_index, tri_face, (float3)(ox, oy, oz),
+               LATTICE_DIRECTION(gid), max_order, face_seq + (size_t)gid * max_order);
 }
 
 /* trace_reflections_rotated writing each ray's exact sequence key (follow_ray_key)
  * instead of its faces: one long per ray for the host's de-duplication. */
-__kernel void trace_reflection_keys_rotated(__global const Bvh8Node *nodes,
-                                            __global const float4 *tri_verts,
-                                            __global const int *tri_index,
-                                            __global const int *tri_face,
-                                            const float ox, const float oy, const float oz,
-                                            __global const double *lattice,
-                                            const double r00, const double r01,
-                                            const double r02, const double r10,
-                                            const double r11, const double r12,
-                                            const double r20, const double r21,
-                                            const double r22,
-                                            const int first,
-                                            const int max_order,
-                                            const long base,
-                                            __global long *keys,
-                                            const int n_rays)
+__kernel void trace_reflection_keys_rotated(ROTATED_LATTICE_ARGS, const long base,
+                                            __global long *keys, const int n_rays)
 {
     int gid = get_global_id(0);
     if (gid >= n_rays) return;
-    float3 dir = lattice_direction(lattice, (size_t)first + gid, r00, r01, r02, r10, r11,
-                                   r12, r20, r21, r22);
     keys[gid] = follow_ray_key(nodes, tri_verts, tri_index, tri_face, (float3)(ox, oy, oz),
-                               dir, max_order, base);
+                               LATTICE_DIRECTION(gid), max_order, base);
 }
 
 #ifdef cl_khr_int64_base_atomics
@@ -179,21 +164,7 @@ __kernel void trace_reflection_keys_rotated(__global const Bvh8Node *nodes,
  * reads every ray's key instead (the set is not complete). Key 0 (no face) is left
  * out: it proposes no candidate. */
 #define KEY_SET_MAX_PROBES 64
-__kernel void collect_reflection_keys_rotated(__global const Bvh8Node *nodes,
-                                              __global const float4 *tri_verts,
-                                              __global const int *tri_index,
-                                              __global const int *tri_face,
-                                              const float ox, const float oy,
-                                              const float oz,
-                                              __global const double *lattice,
-                                              const double r00, const double r01,
-                                              const double r02, const double r10,
-                                              const double r11, const double r12,
-                                              const double r20, const double r21,
-                                              const double r22,
-                                              const int first,
-                                              const int max_order,
-                                              const long base,
+__kernel void collect_reflection_keys_rotated(ROTATED_LATTICE_ARGS, const long base,
                                               const int table_bits,
                                               __global volatile long *table,
                                               __global volatile int *overflow,
@@ -201,10 +172,8 @@ __kernel void collect_reflection_keys_rotated(__global const Bvh8Node *nodes,
 {
     int gid = get_global_id(0);
     if (gid >= n_rays) return;
-    float3 dir = lattice_direction(lattice, (size_t)first + gid, r00, r01, r02, r10, r11,
-                                   r12, r20, r21, r22);
     long key = follow_ray_key(nodes, tri_verts, tri_index, tri_face, (float3)(ox, oy, oz),
-                              dir, max_order, base);
+                              LATTICE_DIRECTION(gid), max_order, base);
     if (key == 0) return;
     ulong mask = ((ulong)1 << table_bits) - 1;
     ulong slot = ((ulong)key * 0x9E3779B97F4A7C15UL) >> (64 - table_bits);
