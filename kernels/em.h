@@ -163,4 +163,29 @@ EM_INLINE cvec3 material_reflect_field(real3 k, real3 n, __global const real *mf
     return reflect_field(k, n, c_scale(r_te, rho), c_scale(r_tm, rho), f);
 }
 
+/* em.py: _antenna_basis_world - theta_hat, phi_hat of an antenna frame R (row-major, its
+ * columns the local axes in world) at world direction d, in world; and the local
+ * direction d R (unnormalised, as the host passes it to the pattern). The cosines and
+ * sines of theta = acos(z) and phi = atan2(y, x) come from the components, without the
+ * trigonometry (six calls of double libm per call were a tenth of the SBR kernel); on
+ * the axis atan2(+-0, x) is 0 or pi: cos phi = +-1 by the sign of x. */
+EM_INLINE void antenna_frame_basis(real3 d, __global const real *R, real3 *loc, real3 *th,
+                                   real3 *ph)
+{
+    real3 dl = (real3)((d.x * R[0] + d.y * R[3]) + d.z * R[6],
+                       (d.x * R[1] + d.y * R[4]) + d.z * R[7],
+                       (d.x * R[2] + d.y * R[5]) + d.z * R[8]);
+    *loc = dl;
+    dl /= sqrt(dot(dl, dl));
+    real ct = fmin(fmax(dl.z, (real)-1.0), (real)1.0);
+    real st = sqrt(dl.x * dl.x + dl.y * dl.y);
+    real cp = (st > 0.0) ? dl.x / st : (signbit(dl.x) ? (real)-1.0 : (real)1.0);
+    real sp = (st > 0.0) ? dl.y / st : (real)0.0;
+    real3 t = (real3)(ct * cp, ct * sp, -st), p = (real3)(-sp, cp, (real)0.0);
+    *th = (real3)(dot((real3)(R[0], R[1], R[2]), t), dot((real3)(R[3], R[4], R[5]), t),
+                  dot((real3)(R[6], R[7], R[8]), t));
+    *ph = (real3)(dot((real3)(R[0], R[1], R[2]), p), dot((real3)(R[3], R[4], R[5]), p),
+                  dot((real3)(R[6], R[7], R[8]), p));
+}
+
 #endif

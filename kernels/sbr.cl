@@ -183,27 +183,11 @@ typedef struct {
     int tri[SBR_TRI_SLOTS];  /* the representative's triangles */
 } SbrRecord;
 
-/* em.py: _antenna_basis_world - theta_hat, phi_hat of an antenna frame (columns of R
- * are its local axes in world, row-major) at world direction d, in world */
+/* em.h: antenna_frame_basis without the local direction */
 inline void antenna_basis(real3 d, __global const real *R, real3 *th, real3 *ph)
 {
-    real3 dl = (real3)(d.x * R[0] + d.y * R[3] + d.z * R[6],
-                       d.x * R[1] + d.y * R[4] + d.z * R[7],
-                       d.x * R[2] + d.y * R[5] + d.z * R[8]);
-    real nrm = sqrt(dot(dl, dl));
-    dl /= nrm;
-    /* cos and sin of theta = acos(z) and phi = atan2(y, x) (the host's angles), without
-     * the trigonometry: six calls of double libm per call were a tenth of the kernel */
-    real ct = fmin(fmax(dl.z, -1.0), 1.0);
-    real st = sqrt(dl.x * dl.x + dl.y * dl.y);
-    /* on the axis atan2(+-0, x) is 0 or pi: cos phi = +-1 by the sign of x */
-    real cp = (st > 0.0) ? dl.x / st : (signbit(dl.x) ? -1.0 : 1.0);
-    real sp = (st > 0.0) ? dl.y / st : 0.0;
-    real3 t = (real3)(ct * cp, ct * sp, -st), p = (real3)(-sp, cp, 0.0);
-    *th = (real3)(dot((real3)(R[0], R[1], R[2]), t), dot((real3)(R[3], R[4], R[5]), t),
-                  dot((real3)(R[6], R[7], R[8]), t));
-    *ph = (real3)(dot((real3)(R[0], R[1], R[2]), p), dot((real3)(R[3], R[4], R[5]), p),
-                  dot((real3)(R[6], R[7], R[8]), p));
+    real3 loc;
+    antenna_frame_basis(d, R, &loc, th, ph);
 }
 
 /* visibility.py: antenna_blocked for one segment antenna -> other: a triangle of the

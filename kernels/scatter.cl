@@ -238,29 +238,6 @@ CLR_INLINE void te_tm(double3 k, double3 n, double3 *te, double3 *tm)
     *tm = cross(*te, k);
 }
 
-/* em.py: _antenna_basis_world - theta_hat, phi_hat of an antenna frame R (row-major, its
- * columns the local axes in world) at world direction d, in world; and the local
- * direction d R (unnormalised, as the host passes it to the pattern). The cosines and
- * sines of theta and phi from the components, as kernels/sbr.cl: antenna_basis. */
-CLR_INLINE void frame_basis(double3 d, __global const double *R, double3 *loc, double3 *th,
-                            double3 *ph)
-{
-    double3 dl = (double3)((d.x * R[0] + d.y * R[3]) + d.z * R[6],
-                           (d.x * R[1] + d.y * R[4]) + d.z * R[7],
-                           (d.x * R[2] + d.y * R[5]) + d.z * R[8]);
-    *loc = dl;
-    dl /= sqrt(dot(dl, dl));
-    double ct = fmin(fmax(dl.z, -1.0), 1.0);
-    double st = sqrt(dl.x * dl.x + dl.y * dl.y);
-    double cp = (st > 0.0) ? dl.x / st : (signbit(dl.x) ? -1.0 : 1.0);
-    double sp = (st > 0.0) ? dl.y / st : 0.0;
-    double3 t = (double3)(ct * cp, ct * sp, -st), p = (double3)(-sp, cp, 0.0);
-    *th = (double3)(dot((double3)(R[0], R[1], R[2]), t), dot((double3)(R[3], R[4], R[5]), t),
-                    dot((double3)(R[6], R[7], R[8]), t));
-    *ph = (double3)(dot((double3)(R[0], R[1], R[2]), p), dot((double3)(R[3], R[4], R[5]), p),
-                    dot((double3)(R[6], R[7], R[8]), p));
-}
-
 /* Might visibility.py: antenna_blocked call the segment ant -> other blocked? Only a
  * triangle of the antenna's near list (within the radius of it, the antenna off its
  * plane: chosen on the host) whose plane the segment crosses strictly between its ends
@@ -387,13 +364,13 @@ __kernel void tile_fields(__global const Bvh8Node *nodes, __global const float4 
     o[TF_FRESNEL + 3] = r_tm.y;
 
     double3 d_tx, th_t, ph_t, d_rx, th_r, ph_r;
-    frame_basis(ki, lk + 12, &d_tx, &th_t, &ph_t);
+    antenna_frame_basis(ki, lk + 12, &d_tx, &th_t, &ph_t);
     if (monostatic) {   /* rx is tx: -s = ki bit for bit (rx - q = -(q - tx), r_s = r_i) */
         d_rx = d_tx;
         th_r = th_t;
         ph_r = ph_t;
     } else {
-        frame_basis(-s, lk + 21, &d_rx, &th_r, &ph_r);
+        antenna_frame_basis(-s, lk + 21, &d_rx, &th_r, &ph_r);
     }
     o[TF_TX_DIR] = d_tx.x;
     o[TF_TX_DIR + 1] = d_tx.y;
