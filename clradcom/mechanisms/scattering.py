@@ -51,7 +51,7 @@ from clradcom.device.visibility import (
     reaches_face,
     surface_sees,
 )
-from clradcom.errors import ArgumentError, NearFieldWarning
+from clradcom.errors import ArgumentError
 from clradcom.geometry.triangles import (
     point_triangle_distance,
     triangle_areas,
@@ -171,6 +171,18 @@ def choose_tile_size(wavelength, distance, accuracy=DEFAULT_ACCURACY):
         raise ArgumentError("wavelength, distance and accuracy must be > 0")
     dphi = math.sqrt(45.0 * acc / 4.0)
     return math.sqrt(2.0 * lam * R * dphi / math.pi)
+
+
+def _power_weighted_gamma(e_te, e_tm, r_te, r_tm) -> np.ndarray:
+    """|Gamma| of a tile for the incident field's TE/TM components e_te, e_tm and the
+    Fresnel coefficients r_te, r_tm: the power-weighted sqrt((|r_te e_te|^2 +
+    |r_tm e_tm|^2) / (|e_te|^2 + |e_tm|^2)), the mean of the two powers where no field
+    arrives."""
+    p_in = np.abs(e_te) ** 2 + np.abs(e_tm) ** 2
+    some = p_in > 0
+    g2 = np.where(some, (np.abs(r_te * e_te) ** 2 + np.abs(r_tm * e_tm) ** 2)
+                  / np.where(some, p_in, 1.0), 0.5 * (np.abs(r_te) ** 2 + np.abs(r_tm) ** 2))
+    return np.sqrt(g2)
 
 
 def _te_basis(k, n):
@@ -553,17 +565,12 @@ def _device_direct_paths(geom, tx, rx, st, size, seed, mask, tx_pos, rx_pos, mon
     e_te = c_tx[:, 0] * proj[:, 0] + c_tx[:, 1] * proj[:, 1]
     e_tm = c_tx[:, 0] * proj[:, 2] + c_tx[:, 1] * proj[:, 3]
     r_te, r_tm = fres[:, 0], fres[:, 1]
-    p_in = np.abs(e_te) ** 2 + np.abs(e_tm) ** 2
-    g2 = np.where(p_in > 0,
-                  (np.abs(r_te * e_te) ** 2 + np.abs(r_tm * e_tm) ** 2) / np.where(p_in > 0,
-                                                                               p_in, 1.0),
-                  0.5 * (np.abs(r_te) ** 2 + np.abs(r_tm) ** 2))
-    gamma = np.sqrt(g2)
+    gamma = _power_weighted_gamma(e_te, e_tm, r_te, r_tm)
     M0 = col("matrix").view(np.complex128)  # (P, 4): VV, VH, HV, HH for Gamma = 1
     gain = gamma * (c_rx[:, 0] * (M0[:, 0] * c_tx[:, 0] + M0[:, 1] * c_tx[:, 1])
                     + c_rx[:, 1] * (M0[:, 2] * c_tx[:, 0] + M0[:, 3] * c_tx[:, 1]))
     L = col("length")
-    _check_lengths(L, scene.wavelength_m)
+    em.check_path_lengths(L, scene.wavelength_m, stacklevel=3)
     mag = np.abs(gain)
     thr = 10.0 ** (-abs(float(threshold_db)) / 20.0)
     top = float(np.abs(reference_gain)) if reference_gain is not None else mag.max()
@@ -582,18 +589,6 @@ def _device_direct_paths(geom, tx, rx, st, size, seed, mask, tx_pos, rx_pos, mon
                   points=pts, object_id=scene.tri_object[tid][:, None],
                   face_id=tid[:, None])
     return paths, int(P - m)
-
-
-def _check_lengths(L, wavelength):
-    """:func:`clradcom.physics.em.polarimetric_matrix`'s checks of path lengths L (m)."""
-    if np.any(~np.isfinite(L)) or np.any(L <= 0):
-        raise ArgumentError("path lengths L must be finite and > 0")
-    short = L < wavelength
-    if short.any():
-        i = int(np.argmin(L))
-        warnings.warn(f"{int(short.sum())} path(s) shorter than a wavelength (L[{i}] = "
-                      f"{L[i]!r} m < lambda = {wavelength!r} m): the far-field spreading "
-                      "lambda/(4 pi L) does not hold there", NearFieldWarning, stacklevel=4)
 
 
 def _mirror_dyads(scene, faces, face, k_in):
@@ -810,12 +805,7 @@ def _path_rows(geom, tx, rx, q, area, nrm, tri_ids, phases, cols):
     te, tm = _te_basis(ki, nt)
     e_te = np.einsum("pi,pi->p", e_w, te)
     e_tm = np.einsum("pi,pi->p", e_w, tm)
-    p_in = np.abs(e_te) ** 2 + np.abs(e_tm) ** 2
-    g2 = np.where(p_in > 0,
-                  (np.abs(r_te * e_te) ** 2 + np.abs(r_tm * e_tm) ** 2) / np.where(p_in > 0,
-                                                                               p_in, 1.0),
-                  0.5 * (np.abs(r_te) ** 2 + np.abs(r_tm) ** 2))
-    gamma = np.sqrt(g2)
+    gamma = _power_weighted_gamma(e_te, e_tm, r_te, r_tm)
 
     T, L, _, _ = tile_transfer(qt, area[tile], nt, im1, im2, S_mat[mat], gamma,
                                scene.material_cross_pol_share[mat], phases[tile])

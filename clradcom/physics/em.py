@@ -47,6 +47,7 @@ from clradcom.scene.antenna import directions_to_angles, theta_phi_unit_vectors
 
 __all__ = [
     "C0",
+    "check_path_lengths",
     "ROUGHNESS_AMENT",
     "ROUGHNESS_BOITHIAS",
     "fresnel_coefficients",
@@ -391,6 +392,24 @@ def _antenna_basis_world(directions_world, orientation):
     return d_loc, th @ R.T, ph @ R.T
 
 
+def check_path_lengths(L, wavelength: float, stacklevel: int = 2) -> None:
+    """Refuse path lengths L (m) that are not finite and positive; warn
+    (:class:`NearFieldWarning`; ``stacklevel`` as warnings.warn would take it where this
+    is called) of those shorter than a wavelength: 1/L is finite for any L > 0, but
+    below a wavelength it is not a field any more (|a| > 1 below lambda/(4 pi)), so say
+    so rather than hand back a silent number."""
+    L = np.asarray(L, dtype=np.float64)
+    if np.any(~np.isfinite(L)) or np.any(L <= 0):
+        raise ArgumentError("path lengths L must be finite and > 0")
+    short = L < wavelength
+    if short.any():
+        i = int(np.argmin(L))
+        warnings.warn(f"{int(short.sum())} path(s) shorter than a wavelength (L[{i}] = "
+                      f"{L[i]!r} m < lambda = {wavelength!r} m): the far-field spreading "
+                      "lambda/(4 pi L) does not hold there", NearFieldWarning,
+                      stacklevel=stacklevel + 1)
+
+
 def polarimetric_matrix(T, L, k_dep, k_arr, tx_orientation, rx_orientation, carrier_hz):
     """2x2 polarimetric matrix per path without antenna patterns (eqs. P5, P6)::
 
@@ -416,17 +435,8 @@ def polarimetric_matrix(T, L, k_dep, k_arr, tx_orientation, rx_orientation, carr
     L = np.asarray(L, dtype=np.float64).reshape(-1)
     if T.ndim != 3 or T.shape[1:] != (3, 3) or T.shape[0] != L.shape[0]:
         raise ArgumentError(f"T must be (P,3,3) and L (P,), got {T.shape} and {L.shape}")
-    if np.any(~np.isfinite(L)) or np.any(L <= 0):
-        raise ArgumentError("path lengths L must be finite and > 0")
     lam = C0 / float(carrier_hz)
-    short = L < lam
-    if short.any():
-        # 1/L is finite for any L > 0, but below a wavelength it is not a field any more
-        # (|a| > 1 below lambda/(4 pi)): say so rather than hand back a silent number
-        i = int(np.argmin(L))
-        warnings.warn(f"{int(short.sum())} path(s) shorter than a wavelength (L[{i}] = "
-                      f"{L[i]!r} m < lambda = {lam!r} m): the far-field spreading "
-                      "lambda/(4 pi L) does not hold there", NearFieldWarning, stacklevel=3)
+    check_path_lengths(L, lam, stacklevel=3)
     _, th_t, ph_t = _antenna_basis_world(k_dep, tx_orientation)
     _, th_r, ph_r = _antenna_basis_world(-np.asarray(k_arr, dtype=np.float64), rx_orientation)
     b_tx = np.stack([th_t, ph_t], axis=-1)  # (P,3,2)
