@@ -40,7 +40,6 @@ def cover_blocks_many(runtime: Runtime, setup: dict | None, block_size, origin, 
     """(size,) bool: :func:`clradcom.geometry.silhouette.cover_blocks_many` of the same
     arguments, its pair tests on ``runtime``'s device in one launch when they number
     ``min_pairs`` or more and the device has fp64."""
-    import pyopencl as cl
 
     if setup is None:
         return np.zeros(int(size), dtype=bool)
@@ -48,14 +47,23 @@ def cover_blocks_many(runtime: Runtime, setup: dict | None, block_size, origin, 
         return host.cover_blocks_many(setup, block_size, origin, ny, offset, size)
     n = len(setup["nrm"])
     mask = np.zeros(int(size), dtype=np.uint8)
-    kernel = runtime.kernel(SOURCE, "block_cover")
-    mf = cl.mem_flags
     args = [_in(runtime, setup[k], dt) for k, dt in (
         ("nrm", np.float64), ("off", np.float64), ("radius", np.float64),
         ("lo", np.int64), ("cnt", np.int64), ("window", np.int64))]
     args += [_in(runtime, origin, np.float64), _in(runtime, block_size, np.float64),
              _in(runtime, ny, np.int64), _in(runtime, offset, np.int64)]
-    out = cl.Buffer(runtime.context, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=mask)
+    return _raster(runtime, "block_cover", args, n, mask)
+
+
+def _raster(runtime: Runtime, kernel_name: str, args, n: int, mask: np.ndarray) -> np.ndarray:
+    """Launch a raster kernel of silhouette.cl over n work items, its arguments ``args``
+    then the count and the uint8 ``mask`` it marks (uploaded with its contents), and
+    return the mask as bool."""
+    import pyopencl as cl
+
+    kernel = runtime.kernel(SOURCE, kernel_name)
+    out = cl.Buffer(runtime.context, cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR,
+                    hostbuf=mask)
     with runtime.kernel_clock():
         kernel(runtime.queue, (-(-n // LOCAL) * LOCAL,), (LOCAL,), *args, np.int32(n), out)
         cl.enqueue_copy(runtime.queue, mask, out, is_blocking=True)
@@ -126,16 +134,10 @@ def cover_xy_many(runtime: Runtime, tri_xy, window, block_size, origin, shape, o
     mask = np.zeros(int(size), dtype=np.uint8)
     if n == 0 or size == 0:
         return mask.view(bool)
-    kernel = runtime.kernel(SOURCE, "block_cover_xy")
-    mf = cl.mem_flags
     args = [xy_buf, _in(runtime, window, np.int64),
             _in(runtime, origin, np.float64), _in(runtime, block_size, np.float64),
             _in(runtime, shape, np.int64), _in(runtime, offset, np.int64)]
-    out = cl.Buffer(runtime.context, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=mask)
-    with runtime.kernel_clock():
-        kernel(runtime.queue, (-(-n // LOCAL) * LOCAL,), (LOCAL,), *args, np.int32(n), out)
-        cl.enqueue_copy(runtime.queue, mask, out, is_blocking=True)
-    return mask.view(bool)
+    return _raster(runtime, "block_cover_xy", args, n, mask)
 
 
 def project_windows(runtime: Runtime, triangles, window, frame, eye):
