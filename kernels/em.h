@@ -133,9 +133,15 @@ EM_INLINE cvec3 cv_zero(void)
     return r;
 }
 
-/* D f for em.py: reflection_dyad D = r_te e_perp e_perp^T + r_tm e_par_r e_par_i^T
- * at unit k, n, applied to a field f without forming the matrix */
-EM_INLINE cvec3 reflect_field(real3 k, real3 n, cplx r_te, cplx r_tm, cvec3 f)
+/* em.py: reflection_dyad D = r_te e_perp e_perp^T + r_tm e_par_r e_par_i^T at unit k, n,
+ * kept as its pieces: made once per reflection and applied to any number of fields
+ * (reflect) without forming the matrix. */
+typedef struct {
+    real3 e_perp, e_par_i, e_par_r;
+    cplx r_te, r_tm;
+} Reflection;
+
+EM_INLINE Reflection reflection_at(real3 k, real3 n, cplx r_te, cplx r_tm)
 {
     real kn = dot(k, n);
     if (kn > 0.0) n = -n;
@@ -143,24 +149,34 @@ EM_INLINE cvec3 reflect_field(real3 k, real3 n, cplx r_te, cplx r_tm, cvec3 f)
     real3 k_r = k - 2.0 * kn * n;
     real3 x = cross(k, n);
     real sx = sqrt(dot(x, x));
-    real3 e_perp = (sx < EM_NORMAL_INCIDENCE_TOL) ? perpendicular(n) : x / sx;
-    real3 e_par_i = cross(e_perp, k);
-    real3 e_par_r = cross(e_perp, k_r);
-    cvec3 r = cv_axpy(c_mul(r_te, cv_dot_real(f, e_perp)), e_perp, cv_zero());
-    return cv_axpy(c_mul(r_tm, cv_dot_real(f, e_par_i)), e_par_r, r);
+    Reflection R;
+    R.e_perp = (sx < EM_NORMAL_INCIDENCE_TOL) ? perpendicular(n) : x / sx;
+    R.e_par_i = cross(R.e_perp, k);
+    R.e_par_r = cross(R.e_perp, k_r);
+    R.r_te = r_te;
+    R.r_tm = r_tm;
+    return R;
 }
 
-/* em.py: material_reflection_dyad applied to f: Fresnel x roughness x specular share
- * sqrt(1 - S^2). mf = (eps re, eps im, sigma_h, sqrt(1 - S^2)), mi = (pec, roughness
- * model). */
-EM_INLINE cvec3 material_reflect_field(real3 k, real3 n, __global const real *mf,
-                                       __global const int *mi, real k0, cvec3 f)
+/* D f */
+EM_INLINE cvec3 reflect(const Reflection *R, cvec3 f)
+{
+    cvec3 r = cv_axpy(c_mul(R->r_te, cv_dot_real(f, R->e_perp)), R->e_perp, cv_zero());
+    return cv_axpy(c_mul(R->r_tm, cv_dot_real(f, R->e_par_i)), R->e_par_r, r);
+}
+
+/* em.py: material_reflection_dyad: Fresnel x roughness x specular share sqrt(1 - S^2).
+ * mf = (eps re, eps im, sigma_h, sqrt(1 - S^2)), mi = (pec, roughness model). */
+EM_INLINE Reflection material_reflection(real3 k, real3 n, __global const real *mf,
+                                         __global const int *mi, real k0)
 {
     real cos_t = fabs(dot(k, n));
     cplx r_te, r_tm;
     fresnel((cplx)(mf[0], mf[1]), cos_t, mi[0], &r_te, &r_tm);
-    real rho = roughness_factor(mf[2], cos_t, k0, mi[1]) * mf[3];
-    return reflect_field(k, n, c_scale(r_te, rho), c_scale(r_tm, rho), f);
+    /* a smooth surface's factor is exactly 1 (exp(-0), i0e(0)): no libm call */
+    real rough = (mf[2] == 0.0) ? (real)1.0 : roughness_factor(mf[2], cos_t, k0, mi[1]);
+    real rho = rough * mf[3];
+    return reflection_at(k, n, c_scale(r_te, rho), c_scale(r_tm, rho));
 }
 
 /* em.py: _antenna_basis_world - theta_hat, phi_hat of an antenna frame R (row-major, its

@@ -400,8 +400,9 @@ __kernel void sbr_blocks(__global const Bvh8Node *nodes,
                 int pec = mi[0];
                 cvec3 Df_t = f_t, Df_p = f_p;
                 if (!pec) {
-                    Df_t = material_reflect_field(d, n_lit, mf, mi, k0, f_t);
-                    Df_p = material_reflect_field(d, n_lit, mf, mi, k0, f_p);
+                    Reflection refl = material_reflection(d, n_lit, mf, mi, k0);
+                    Df_t = reflect(&refl, f_t);
+                    Df_p = reflect(&refl, f_p);
                 }
                 for (int r = 0; r < n_rx; ++r) {
                     pvec rx = pv_load(rx_pos + 3 * r);
@@ -516,8 +517,10 @@ __kernel void sbr_blocks(__global const Bvh8Node *nodes,
                 }
             }
             if (m == max_bounces) break;
-            f_t = material_reflect_field(d, n, mf, mi, k0, f_t);
-            f_p = material_reflect_field(d, n, mf, mi, k0, f_p);
+            /* one reflection's coefficients and basis for both polarisations */
+            Reflection refl = material_reflection(d, n, mf, mi, k0);
+            f_t = reflect(&refl, f_t);
+            f_p = reflect(&refl, f_p);
             d = d - 2.0 * dn * n;
             e1 = e1 - 2.0 * dot(e1, n) * n;
             e2 = e2 - 2.0 * dot(e2, n) * n;
