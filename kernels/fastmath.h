@@ -13,34 +13,28 @@
 #ifdef CLR_INLINE_BUILTINS
 #define CLR_INL static inline __attribute__((overloadable, always_inline))
 #pragma OPENCL FP_CONTRACT OFF
-CLR_INL float clr_dot(float3 a, float3 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
-CLR_INL float3 clr_cross(float3 a, float3 b)
-{
-    return (float3)(a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x);
-}
-CLR_INL float clr_fabs(float a) { return __builtin_fabsf(a); }
-CLR_INL float3 clr_fabs(float3 a)
-{
-    return (float3)(__builtin_fabsf(a.x), __builtin_fabsf(a.y), __builtin_fabsf(a.z));
-}
-CLR_INL float clr_sqrt(float a) { return __builtin_sqrtf(a); }
-CLR_INL float clr_fmax(float a, float b) { return __builtin_fmaxf(a, b); }
-CLR_INL float clr_fmin(float a, float b) { return __builtin_fminf(a, b); }
+/* The set for one floating type T (vector T3), its scalar builtins' suffix SFX (f for
+ * float, none for double). */
+#define CLR_BUILTINS(T, T3, SFX)                                                        \
+    CLR_INL T clr_dot(T3 a, T3 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }         \
+    CLR_INL T3 clr_cross(T3 a, T3 b)                                                    \
+    {                                                                                   \
+        return (T3)(a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x); \
+    }                                                                                   \
+    CLR_INL T clr_fabs(T a) { return __builtin_fabs##SFX(a); }                          \
+    CLR_INL T3 clr_fabs(T3 a)                                                           \
+    {                                                                                   \
+        return (T3)(__builtin_fabs##SFX(a.x), __builtin_fabs##SFX(a.y),                 \
+                    __builtin_fabs##SFX(a.z));                                          \
+    }                                                                                   \
+    CLR_INL T clr_sqrt(T a) { return __builtin_sqrt##SFX(a); }                          \
+    CLR_INL T clr_fmax(T a, T b) { return __builtin_fmax##SFX(a, b); }                  \
+    CLR_INL T clr_fmin(T a, T b) { return __builtin_fmin##SFX(a, b); }
+CLR_BUILTINS(float, float3, f)
 #ifdef cl_khr_fp64
-CLR_INL double clr_dot(double3 a, double3 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
-CLR_INL double3 clr_cross(double3 a, double3 b)
-{
-    return (double3)(a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x);
-}
-CLR_INL double clr_fabs(double a) { return __builtin_fabs(a); }
-CLR_INL double3 clr_fabs(double3 a)
-{
-    return (double3)(__builtin_fabs(a.x), __builtin_fabs(a.y), __builtin_fabs(a.z));
-}
-CLR_INL double clr_sqrt(double a) { return __builtin_sqrt(a); }
-CLR_INL double clr_fmax(double a, double b) { return __builtin_fmax(a, b); }
-CLR_INL double clr_fmin(double a, double b) { return __builtin_fmin(a, b); }
+CLR_BUILTINS(double, double3, )
 #endif
+#undef CLR_BUILTINS
 #pragma OPENCL FP_CONTRACT ON
 #undef dot
 #undef cross
