@@ -165,6 +165,7 @@ class RayCaster:
     def _launch(self, kernel_name, rays, ignore_prim, out_dtype):
         import pyopencl as cl
 
+        self._check_ready()
         rays = np.ascontiguousarray(rays, dtype=RAY_DTYPE)
         n = len(rays)
         out = np.empty(n, dtype=out_dtype)
@@ -220,6 +221,7 @@ class RayCaster:
         ``defines``; calls are serialised by the caster's lock and finish before return,
         their wall time counted in ``runtime.kernel_seconds``.
         """
+        self._check_ready()
         if global_size <= 0:
             return
         rt = self.runtime
@@ -279,6 +281,7 @@ class RayCaster:
         """
         import pyopencl as cl
 
+        self._check_ready()
         directions = np.asarray(directions)
         if max_order < 1:
             return np.zeros((len(directions), 0), dtype=np.int32)
@@ -357,6 +360,7 @@ class RayCaster:
         has 2^``table_bits`` slots (default: a quarter of the rays' count, at least
         2^12)."""
         local, r = self._check_lattice(local, rotation)
+        self._check_key_base(tri_face, max_order, base)
         rt = self.runtime
         if (rt.info.has_double and "cl_khr_int64_base_atomics" in rt.queue.device.extensions
                 and len(local)):
@@ -373,7 +377,6 @@ class RayCaster:
             overflow = np.zeros(1, dtype=np.int32)
             overflow_buf = cl.Buffer(rt.context, cl.mem_flags.READ_WRITE
                                      | cl.mem_flags.COPY_HOST_PTR, hostbuf=overflow)
-            self._check_key_base(tri_face, max_order, base)
             self._rotated_launch("collect_reflection_keys_rotated", origin, local, r,
                                  tri_face, (np.int32(max_order), np.int64(base),
                                             np.int32(bits), table_buf, overflow_buf),
@@ -395,6 +398,10 @@ class RayCaster:
                                 f"({n_faces}) and base^max_order < 2^63", argument="base",
                                 value=(base, max_order))
 
+    def _check_ready(self) -> None:
+        """Raise where the caster cannot cast yet (InstancedCaster: before its first
+        place()); every launch passes here."""
+
     @staticmethod
     def _check_lattice(local, rotation):
         local = np.asarray(local)
@@ -415,6 +422,7 @@ class RayCaster:
         is the same array."""
         import pyopencl as cl
 
+        self._check_ready()
         rt = self.runtime
         kernel = rt.kernel("reflect.cl", kernel_name, defines=self._defines())
         o = np.asarray(origin, dtype=np.float64)
@@ -592,31 +600,7 @@ class InstancedCaster(RayCaster):
         self.last_times = {"boxes": t1 - t0, "tlas": t2 - t1, "upload": t3 - t2,
                            "derived": time.perf_counter() - t3}
 
-    def _launch(self, kernel_name, rays, ignore_prim, out_dtype):
-        self._check_placed()
-        return super()._launch(kernel_name, rays, ignore_prim, out_dtype)
-
-    def run_kernel(self, *args, **kwargs) -> None:
-        self._check_placed()
-        return super().run_kernel(*args, **kwargs)
-
-    def specular_sequences(self, *args, **kwargs) -> np.ndarray:
-        self._check_placed()
-        return super().specular_sequences(*args, **kwargs)
-
-    def lattice_sequences(self, *args, **kwargs) -> np.ndarray:
-        self._check_placed()
-        return super().lattice_sequences(*args, **kwargs)
-
-    def lattice_keys(self, *args, **kwargs) -> np.ndarray:
-        self._check_placed()
-        return super().lattice_keys(*args, **kwargs)
-
-    def lattice_key_set(self, *args, **kwargs) -> np.ndarray:
-        self._check_placed()
-        return super().lattice_key_set(*args, **kwargs)
-
-    def _check_placed(self):
+    def _check_ready(self) -> None:
         if not self._placed:
             raise ArgumentError("place() the parts before casting", argument="caster",
                                 value="unplaced")
