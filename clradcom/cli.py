@@ -51,7 +51,13 @@ from clradcom.commands.options import (
     run_tool,
     seed,
 )
-from clradcom.device.runtime import ENV_DEVICE, choose_device, list_devices
+from clradcom.device.runtime import (
+    ENV_DEVICE,
+    ENV_FP64,
+    VENDOR_NAMES,
+    choose_device,
+    list_devices,
+)
 from clradcom.presets import DEFAULT_PRESET, PRESETS
 from clradcom.trace import TraceSettings
 
@@ -63,12 +69,17 @@ __all__ = ["TOOL_ERRORS", "finite_float", "float_in", "int_in", "list_of", "main
 def _cmd_devices(args) -> int:
     infos = list_devices()
     chosen = choose_device(args.device)
-    print("OpenCL devices (select with --device P:D, 'gpu', 'cpu', a name fragment,")
-    print(f"or the environment variable {ENV_DEVICE}):")
+    names = ", ".join(VENDOR_NAMES)
+    print(f"OpenCL devices (select with --device NAME ({names}), P:D, 'gpu', 'cpu', a")
+    print(f"name fragment, or the environment variable {ENV_DEVICE}; {ENV_FP64}=0 runs any")
+    print("device as one without fp64):")
     for info in infos:
         mark = "*" if info == chosen else " "
         print(f" {mark} {info.describe()}")
-    print(f"default: [{chosen.spec}] {chosen.device_name.strip()}")
+    what = "chosen" if args.device else "default"
+    print(f"{what}: [{chosen.spec}] {chosen.vendor} {chosen.device_name.strip()}")
+    if any(i.simulator for i in infos) and not chosen.simulator:
+        print("(Oclgrind, a simulator, runs only when asked for: --device oclgrind)")
     return 0
 
 

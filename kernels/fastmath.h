@@ -10,6 +10,8 @@
 #ifndef CLRADCOM_FASTMATH_H
 #define CLRADCOM_FASTMATH_H
 
+#include "fp64.h"
+
 #ifdef CLR_INLINE_BUILTINS
 #define CLR_INL static inline __attribute__((overloadable, always_inline))
 #pragma OPENCL FP_CONTRACT OFF
@@ -31,7 +33,7 @@
     CLR_INL T clr_fmax(T a, T b) { return __builtin_fmax##SFX(a, b); }                  \
     CLR_INL T clr_fmin(T a, T b) { return __builtin_fmin##SFX(a, b); }
 CLR_BUILTINS(float, float3, f)
-#ifdef cl_khr_fp64
+#ifdef CLRADCOM_FP64
 CLR_BUILTINS(double, double3, )
 #endif
 #undef CLR_BUILTINS

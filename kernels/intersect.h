@@ -47,8 +47,7 @@
 #error "LEAF_GROUP_BITS must be passed as -D by the host"
 #endif
 
-#ifdef cl_khr_fp64
-#pragma OPENCL EXTENSION cl_khr_fp64 : enable
+#ifdef CLRADCOM_FP64   /* fp64.h, through fastmath.h */
 #define CLRADCOM_HAS_FP64 1
 #endif
 
@@ -71,7 +70,9 @@
 #define MAXF(a, b) ((a) > (b) ? (a) : (b))
 #define ABSF(a) ((a) < 0.0f ? -(a) : (a))
 
-#if defined(__has_builtin)
+/* CLR_NO_TARGET_BUILTINS (the host sets it for Oclgrind, whose interpreter cannot run
+ * llvm.cttz or the AVX mask builtin) keeps to OpenCL C's own builtins. */
+#if defined(__has_builtin) && !defined(CLR_NO_TARGET_BUILTINS)
 #if __has_builtin(__builtin_ctz)
 #define CLR_CTZ(x) __builtin_ctz(x)
 #endif
@@ -82,7 +83,8 @@
 
 /* The hit mask of eight box tests: one vmovmskps on an AVX CPU (PoCL), ~10%
  * faster traversal than the portable OR-reduction every other device gets. */
-#if defined(__AVX__) && defined(__has_builtin) && !defined(CLR_NO_MOVMSK)
+#if defined(__AVX__) && defined(__has_builtin) && !defined(CLR_NO_MOVMSK) \
+    && !defined(CLR_NO_TARGET_BUILTINS)
 #if __has_builtin(__builtin_ia32_movmskps256)
 #define CLR_MOVMSK8 1
 #endif

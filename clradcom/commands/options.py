@@ -28,7 +28,12 @@ from pathlib import Path
 import numpy as np
 
 from clradcom.commands.console import WarningLog, progress_bar, trace_steps
-from clradcom.device.runtime import OpenCLError, get_runtime
+from clradcom.device.runtime import (
+    OpenCLError,
+    describe_cl_error,
+    get_runtime,
+    last_device_label,
+)
 from clradcom.distributed import TaskError
 from clradcom.errors import (
     ArgumentError,
@@ -211,6 +216,25 @@ def run_tool(tool: str, body: Callable[..., int], *args, **kwargs) -> int:
         print(f"{tool}: interrupted; the output folder was left as it was",
               file=sys.stderr)
         return 130
+    except Exception as exc:
+        # an OpenCL failure that no launch site named: still one line, never a traceback
+        message = opencl_failure(exc)
+        if message is None:
+            raise
+        print(f"{tool}: {message}", file=sys.stderr)
+        return 2
+
+
+def opencl_failure(exc: BaseException) -> str | None:
+    """One line for a pyopencl error that reached the top of a command (None for anything
+    else): the status and what to try, the device being the one the run chose."""
+    try:
+        import pyopencl as cl
+    except ImportError:  # pragma: no cover - a hard dependency
+        return None
+    if not isinstance(exc, cl.Error):
+        return None
+    return describe_cl_error(exc, last_device_label(), "call")
 
 
 # ----------------------------------------------------------------------------------------

@@ -9,8 +9,20 @@ Device choice, in order of precedence:
 5. any other CPU device.
 
 A spec is ``"gpu"``, ``"cpu"``, ``"P:D"`` (platform and device index as
-``clradcom devices`` lists them), or a case-insensitive substring of the
-platform or device name (``"pocl"``, ``"nvidia"``, ``"H100"``).
+``clradcom devices`` lists them), one of the implementation names people type
+(:data:`VENDOR_NAMES`: ``pocl``, ``intel``, ``nvidia``, ``amd``, ``oclgrind``), or
+a case-insensitive substring of the platform or device name (``"H100"``). The
+default order never picks Oclgrind: it is a simulator that calls itself a GPU, and
+runs only where a user asks for it by name.
+
+Devices without fp64 are first-class: every kernel builds in a mode without
+double (precise.h's double-float for what becomes a phase). ``Runtime(fp64=False)``
+or ``CLRADCOM_FP64=0`` forces that mode on any device (``-D CLRADCOM_NO_FP64=1`` on
+every build, ``info.has_double`` False), so the tests run it on PoCL and Intel.
+
+Every OpenCL failure (build, kernel creation, launch, out of resources, memory)
+becomes an :class:`OpenCLError` of one line naming the device, the kernel and what
+to try (:func:`describe_cl_error`, :meth:`Runtime.guard`).
 
 Kernel sources live in ``kernels/`` (installed as ``clradcom.kernels``) and
 are read through :mod:`importlib.resources`, so an installed copy finds them.
@@ -37,6 +49,19 @@ import numpy as np
 from clradcom.errors import ArgumentError
 
 ENV_DEVICE = "CLRADCOM_DEVICE"
+#: "0" (or "off", "no", "false") forces the no-fp64 mode on every runtime made without an
+#: explicit ``fp64``; anything else (or unset) uses fp64 where the device has it
+ENV_FP64 = "CLRADCOM_FP64"
+
+#: The OpenCL implementations known by a short name (``--device NAME``): what each one's
+#: platform or vendor string holds, lower case.
+VENDOR_NAMES = {
+    "pocl": ("portable computing language", "pocl"),
+    "intel": ("intel(r) opencl", "intel(r) corporation", "intel"),
+    "nvidia": ("nvidia",),
+    "amd": ("amd accelerated parallel processing", "advanced micro devices", "amd"),
+    "oclgrind": ("oclgrind",),
+}
 
 INSTALL_HINT = (
     "No OpenCL platform was found. clradcom needs one OpenCL device; the simplest is "
@@ -60,15 +85,30 @@ class DeviceInfo:
     compute_units: int
     global_mem_bytes: int
     has_double: bool
+    #: the short name of its implementation (:data:`VENDOR_NAMES`), else the platform's
+    #: first word in lower case
+    vendor: str = ""
+    max_work_group_size: int = 1
+    int64_atomics: bool = False
 
     @property
     def spec(self) -> str:
         return f"{self.platform_index}:{self.device_index}"
 
+    @property
+    def simulator(self) -> bool:
+        """Oclgrind: never a default, only by name."""
+        return self.vendor == "oclgrind"
+
+    @property
+    def label(self) -> str:
+        """``name (platform)``: how messages name the device."""
+        return f"{self.device_name.strip()} ({self.platform_name.strip()})"
+
     def describe(self) -> str:
         fp64 = "fp64" if self.has_double else "no fp64"
         return (
-            f"[{self.spec}] {self.device_type:<5} {self.device_name.strip()} "
+            f"[{self.spec}] {self.vendor:<8} {self.device_type:<5} {self.device_name.strip()} "
             f"({self.platform_name.strip()}; {self.compute_units} CUs, "
             f"{self.global_mem_bytes / 2**30:.1f} GiB, {fp64})"
         )
@@ -104,6 +144,32 @@ def _platforms():
     return platforms
 
 
+def vendor_name(platform_name: str, vendor: str = "") -> str:
+    """The short name (:data:`VENDOR_NAMES`) of the implementation whose platform is
+    ``platform_name`` (``vendor``: the platform's or device's vendor string), else the
+    platform name's first word in lower case."""
+    text = f"{platform_name} | {vendor}".lower()
+    # the platform name decides first: PoCL's CPU device reports the CPU's vendor (Intel)
+    for name, marks in VENDOR_NAMES.items():
+        if any(m in platform_name.lower() for m in marks):
+            return name
+    for name, marks in VENDOR_NAMES.items():
+        if any(m in text for m in marks):
+            return name
+    words = platform_name.strip().lower().split()
+    return words[0] if words else "opencl"
+
+
+def _query(device, name: str, default):
+    """One clGetDeviceInfo query, ``default`` where the implementation does not answer it
+    (OpenCL 1.2 simulators refuse some later queries)."""
+    cl = _cl()
+    try:
+        return getattr(device, name)
+    except (cl.Error, AttributeError):
+        return default
+
+
 def list_devices() -> list[DeviceInfo]:
     """Every OpenCL device on every platform, in the order specs index them."""
     cl = _cl()
@@ -114,6 +180,7 @@ def list_devices() -> list[DeviceInfo]:
         except cl.Error:
             devices = []
         for d_index, device in enumerate(devices):
+            extensions = str(_query(device, "extensions", ""))
             infos.append(
                 DeviceInfo(
                     platform_index=p_index,
@@ -123,7 +190,12 @@ def list_devices() -> list[DeviceInfo]:
                     device_type=_type_name(device),
                     compute_units=int(device.max_compute_units),
                     global_mem_bytes=int(device.global_mem_size),
-                    has_double=bool(device.double_fp_config),
+                    has_double="cl_khr_fp64" in extensions
+                    or bool(_query(device, "double_fp_config", 0)),
+                    vendor=vendor_name(platform.name, f"{_query(platform, 'vendor', '')} "
+                                                      f"{_query(device, 'vendor', '')}"),
+                    max_work_group_size=int(_query(device, "max_work_group_size", 1)),
+                    int64_atomics="cl_khr_int64_base_atomics" in extensions,
                 )
             )
     if not infos:
@@ -132,9 +204,7 @@ def list_devices() -> list[DeviceInfo]:
 
 
 def _is_pocl(info: DeviceInfo) -> bool:
-    return "portable computing language" in info.platform_name.lower() or (
-        "pocl" in info.platform_name.lower()
-    )
+    return info.vendor == "pocl"
 
 
 def choose_device(spec: str | None = None) -> DeviceInfo:
@@ -152,8 +222,10 @@ def choose_device(spec: str | None = None) -> DeviceInfo:
             lambda i: True,
         ):
             for info in infos:
-                if rule(info):
+                if rule(info) and not info.simulator:
                     return info
+        # nothing but a simulator: it is all there is
+        return infos[0]
     text = spec.strip()
     low = text.lower()
     if re.fullmatch(r"\d+:\d+", text):
@@ -163,7 +235,11 @@ def choose_device(spec: str | None = None) -> DeviceInfo:
                 return info
     elif low in ("gpu", "cpu"):
         for info in infos:
-            if info.device_type == low.upper():
+            if info.device_type == low.upper() and not info.simulator:
+                return info
+    elif low in VENDOR_NAMES:
+        for info in infos:
+            if info.vendor == low:
                 return info
     else:
         for info in infos:
@@ -172,7 +248,8 @@ def choose_device(spec: str | None = None) -> DeviceInfo:
     seen = "\n  ".join(i.describe() for i in infos)
     raise OpenCLError(
         f"{source}={spec!r} matches no OpenCL device. Devices seen:\n  {seen}\n"
-        "Use 'gpu', 'cpu', 'P:D' or part of a platform or device name."
+        f"Use {', '.join(repr(n) for n in VENDOR_NAMES)}, 'gpu', 'cpu', 'P:D' or part of a "
+        "platform or device name."
     )
 
 
@@ -224,11 +301,79 @@ def define_options(defines: Mapping[str, int] | None) -> tuple[str, ...]:
     return tuple(options)
 
 
-def _format_build_log(name: str, log: str) -> str:
-    lines = [ln for ln in log.splitlines() if ln.strip()]
+#: what to try after each kind of OpenCL failure, by the error code's name
+_HINTS = {
+    "OUT_OF_RESOURCES": "ask for less work per launch (fewer --rays, a coarser "
+                        "--sbr-spacing) or pick another device (--device pocl)",
+    "MEM_OBJECT_ALLOCATION_FAILURE": "ask for less (fewer --rays, a coarser --sbr-spacing) "
+                                     "or pick a device with more memory",
+    "OUT_OF_HOST_MEMORY": "ask for less (fewer --rays, a coarser --sbr-spacing)",
+    "INVALID_WORK_GROUP_SIZE": "this is a clradcom bug (a work-group size the device "
+                               "refuses); please report it, and use --device pocl meanwhile",
+    "INVALID_KERNEL_NAME": "the installed kernels do not match this clradcom; reinstall it",
+}
+_DEFAULT_HINT = "try another device (clradcom devices lists them; --device pocl is the CPU)"
+
+
+def _error_code_name(exc) -> str:
+    """The OpenCL status name (``OUT_OF_RESOURCES``) of a pyopencl error, or ''."""
+    code = getattr(exc, "code", None)
+    if code is None and exc.args:
+        code = getattr(exc.args[0], "code", None)
+    try:
+        from pyopencl import status_code
+
+        for name in dir(status_code):
+            if not name.startswith("_") and getattr(status_code, name) == code:
+                return name
+    except ImportError:  # pragma: no cover
+        pass
+    return ""
+
+
+def describe_cl_error(exc, device: str, what: str) -> str:
+    """One line for a pyopencl error ``exc`` raised while doing ``what`` (``"launch of
+    kernel sbr_bounce (sbr.cl)"``) on ``device``: the status, the driver's words and what
+    to try."""
+    code = _error_code_name(exc)
+    words = " ".join(str(getattr(exc, "what", None) or exc).split())
+    hint = _HINTS.get(code, _DEFAULT_HINT)
+    status = f"{code}: " if code and code not in words else ""
+    return f"OpenCL {what} failed on {device}: {status}{words}; {hint}"
+
+
+def _save_build_log(name: str, device: str, options, log: str) -> str:
+    """The whole compiler log in a file of its own (a temporary folder), for the one-line
+    message to point at; '' where it cannot be written."""
+    import tempfile
+
+    try:
+        fd, path = tempfile.mkstemp(prefix=f"clradcom-build-{name.replace('.', '_')}-",
+                                    suffix=".log")
+        with os.fdopen(fd, "w") as fh:
+            fh.write(f"device: {device}\noptions: {' '.join(options)}\n\n{log}\n")
+        return path
+    except OSError:
+        return ""
+
+
+def _format_build_log(name: str, log: str, device: str = "", options=()) -> str:
+    lines = [ln.strip() for ln in log.splitlines() if ln.strip()]
     located = [ln for ln in lines if re.search(r"[\w.]+\.(cl|h):\d+", ln)]
-    head = located[0] if located else (lines[0] if lines else "(empty log)")
-    return f"OpenCL build of kernels/{name} failed at {head}\n--- compiler log ---\n{log}"
+    errors = [ln for ln in located if "error" in ln.lower()] or located
+    head = errors[0] if errors else (lines[0] if lines else "(empty log)")
+    where = f" on {device}" if device else ""
+    path = _save_build_log(name, device, options, log)
+    saved = f" (compiler log: {path})" if path else ""
+    return (f"OpenCL build of kernels/{name} failed{where} at {head}{saved}; "
+            f"{_DEFAULT_HINT}")
+
+
+def _fp64_wanted(fp64: bool | None) -> bool:
+    if fp64 is not None:
+        return bool(fp64)
+    value = os.environ.get(ENV_FP64, "").strip().lower()
+    return value not in ("0", "off", "no", "false")
 
 
 class Runtime:
@@ -238,19 +383,33 @@ class Runtime:
     runtime, from enqueue to finish (the ray caster's :meth:`kernel_clock` blocks):
     what a benchmark compares with a whole trace's time to see the share spent in
     kernels.
+
+    ``fp64=False`` (or ``CLRADCOM_FP64=0`` when ``fp64`` is None) runs the device as one
+    without fp64: :attr:`info`'s ``has_double`` is False and every build gets
+    ``-D CLRADCOM_NO_FP64=1``; :attr:`device_has_double` keeps what the hardware has.
     """
 
-    def __init__(self, spec: str | None = None):
+    def __init__(self, spec: str | None = None, fp64: bool | None = None):
+        import dataclasses
+
         cl = _cl()
-        self.info = choose_device(spec)
+        info = choose_device(spec)
+        self.device_has_double = info.has_double
+        self.force_no_fp64 = info.has_double and not _fp64_wanted(fp64)
+        self.info = dataclasses.replace(info, has_double=False) if self.force_no_fp64 \
+            else info
         platform = _platforms()[self.info.platform_index]
         self.device = platform.get_devices()[self.info.device_index]
-        self.context = cl.Context([self.device])
-        self.queue = cl.CommandQueue(self.context)
+        with self.guard("context creation"):
+            self.context = cl.Context([self.device])
+            self.queue = cl.CommandQueue(self.context)
         self._programs: dict[tuple[str, tuple[str, ...]], object] = {}
         self._kernels: dict[tuple, object] = {}
+        self._local_sizes: dict[tuple, int] = {}
         self._lock = threading.Lock()
         self._kernel_seconds = 0.0
+        #: compiler output of builds that succeeded with something to say, per kernel file
+        self.build_warnings: dict[str, str] = {}
         #: -D CLR_INLINE_BUILTINS=1 on every build (kernels/fastmath.h): PoCL calls its
         #: builtins (dot, fabs, sqrt, ...) out of line, and inline ones with the same
         #: arithmetic give the same bits in less time. A plain attribute, so a benchmark
@@ -275,6 +434,17 @@ class Runtime:
             dt = time.perf_counter() - t0
             with self._lock:
                 self._kernel_seconds += dt
+
+    @contextmanager
+    def guard(self, what: str) -> Iterator[None]:
+        """Turn any pyopencl error inside the block into an :class:`OpenCLError` of one
+        line naming this device, ``what`` was being done and what to try."""
+        cl = _cl()
+        try:
+            yield
+        except cl.Error as exc:
+            label = getattr(getattr(self, "info", None), "label", "the OpenCL device")
+            raise OpenCLError(describe_cl_error(exc, label, what)) from None
 
     @property
     def has_double(self) -> bool:
@@ -301,25 +471,109 @@ class Runtime:
         with self._lock:
             k = self._kernels.get(key)
         if k is None:
-            k = _cl().Kernel(self.program(name, options), kernel_name)
+            program = self.program(name, options)
+            with self.guard(f"creation of kernel {kernel_name} ({name})"):
+                k = _cl().Kernel(program, kernel_name)
             with self._lock:
                 self._kernels.setdefault(key, k)
         return k
 
+    def local_size(self, kernel, preferred: int = 64) -> int:
+        """The work-group size for ``kernel`` on this device: ``preferred`` rounded to the
+        kernel's preferred multiple (a warp, a SIMD width) and kept within the kernel's and
+        the device's maximum (which private memory and registers lower on a GPU). Where
+        even one multiple is over the maximum, the largest power of two under it."""
+        key = (id(kernel), int(preferred))
+        size = self._local_sizes.get(key)
+        if size is not None:
+            return size
+        cl = _cl()
+        wg = cl.kernel_work_group_info
+        with self.guard("work-group size query"):
+            limit = int(kernel.get_work_group_info(wg.WORK_GROUP_SIZE, self.device))
+            try:
+                multiple = int(kernel.get_work_group_info(
+                    wg.PREFERRED_WORK_GROUP_SIZE_MULTIPLE, self.device))
+            except cl.Error:   # an OpenCL 1.0 query some simulators refuse
+                multiple = 1
+        limit = max(1, min(limit, self.info.max_work_group_size))
+        multiple = max(1, multiple)
+        size = max(multiple, -(-int(preferred) // multiple) * multiple)
+        if size > limit:
+            size = (limit // multiple) * multiple if limit >= multiple else 0
+            if size < 1:
+                size = 1 << (limit.bit_length() - 1)
+        self._local_sizes[key] = size
+        return size
+
+    def require_local_size(self, kernel, size: int, name: str) -> int:
+        """``size``, where a kernel's algorithm needs exactly that many work items per group
+        (a reduction over one launch block); one clear error where the device cannot."""
+        cl = _cl()
+        with self.guard(f"work-group size query of kernel {name}"):
+            limit = int(kernel.get_work_group_info(
+                cl.kernel_work_group_info.WORK_GROUP_SIZE, self.device))
+        limit = min(limit, self.info.max_work_group_size)
+        if size > limit:
+            raise OpenCLError(
+                f"kernel {name} needs work-groups of {size} items and {self.info.label} "
+                f"allows {limit} for it; {_DEFAULT_HINT}")
+        return int(size)
+
+    def launch(self, kernel, global_size: int, local_size: int | None, *args,
+               name: str | None = None, wait: bool = False):
+        """Enqueue ``kernel`` over ``global_size`` work items rounded up to whole groups of
+        ``local_size`` (the kernels ignore the items past their own count; None: the
+        implementation's choice), any failure one :class:`OpenCLError`; ``wait`` finishes
+        the queue."""
+        label = name or getattr(kernel, "function_name", "kernel")
+        gs = int(global_size)
+        if local_size:
+            gs = -(-gs // int(local_size)) * int(local_size)
+            local = (int(local_size),)
+        else:
+            local = None
+        with self.guard(f"launch of kernel {label}"):
+            event = kernel(self.queue, (gs,), local, *args)
+            if wait:
+                self.queue.finish()
+        return event
+
     def build(self, source: str, name: str, options: tuple[str, ...] = (),
               defines: Mapping[str, int] | None = None):
-        """Compile ``source``; a failure raises OpenCLError naming file, line and log.
-        On PoCL (:attr:`inline_builtins`) the build also gets -D CLR_INLINE_BUILTINS=1."""
+        """Compile ``source``; a failure raises OpenCLError naming the device, file, line
+        and the file the whole compiler log went to. On PoCL (:attr:`inline_builtins`) the
+        build also gets -D CLR_INLINE_BUILTINS=1; in the forced no-fp64 mode
+        -D CLRADCOM_NO_FP64=1. Compiler output of a build that succeeds is kept in
+        :attr:`build_warnings`, not shown."""
+        import warnings
+
         cl = _cl()
         options = tuple(options) + define_options(defines)
         if self.inline_builtins:
             options += ("-DCLR_INLINE_BUILTINS=1",)
+        if self.force_no_fp64 and "-DCLRADCOM_NO_FP64=1" not in options:
+            options += ("-DCLRADCOM_NO_FP64=1",)
+        if self.info.simulator:
+            options += ("-DCLR_NO_TARGET_BUILTINS=1",)
         try:
-            return cl.Program(self.context, source).build(options=list(options))
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always", cl.CompilerWarning)
+                program = cl.Program(self.context, source).build(options=list(options))
+            for w in caught:
+                if issubclass(w.category, cl.CompilerWarning):
+                    self.build_warnings[name] = str(w.message)
+                else:
+                    warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+            return program
         except cl.RuntimeError as exc:
             log = getattr(exc, "build_log", None)
             text = str(exc) if not log else "\n".join(str(x[1]) for x in log)
-            raise OpenCLError(_format_build_log(name, text)) from None
+            raise OpenCLError(_format_build_log(name, text, self.info.label, options)) \
+                from None
+        except cl.Error as exc:
+            raise OpenCLError(describe_cl_error(exc, self.info.label,
+                                                f"build of kernels/{name}")) from None
 
     def to_device(self, array: np.ndarray):
         """Read-only device buffer holding a contiguous copy of ``array``."""
@@ -328,25 +582,40 @@ class Runtime:
         flags = cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR
         if array.nbytes == 0:  # zero-sized buffers are invalid in OpenCL
             array = np.zeros(1, dtype=array.dtype)
-        return cl.Buffer(self.context, flags, hostbuf=array)
+        with self.guard(f"allocation of {array.nbytes} bytes"):
+            return cl.Buffer(self.context, flags, hostbuf=array)
 
     def empty(self, nbytes: int):
         cl = _cl()
-        return cl.Buffer(self.context, cl.mem_flags.READ_WRITE, size=max(int(nbytes), 1))
+        with self.guard(f"allocation of {int(nbytes)} bytes"):
+            return cl.Buffer(self.context, cl.mem_flags.READ_WRITE, size=max(int(nbytes), 1))
 
 
-_default_runtimes: dict[tuple[str | None, str | None], Runtime] = {}
+_default_runtimes: dict[tuple, Runtime] = {}
 _default_lock = threading.Lock()
 
 
-def get_runtime(spec: str | None = None) -> Runtime:
-    """Shared runtime for a spec (None: environment variable, then default order)."""
+def get_runtime(spec: str | None = None, fp64: bool | None = None) -> Runtime:
+    """Shared runtime for a spec (None: environment variable, then default order) and fp64
+    mode (None: ``CLRADCOM_FP64``, else fp64 where the device has it)."""
     # the environment variable is part of the key but not passed on as the spec, so that
     # an error blames the variable that was set, not a --device flag never given
-    key = (spec, None if spec is not None else os.environ.get(ENV_DEVICE) or None)
+    key = (spec, None if spec is not None else os.environ.get(ENV_DEVICE) or None,
+           _fp64_wanted(fp64))
     with _default_lock:
         rt = _default_runtimes.get(key)
         if rt is None:
-            rt = Runtime(spec)
+            rt = Runtime(spec, fp64=fp64)
             _default_runtimes[key] = rt
+        global _last_label
+        _last_label = rt.info.label
         return rt
+
+
+_last_label = "the OpenCL device"
+
+
+def last_device_label() -> str:
+    """The device of the runtime :func:`get_runtime` returned last (for a message about a
+    failure that reached the top of a command without naming its device)."""
+    return _last_label
