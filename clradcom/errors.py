@@ -107,6 +107,13 @@ class SceneWarning(UserWarning):
     model evaluated outside its validated frequency range)."""
 
 
+class DeviceFallbackWarning(UserWarning):
+    """A stage of a trace asked to run on the OpenCL device ran on the host instead (the
+    device lacks a feature, or the work is one the host does faster): the result is the
+    same, the time is not. Given once per stage and reason; the snapshot's
+    ``engine.<stage>`` metadata records where each stage ran (clradcom.device.engines)."""
+
+
 class PhysicsWarning(UserWarning):
     """A result was computed where the model behind it stops being valid (docs/stability.md).
 

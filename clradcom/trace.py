@@ -26,6 +26,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from clradcom import __version__
+from clradcom.device.engines import EngineLog, engine_log
 from clradcom.device.runtime import Runtime
 from clradcom.errors import ArgumentError, ArgumentTypeError
 from clradcom.mechanisms import diffraction, optics, scattering, specular
@@ -223,6 +224,14 @@ def trace_scene(scene: Scene, settings: TraceSettings | None = None,
     finished), for a progress bar. ``geometry`` (built for this very ``scene`` object,
     e.g. by :meth:`~clradcom.mechanisms.common.GeometryCache.at`) is used instead of
     building one."""
+    with engine_log() as engines:
+        return _trace_scene(scene, settings, runtime, links, progress, times, steps,
+                            geometry, engines)
+
+
+def _trace_scene(scene, settings, runtime, links, progress, times, steps, geometry,
+                 engines: EngineLog) -> Snapshot:
+    """:func:`trace_scene` inside its engine log."""
     if not isinstance(scene, Scene):
         raise ArgumentTypeError("must be a Scene: load a scene file with "
                                 "clradcom.scene.load_scene(path) first", argument="scene",
@@ -314,6 +323,10 @@ def trace_scene(scene: Scene, settings: TraceSettings | None = None,
     for key, value in stats["diffraction"].items():
         meta[f"diffraction.{key}"] = int(value)
     meta["device"] = geom.runtime.info.device_name.strip()
+    if settings.engine == "device":
+        meta["device.fp64"] = bool(geom.runtime.info.has_double)
+    # where each stage ran: "device", "host: reason" or "device+host: reason"
+    meta.update(engines.metadata())
     return Snapshot(scene_name=scene.name, carrier_hz=float(scene.carrier_hz),
                     scene_hash=scene.content_hash(), links=tuple(out), metadata=meta,
                     time_s=float(scene.time_s),
