@@ -10,15 +10,23 @@ judged fairly.
 """
 
 import numpy as np
+import pyopencl as cl
 import pytest
 import trimesh
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from clradcom.device.raycast import RayCaster, make_rays, spawn_origins
+from clradcom.device.raycast import KERNEL_DEFINES, RayCaster, make_rays, spawn_origins
 from clradcom.geometry import layout
-from clradcom.geometry.bvh import build_bvh
-from clradcom.geometry.layout import LEAF_GROUP_BITS, MAX_LEAF_GROUPS, bvh8_nodes, tri4_groups
+from clradcom.geometry.bvh import BVH_NODE_DTYPE, Bvh, build_bvh, validate_bvh
+from clradcom.geometry.layout import (
+    BVH8_NODE_DTYPE,
+    LEAF_GROUP_BITS,
+    MAX_LEAF_GROUPS,
+    bvh8_nodes,
+    tri4_groups,
+)
+from clradcom.scene import load_scene
 
 MARGIN_ULPS = 64  # float32 ulps of the coordinates where rounding may decide either way
 
@@ -403,3 +411,84 @@ def test_bad_rays_are_refused():
         make_rays([[0, 0, 0]], [[0, 0, 0]])
     with pytest.raises(ValueError, match="shape"):
         make_rays([[0, 0, 0]], [[1, 0, 0], [1, 0, 0]])
+
+
+# ---------------------------------------------------------------------------
+# traversal stack: short builds for ordinary trees, a deeper one where a tree needs it
+
+
+def test_stack_need_is_the_pushes_of_the_deepest_walk():
+    rec = np.zeros(3, dtype=BVH8_NODE_DTYPE)
+    rec["child"][0] = [-1, -1, -1, -1, -1, -1, -1, 1]   # seven leaves and record 1
+    rec["child"][1, :3] = [-1, 2, -1]                    # two leaves and record 2
+    rec["child"][2, :2] = [-1, -1]
+    assert layout.stack_need(rec) == 7 + 2 + 1
+    rec["child"][1, :3] = [-1, -1, -1]                   # record 2 no longer reached
+    assert layout.stack_need(rec) == 7 + 2
+    assert [layout.stack_size_for(n) for n in (0, 32, 33, 64, 65, 192)] == [32, 32, 64, 64,
+                                                                          128, 192]
+    with pytest.raises(ValueError, match="traversal stack of 193"):
+        layout.stack_size_for(193)
+
+
+def test_the_street_is_traced_with_a_short_stack(runtime):
+    scene = load_scene("scenes/street/street.toml")
+    caster = RayCaster(scene.triangles, runtime=runtime)
+    assert caster.stack_size == 64   # its tree needs 48 entries
+    small = RayCaster(trimesh.creation.icosphere(subdivisions=2).triangles, runtime=runtime)
+    assert small.stack_size == 32
+    # the kernels are built with the caster's own number
+    prog = runtime.program("layout.cl", defines=caster.kernel_defines())
+    out = np.zeros(len(KERNEL_DEFINES), dtype=np.int32)
+    buf = runtime.empty(out.nbytes)
+    prog.build_constants(runtime.queue, (1,), None, buf)
+    cl.enqueue_copy(runtime.queue, out, buf)
+    assert dict(zip(KERNEL_DEFINES, out.tolist(), strict=True))["BVH_STACK_SIZE"] == 64
+
+
+def chain_bvh(triangles) -> Bvh:
+    """The worst tree for a stack: every inner node holds one triangle's leaf and the
+    node of all the triangles after it."""
+    n = len(triangles)
+    nodes = np.zeros(2 * n - 1, dtype=BVH_NODE_DTYPE)
+    lo, hi = triangles.min(axis=1), triangles.max(axis=1)
+    for i in range(n - 1):
+        nodes[2 * i]["left_first"], nodes[2 * i]["count"] = 2 * i + 1, 0
+        nodes[2 * i]["bmin"], nodes[2 * i]["bmax"] = lo[i:].min(axis=0), hi[i:].max(axis=0)
+        nodes[2 * i + 1]["left_first"], nodes[2 * i + 1]["count"] = i, 1
+        nodes[2 * i + 1]["bmin"], nodes[2 * i + 1]["bmax"] = lo[i], hi[i]
+    last = 2 * n - 2
+    nodes[last]["left_first"], nodes[last]["count"] = n - 1, 1
+    nodes[last]["bmin"], nodes[last]["bmax"] = lo[-1], hi[-1]
+    bvh = Bvh(nodes=nodes, tri_index=np.arange(n, dtype=np.int32))
+    validate_bvh(bvh, triangles)
+    return bvh
+
+
+def test_a_tree_deeper_than_the_short_stacks_gets_a_deeper_build(runtime):
+    """120 parallel triangles in a row, chained: a ray down the row meets every box and
+    keeps the far leaves of each record on the stack while it walks into the nearer
+    rest, so the walk really holds the tree's whole need (over 64 entries)."""
+    n = 120
+    x = 0.1 * np.arange(n)
+    tris = np.zeros((n, 3, 3))
+    tris[:, :, 0] = x[:, None]
+    tris[:, :, 1:] = [(-1.0, -1.0), (2.0, -1.0), (-1.0, 2.0)]
+    caster = RayCaster(tris, bvh=chain_bvh(tris), runtime=runtime)
+    need = layout.stack_need(bvh8_nodes(caster.bvh.nodes))
+    assert 64 < need <= 128 and caster.stack_size == 128
+    rng = np.random.default_rng(5)
+    origins = np.column_stack([np.full(200, 20.0), rng.uniform(-0.3, 0.3, (200, 2))])
+    directions = np.column_stack([-np.ones(200), rng.uniform(-0.01, 0.01, (200, 2))])
+    hits = check_against_reference(caster, origins, directions)
+    assert (hits["prim"] == n - 1).all()   # the nearest of the row, for every ray
+    # from inside the row, every way: the brute force decides
+    inside = np.column_stack([rng.uniform(0, x[-1], 300), rng.uniform(-0.5, 0.5, (300, 2))])
+    check_against_reference(caster, inside, rng.normal(size=(300, 3)))
+    # any hit: a segment between two triangles' planes sees nothing, one across them does
+    free = make_rays(np.column_stack([x[:-1] + 0.05, np.zeros((n - 1, 2))]),
+                     np.tile([0.0, 0.0, 1.0], (n - 1, 1)), tmax=0.5)
+    assert not caster.occluded(free).any()
+    across = make_rays(np.column_stack([np.full(n, -1.0), np.zeros((n, 2))]),
+                       np.tile([1.0, 0.0, 0.0], (n, 1)), tmax=1.0 + x + 0.05)
+    assert caster.occluded(across).all()

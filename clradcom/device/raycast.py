@@ -112,8 +112,10 @@ class RayCaster:
     each one's wall time (enqueue to finish) adds to ``runtime.kernel_seconds``.
     """
 
-    # Work-group size: PoCL's CPU device runs a work-group's items one after the
-    # other in a loop; 16 to 256 measured the same, its own choice ~15% slower.
+    # Preferred work-group size (Runtime.local_size rounds it to the device's multiple and
+    # keeps it within the kernel's limit): PoCL's CPU device runs a work-group's items one
+    # after the other in a loop, 16 to 256 measured the same, its own choice ~15% slower;
+    # 64 is two warps on NVIDIA, one wavefront on AMD.
     LOCAL_SIZE = 64
     #: -D options beyond KERNEL_DEFINES that this caster's buffers need
     EXTRA_DEFINES: dict = {}
@@ -130,7 +132,11 @@ class RayCaster:
         self.bvh = bvh
         tri4, slot_prim, leaf_first, leaf_groups = tri4_groups(bvh, triangles)
         rt = self.runtime
-        self._nodes = rt.to_device(bvh8_nodes(bvh.nodes, leaf_first, leaf_groups))
+        records = bvh8_nodes(bvh.nodes, leaf_first, leaf_groups)
+        #: the traversal stack the kernels are built with: the short one that holds this
+        #: tree's need (layout.stack_need), a deeper one only for a deeper tree
+        self.stack_size = layout.stack_size_for(layout.stack_need(records))
+        self._nodes = rt.to_device(records)
         self._tri4 = rt.to_device(tri4)
         self._slot_prim = rt.to_device(slot_prim)
         self._lock = threading.Lock()
@@ -147,9 +153,15 @@ class RayCaster:
         # time saved on 500k rays); other devices get reused buffers and copies.
         self._zero_copy = rt.info.device_type == "CPU"
 
-    def _defines(self) -> dict:
-        return {**KERNEL_DEFINES, **self.EXTRA_DEFINES} if self.EXTRA_DEFINES \
-            else KERNEL_DEFINES
+    def kernel_defines(self) -> dict:
+        """The -D defines every kernel that walks this caster's BVH is built with:
+        :data:`KERNEL_DEFINES` with this tree's stack size, and the caster's own."""
+        return {**KERNEL_DEFINES, "BVH_STACK_SIZE": self.stack_size, **self.EXTRA_DEFINES}
+
+    def local_size(self, kernel, preferred: int | None = None) -> int:
+        """The work-group size of ``kernel`` on this caster's device (Runtime.local_size
+        of ``preferred``, default :attr:`LOCAL_SIZE`)."""
+        return self.runtime.local_size(kernel, preferred or self.LOCAL_SIZE)
 
     def _buffer(self, name, nbytes, flags):
         """A device buffer of at least nbytes kept under name, grown by doubling."""
@@ -176,9 +188,9 @@ class RayCaster:
             ignore = np.ascontiguousarray(np.broadcast_to(ignore_prim, (n,)), dtype=np.int32)
         rt = self.runtime
         mf = cl.mem_flags
-        kernel = rt.kernel("raycast.cl", kernel_name, defines=self._defines())
-        local = self.LOCAL_SIZE
-        with self._lock, rt.kernel_clock():
+        kernel = rt.kernel("raycast.cl", kernel_name, defines=self.kernel_defines())
+        local = self.local_size(kernel)
+        with self._lock, rt.kernel_clock(), rt.guard(f"ray casting ({kernel_name})"):
             if self._zero_copy:
                 # A CPU device reads and writes the numpy arrays in place: no copies.
                 if not rays.flags.writeable:
@@ -197,8 +209,8 @@ class RayCaster:
                     cl.enqueue_copy(rt.queue, ign_buf, ignore, is_blocking=False)
             # ign_buf None is a NULL pointer: no ray ignores a triangle. The kernels
             # ignore the work items past n.
-            kernel(rt.queue, (-(-n // local) * local,), (local,), self._nodes, self._tri4,
-                   self._slot_prim, ray_buf, ign_buf, out_buf, np.int32(n))
+            rt.launch(kernel, n, local, self._nodes, self._tri4, self._slot_prim, ray_buf,
+                      ign_buf, out_buf, np.int32(n), name=kernel_name)
             if self._zero_copy:
                 mapped, _ = cl.enqueue_map_buffer(rt.queue, out_buf, cl.map_flags.READ, 0,
                                                   (n,), out_dtype, is_blocking=True)
@@ -218,20 +230,23 @@ class RayCaster:
 
         The driver for every kernel family that traverses this caster's BVH (SBR tubes,
         scattering tiles, batched visibility): builds get :data:`KERNEL_DEFINES` plus
-        ``defines``; calls are serialised by the caster's lock and finish before return,
-        their wall time counted in ``runtime.kernel_seconds``.
+        ``defines`` (the caster's own BVH defines win over those); ``local_size`` is the
+        preferred work-group size (default :attr:`LOCAL_SIZE`), kept within the device's
+        limits by :meth:`Runtime.local_size`; calls are serialised by the caster's lock
+        and finish before return, their wall time counted in ``runtime.kernel_seconds``.
         """
         self._check_ready()
         if global_size <= 0:
             return
         rt = self.runtime
+        # the caster's BVH defines win: a stage's own copy of KERNEL_DEFINES must not
+        # undo this tree's stack size
         kernel = rt.kernel(source, kernel_name, tuple(options),
-                           defines={**self._defines(), **(defines or {})})
-        local = local_size or self.LOCAL_SIZE
+                           defines={**(defines or {}), **self.kernel_defines()})
+        local = self.local_size(kernel, local_size)
         with self._lock, rt.kernel_clock():
-            kernel(rt.queue, (-(-int(global_size) // local) * local,), (local,), self._nodes,
-                   self._tri4, self._slot_prim, *args)
-            rt.queue.finish()
+            rt.launch(kernel, global_size, local, self._nodes, self._tri4, self._slot_prim,
+                      *args, name=f"{kernel_name} ({source})", wait=True)
 
     def scene_data64(self) -> dict:
         """Device buffers of the triangles in float64, uploaded once: ``vertices`` (T*9
@@ -286,10 +301,10 @@ class RayCaster:
         if max_order < 1:
             return np.zeros((len(directions), 0), dtype=np.int32)
         rt = self.runtime
-        kernel = rt.kernel("reflect.cl", "trace_reflections", defines=self._defines())
+        kernel = rt.kernel("reflect.cl", "trace_reflections", defines=self.kernel_defines())
         o = np.asarray(origin, dtype=np.float64)
         out = np.empty((len(directions), max_order), dtype=np.int32)
-        with self._lock, rt.kernel_clock():
+        with self._lock, rt.kernel_clock(), rt.guard("specular face sequences"):
             face_buf = rt.to_device(np.asarray(tri_face, dtype=np.int32))
             for start in range(0, len(directions), batch):
                 # float4 rows: the kernel loads each direction as one aligned vector
@@ -298,14 +313,13 @@ class RayCaster:
                 n = len(d)
                 d_buf = rt.to_device(d)
                 o_buf = rt.empty(n * max_order * 4)
-                # whole work-groups of LOCAL_SIZE (the kernel ignores items past n): left
-                # to itself PoCL may pick groups of thousands, whose private traversal
-                # stacks overflow its threads' stacks
-                local = self.LOCAL_SIZE
-                kernel(rt.queue, (-(-n // local) * local,), (local,), self._nodes, self._tri4,
-                       self._slot_prim,
-                       face_buf, np.float32(o[0]), np.float32(o[1]), np.float32(o[2]), d_buf,
-                       np.int32(max_order), o_buf, np.int32(n))
+                # whole work-groups (the kernel ignores items past n): left to itself PoCL
+                # may pick groups of thousands, whose private traversal stacks overflow its
+                # threads' stacks
+                rt.launch(kernel, n, self.local_size(kernel), self._nodes, self._tri4,
+                          self._slot_prim, face_buf, np.float32(o[0]), np.float32(o[1]),
+                          np.float32(o[2]), d_buf, np.int32(max_order), o_buf, np.int32(n),
+                          name="trace_reflections")
                 chunk = np.empty((n, max_order), dtype=np.int32)
                 cl.enqueue_copy(rt.queue, chunk, o_buf)
                 out[start:start + n] = chunk
@@ -424,10 +438,11 @@ class RayCaster:
 
         self._check_ready()
         rt = self.runtime
-        kernel = rt.kernel("reflect.cl", kernel_name, defines=self._defines())
+        kernel = rt.kernel("reflect.cl", kernel_name, defines=self.kernel_defines())
         o = np.asarray(origin, dtype=np.float64)
         row_bytes = 0 if out is None else out[:1].nbytes
-        with self._lock, rt.kernel_clock():
+        local_size = self.local_size(kernel)
+        with self._lock, rt.kernel_clock(), rt.guard(f"launch of kernel {kernel_name}"):
             cached = getattr(self, "_lattice", None)
             if cached is None or cached[0] is not local:
                 self._lattice = cached = (local, rt.to_device(np.ascontiguousarray(local)))
@@ -435,11 +450,11 @@ class RayCaster:
             for start in range(0, len(local), batch):
                 n = min(batch, len(local) - start)
                 o_buf = () if out is None else (rt.empty(n * row_bytes),)
-                size = self.LOCAL_SIZE   # whole work-groups, as in specular_sequences
-                kernel(rt.queue, (-(-n // size) * size,), (size,), self._nodes, self._tri4,
-                       self._slot_prim, face_buf, np.float32(o[0]), np.float32(o[1]),
-                       np.float32(o[2]), cached[1], *(np.float64(x) for x in r.ravel()),
-                       np.int32(start), *extra, *o_buf, np.int32(n))
+                # whole work-groups, as in specular_sequences
+                rt.launch(kernel, n, local_size, self._nodes, self._tri4, self._slot_prim,
+                          face_buf, np.float32(o[0]), np.float32(o[1]), np.float32(o[2]),
+                          cached[1], *(np.float64(x) for x in r.ravel()), np.int32(start),
+                          *extra, *o_buf, np.int32(n), name=kernel_name)
                 if out is not None:
                     cl.enqueue_copy(rt.queue, out[start:start + n], o_buf[0])
             if out is None:
@@ -484,6 +499,9 @@ class InstancedCaster(RayCaster):
             raise ArgumentError("every scene triangle must belong to exactly one part",
                                 argument="parts", value=int(np.flatnonzero(seen != 1)[0]))
         self.layout = two_level([build_blas(tri, ids) for tri, ids in parts])
+        # the bottom-level trees' need now; place() raises it where a top-level tree needs
+        # more (it only ever grows, so kernels built for one step serve the next)
+        self.stack_size = layout.stack_size_for(layout.stack_need(self.layout.nodes))
         rt = self.runtime
         self._nodes = rt.to_device(self.layout.nodes)
         self._tri4 = rt.to_device(self.layout.tri4)
@@ -545,7 +563,10 @@ class InstancedCaster(RayCaster):
         t1 = time.perf_counter()
         rotations = np.where(self.refit[:, None, None], np.eye(3), rotations)
         origins = np.where(self.refit[:, None], 0.0, origins)
-        head = step_head(tlas_nodes(lo32, hi32), n, rotations, origins, self.layout.roots,
+        tlas = tlas_nodes(lo32, hi32)
+        self.stack_size = max(self.stack_size,
+                              layout.stack_size_for(layout.stack_need(tlas)))
+        head = step_head(tlas, n, rotations, origins, self.layout.roots,
                          self.layout.group_range, identity | self.refit)
         refits = []
         for k in moved:

@@ -14,8 +14,13 @@ from clradcom.errors import ArgumentError
 
 #: Children per traversal record: the kernels test a record's boxes as one float8.
 BVH_WIDTH = 8
-#: Traversal stack entries per work item; :func:`bvh8_nodes` refuses a tree that needs more.
+#: The deepest traversal stack a kernel is built with; :func:`bvh8_nodes` refuses a tree
+#: that needs more. Builds for a caster use the smallest of :data:`STACK_SIZES` that holds
+#: its tree's need (:func:`stack_need`), so private memory stays small (registers on a GPU).
 BVH_STACK_SIZE = 192
+#: The stack sizes kernels are built with: tinybvh-class short stacks for every ordinary
+#: tree (the street's need is 48), deeper builds only for trees that need them.
+STACK_SIZES = (32, 64, 128, BVH_STACK_SIZE)
 #: float4 rows of a Tri4 group: coordinate k of vertex j of its four triangles in row 3 j + k.
 TRI4_ROWS = 9
 #: A leaf child code packs its group count into this many low bits beside its first group.
@@ -124,6 +129,40 @@ def _collapse(inner: np.ndarray, left: np.ndarray, area: np.ndarray):
     rec_index = np.zeros(len(inner), dtype=np.int64)
     rec_index[slot[is_inner]] = pre[bfs[slot[is_inner]]]
     return slot[order], used[order], rec_index, depth[order]
+
+
+def stack_need(records: np.ndarray) -> int:
+    """The most traversal stack entries any walk of the 8-wide ``records`` (every tree in
+    them: a two-level buffer's top-level tree and each bottom-level tree) holds at once.
+
+    A record with k children met pushes at most k - 1 of them before going on into one
+    (the closest-hit walk pushes all k and pops the nearest at once, hence the kernels'
+    one spare entry), so a record needs k - 1 plus the most any of its inner children
+    needs; leaves need nothing. Evaluated by sweeping that recurrence over all records
+    until it settles (as many sweeps as the trees are deep)."""
+    child = np.asarray(records["child"]).astype(np.int64)
+    used = child != 0
+    k_minus_1 = np.maximum(used.sum(axis=1) - 1, 0)
+    inner = child > 0
+    target = np.where(inner, child, 0)
+    need = k_minus_1.copy()
+    for _ in range(len(records) + 1):
+        below = np.where(inner, need[target], 0).max(axis=1, initial=0)
+        new = k_minus_1 + below
+        if np.array_equal(new, need):
+            return int(need.max(initial=0))
+        need = new
+    raise ArgumentError("the BVH records hold a cycle")  # pragma: no cover
+
+
+def stack_size_for(need: int) -> int:
+    """The stack a kernel is built with for a tree needing ``need`` entries: the smallest
+    of :data:`STACK_SIZES` that holds it."""
+    for size in STACK_SIZES:
+        if need <= size:
+            return size
+    raise ArgumentError(f"BVH needs a traversal stack of {int(need)} entries; the kernels "
+                        f"hold at most {BVH_STACK_SIZE}", argument="bvh", value=int(need))
 
 
 def bvh8_nodes(nodes: np.ndarray, leaf_first=None, leaf_count=None) -> np.ndarray:
