@@ -158,6 +158,11 @@ class RayCaster:
         :data:`KERNEL_DEFINES` with this tree's stack size, and the caster's own."""
         return {**KERNEL_DEFINES, "BVH_STACK_SIZE": self.stack_size, **self.EXTRA_DEFINES}
 
+    def bvh_buffers(self) -> tuple:
+        """The device buffers (nodes, tri4, slot_prim) every BVH kernel takes first."""
+        self._check_ready()
+        return self._nodes, self._tri4, self._slot_prim
+
     def local_size(self, kernel, preferred: int | None = None) -> int:
         """The work-group size of ``kernel`` on this caster's device (Runtime.local_size
         of ``preferred``, default :attr:`LOCAL_SIZE`)."""

@@ -8,6 +8,11 @@ broadside RCS of a flat plate against 4 pi A^2 / lambda^2.
   (:attr:`~clradcom.device.runtime.Runtime.kernel_seconds` before and after), paths.
 * :func:`compare_engines` - one warm-up trace per engine (kernel builds, caches), then
   the engines in turn ``repeats`` times; :func:`median_timing` takes the medians.
+* :func:`compare_devices` - the device engine on several OpenCL devices in one process
+  (one warm-up trace each, whose time with the kernel builds is kept, then the devices
+  in turn ``repeats`` times); :func:`link_channels` and :func:`table_iii_detections`
+  hold each device's snapshot to the reference device's (the channel of every link at
+  the radar's subcarriers, NMSE; radar A's detections of the moving cars).
 * :func:`run_in_subprocess` - one device trace of a scene file in a fresh Python
   process (:func:`child_main`), returning its timing, its peak resident memory
   (:func:`peak_rss_bytes` of that process: the interpreter, numpy and pyopencl included, and on a
@@ -57,10 +62,11 @@ from clradcom.trace import (
     trace_scene,
 )
 
-__all__ = ["CSV_HEADER", "PlateRcs", "SceneRun", "TraceTiming", "child_main",
-           "compare_engines", "link_sums", "median_timing", "peak_rss_bytes", "plate_rcs",
+__all__ = ["CSV_HEADER", "DeviceRuns", "PlateRcs", "SceneRun", "TraceTiming",
+           "channel_agreement_db", "child_main", "compare_devices", "compare_engines",
+           "link_channels", "link_sums", "median_timing", "peak_rss_bytes", "plate_rcs",
            "run_in_subprocess", "settings_from_dict", "settings_to_dict", "time_trace",
-           "timing_rows"]
+           "table_iii_detections", "timing_rows"]
 
 #: columns of the benchmark's CSV (one measured quantity per row)
 CSV_HEADER = ("scene", "engine", "quantity", "value", "unit")
@@ -134,6 +140,92 @@ def compare_engines(scene: Scene, settings: TraceSettings, runtime: Runtime | No
                 f"{timing.kernel_share:.0%} in kernels")
             out[engine].append(timing)
     return out
+
+
+@dataclass
+class DeviceRuns:
+    """One device's traces in :func:`compare_devices`: the warm-up (kernel builds
+    included), the timed runs and the last run's snapshot."""
+
+    label: str
+    first: TraceTiming
+    runs: list[TraceTiming]
+    snapshot: Snapshot
+
+
+def compare_devices(scene: Scene, settings: TraceSettings, runtimes: dict[str, Runtime], *,
+                    repeats: int = 3, progress: Callable[[str], None] | None = None
+                    ) -> dict[str, DeviceRuns]:
+    """The device engine on each of ``runtimes`` (name -> Runtime): one warm-up trace per
+    device (its time kept: the first run's cost, builds and caches included), then the
+    devices take turns ``repeats`` times, so a machine that gets busier or quieter weighs
+    on each alike."""
+    if isinstance(repeats, bool) or not isinstance(repeats, int) or repeats < 1:
+        raise ArgumentError("must be an integer >= 1", argument="repeats", value=repeats)
+    if not runtimes:
+        raise ArgumentError("needs at least one device", argument="runtimes", value=runtimes)
+    say = progress or (lambda msg: None)
+    settings = settings.replace(engine="device")
+    out: dict[str, DeviceRuns] = {}
+    for name, rt in runtimes.items():
+        say(f"warm-up trace on {name} ({rt.info.label})")
+        first, snap = time_trace(scene, settings, rt)
+        out[name] = DeviceRuns(label=rt.info.label, first=first, runs=[], snapshot=snap)
+    for i in range(repeats):
+        for name, rt in runtimes.items():
+            timing, snap = time_trace(scene, settings, rt)
+            say(f"run {i + 1}/{repeats} on {name}: {timing.seconds:.2f} s, "
+                f"{timing.kernel_share:.0%} in kernels")
+            out[name].runs.append(timing)
+            out[name].snapshot = snap
+    return out
+
+
+def link_channels(snapshot: Snapshot, waveform) -> dict[str, np.ndarray]:
+    """Each link's channel at the waveform's subcarriers for one symbol,
+    H(n) = sum_k a_k exp(-j 2 pi n df tau_k), keyed "tx->rx"."""
+    n = np.arange(waveform.n_subcarriers)[:, None]
+    out = {}
+    for link in snapshot.links:
+        p = link.paths
+        out[f"{link.tx_name}->{link.rx_name}"] = (
+            np.exp(-2j * np.pi * n * waveform.subcarrier_spacing_hz * p.delay_s[None, :])
+            @ p.gain)
+    return out
+
+
+def channel_agreement_db(snapshot: Snapshot, reference: Snapshot, waveform
+                         ) -> dict[str, float]:
+    """Per link, the NMSE (dB) of ``snapshot``'s channel against ``reference``'s
+    (:func:`clradcom.evaluation.accuracy.channel_nmse_db`)."""
+    from clradcom.evaluation.accuracy import channel_nmse_db
+
+    ref = link_channels(reference, waveform)
+    got = link_channels(snapshot, waveform)
+    return {k: channel_nmse_db(got[k], ref[k]) for k in ref if k in got}
+
+
+def table_iii_detections(scene: Scene, snapshot: Snapshot, waveform, noise_figure_db: float,
+                         radar_name: str = "A", seed: int = 0
+                         ) -> dict[str, tuple[float, float] | None]:
+    """The main job's detections of the moving objects by radar ``radar_name`` on its own
+    link of ``snapshot``, as tools/trace.py finds them (thermal noise at the radar's power
+    and ``noise_figure_db``, seed ``seed``): object -> (range m, velocity m/s), None if
+    missed."""
+    from clradcom.radar.pipeline import process, radar_frame
+    from clradcom.radar.report import match_tolerances, moving_objects
+    from clradcom.radar.truth import detection_truth, match_truth
+
+    r = scene.radar_index(radar_name)
+    radar = scene.radars[r]
+    link = next(lk for lk in snapshot.links if lk.tx_index == r and lk.rx_index == r)
+    D, Dr = radar_frame(link.paths, waveform, seed=seed, tx_power_w=radar.tx_power_w,
+                        noise_figure_db=noise_figure_db)
+    _, dets = process(D, Dr, waveform)
+    truth = detection_truth(scene, radar.name, moving_objects(scene, radar))
+    matches = match_truth(dets, truth, *match_tolerances(waveform))
+    return {t["name"]: None if m is None else (float(m["range_m"]), float(m["velocity_mps"]))
+            for t, m in zip(truth, matches, strict=True)}
 
 
 # ----------------------------------------------------------------------------------------
