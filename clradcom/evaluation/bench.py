@@ -45,10 +45,14 @@ import numpy as np
 
 from clradcom.device.runtime import Runtime, get_runtime
 from clradcom.errors import ArgumentError
+from clradcom.evaluation.accuracy import channel_nmse_db
 from clradcom.evaluation.rcs import dbsm
 from clradcom.geometry.triangles import triangle_double_areas, triangle_normals
 from clradcom.mechanisms.common import ENGINES
 from clradcom.paths import InteractionType
+from clradcom.radar.pipeline import process, radar_frame
+from clradcom.radar.report import match_tolerances, moving_objects
+from clradcom.radar.truth import detection_truth, match_truth
 from clradcom.scene.reader import load_scene
 from clradcom.scene.records import Scene
 from clradcom.snapshot import Snapshot
@@ -198,8 +202,6 @@ def channel_agreement_db(snapshot: Snapshot, reference: Snapshot, waveform
                          ) -> dict[str, float]:
     """Per link, the NMSE (dB) of ``snapshot``'s channel against ``reference``'s
     (:func:`clradcom.evaluation.accuracy.channel_nmse_db`)."""
-    from clradcom.evaluation.accuracy import channel_nmse_db
-
     ref = link_channels(reference, waveform)
     got = link_channels(snapshot, waveform)
     return {k: channel_nmse_db(got[k], ref[k]) for k in ref if k in got}
@@ -212,10 +214,6 @@ def table_iii_detections(scene: Scene, snapshot: Snapshot, waveform, noise_figur
     link of ``snapshot``, as tools/trace.py finds them (thermal noise at the radar's power
     and ``noise_figure_db``, seed ``seed``): object -> (range m, velocity m/s), None if
     missed."""
-    from clradcom.radar.pipeline import process, radar_frame
-    from clradcom.radar.report import match_tolerances, moving_objects
-    from clradcom.radar.truth import detection_truth, match_truth
-
     r = scene.radar_index(radar_name)
     radar = scene.radars[r]
     link = next(lk for lk in snapshot.links if lk.tx_index == r and lk.rx_index == r)
