@@ -328,7 +328,9 @@ def _error_code_name(exc) -> str:
                 return name
     except ImportError:  # pragma: no cover
         pass
-    return ""
+    # an error made without its code (or by a layer above pyopencl) names it in its text
+    text = str(exc)
+    return next((name for name in _HINTS if name in text), "")
 
 
 def describe_cl_error(exc, device: str, what: str) -> str:
