@@ -1,12 +1,17 @@
 """Host side of the device SBR-PO engine (``kernels/sbr.cl``): scene tables, launch
-windows and receivers to the device; tube batches launched and their records back.
+windows and receivers to the device; the wavefront driven batch by batch, bounce by
+bounce, and the records back.
 
 Tubes are enumerated by index over the covered blocks of the launch windows
-(:class:`clradcom.mechanisms.sbr.TubeWindows`) and generated in the kernel, a batch of
+(:class:`clradcom.mechanisms.sbr.TubeWindows`) and generated on the device, a batch of
 blocks at a time, so device and host memory stay bounded whatever the number of tubes:
-only the records of footprints that see a receiver come back.  Records are appended with
-an atomic counter, so their order within a batch is the device's; they are sorted by
-(tube, bounce, receiver) so every run gives the same contributions in the same order.
+only the records of footprints that see a receiver come back.  Per batch: ``sbr_launch``
+queues the owned tubes; per bounce ``sbr_bounce`` follows the live ones (a compacted
+queue) and lists the footprints, ``sbr_radiate`` radiates each toward each receiver,
+``sbr_reduce`` sums them per block, receiver and face sequence in work groups.  Records
+are appended with an atomic counter, so their order within a batch is the device's;
+they are sorted by block and the group's first (tube, bounce, receiver), so every run
+and batch size gives the same records in the same order.
 """
 
 from __future__ import annotations
@@ -15,6 +20,7 @@ import numpy as np
 
 from clradcom.device.precision import join_pairs, split_pairs
 from clradcom.device.raycast import KERNEL_DEFINES, RayCaster
+from clradcom.device.runtime import OpenCLError
 from clradcom.device.visibility import (
     CONFIRM_TOL_M,
     INSIDE_TOL_REL,
@@ -32,15 +38,17 @@ from clradcom.geometry.silhouette import BLOCK
 __all__ = ["BATCH_TUBES", "PRECISIONS", "engine_precision", "record_dtype", "record_size",
            "shoot_and_radiate"]
 
-#: Tubes per kernel launch (whole blocks): about 1 M, some 10 ms to a second of work.
+#: Tubes per batch at most (whole blocks): about 1 M.
 BATCH_TUBES = 1 << 20
+#: ... and on a CPU device, whose memory is the host's: the batch's queues and slots
+#: stay within some 100 MB
+CPU_BATCH_TUBES = 1 << 17
+#: A batch's buffers take at most this fraction of the device's largest allocation.
+MEMORY_SHARE = 8
 #: Records the output buffer has room for at first, per block and receiver of a batch,
-#: and at most (about 60 MB); more records grow it and shoot the batch again.
+#: and at most (about 60 MB); more records grow it and reduce the bounce again.
 RECORDS_PER_BLOCK_RX = 4
 MAX_START_RECORDS = 1 << 18
-#: Face sequences a work item sums at once per block (the oldest is written out when a
-#: new one finds the table full: the sums stay exact, the block just yields more records).
-GROUPS = 16
 
 
 def tri_slots(max_bounces: int) -> int:
@@ -91,12 +99,14 @@ def record_size(runtime, max_bounces: int, precision: str = "fp64") -> int:
     """sizeof(SbrRecord) as the device lays it out in ``precision`` (for a test)."""
     import pyopencl as cl
 
+    # the BVH layout constants a build needs without a caster
     kernel = runtime.kernel("sbr.cl", "sbr_record_size", _options(precision),
-                            defines=_defines(max_bounces, precision))
+                            defines={**KERNEL_DEFINES, **_defines(max_bounces, precision)})
     out = np.zeros(1, dtype=np.int32)
     buf = runtime.empty(4)
-    kernel(runtime.queue, (1,), None, buf)
-    cl.enqueue_copy(runtime.queue, out, buf, is_blocking=True)
+    with runtime.guard("SBR record size"):
+        runtime.launch(kernel, 1, None, buf, name="sbr_record_size (sbr.cl)")
+        cl.enqueue_copy(runtime.queue, out, buf, is_blocking=True)
     return int(out[0])
 
 
@@ -107,8 +117,8 @@ def _options(precision: str) -> tuple:
 
 
 def _defines(max_bounces: int, precision: str) -> dict:
-    out = {**KERNEL_DEFINES, "SBR_MAX_BOUNCES": int(max_bounces),
-           "SBR_TRI_SLOTS": tri_slots(max_bounces), "SBR_BLOCK": BLOCK, "SBR_GROUPS": GROUPS}
+    out = {"SBR_MAX_BOUNCES": int(max_bounces),
+           "SBR_TRI_SLOTS": tri_slots(max_bounces), "SBR_BLOCK": BLOCK}
     if precision == "double-float":
         out["CLRADCOM_NO_FP64"] = 1
     elif precision == CONTROL_PRECISION:
@@ -180,6 +190,68 @@ def near_triangles(caster: RayCaster, antennas) -> tuple[np.ndarray, np.ndarray]
             np.concatenate(tris).astype(np.int32) if tris else np.zeros(0, np.int32))
 
 
+def _batch_tubes(rt, per_tube_bytes: int, batch_tubes: int) -> int:
+    """Tubes per batch (whole blocks): ``batch_tubes`` at most, the batch's buffers within
+    MEMORY_SHARE of the device's largest allocation, and CPU_BATCH_TUBES on a CPU device
+    (its memory is the host's)."""
+    cells = BLOCK * BLOCK
+    limit = int(rt.device.max_mem_alloc_size) // MEMORY_SHARE
+    n = min(int(batch_tubes), max(cells, limit // max(1, per_tube_bytes)))
+    if rt.info.device_type == "CPU":
+        n = min(n, CPU_BATCH_TUBES)
+    return max(cells, n // cells * cells)
+
+
+class _Wavefront:
+    """The kernels of kernels/sbr.cl for one build, with the batch's device buffers."""
+
+    def __init__(self, caster: RayCaster, defines: dict, options: tuple):
+        rt = caster.runtime
+        self.caster, self.rt, self.defines, self.options = caster, rt, defines, options
+        # the kernels that do not walk the BVH come from the same program as those that do
+        program_defines = {**defines, **caster.kernel_defines()}
+        self.launch_kernel = rt.kernel("sbr.cl", "sbr_launch", options, program_defines)
+        self.reduce_kernel = rt.kernel("sbr.cl", "sbr_reduce", options, program_defines)
+        sizes = np.zeros(4, np.int32)
+        sizes_buf = rt.empty(sizes.nbytes)
+        size_kernel = rt.kernel("sbr.cl", "sbr_struct_sizes", options, program_defines)
+        with rt.guard("SBR structure sizes"):
+            rt.launch(size_kernel, 1, None, sizes_buf, name="sbr_struct_sizes (sbr.cl)")
+            _cl().enqueue_copy(rt.queue, sizes, sizes_buf, is_blocking=True)
+        self.record_bytes, self.tube_bytes, self.footprint_bytes, self.contribution_bytes = (
+            int(x) for x in sizes)
+        cells = BLOCK * BLOCK
+        self.reduce_local = rt.require_local_size(self.reduce_kernel, cells,
+                                                  "sbr_reduce (sbr.cl)")
+        # faces (cells x slots), live and leader flags (cells each), all int
+        need = 4 * cells * (tri_slots(defines["SBR_MAX_BOUNCES"]) + 2)
+        have = int(rt.device.local_mem_size)
+        if need > have:
+            raise OpenCLError(f"kernel sbr_reduce (sbr.cl) needs {need} bytes of local "
+                              f"memory and {rt.info.label} has {have}; use fewer "
+                              f"bounces or another device")
+
+    def per_tube_bytes(self, n_rx: int) -> int:
+        """Device memory a batch holds per tube: two queues, a footprint, and per
+        receiver a contribution and its footprint index."""
+        return (2 * self.tube_bytes + self.footprint_bytes
+                + n_rx * (self.contribution_bytes + 4))
+
+    def timed(self, kernel, global_size, local_size, *args, name):
+        rt = self.rt
+        with rt.kernel_clock():
+            rt.launch(kernel, global_size, local_size, *args, name=name, wait=True)
+
+    def local(self, kernel) -> int:
+        return self.rt.local_size(kernel, self.caster.LOCAL_SIZE)
+
+
+def _cl():
+    import pyopencl as cl
+
+    return cl
+
+
 def shoot_and_radiate(caster: RayCaster, scene, tri_face, windows, tx_frame, receivers,
                       rx_frames, *, wavenumber: float, wavelength: float, max_bounces: int,
                       first_bounce: int, record_triangles, batch_tubes: int = BATCH_TUBES,
@@ -189,26 +261,34 @@ def shoot_and_radiate(caster: RayCaster, scene, tri_face, windows, tx_frame, rec
     ``record_triangles`` (bool per scene triangle), receiver (positions (R,3), antenna
     frames (R,3,3); tx's frame ``tx_frame``) and sequence of planar faces ``tri_face``,
     the sum of the tubes' 2x2 polarimetric matrices at ``wavenumber`` (rad/m) and
-    ``wavelength`` (m), with the representative tube.  Sorted by block and emission
-    order, so every run returns the same records in the same order.  ``precision``
+    ``wavelength`` (m), with the representative tube.  Sorted by block and, within a
+    block, by the group's first (tube, bounce, receiver) - the order the host reference
+    numbers its groups in - so every run and batch size returns the same records in the
+    same order (``ordinal``: that rank within the block).  ``precision``
     (:data:`PRECISIONS`): fp64 where the device has it; "double-float" carries positions
     and lengths in kernels/precise.h's compensated float pairs and the fields in float
     (devices without fp64; tests force it on any device).  Records come back in the
     fp64 layout either way.  ``earlier`` (W, W) bool marks the earlier windows k < w whose
     directions can meet window w's (:func:`clradcom.mechanisms.sbr.earlier_overlaps`): a
     tube tests its ownership against those only (default: every earlier window).
-    """
-    import pyopencl as cl
 
+    The tubes go through the wavefront of kernels/sbr.cl a batch of blocks at a time
+    (at most ``batch_tubes`` tubes, fewer where the device's memory asks): launch, then
+    per bounce the closest hits of the live tubes, the footprints' radiation per
+    receiver and its reduction per (block, receiver) in work groups.
+    """
+    cl = _cl()
     rt = caster.runtime
     precision = engine_precision(rt, precision)
     fp64 = precision == "fp64"
     receivers = np.ascontiguousarray(np.asarray(receivers, np.float64).reshape(-1, 3))
-    if len(receivers) >= 2**15:
+    n_rx = len(receivers)
+    if n_rx >= 2**15:
         raise ArgumentError("at most 32767 receivers per transmitter", argument="receivers",
-                            value=len(receivers))
+                            value=n_rx)
     dtype = record_dtype(max_bounces, precision)
     defines = _defines(max_bounces, precision)
+    options = _options(precision)
     real = np.float64 if fp64 else np.float32
     mat_f, mat_i = _tables(scene)
     win_f, win_i, blocks = _windows(windows)
@@ -224,69 +304,124 @@ def shoot_and_radiate(caster: RayCaster, scene, tri_face, windows, tx_frame, rec
         a = np.asarray(a, np.float64).reshape(-1)
         return dev(a, np.float64) if fp64 else dev(split_pairs(a), np.float32)
 
+    wave = _Wavefront(caster, defines, options)
     if fp64:
         data64 = caster.scene_data64()
         tri_v, tri_n = data64["vertices"], data64["normals"]
     else:
         tri_v, tri_n = precise(caster.triangles), precise(caster.normals64())
-    tx_and_k = np.append(np.asarray(windows.tx, np.float64), float(wavenumber))
-    bufs = [tri_v, tri_n, dev(scene.tri_material, np.int32),
-            dev(tri_face, np.int32), dev(record_triangles, np.uint8), dev(mat_f, real),
-            dev(mat_i, np.int32), dev(win_f, real), dev(win_i, np.int32),
-            dev(windows.masks, np.uint8), dev(blocks, np.int32),
-            *(dev(a, np.int32) for a in _overlap_lists(windows.n_windows, earlier)),
-            precise(receivers),
-            dev(np.asarray(rx_frames, np.float64).reshape(-1, 9), real),
-            dev(np.asarray(tx_frame, np.float64).reshape(9), real), precise(tx_and_k),
-            dev(near_first, np.int32), dev(near_tri, np.int32)]
+    tri_material = dev(scene.tri_material, np.int32)
+    tri_face_buf = dev(tri_face, np.int32)
+    materials = [dev(mat_f, real), dev(mat_i, np.int32)]
+    tx_and_k = precise(np.append(np.asarray(windows.tx, np.float64), float(wavenumber)))
+    tx_frame_buf = dev(np.asarray(tx_frame, np.float64).reshape(9), real)
+    launch_args = [dev(win_f, real), dev(win_i, np.int32), dev(windows.masks, np.uint8),
+                   dev(blocks, np.int32),
+                   *(dev(a, np.int32) for a in _overlap_lists(windows.n_windows, earlier)),
+                   tx_frame_buf, tx_and_k]
+    bounce_args = [tri_v, tri_n, tri_material, dev(record_triangles, np.uint8), *materials,
+                   tx_and_k]
+    radiate_args = [tri_v, tri_n, tri_material, *materials, precise(receivers),
+                    dev(np.asarray(rx_frames, np.float64).reshape(-1, 9), real), tx_and_k,
+                    dev(near_first, np.int32), dev(near_tri, np.int32)]
     if fp64:
         # the face tables of the float64 sight rounds (kernels/scene64.h)
-        seam, face_first, face_tris, face_box, n_faces = scene64_args(caster, tri_face)[3:8]
-        bufs += [seam, face_first, face_tris, face_box, n_faces, np.int32(RESCUE_ROUNDS),
-                 np.float64(LOOK_PAST), np.float64(1.0 - SIGHT_STOP)]
-    sight_tmax = np.float32(1.0 - SIGHT_STOP)
+        tri_face64, seam, face_first, face_tris, face_box, n_faces = \
+            scene64_args(caster, tri_face)[2:8]
+        radiate_args += [tri_face64, seam, face_first, face_tris, face_box, n_faces,
+                         np.int32(RESCUE_ROUNDS), np.float64(LOOK_PAST),
+                         np.float64(1.0 - SIGHT_STOP)]
+    radiate_args += [real(ON_FACE_TOL_REL), real(INSIDE_TOL_REL), real(CONFIRM_TOL_M),
+                     np.int32(n_rx), real(wavelength), np.float32(1.0 - SIGHT_STOP)]
+
     cells = BLOCK * BLOCK
-    blocks_per_batch = max(1, int(batch_tubes) // cells)
     n_blocks = len(blocks)
-    count = np.zeros(1, dtype=np.int32)
-    count_buf = cl.Buffer(rt.context, cl.mem_flags.READ_WRITE, size=4)
-    # room for a few records per block and receiver: a batch whose records overflow the
-    # buffer is shot again (the street's first transmitter, 19k records, overflowed the
-    # 16k it once had, and the kernel ran twice)
-    capacity = int(np.clip(RECORDS_PER_BLOCK_RX * max(1, len(receivers))
-                           * min(blocks_per_batch, n_blocks), 1 << 14, MAX_START_RECORDS))
-    out_buf = cl.Buffer(rt.context, cl.mem_flags.READ_WRITE, size=capacity * dtype.itemsize)
+    per_batch = _batch_tubes(rt, wave.per_tube_bytes(n_rx), batch_tubes)
+    blocks_per_batch = per_batch // cells
+    batch_cells = min(blocks_per_batch, n_blocks) * cells
+    slots = batch_cells * n_rx
+    empty = rt.empty
+    queues = [empty(batch_cells * wave.tube_bytes), empty(batch_cells * wave.tube_bytes)]
+    footprints = empty(batch_cells * wave.footprint_bytes)
+    contributions = empty(slots * wave.contribution_bytes)
+    contribution_footprint = empty(slots * 4)
+    # room for a few records per block and receiver: more grow it and reduce again
+    capacity = int(np.clip(RECORDS_PER_BLOCK_RX * max(1, n_rx) * (batch_cells // cells),
+                           1 << 14, MAX_START_RECORDS))
+    out_buf = empty(capacity * dtype.itemsize)
+    # the counters: tubes queued, next bounce's tubes, footprints, records
+    n_live_buf, n_next_buf, n_fp_buf, n_rec_buf = (empty(4) for _ in range(4))
+
+    def zero(*bufs):
+        for b in bufs:
+            cl.enqueue_copy(rt.queue, b, np.zeros(1, np.int32))
+
+    def read(buf) -> int:
+        out = np.zeros(1, np.int32)
+        cl.enqueue_copy(rt.queue, out, buf, is_blocking=True)
+        return int(out[0])
+
     parts = []
     for first in range(0, n_blocks, blocks_per_batch):
         nb = min(blocks_per_batch, n_blocks - first)
-        while True:
-            cl.enqueue_copy(rt.queue, count_buf, np.zeros(1, np.int32))
-            caster.run_kernel("sbr.cl", "sbr_blocks", nb, *bufs, real(ON_FACE_TOL_REL),
-                              real(INSIDE_TOL_REL), real(CONFIRM_TOL_M),
-                              np.int32(len(receivers)), real(wavelength), sight_tmax,
-                              np.int32(first_bounce), np.int32(max_bounces), np.int64(first),
-                              np.int32(nb), out_buf, count_buf, np.int32(capacity),
-                              defines=defines, options=_options(precision))
-            cl.enqueue_copy(rt.queue, count, count_buf)
-            n = int(count[0])
-            if n <= capacity:
+        with rt.guard("SBR tube launch"):
+            zero(n_live_buf)
+            wave.timed(wave.launch_kernel, nb * cells, wave.local(wave.launch_kernel),
+                       *launch_args, np.int64(first), np.int32(nb * cells), queues[0],
+                       n_live_buf, name="sbr_launch (sbr.cl)")
+            n_live = read(n_live_buf)
+        for m in range(1, max_bounces + 1):
+            if n_live == 0:
                 break
-            # more records than the buffer holds: grow it and shoot this batch again
-            capacity = max(n, 2 * capacity)
-            out_buf = cl.Buffer(rt.context, cl.mem_flags.READ_WRITE,
-                                size=capacity * dtype.itemsize)
-        if n:
-            rec = np.empty(n, dtype=dtype)
-            cl.enqueue_copy(rt.queue, rec, out_buf)
-            parts.append(rec)
+            with rt.guard("SBR bounce"):
+                zero(n_next_buf, n_fp_buf)
+            caster.run_kernel("sbr.cl", "sbr_bounce", n_live, *bounce_args, np.int32(m),
+                              np.int32(first_bounce), np.int32(max_bounces), queues[0],
+                              np.int32(n_live), queues[1], n_next_buf, footprints, n_fp_buf,
+                              defines=defines, options=options)
+            with rt.guard("SBR bounce counts"):
+                n_next, n_fp = read(n_next_buf), read(n_fp_buf)
+            if n_fp:
+                with rt.guard("SBR contribution slots"):
+                    cl.enqueue_fill_buffer(rt.queue, contribution_footprint,
+                                           np.int32(-1), 0, nb * cells * n_rx * 4)
+                caster.run_kernel("sbr.cl", "sbr_radiate", n_fp * n_rx, *radiate_args,
+                                  queues[0], footprints, np.int32(n_fp), contributions,
+                                  contribution_footprint, defines=defines, options=options)
+                while True:
+                    with rt.guard("SBR reduction"):
+                        zero(n_rec_buf)
+                        wave.timed(wave.reduce_kernel, nb * n_rx * cells, wave.reduce_local,
+                                   tri_face_buf, queues[0], footprints, contributions,
+                                   contribution_footprint, np.int32(m), np.int32(n_rx),
+                                   np.int64(first), out_buf, n_rec_buf, np.int32(capacity),
+                                   name="sbr_reduce (sbr.cl)")
+                        n = read(n_rec_buf)
+                    if n <= capacity:
+                        break
+                    # more records than the buffer holds: grow it, reduce this bounce again
+                    capacity = max(n, 2 * capacity)
+                    out_buf = empty(capacity * dtype.itemsize)
+                if n:
+                    rec = np.empty(n, dtype=dtype)
+                    with rt.guard("SBR records"):
+                        cl.enqueue_copy(rt.queue, rec, out_buf, is_blocking=True)
+                    parts.append(rec)
+            queues.reverse()
+            n_live = n_next
     rec = np.concatenate(parts) if parts else np.zeros(0, dtype=dtype)
     if len(rec):
-        # by block, then emission order: lexsort's order, from one int64 key whose
-        # records come nearly sorted (a stable sort runs through them)
-        key = (rec["tube"] // cells) * (int(rec["ordinal"].max()) + 1) + rec["ordinal"]
-        order = np.argsort(key, kind="stable")
-        if np.any(order != np.arange(len(order))):
-            rec = rec[order]
+        # by block, then the group's first (cell, bounce, receiver): one int64 key
+        block = rec["tube"] // cells
+        key = block * (int(rec["ordinal"].max()) + 1) + rec["ordinal"]
+        rec = rec[np.argsort(key, kind="stable")]
+        # ordinal: the rank within the block
+        head = np.ones(len(rec), bool)
+        block = rec["tube"] // cells
+        head[1:] = block[1:] != block[:-1]
+        start = np.flatnonzero(head)
+        rec["ordinal"] = np.arange(len(rec)) - np.repeat(start, np.diff(np.append(start,
+                                                                              len(rec))))
     if fp64:
         return rec
     # double-float: lengths and points back to float64, the rest widened
