@@ -3,21 +3,24 @@
  * footprints' contributions reduced per work group. clradcom/device/sbr.py drives it, a
  * batch of covered launch blocks (clradcom/mechanisms/sbr.py: TubeWindows) at a time:
  *
- *   sbr_launch    one item per cell of the batch's blocks: the tube's direction, its
- *                 ownership against earlier windows, its initial state into the queue;
- *   sbr_bounce    per bounce m, one item per live tube: the closest hit in float32 over
- *                 the BVH, the exact hit point on the triangle's plane and the unfolded
- *                 length in `preal` (double, or precise.h's double-float without fp64),
- *                 a footprint where m >= first_bounce on a recorded triangle, the
- *                 reflected tube into the next queue;
- *   sbr_radiate   one item per (footprint, receiver): the sight line (float32 any-hit,
- *                 re-decided in float64 where the device has it), the antenna's near
- *                 triangles, the 2x2 polarimetric matrix in the antennas' bases, into the
- *                 slot of its (block, receiver, cell);
- *   sbr_reduce    one work group of SBR_CELLS items per (block, receiver) at bounce m:
- *                 the cells with the same face sequence summed in cell (tube) order by
- *                 the first of them, the representative the first of the largest |M|_F,
- *                 one SbrRecord each.
+ *   sbr_launch      one item per cell of the batch's blocks: the tube's direction, its
+ *                   ownership against earlier windows, its initial state into the queue;
+ *   sbr_bounce      per bounce m, one item per live tube: the closest hit in float32
+ *                   over the BVH, the exact hit point on the triangle's plane and the
+ *                   unfolded length in `preal` (double, or precise.h's double-float
+ *                   without fp64), a footprint where m >= first_bounce on a recorded
+ *                   triangle, the mirrored tube into the next queue;
+ *   sbr_illuminate  one item per footprint: the tube's cross-section and the fields of
+ *                   both tx polarisations at it, replayed from the launch through its
+ *                   reflections (the queues carry only what the next hit needs);
+ *   sbr_radiate     one item per (footprint, receiver): the sight line (float32 any-hit,
+ *                   re-decided in float64 where the device has it), the antenna's near
+ *                   triangles, the 2x2 polarimetric matrix in the antennas' bases, into
+ *                   the slot of its (block, receiver, cell);
+ *   sbr_reduce      one work group of SBR_CELLS items per (block, receiver) with any
+ *                   contribution at bounce m: the cells with the same face sequence
+ *                   summed in cell (tube) order by the first of them, the representative
+ *                   the first of the largest |M|_F, one SbrRecord each.
  *
  * The formulas are the host reference's (clradcom/mechanisms/sbr.py: shoot_tubes,
  * _chains, _radiate, _sum_blocks, and clradcom/physics/em.py: polarimetric_matrix),
@@ -169,62 +172,6 @@ inline bool window_covers(__global const real *win_f, __global const int *win_i,
 }
 
 
-/* One face sequence of one block toward one receiver at one bounce: the sum of its
- * tubes' polarimetric matrices. Mirrored by clradcom/device/sbr.py: record_dtype
- * (a test checks the size). */
-typedef struct {
-    pout length;             /* the representative's unfolded length tx -> rx */
-    pout point[3];           /* the representative's footprint centre */
-    real M[8];               /* sum of 2x2 complex M (VV VH HV HH), (re, im) pairs */
-    real weight;             /* sum of |M|_F */
-    real weighted_length;    /* sum of |M|_F L */
-    real rep_weight;         /* the representative's |M|_F */
-    real pad_real;           /* keeps `tube` on 8 bytes in both precisions */
-    long tube;               /* the representative: largest |M|_F, the first of equals */
-    int ordinal;             /* the group's first (cell, bounce, receiver) within the block */
-    int count;               /* tubes summed */
-    short bounce;
-    short receiver;
-    int pad;
-    int face[SBR_TRI_SLOTS]; /* the planar faces hit, -1 after the bounce */
-    int tri[SBR_TRI_SLOTS];  /* the representative's triangles */
-} SbrRecord;
-
-/* a tube's triangle history, padded so that SbrTube's ints come in pairs */
-#define SBR_TUBE_TRIS (SBR_TRI_SLOTS + ((SBR_TRI_SLOTS + 1) & 1))
-
-/* A live tube between two bounces (the queues; never read by the host). */
-typedef struct {
-    pout pos[3];             /* its last bounce point (tx at launch) */
-    pout org[3];             /* where its next ray starts: pos, spawned off the face */
-    pout length;             /* unfolded length tx -> pos */
-    real dir[3];             /* unit direction */
-    real e1[3], e2[3];       /* unit edges of its square cross-section, mirrored along */
-    real field[12];          /* per tx polarisation (theta, phi) the complex field
-                                leaving tx, through the reflections so far: x, y, z (re, im) */
-    real side;               /* sqrt of its solid angle */
-    int tube;                /* within the batch: block * SBR_CELLS + cell */
-    int tri[SBR_TUBE_TRIS];  /* the triangles hit so far, -1 after */
-} SbrTube;
-
-/* A bounce on a recorded triangle at or after first_bounce: what sbr_radiate needs
- * beyond the incoming tube, which stays in its queue slot until the next bounce. */
-typedef struct {
-    pout point[3];           /* the exact hit on the triangle's plane */
-    pout length;             /* unfolded length tx -> point */
-    int slot;                /* the incoming tube's slot in the bounce's queue */
-    int tri;                 /* the triangle hit */
-} SbrFootprint;
-
-/* One footprint's radiation toward one receiver (slot (block, receiver, cell) of a
- * bounce; contribution_footprint says which footprint wrote it, -1: none). */
-typedef struct {
-    pout length;             /* unfolded length tx -> footprint -> rx */
-    real M[8];               /* 2x2 complex polarimetric matrix, (re, im) pairs */
-    real weight;             /* |M|_F */
-    real pad_real;
-} SbrContribution;
-
 /* em.h: antenna_frame_basis without the local direction */
 inline void antenna_basis(real3 d, __global const real *R, real3 *th, real3 *ph)
 {
@@ -289,19 +236,84 @@ inline bool antenna_end_blocked(pvec ant, pvec other, real radius,
     return false;
 }
 
+/* One face sequence of one block toward one receiver at one bounce: the sum of its
+ * tubes' polarimetric matrices. Mirrored by clradcom/device/sbr.py: record_dtype
+ * (a test checks the size). */
+typedef struct {
+    pout length;             /* the representative's unfolded length tx -> rx */
+    pout point[3];           /* the representative's footprint centre */
+    real M[8];               /* sum of 2x2 complex M (VV VH HV HH), (re, im) pairs */
+    real weight;             /* sum of |M|_F */
+    real weighted_length;    /* sum of |M|_F L */
+    real rep_weight;         /* the representative's |M|_F */
+    real pad_real;           /* keeps `tube` on 8 bytes in both precisions */
+    long tube;               /* the representative: largest |M|_F, the first of equals */
+    int ordinal;             /* the group's first (cell, bounce, receiver) within the block */
+    int count;               /* tubes summed */
+    short bounce;
+    short receiver;
+    int pad;
+    int face[SBR_TRI_SLOTS]; /* the planar faces hit, -1 after the bounce */
+    int tri[SBR_TRI_SLOTS];  /* the representative's triangles */
+} SbrRecord;
+
+/* a tube's triangle history, padded so that the ints after the 8-byte fields pair up */
+#define SBR_TUBE_TRIS (SBR_TRI_SLOTS + ((SBR_TRI_SLOTS + 1) & 1))
+
+/* A live tube between two bounces (the queues): what its next closest hit needs. Its
+ * cross-section and fields are not carried: sbr_illuminate replays them, where a
+ * footprint needs them, from its launch through the triangles it hit. */
+typedef struct {
+    pout pos[3];             /* its last bounce point (tx at launch) */
+    pout org[3];             /* where its next ray starts: pos, spawned off the face */
+    pout length;             /* unfolded length tx -> pos */
+    real dir[3];             /* unit direction */
+    int tube;                /* within the batch: block * SBR_CELLS + cell */
+    int tri[SBR_TUBE_TRIS];  /* the triangles hit so far, -1 after */
+} SbrTube;
+
+/* A bounce on a recorded triangle at or after first_bounce. */
+typedef struct {
+    pout point[3];           /* the exact hit on the triangle's plane */
+    pout length;             /* unfolded length tx -> point */
+    int tube;                /* within the batch */
+    int tri[SBR_TUBE_TRIS];  /* the triangles hit, this one last */
+} SbrFootprint;
+
+/* What a footprint radiates from, whatever the receiver (sbr_illuminate). */
+typedef struct {
+    real dir[3];             /* the incident direction k_i */
+    real normal[3];          /* the lit side's unit normal n */
+    real edge1[3], edge2[3]; /* the tube's cross-section edges projected on the facet */
+    real area;               /* the footprint's area */
+    real field[24];          /* per tx polarisation the incident field f and, on a
+                                penetrable facet, its reflection D f: f_t, f_p, Df_t,
+                                Df_p, x, y, z (re, im) each */
+} SbrIllumination;
+
+/* One footprint's radiation toward one receiver (slot (block, receiver, cell) of a
+ * bounce; contribution_footprint says which footprint wrote it, -1: none). */
+typedef struct {
+    pout length;             /* unfolded length tx -> footprint -> rx */
+    real M[8];               /* 2x2 complex polarimetric matrix, (re, im) pairs */
+    real weight;             /* |M|_F */
+    real pad_real;
+} SbrContribution;
+
 /* sizeof(SbrRecord) as this build lays it out, for the host's numpy twin's test */
 __kernel void sbr_record_size(__global int *out)
 {
     out[0] = (int)sizeof(SbrRecord);
 }
 
-/* the sizes of the queue entries, for the host's buffers */
+/* the sizes of the stages' entries, for the host's buffers */
 __kernel void sbr_struct_sizes(__global int *out)
 {
     out[0] = (int)sizeof(SbrRecord);
     out[1] = (int)sizeof(SbrTube);
     out[2] = (int)sizeof(SbrFootprint);
-    out[3] = (int)sizeof(SbrContribution);
+    out[3] = (int)sizeof(SbrIllumination);
+    out[4] = (int)sizeof(SbrContribution);
 }
 
 inline void store3(__global real *p, real3 a) { p[0] = a.x; p[1] = a.y; p[2] = a.z; }
@@ -349,6 +361,36 @@ inline pscal wavenumber_of(__global const pelem *tx_and_k)
 #endif
 }
 
+/* The tube through cell `cell` of covered block `blk` (sbr.py: window_tubes): its
+ * window, unit direction, the cell's solid angle and its first edge. */
+typedef struct {
+    int window;
+    real3 dir;
+    real solid_angle;
+    real3 edge1;
+} CellTube;
+
+inline CellTube cell_tube(__global const real *win_f, __global const int *win_i,
+                          __global const int *blocks, long blk, int cell)
+{
+    CellTube c;
+    c.window = blocks[3 * blk];
+    __global const real *f = win_f + WIN_F * c.window;
+    __global const int *wi = win_i + WIN_I * c.window;
+    real3 axis = load3(f), u = load3(f + 3), v = load3(f + 6);
+    real D = f[9], s = f[10];
+    long i = (long)wi[0] + (long)blocks[3 * blk + 1] * SBR_BLOCK + cell % SBR_BLOCK;
+    long j = (long)wi[1] + (long)blocks[3 * blk + 2] * SBR_BLOCK + cell / SBR_BLOCK;
+    real3 vec = D * axis + ((real)i * s) * u + ((real)j * s) * v;
+    real dist = sqrt(dot(vec, vec));
+    c.dir = vec / dist;
+    real cos_a = D / dist;
+    c.solid_angle = s * s * cos_a * cos_a * cos_a / (D * D);
+    real3 e1 = u - dot(c.dir, u) * c.dir;
+    c.edge1 = e1 / sqrt(dot(e1, e1));
+    return c;
+}
+
 /* One work item per cell of the batch's blocks (n_cells = blocks * SBR_CELLS): the
  * tube through the cell, unless an earlier window owns its direction, into the queue. */
 __kernel void sbr_launch(__global const real *win_f,
@@ -357,7 +399,6 @@ __kernel void sbr_launch(__global const real *win_f,
                          __global const int *blocks,        /* per covered block: window, i, j */
                          __global const int *overlap_first, /* W+1: window w's earlier overlaps */
                          __global const int *overlap_ids,
-                         __global const real *tx_frame,     /* 9 */
                          __global const pelem *tx_and_k,    /* tx position (3), wavenumber */
                          const long first_block,
                          const int n_cells,
@@ -366,60 +407,31 @@ __kernel void sbr_launch(__global const real *win_f,
 {
     int gid = get_global_id(0);
     if (gid >= n_cells) return;
-    int cell = gid % SBR_CELLS;
-    long blk = first_block + gid / SBR_CELLS;
-    int w = blocks[3 * blk];
-    __global const real *f = win_f + WIN_F * w;
-    __global const int *wi = win_i + WIN_I * w;
-    real3 axis = load3(f), u = load3(f + 3), v = load3(f + 6);
-    real D = f[9], s = f[10];
-    long i = (long)wi[0] + (long)blocks[3 * blk + 1] * SBR_BLOCK + cell % SBR_BLOCK;
-    long j = (long)wi[1] + (long)blocks[3 * blk + 2] * SBR_BLOCK + cell / SBR_BLOCK;
-    real3 vec = D * axis + ((real)i * s) * u + ((real)j * s) * v;
-    real dist = sqrt(dot(vec, vec));
-    real3 d = vec / dist;
-    /* owned unless an earlier window whose cone meets this one holds d */
-    for (int o = overlap_first[w]; o < overlap_first[w + 1]; ++o)
-        if (window_covers(win_f, win_i, masks, overlap_ids[o], d)) return;
-    real cos_a = D / dist;
-    real dom = s * s * cos_a * cos_a * cos_a / (D * D);
-    real3 e1 = u - dot(d, u) * d;
-    e1 /= sqrt(dot(e1, e1));
-    real3 e2 = cross(d, e1);
-    /* the field leaving tx per unit tx-basis excitation: (I - k k^T) b_tx */
-    real3 bt, bp;
-    antenna_basis(d, tx_frame, &bt, &bp);
-
+    CellTube c = cell_tube(win_f, win_i, blocks, first_block + gid / SBR_CELLS,
+                           gid % SBR_CELLS);
+    /* owned unless an earlier window whose cone meets this one holds the direction */
+    for (int o = overlap_first[c.window]; o < overlap_first[c.window + 1]; ++o)
+        if (window_covers(win_f, win_i, masks, overlap_ids[o], c.dir)) return;
     __global SbrTube *t = queue + atomic_inc(n_queued);
     pvec tx = pv_load(tx_and_k);
     pv_store(t->pos, tx);
     pv_store(t->org, tx);
     t->length = ps_out(ps_zero());
-    store3(t->dir, d);
-    store3(t->e1, e1);
-    store3(t->e2, e2);
-    cv_store(t->field, cv_real(bt - dot(d, bt) * d));
-    cv_store(t->field + 6, cv_real(bp - dot(d, bp) * d));
-    t->side = sqrt(dom);
+    store3(t->dir, c.dir);
     t->tube = gid;
     for (int k = 0; k < SBR_TUBE_TRIS; ++k) t->tri[k] = -1;
 }
 
 /* Bounce m of every queued tube, one work item each: the closest hit, the exact point
  * on the hit triangle's plane and the unfolded length; a footprint where m >=
- * first_bounce on a recorded triangle; unless m is the last bounce, the tube reflected
- * (its fields through the material's dyad, its direction and edges mirrored) into the
- * next queue. A tube that misses, grazes or hits the plane it just left ends. */
+ * first_bounce on a recorded triangle; unless m is the last bounce, the tube mirrored
+ * into the next queue. A tube that misses, grazes or hits the plane it just left ends. */
 __kernel void sbr_bounce(__global const Bvh8Node *nodes,
                          __global const float4 *tri4,
                          __global const int *slot_prim,
                          __global const pelem *tri_v,       /* T*9 */
                          __global const pelem *tri_n,       /* T*3, unit */
-                         __global const int *tri_material,
                          __global const uchar *tri_record,
-                         __global const real *mat_f,        /* per material: eps re, im, sigma_h, spec share */
-                         __global const int *mat_i,         /* per material: pec, roughness model */
-                         __global const pelem *tx_and_k,
                          const int bounce,
                          const int first_bounce,
                          const int max_bounces,
@@ -452,41 +464,100 @@ __kernel void sbr_bounce(__global const Bvh8Node *nodes,
         __global SbrFootprint *fp = footprints + atomic_inc(n_footprints);
         pv_store(fp->point, p);
         fp->length = ps_out(L);
-        fp->slot = gid;
-        fp->tri = tri;
+        fp->tube = t->tube;
+        for (int k = 0; k < SBR_TUBE_TRIS; ++k)
+            fp->tri[k] = (k == bounce - 1) ? tri : t->tri[k];
     }
     if (bounce == max_bounces) return;
-    /* one reflection's coefficients and basis for both polarisations */
-    int mat = tri_material[tri];
-    Reflection refl = material_reflection(d, n, mat_f + 4 * mat, mat_i + 2 * mat,
-                                          ps_real(wavenumber_of(tx_and_k)));
-    real3 e1 = load3(t->e1), e2 = load3(t->e2);
     real3 d_out = d - 2.0 * dn * n;
     __global SbrTube *o = next_queue + atomic_inc(n_next);
     pv_store(o->pos, p);
     pv_store(o->org, spawn(p, n, d_out));
     o->length = ps_out(L);
     store3(o->dir, d_out);
-    store3(o->e1, e1 - 2.0 * dot(e1, n) * n);
-    store3(o->e2, e2 - 2.0 * dot(e2, n) * n);
-    cv_store(o->field, reflect(&refl, cv_load(t->field)));
-    cv_store(o->field + 6, reflect(&refl, cv_load(t->field + 6)));
-    o->side = t->side;
     o->tube = t->tube;
     for (int k = 0; k < SBR_TUBE_TRIS; ++k) o->tri[k] = (k == bounce - 1) ? tri : t->tri[k];
+}
+
+/* One work item per footprint of bounce m: the tube's cross-section and the fields of
+ * both tx polarisations at it, replayed from its launch through its m - 1 reflections
+ * (the operations sbr_bounce did on its direction, the same bits), the cross-section's
+ * edges projected on the facet and, on a penetrable facet, the fields it reflects. */
+__kernel void sbr_illuminate(__global const pelem *tri_n,       /* T*3, unit */
+                             __global const int *tri_material,
+                             __global const real *mat_f,        /* per material: eps re, im, sigma_h, spec share */
+                             __global const int *mat_i,         /* per material: pec, roughness model */
+                             __global const real *win_f,
+                             __global const int *win_i,
+                             __global const int *blocks,
+                             __global const real *tx_frame,     /* 9 */
+                             __global const pelem *tx_and_k,
+                             const long first_block,
+                             const int bounce,
+                             __global const SbrFootprint *footprints,
+                             const int n_footprints,
+                             __global SbrIllumination *lit)
+{
+    int gid = get_global_id(0);
+    if (gid >= n_footprints) return;
+    __global const SbrFootprint *fp = footprints + gid;
+    CellTube c = cell_tube(win_f, win_i, blocks, first_block + fp->tube / SBR_CELLS,
+                           fp->tube % SBR_CELLS);
+    real k0 = ps_real(wavenumber_of(tx_and_k));
+    real3 d = c.dir, e1 = c.edge1, e2 = cross(c.dir, c.edge1);
+    /* the field leaving tx per unit tx-basis excitation: (I - k k^T) b_tx */
+    real3 bt, bp;
+    antenna_basis(d, tx_frame, &bt, &bp);
+    cvec3 f_t = cv_real(bt - dot(d, bt) * d), f_p = cv_real(bp - dot(d, bp) * d);
+    for (int m = 1; m < bounce; ++m) {
+        int tri = fp->tri[m - 1];
+        real3 n = pv_real(pv_load(tri_n + 3 * tri));
+        int mat = tri_material[tri];
+        /* one reflection's coefficients and basis for both polarisations */
+        Reflection refl = material_reflection(d, n, mat_f + 4 * mat, mat_i + 2 * mat, k0);
+        f_t = reflect(&refl, f_t);
+        f_p = reflect(&refl, f_p);
+        d = d - 2.0 * dot(d, n) * n;
+        e1 = e1 - 2.0 * dot(e1, n) * n;
+        e2 = e2 - 2.0 * dot(e2, n) * n;
+    }
+    int tri = fp->tri[bounce - 1];
+    real3 n = pv_real(pv_load(tri_n + 3 * tri));
+    real3 n_lit = (dot(d, n) > 0.0) ? -n : n;   /* -sign(dn) n */
+    real kn = dot(d, n_lit);
+    real w_side = sqrt(c.solid_angle) * ps_real(ps_load(fp->length));
+    real3 a1 = w_side * e1, a2 = w_side * e2;
+    a1 -= d * (dot(n_lit, a1) / kn);
+    a2 -= d * (dot(n_lit, a2) / kn);
+    __global SbrIllumination *out = lit + gid;
+    store3(out->dir, d);
+    store3(out->normal, n_lit);
+    store3(out->edge1, a1);
+    store3(out->edge2, a2);
+    out->area = w_side * w_side / fabs(kn);
+    cv_store(out->field, f_t);
+    cv_store(out->field + 6, f_p);
+    int mat = tri_material[tri];
+    if (!mat_i[2 * mat]) {
+        Reflection refl = material_reflection(d, n_lit, mat_f + 4 * mat, mat_i + 2 * mat, k0);
+        f_t = reflect(&refl, f_t);
+        f_p = reflect(&refl, f_p);
+    }
+    cv_store(out->field + 12, f_t);
+    cv_store(out->field + 18, f_p);
 }
 
 /* One work item per (footprint, receiver), receiver-major (neighbouring items trace
  * sight lines toward the same antenna): the footprint's PO radiation toward the
  * receiver where it sees it, as a polarimetric matrix in the antennas' bases, into
- * slot (block, receiver, cell) of this bounce. */
+ * slot (block, receiver, cell) of this bounce, the (block, receiver) listed for the
+ * reduction with its first contribution. */
 __kernel void sbr_radiate(__global const Bvh8Node *nodes,
                           __global const float4 *tri4,
                           __global const int *slot_prim,
                           __global const pelem *tri_v,       /* T*9 */
                           __global const pelem *tri_n,       /* T*3, unit */
                           __global const int *tri_material,
-                          __global const real *mat_f,
                           __global const int *mat_i,
                           __global const pelem *rx_pos,      /* R*3 */
                           __global const real *rx_frame,     /* R*9, row-major */
@@ -512,25 +583,25 @@ __kernel void sbr_radiate(__global const Bvh8Node *nodes,
                           const int n_rx,
                           const real wavelength,
                           const float sight_tmax,
-                          __global const SbrTube *queue,
+                          const int bounce,
                           __global const SbrFootprint *footprints,
+                          __global const SbrIllumination *lit,
                           const int n_footprints,
                           __global SbrContribution *contributions,
-                          __global int *contribution_footprint)
+                          __global int *contribution_footprint,
+                          __global volatile int *group_tubes,   /* per (block, receiver) */
+                          __global int *live_groups,
+                          __global volatile int *n_live_groups)
 {
     int gid = get_global_id(0);
     if (gid >= n_footprints * n_rx) return;
     int r = gid / n_footprints;
     int fi = gid - r * n_footprints;
     __global const SbrFootprint *fp = footprints + fi;
-    __global const SbrTube *t = queue + fp->slot;
-    int tri = fp->tri;
+    __global const SbrIllumination *il = lit + fi;
+    int tri = fp->tri[bounce - 1];
     pvec p = pv_load(fp->point);
-    pscal L = ps_load(fp->length);
-    real3 d = load3(t->dir);
-    real3 n = pv_real(pv_load(tri_n + 3 * tri));
-    real dn = dot(d, n);
-    real3 n_lit = (dn > 0.0) ? -n : n;   /* -sign(dn) n */
+    real3 n_lit = load3(il->normal);
 
     pvec rx = pv_load(rx_pos + 3 * r);
     pvec dr = pv_sub(rx, p);
@@ -572,26 +643,14 @@ __kernel void sbr_radiate(__global const Bvh8Node *nodes,
     real k0 = ps_real(k_p);
     /* (lambda / 4 pi) (-j k0 / 2 pi): the real factor; the -j is applied below */
     real amp = wavelength / (4.0 * M_PI) * k0 / (2.0 * M_PI);
+    real3 d = load3(il->dir);
     real kn = dot(d, n_lit);
+    pscal L = ps_load(fp->length);
     real L_in = ps_real(L);
-    real w_side = t->side * L_in;
-    real3 a1 = w_side * load3(t->e1), a2 = w_side * load3(t->e2);
-    a1 -= d * (dot(n_lit, a1) / kn);
-    a2 -= d * (dot(n_lit, a2) / kn);
-    real area = w_side * w_side / fabs(kn);
-    int mat = tri_material[tri];
-    __global const real *mf = mat_f + 4 * mat;
-    __global const int *mi = mat_i + 2 * mat;
-    int pec = mi[0];
-    cvec3 f_t = cv_load(t->field), f_p = cv_load(t->field + 6);
-    cvec3 Df_t = f_t, Df_p = f_p;
-    if (!pec) {
-        Reflection refl = material_reflection(d, n_lit, mf, mi, k0);
-        Df_t = reflect(&refl, f_t);
-        Df_p = reflect(&refl, f_p);
-    }
+    int pec = mat_i[2 * tri_material[tri]];
     real3 q = k0 * (sdir - d);
-    real i_fp = area * sinc_(0.5 * dot(q, a1)) * sinc_(0.5 * dot(q, a2));
+    real i_fp = il->area * sinc_(0.5 * dot(q, load3(il->edge1)))
+                * sinc_(0.5 * dot(q, load3(il->edge2)));
     real3 rt, rp;
     antenna_basis(-sdir, rx_frame + 9 * r, &rt, &rp);
     /* g = op f for f = f_t, f_p (PEC: k_i (n.f) - kn f, the projection I - s s^T
@@ -599,10 +658,10 @@ __kernel void sbr_radiate(__global const Bvh8Node *nodes,
      * penetrable_po_operator) */
     cvec3 g[2];
     for (int c = 0; c < 2; ++c) {
-        cvec3 fc = (c == 0) ? f_t : f_p;
+        cvec3 fc = cv_load(il->field + 6 * c);
         cvec3 gc = cv_axpy(cv_dot_real(fc, n_lit), d, cv_scale_real(fc, -kn));
         if (!pec) {
-            cvec3 Dfc = (c == 0) ? Df_t : Df_p;
+            cvec3 Dfc = cv_load(il->field + 12 + 6 * c);
             real3 k_r = d - 2.0 * kn * n_lit;
             /* a_r Df = k_r (n.Df) + kn Df */
             cvec3 ar = cv_axpy(cv_dot_real(Dfc, n_lit), k_r, cv_scale_real(Dfc, kn));
@@ -619,7 +678,8 @@ __kernel void sbr_radiate(__global const Bvh8Node *nodes,
     /* -j e^{-j k L} = (-sin kL, -cos kL) */
     cplx rot = (cplx)(-sin(ph), -cos(ph));
     real mag = amp * i_fp / (L_in * R_r);
-    int slot = ((t->tube / SBR_CELLS) * n_rx + r) * SBR_CELLS + t->tube % SBR_CELLS;
+    int group = (fp->tube / SBR_CELLS) * n_rx + r;
+    int slot = group * SBR_CELLS + fp->tube % SBR_CELLS;
     __global SbrContribution *out = contributions + slot;
     real wsum = 0.0;
     for (int a = 0; a < 2; ++a)
@@ -633,19 +693,22 @@ __kernel void sbr_radiate(__global const Bvh8Node *nodes,
     out->length = ps_out(Ltot);
     out->pad_real = 0.0;
     contribution_footprint[slot] = fi;
+    /* the first contribution of its (block, receiver) lists the group for sbr_reduce */
+    if (atomic_inc(group_tubes + group) == 0)
+        live_groups[atomic_inc(n_live_groups)] = group;
 }
 
-/* One work group of SBR_CELLS items per (block, receiver) of the batch at this bounce,
- * item = cell: the cells whose footprints hit the same sequence of planar faces form a
- * group; its first cell sums the group's contributions in cell order (the host
- * reference's order) and writes one SbrRecord, the representative the first of the
+/* One work group of SBR_CELLS items per (block, receiver) listed by sbr_radiate at this
+ * bounce, item = cell: the cells whose footprints hit the same sequence of planar faces
+ * form a group; its first cell sums the group's contributions in cell (tube) order, the
+ * host reference's order, and writes one SbrRecord, the representative the first of the
  * largest |M|_F. A record past `capacity` is counted, not written: the host then grows
  * the buffer and reduces this bounce again. */
 __kernel void sbr_reduce(__global const int *tri_face,
-                         __global const SbrTube *queue,
                          __global const SbrFootprint *footprints,
                          __global const SbrContribution *contributions,
                          __global const int *contribution_footprint,
+                         __global const int *live_groups,
                          const int bounce,
                          const int n_rx,
                          const long first_block,
@@ -656,18 +719,13 @@ __kernel void sbr_reduce(__global const int *tri_face,
     __local int faces[SBR_CELLS * SBR_TRI_SLOTS];
     __local int live[SBR_CELLS];
     __local int leader[SBR_CELLS];
-    int group = get_group_id(0);
+    int group = live_groups[get_group_id(0)];
     int cell = get_local_id(0);
-    int slot = group * SBR_CELLS + cell;
-    int fi = contribution_footprint[slot];
+    int fi = contribution_footprint[group * SBR_CELLS + cell];
     live[cell] = fi >= 0;
-    if (fi >= 0) {
-        __global const SbrFootprint *fp = footprints + fi;
-        __global const SbrTube *t = queue + fp->slot;
-        for (int e = 0; e < bounce - 1; ++e)
-            faces[cell * SBR_TRI_SLOTS + e] = tri_face[t->tri[e]];
-        faces[cell * SBR_TRI_SLOTS + bounce - 1] = tri_face[fp->tri];
-    }
+    if (fi >= 0)
+        for (int e = 0; e < bounce; ++e)
+            faces[cell * SBR_TRI_SLOTS + e] = tri_face[footprints[fi].tri[e]];
     barrier(CLK_LOCAL_MEM_FENCE);
     int lead = -1;
     for (int c = 0; c <= cell && fi >= 0 && lead < 0; ++c) {
@@ -699,11 +757,8 @@ __kernel void sbr_reduce(__global const int *tri_face,
     }
     int k_out = atomic_inc(count);
     if (k_out >= capacity) return;
-    int r = group % n_rx;
-    long blk = first_block + group / n_rx;
     __global const SbrFootprint *fp =
         footprints + contribution_footprint[group * SBR_CELLS + rep];
-    __global const SbrTube *t = queue + fp->slot;
     __global SbrRecord *e = out + k_out;
     e->length = contributions[group * SBR_CELLS + rep].length;
     for (int k = 0; k < 3; ++k) e->point[k] = fp->point[k];
@@ -712,7 +767,8 @@ __kernel void sbr_reduce(__global const int *tri_face,
     e->weighted_length = weighted_length;
     e->rep_weight = rep_weight;
     e->pad_real = 0.0;
-    e->tube = blk * SBR_CELLS + rep;
+    int r = group % n_rx;
+    e->tube = (first_block + group / n_rx) * SBR_CELLS + rep;
     /* the host reference numbers a block's groups by first appearance in (tube,
      * bounce, receiver) order: this key sorts them so */
     e->ordinal = (cell * SBR_MAX_BOUNCES + bounce - 1) * n_rx + r;
@@ -722,6 +778,6 @@ __kernel void sbr_reduce(__global const int *tri_face,
     e->pad = 0;
     for (int k = 0; k < SBR_TRI_SLOTS; ++k) {
         e->face[k] = (k < bounce) ? faces[cell * SBR_TRI_SLOTS + k] : -1;
-        e->tri[k] = (k < bounce - 1) ? t->tri[k] : ((k == bounce - 1) ? fp->tri : -1);
+        e->tri[k] = (k < bounce) ? fp->tri[k] : -1;
     }
 }

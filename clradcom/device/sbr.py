@@ -192,64 +192,185 @@ def near_triangles(caster: RayCaster, antennas) -> tuple[np.ndarray, np.ndarray]
 
 def _batch_tubes(rt, per_tube_bytes: int, batch_tubes: int) -> int:
     """Tubes per batch (whole blocks): ``batch_tubes`` at most, the batch's buffers within
-    MEMORY_SHARE of the device's largest allocation, and CPU_BATCH_TUBES on a CPU device
-    (its memory is the host's)."""
+    1/MEMORY_SHARE of the device's largest allocation, and CPU_BATCH_TUBES on a CPU
+    device (its memory is the host's)."""
     cells = BLOCK * BLOCK
     limit = int(rt.device.max_mem_alloc_size) // MEMORY_SHARE
-    n = min(int(batch_tubes), max(cells, limit // max(1, per_tube_bytes)))
+    n = min(int(batch_tubes), limit // max(1, per_tube_bytes))
     if rt.info.device_type == "CPU":
         n = min(n, CPU_BATCH_TUBES)
     return max(cells, n // cells * cells)
 
 
-class _Wavefront:
-    """The kernels of kernels/sbr.cl for one build, with the batch's device buffers."""
+def _struct_sizes(rt, options, defines) -> np.ndarray:
+    """sizeof SbrRecord, SbrTube, SbrFootprint, SbrIllumination and SbrContribution in
+    this build."""
+    import pyopencl as cl
 
-    def __init__(self, caster: RayCaster, defines: dict, options: tuple):
+    kernel = rt.kernel("sbr.cl", "sbr_struct_sizes", options, defines)
+    sizes = np.zeros(5, np.int32)
+    buf = rt.empty(sizes.nbytes)
+    with rt.guard("SBR structure sizes"):
+        rt.launch(kernel, 1, None, buf, name="sbr_struct_sizes (sbr.cl)")
+        cl.enqueue_copy(rt.queue, sizes, buf, is_blocking=True)
+    return sizes
+
+
+class _Wavefront:
+    """kernels/sbr.cl's stages for one transmitter: one build's kernels, the scene,
+    window and receiver buffers (``*_args``, as each kernel takes them after its BVH
+    buffers), and one batch's queues, footprints, contribution slots and records.
+    :meth:`shoot` runs a batch of blocks through all of them."""
+
+    def __init__(self, caster: RayCaster, defines: dict, options: tuple, dtype: np.dtype,
+                 n_rx: int, n_blocks: int, batch_tubes: int, *, launch_args, bounce_args,
+                 illuminate_args, radiate_args, tri_face):
+        import pyopencl as cl
+
         rt = caster.runtime
-        self.caster, self.rt, self.defines, self.options = caster, rt, defines, options
+        self.cl, self.caster, self.rt = cl, caster, rt
+        self.defines, self.options, self.dtype, self.n_rx = defines, options, dtype, n_rx
+        self.launch_args, self.bounce_args = launch_args, bounce_args
+        self.illuminate_args, self.radiate_args = illuminate_args, radiate_args
+        self.tri_face = tri_face
         # the kernels that do not walk the BVH come from the same program as those that do
         program_defines = {**defines, **caster.kernel_defines()}
         self.launch_kernel = rt.kernel("sbr.cl", "sbr_launch", options, program_defines)
+        self.illuminate_kernel = rt.kernel("sbr.cl", "sbr_illuminate", options,
+                                           program_defines)
         self.reduce_kernel = rt.kernel("sbr.cl", "sbr_reduce", options, program_defines)
-        sizes = np.zeros(4, np.int32)
-        sizes_buf = rt.empty(sizes.nbytes)
-        size_kernel = rt.kernel("sbr.cl", "sbr_struct_sizes", options, program_defines)
-        with rt.guard("SBR structure sizes"):
-            rt.launch(size_kernel, 1, None, sizes_buf, name="sbr_struct_sizes (sbr.cl)")
-            _cl().enqueue_copy(rt.queue, sizes, sizes_buf, is_blocking=True)
-        self.record_bytes, self.tube_bytes, self.footprint_bytes, self.contribution_bytes = (
-            int(x) for x in sizes)
-        cells = BLOCK * BLOCK
+        cells = self.cells = BLOCK * BLOCK
+        self.launch_local = rt.local_size(self.launch_kernel, caster.LOCAL_SIZE)
+        self.illuminate_local = rt.local_size(self.illuminate_kernel, caster.LOCAL_SIZE)
         self.reduce_local = rt.require_local_size(self.reduce_kernel, cells,
                                                   "sbr_reduce (sbr.cl)")
-        # faces (cells x slots), live and leader flags (cells each), all int
+        # the reduction's local memory: faces (cells x slots), live and leader flags
         need = 4 * cells * (tri_slots(defines["SBR_MAX_BOUNCES"]) + 2)
         have = int(rt.device.local_mem_size)
         if need > have:
             raise OpenCLError(f"kernel sbr_reduce (sbr.cl) needs {need} bytes of local "
-                              f"memory and {rt.info.label} has {have}; use fewer "
-                              f"bounces or another device")
+                              f"memory and {rt.info.label} has {have}; use fewer bounces "
+                              f"or another device")
+        _, tube_bytes, footprint_bytes, lit_bytes, contribution_bytes = (
+            int(x) for x in _struct_sizes(rt, options, program_defines))
+        # per tube: two queues, a footprint and its illumination, per receiver a
+        # contribution and its footprint
+        per_tube = (2 * tube_bytes + footprint_bytes + lit_bytes
+                    + n_rx * (contribution_bytes + 4))
+        self.blocks_per_batch = _batch_tubes(rt, per_tube, batch_tubes) // cells
+        n = min(self.blocks_per_batch, n_blocks) * cells
+        empty = rt.empty
+        self.queues = [empty(n * tube_bytes), empty(n * tube_bytes)]
+        self.footprints = empty(n * footprint_bytes)
+        self.lit = empty(n * lit_bytes)
+        self.contributions = empty(n * n_rx * contribution_bytes)
+        self.contribution_footprint = empty(n * n_rx * 4)
+        # per (block, receiver): its contributions at a bounce; those with any, listed
+        self.group_tubes = empty(n // cells * n_rx * 4)
+        self.live_groups = empty(n // cells * n_rx * 4)
+        # room for a few records per block and receiver: more grow it and reduce again
+        self.capacity = int(np.clip(RECORDS_PER_BLOCK_RX * max(1, n_rx) * (n // cells),
+                                    1 << 14, MAX_START_RECORDS))
+        self.records = empty(self.capacity * dtype.itemsize)
+        # the counters: tubes queued, the next bounce's tubes, footprints, groups, records
+        self.n_queued, self.n_next, self.n_footprints, self.n_groups, self.n_records = (
+            empty(4) for _ in range(5))
 
-    def per_tube_bytes(self, n_rx: int) -> int:
-        """Device memory a batch holds per tube: two queues, a footprint, and per
-        receiver a contribution and its footprint index."""
-        return (2 * self.tube_bytes + self.footprint_bytes
-                + n_rx * (self.contribution_bytes + 4))
+    def _zero(self, *bufs):
+        for b in bufs:
+            self.cl.enqueue_copy(self.rt.queue, b, np.zeros(1, np.int32))
 
-    def timed(self, kernel, global_size, local_size, *args, name):
+    def _read(self, buf) -> int:
+        out = np.zeros(1, np.int32)
+        self.cl.enqueue_copy(self.rt.queue, out, buf, is_blocking=True)
+        return int(out[0])
+
+    def _run(self, kernel, global_size, local_size, *args, name):
+        """A kernel that does not walk the BVH, timed as the caster's are."""
         rt = self.rt
         with rt.kernel_clock():
             rt.launch(kernel, global_size, local_size, *args, name=name, wait=True)
 
-    def local(self, kernel) -> int:
-        return self.rt.local_size(kernel, self.caster.LOCAL_SIZE)
+    def _run_bvh(self, kernel_name, global_size, *args):
+        self.caster.run_kernel("sbr.cl", kernel_name, global_size, *args,
+                               defines=self.defines, options=self.options)
 
+    def shoot(self, first: int, n_blocks: int, max_bounces: int, first_bounce: int):
+        """The records of blocks first .. first + n_blocks - 1 (a list of arrays)."""
+        out = []
+        n_live = self._launch(first, n_blocks)
+        for m in range(1, max_bounces + 1):
+            if n_live == 0:
+                break
+            n_next, n_fp = self._bounce(m, n_live, first_bounce, max_bounces)
+            if n_fp:
+                self._illuminate(m, n_fp, first)
+                n_groups = self._radiate(m, n_fp, n_blocks)
+                if n_groups:
+                    out.append(self._reduce(m, n_groups, first))
+            self.queues.reverse()
+            n_live = n_next
+        return out
 
-def _cl():
-    import pyopencl as cl
+    def _launch(self, first: int, n_blocks: int) -> int:
+        with self.rt.guard("SBR tube launch"):
+            self._zero(self.n_queued)
+            self._run(self.launch_kernel, n_blocks * self.cells, self.launch_local,
+                      *self.launch_args, np.int64(first), np.int32(n_blocks * self.cells),
+                      self.queues[0], self.n_queued, name="sbr_launch (sbr.cl)")
+            return self._read(self.n_queued)
 
-    return cl
+    def _bounce(self, m: int, n_live: int, first_bounce: int, max_bounces: int):
+        with self.rt.guard("SBR bounce"):
+            self._zero(self.n_next, self.n_footprints)
+        self._run_bvh("sbr_bounce", n_live, *self.bounce_args, np.int32(m),
+                      np.int32(first_bounce), np.int32(max_bounces), self.queues[0],
+                      np.int32(n_live), self.queues[1], self.n_next, self.footprints,
+                      self.n_footprints)
+        with self.rt.guard("SBR bounce counts"):
+            return self._read(self.n_next), self._read(self.n_footprints)
+
+    def _illuminate(self, m: int, n_fp: int, first: int):
+        with self.rt.guard("SBR illumination"):
+            self._run(self.illuminate_kernel, n_fp, self.illuminate_local,
+                      *self.illuminate_args, np.int64(first), np.int32(m), self.footprints,
+                      np.int32(n_fp), self.lit, name="sbr_illuminate (sbr.cl)")
+
+    def _radiate(self, m: int, n_fp: int, n_blocks: int) -> int:
+        cl, queue, slots = self.cl, self.rt.queue, n_blocks * self.n_rx
+        with self.rt.guard("SBR contribution slots"):
+            cl.enqueue_fill_buffer(queue, self.contribution_footprint, np.int32(-1), 0,
+                                   slots * self.cells * 4)
+            cl.enqueue_fill_buffer(queue, self.group_tubes, np.int32(0), 0, slots * 4)
+            self._zero(self.n_groups)
+        self._run_bvh("sbr_radiate", n_fp * self.n_rx, *self.radiate_args, np.int32(m),
+                      self.footprints, self.lit, np.int32(n_fp), self.contributions,
+                      self.contribution_footprint, self.group_tubes, self.live_groups,
+                      self.n_groups)
+        with self.rt.guard("SBR group count"):
+            return self._read(self.n_groups)
+
+    def _reduce(self, m: int, n_groups: int, first: int) -> np.ndarray:
+        rt = self.rt
+        while True:
+            with rt.guard("SBR reduction"):
+                self._zero(self.n_records)
+                self._run(self.reduce_kernel, n_groups * self.cells, self.reduce_local,
+                          self.tri_face, self.footprints, self.contributions,
+                          self.contribution_footprint, self.live_groups, np.int32(m),
+                          np.int32(self.n_rx), np.int64(first), self.records,
+                          self.n_records, np.int32(self.capacity), name="sbr_reduce (sbr.cl)")
+                n = self._read(self.n_records)
+            if n <= self.capacity:
+                break
+            # more records than the buffer holds: grow it and reduce this bounce again
+            self.capacity = max(n, 2 * self.capacity)
+            self.records = rt.empty(self.capacity * self.dtype.itemsize)
+        rec = np.empty(n, dtype=self.dtype)
+        if n:
+            with rt.guard("SBR records"):
+                self.cl.enqueue_copy(rt.queue, rec, self.records, is_blocking=True)
+        return rec
 
 
 def shoot_and_radiate(caster: RayCaster, scene, tri_face, windows, tx_frame, receivers,
@@ -272,12 +393,11 @@ def shoot_and_radiate(caster: RayCaster, scene, tri_face, windows, tx_frame, rec
     directions can meet window w's (:func:`clradcom.mechanisms.sbr.earlier_overlaps`): a
     tube tests its ownership against those only (default: every earlier window).
 
-    The tubes go through the wavefront of kernels/sbr.cl a batch of blocks at a time
-    (at most ``batch_tubes`` tubes, fewer where the device's memory asks): launch, then
-    per bounce the closest hits of the live tubes, the footprints' radiation per
-    receiver and its reduction per (block, receiver) in work groups.
+    The tubes go through the wavefront of kernels/sbr.cl a batch of blocks at a time (at
+    most ``batch_tubes`` tubes, fewer where the device's memory asks): launch, then per
+    bounce the closest hits of the live tubes, the footprints' radiation per receiver and
+    its reduction per (block, receiver) in work groups.
     """
-    cl = _cl()
     rt = caster.runtime
     precision = engine_precision(rt, precision)
     fp64 = precision == "fp64"
@@ -287,141 +407,53 @@ def shoot_and_radiate(caster: RayCaster, scene, tri_face, windows, tx_frame, rec
         raise ArgumentError("at most 32767 receivers per transmitter", argument="receivers",
                             value=n_rx)
     dtype = record_dtype(max_bounces, precision)
-    defines = _defines(max_bounces, precision)
-    options = _options(precision)
     real = np.float64 if fp64 else np.float32
     mat_f, mat_i = _tables(scene)
     win_f, win_i, blocks = _windows(windows)
     near_first, near_tri = near_triangles(caster, receivers)
-    to_dev = rt.to_device
 
     def dev(a, dtype):
         a = np.ascontiguousarray(a, dtype=dtype)
-        return to_dev(a if a.size else np.zeros(1, dtype))
+        return rt.to_device(a if a.size else np.zeros(1, dtype))
 
     def precise(a):
         """float64 positions and lengths as the build reads them: doubles, or pairs"""
         a = np.asarray(a, np.float64).reshape(-1)
         return dev(a, np.float64) if fp64 else dev(split_pairs(a), np.float32)
 
-    wave = _Wavefront(caster, defines, options)
     if fp64:
         data64 = caster.scene_data64()
         tri_v, tri_n = data64["vertices"], data64["normals"]
     else:
         tri_v, tri_n = precise(caster.triangles), precise(caster.normals64())
     tri_material = dev(scene.tri_material, np.int32)
-    tri_face_buf = dev(tri_face, np.int32)
     materials = [dev(mat_f, real), dev(mat_i, np.int32)]
     tx_and_k = precise(np.append(np.asarray(windows.tx, np.float64), float(wavenumber)))
-    tx_frame_buf = dev(np.asarray(tx_frame, np.float64).reshape(9), real)
-    launch_args = [dev(win_f, real), dev(win_i, np.int32), dev(windows.masks, np.uint8),
-                   dev(blocks, np.int32),
-                   *(dev(a, np.int32) for a in _overlap_lists(windows.n_windows, earlier)),
-                   tx_frame_buf, tx_and_k]
-    bounce_args = [tri_v, tri_n, tri_material, dev(record_triangles, np.uint8), *materials,
-                   tx_and_k]
-    radiate_args = [tri_v, tri_n, tri_material, *materials, precise(receivers),
+    radiate_args = [tri_v, tri_n, tri_material, materials[1], precise(receivers),
                     dev(np.asarray(rx_frames, np.float64).reshape(-1, 9), real), tx_and_k,
                     dev(near_first, np.int32), dev(near_tri, np.int32)]
     if fp64:
         # the face tables of the float64 sight rounds (kernels/scene64.h)
-        tri_face64, seam, face_first, face_tris, face_box, n_faces = \
-            scene64_args(caster, tri_face)[2:8]
-        radiate_args += [tri_face64, seam, face_first, face_tris, face_box, n_faces,
-                         np.int32(RESCUE_ROUNDS), np.float64(LOOK_PAST),
-                         np.float64(1.0 - SIGHT_STOP)]
+        radiate_args += [*scene64_args(caster, tri_face)[2:8], np.int32(RESCUE_ROUNDS),
+                         np.float64(LOOK_PAST), np.float64(1.0 - SIGHT_STOP)]
     radiate_args += [real(ON_FACE_TOL_REL), real(INSIDE_TOL_REL), real(CONFIRM_TOL_M),
                      np.int32(n_rx), real(wavelength), np.float32(1.0 - SIGHT_STOP)]
-
-    cells = BLOCK * BLOCK
-    n_blocks = len(blocks)
-    per_batch = _batch_tubes(rt, wave.per_tube_bytes(n_rx), batch_tubes)
-    blocks_per_batch = per_batch // cells
-    batch_cells = min(blocks_per_batch, n_blocks) * cells
-    slots = batch_cells * n_rx
-    empty = rt.empty
-    queues = [empty(batch_cells * wave.tube_bytes), empty(batch_cells * wave.tube_bytes)]
-    footprints = empty(batch_cells * wave.footprint_bytes)
-    contributions = empty(slots * wave.contribution_bytes)
-    contribution_footprint = empty(slots * 4)
-    # room for a few records per block and receiver: more grow it and reduce again
-    capacity = int(np.clip(RECORDS_PER_BLOCK_RX * max(1, n_rx) * (batch_cells // cells),
-                           1 << 14, MAX_START_RECORDS))
-    out_buf = empty(capacity * dtype.itemsize)
-    # the counters: tubes queued, next bounce's tubes, footprints, records
-    n_live_buf, n_next_buf, n_fp_buf, n_rec_buf = (empty(4) for _ in range(4))
-
-    def zero(*bufs):
-        for b in bufs:
-            cl.enqueue_copy(rt.queue, b, np.zeros(1, np.int32))
-
-    def read(buf) -> int:
-        out = np.zeros(1, np.int32)
-        cl.enqueue_copy(rt.queue, out, buf, is_blocking=True)
-        return int(out[0])
-
+    window_bufs = [dev(win_f, real), dev(win_i, np.int32), dev(blocks, np.int32)]
+    wave = _Wavefront(
+        caster, _defines(max_bounces, precision), _options(precision), dtype, n_rx,
+        len(blocks), batch_tubes,
+        launch_args=[*window_bufs[:2], dev(windows.masks, np.uint8), window_bufs[2],
+                     *(dev(a, np.int32) for a in _overlap_lists(windows.n_windows, earlier)),
+                     tx_and_k],
+        bounce_args=[tri_v, tri_n, dev(record_triangles, np.uint8)],
+        illuminate_args=[tri_n, tri_material, *materials, *window_bufs,
+                         dev(np.asarray(tx_frame, np.float64).reshape(9), real), tx_and_k],
+        radiate_args=radiate_args, tri_face=dev(tri_face, np.int32))
     parts = []
-    for first in range(0, n_blocks, blocks_per_batch):
-        nb = min(blocks_per_batch, n_blocks - first)
-        with rt.guard("SBR tube launch"):
-            zero(n_live_buf)
-            wave.timed(wave.launch_kernel, nb * cells, wave.local(wave.launch_kernel),
-                       *launch_args, np.int64(first), np.int32(nb * cells), queues[0],
-                       n_live_buf, name="sbr_launch (sbr.cl)")
-            n_live = read(n_live_buf)
-        for m in range(1, max_bounces + 1):
-            if n_live == 0:
-                break
-            with rt.guard("SBR bounce"):
-                zero(n_next_buf, n_fp_buf)
-            caster.run_kernel("sbr.cl", "sbr_bounce", n_live, *bounce_args, np.int32(m),
-                              np.int32(first_bounce), np.int32(max_bounces), queues[0],
-                              np.int32(n_live), queues[1], n_next_buf, footprints, n_fp_buf,
-                              defines=defines, options=options)
-            with rt.guard("SBR bounce counts"):
-                n_next, n_fp = read(n_next_buf), read(n_fp_buf)
-            if n_fp:
-                with rt.guard("SBR contribution slots"):
-                    cl.enqueue_fill_buffer(rt.queue, contribution_footprint,
-                                           np.int32(-1), 0, nb * cells * n_rx * 4)
-                caster.run_kernel("sbr.cl", "sbr_radiate", n_fp * n_rx, *radiate_args,
-                                  queues[0], footprints, np.int32(n_fp), contributions,
-                                  contribution_footprint, defines=defines, options=options)
-                while True:
-                    with rt.guard("SBR reduction"):
-                        zero(n_rec_buf)
-                        wave.timed(wave.reduce_kernel, nb * n_rx * cells, wave.reduce_local,
-                                   tri_face_buf, queues[0], footprints, contributions,
-                                   contribution_footprint, np.int32(m), np.int32(n_rx),
-                                   np.int64(first), out_buf, n_rec_buf, np.int32(capacity),
-                                   name="sbr_reduce (sbr.cl)")
-                        n = read(n_rec_buf)
-                    if n <= capacity:
-                        break
-                    # more records than the buffer holds: grow it, reduce this bounce again
-                    capacity = max(n, 2 * capacity)
-                    out_buf = empty(capacity * dtype.itemsize)
-                if n:
-                    rec = np.empty(n, dtype=dtype)
-                    with rt.guard("SBR records"):
-                        cl.enqueue_copy(rt.queue, rec, out_buf, is_blocking=True)
-                    parts.append(rec)
-            queues.reverse()
-            n_live = n_next
-    rec = np.concatenate(parts) if parts else np.zeros(0, dtype=dtype)
-    if len(rec):
-        # by block, then the group's first (cell, bounce, receiver): one int64 key
-        block = rec["tube"] // cells
-        key = block * (int(rec["ordinal"].max()) + 1) + rec["ordinal"]
-        rec = rec[np.argsort(key, kind="stable")]
-        # ordinal: the rank within the block
-        head = np.ones(len(rec), bool)
-        block = rec["tube"] // cells
-        head[1:] = block[1:] != block[:-1]
-        start = np.flatnonzero(head)
-        rec["ordinal"] = np.arange(len(rec)) - np.repeat(start, np.diff(np.append(start,
-                                                                              len(rec))))
+    for first in range(0, len(blocks), wave.blocks_per_batch):
+        parts += wave.shoot(first, min(wave.blocks_per_batch, len(blocks) - first),
+                            max_bounces, first_bounce)
+    rec = _in_host_order(np.concatenate(parts) if parts else np.zeros(0, dtype=dtype))
     if fp64:
         return rec
     # double-float: lengths and points back to float64, the rest widened
@@ -432,3 +464,17 @@ def shoot_and_radiate(caster: RayCaster, scene, tri_face, windows, tx_frame, rec
         else:
             out[name] = rec[name]
     return out
+
+
+def _in_host_order(rec: np.ndarray) -> np.ndarray:
+    """Records sorted by block, then by their groups' first (cell, bounce, receiver)
+    (the kernel's ``ordinal`` key), which becomes the rank within the block."""
+    if len(rec) == 0:
+        return rec
+    cells = BLOCK * BLOCK
+    block = rec["tube"] // cells
+    rec = rec[np.lexsort((rec["ordinal"], block))]
+    block = rec["tube"] // cells
+    start = np.flatnonzero(np.diff(block, prepend=-1))
+    rec["ordinal"] = np.arange(len(rec)) - np.repeat(start, np.diff(start, append=len(rec)))
+    return rec
