@@ -71,7 +71,9 @@ typedef float3 real3;
 
 inline real3 load3(__global const real *p) { return (real3)(p[0], p[1], p[2]); }
 
-inline float3 to_float3(real3 a) { return convert_float3(a); }
+/* component by component, as convert_float3 rounds them: the conversion of the vector
+ * reads its padding lane, which Oclgrind's uninitialised-value check reports */
+inline float3 to_float3(real3 a) { return (float3)((float)a.x, (float)a.y, (float)a.z); }
 
 #if PRECISE_MODE == 2
 typedef double3 pvec;   /* a position */
@@ -139,7 +141,7 @@ inline pvec spawn(pvec p, real3 n, real3 dir)
 inline float3 pv_float3(pvec a)
 {
 #if PRECISE_MODE == 2
-    return convert_float3(a);
+    return to_float3(a);
 #else
     return pr3_to_float3(a);
 #endif
@@ -361,6 +363,16 @@ inline pscal wavenumber_of(__global const pelem *tx_and_k)
 #endif
 }
 
+/* x / d, and the rest x - (x / d) d in *rest: never x % d beside x / d, which a compiler
+ * pairs through an instruction (freeze) that Oclgrind's uninitialised-value check
+ * cannot follow */
+inline int quotient(int x, int d, int *rest)
+{
+    int q = x / d;
+    *rest = x - q * d;
+    return q;
+}
+
 /* The tube through cell `cell` of covered block `blk` (sbr.py: window_tubes): its
  * window, unit direction, the cell's solid angle and its first edge. */
 typedef struct {
@@ -379,8 +391,9 @@ inline CellTube cell_tube(__global const real *win_f, __global const int *win_i,
     __global const int *wi = win_i + WIN_I * c.window;
     real3 axis = load3(f), u = load3(f + 3), v = load3(f + 6);
     real D = f[9], s = f[10];
-    long i = (long)wi[0] + (long)blocks[3 * blk + 1] * SBR_BLOCK + cell % SBR_BLOCK;
-    long j = (long)wi[1] + (long)blocks[3 * blk + 2] * SBR_BLOCK + cell / SBR_BLOCK;
+    int cx, cy = quotient(cell, SBR_BLOCK, &cx);
+    long i = (long)wi[0] + (long)blocks[3 * blk + 1] * SBR_BLOCK + cx;
+    long j = (long)wi[1] + (long)blocks[3 * blk + 2] * SBR_BLOCK + cy;
     real3 vec = D * axis + ((real)i * s) * u + ((real)j * s) * v;
     real dist = sqrt(dot(vec, vec));
     c.dir = vec / dist;
@@ -407,8 +420,8 @@ __kernel void sbr_launch(__global const real *win_f,
 {
     int gid = get_global_id(0);
     if (gid >= n_cells) return;
-    CellTube c = cell_tube(win_f, win_i, blocks, first_block + gid / SBR_CELLS,
-                           gid % SBR_CELLS);
+    int cell, blk = quotient(gid, SBR_CELLS, &cell);
+    CellTube c = cell_tube(win_f, win_i, blocks, first_block + blk, cell);
     /* owned unless an earlier window whose cone meets this one holds the direction */
     for (int o = overlap_first[c.window]; o < overlap_first[c.window + 1]; ++o)
         if (window_covers(win_f, win_i, masks, overlap_ids[o], c.dir)) return;
@@ -501,8 +514,8 @@ __kernel void sbr_illuminate(__global const pelem *tri_n,       /* T*3, unit */
     int gid = get_global_id(0);
     if (gid >= n_footprints) return;
     __global const SbrFootprint *fp = footprints + gid;
-    CellTube c = cell_tube(win_f, win_i, blocks, first_block + fp->tube / SBR_CELLS,
-                           fp->tube % SBR_CELLS);
+    int cell, blk = quotient(fp->tube, SBR_CELLS, &cell);
+    CellTube c = cell_tube(win_f, win_i, blocks, first_block + blk, cell);
     real k0 = ps_real(wavenumber_of(tx_and_k));
     real3 d = c.dir, e1 = c.edge1, e2 = cross(c.dir, c.edge1);
     /* the field leaving tx per unit tx-basis excitation: (I - k k^T) b_tx */
@@ -595,8 +608,7 @@ __kernel void sbr_radiate(__global const Bvh8Node *nodes,
 {
     int gid = get_global_id(0);
     if (gid >= n_footprints * n_rx) return;
-    int r = gid / n_footprints;
-    int fi = gid - r * n_footprints;
+    int fi, r = quotient(gid, n_footprints, &fi);
     __global const SbrFootprint *fp = footprints + fi;
     __global const SbrIllumination *il = lit + fi;
     int tri = fp->tri[bounce - 1];
@@ -678,8 +690,8 @@ __kernel void sbr_radiate(__global const Bvh8Node *nodes,
     /* -j e^{-j k L} = (-sin kL, -cos kL) */
     cplx rot = (cplx)(-sin(ph), -cos(ph));
     real mag = amp * i_fp / (L_in * R_r);
-    int group = (fp->tube / SBR_CELLS) * n_rx + r;
-    int slot = group * SBR_CELLS + fp->tube % SBR_CELLS;
+    int cell, group = quotient(fp->tube, SBR_CELLS, &cell) * n_rx + r;
+    int slot = group * SBR_CELLS + cell;
     __global SbrContribution *out = contributions + slot;
     real wsum = 0.0;
     for (int a = 0; a < 2; ++a)
@@ -717,19 +729,28 @@ __kernel void sbr_reduce(__global const int *tri_face,
                          const int capacity)
 {
     __local int faces[SBR_CELLS * SBR_TRI_SLOTS];
-    __local int live[SBR_CELLS];
+    __local uint keys[SBR_CELLS];
     __local int leader[SBR_CELLS];
     int group = live_groups[get_group_id(0)];
     int cell = get_local_id(0);
     int fi = contribution_footprint[group * SBR_CELLS + cell];
-    live[cell] = fi >= 0;
-    if (fi >= 0)
-        for (int e = 0; e < bounce; ++e)
-            faces[cell * SBR_TRI_SLOTS + e] = tri_face[footprints[fi].tri[e]];
+    /* a hash of the face sequence (0: no footprint) tells most sequences apart in one
+     * comparison */
+    uint key = 0;
+    if (fi >= 0) {
+        key = 2166136261u;
+        for (int e = 0; e < bounce; ++e) {
+            int face = tri_face[footprints[fi].tri[e]];
+            faces[cell * SBR_TRI_SLOTS + e] = face;
+            key = (key ^ (uint)face) * 16777619u;
+        }
+        key |= 1u;
+    }
+    keys[cell] = key;
     barrier(CLK_LOCAL_MEM_FENCE);
     int lead = -1;
-    for (int c = 0; c <= cell && fi >= 0 && lead < 0; ++c) {
-        bool same = live[c] != 0;
+    for (int c = 0; c <= cell && key != 0 && lead < 0; ++c) {
+        bool same = keys[c] == key;
         for (int e = 0; e < bounce && same; ++e)
             same = faces[c * SBR_TRI_SLOTS + e] == faces[cell * SBR_TRI_SLOTS + e];
         if (same) lead = c;
@@ -767,8 +788,8 @@ __kernel void sbr_reduce(__global const int *tri_face,
     e->weighted_length = weighted_length;
     e->rep_weight = rep_weight;
     e->pad_real = 0.0;
-    int r = group % n_rx;
-    e->tube = (first_block + group / n_rx) * SBR_CELLS + rep;
+    int r, blk = quotient(group, n_rx, &r);
+    e->tube = (first_block + blk) * SBR_CELLS + rep;
     /* the host reference numbers a block's groups by first appearance in (tube,
      * bounce, receiver) order: this key sorts them so */
     e->ordinal = (cell * SBR_MAX_BOUNCES + bounce - 1) * n_rx + r;

@@ -244,7 +244,7 @@ class _Wavefront:
         self.illuminate_local = rt.local_size(self.illuminate_kernel, caster.LOCAL_SIZE)
         self.reduce_local = rt.require_local_size(self.reduce_kernel, cells,
                                                   "sbr_reduce (sbr.cl)")
-        # the reduction's local memory: faces (cells x slots), live and leader flags
+        # the reduction's local memory: faces (cells x slots), keys and leaders
         need = 4 * cells * (tri_slots(defines["SBR_MAX_BOUNCES"]) + 2)
         have = int(rt.device.local_mem_size)
         if need > have:
