@@ -404,6 +404,12 @@ inline CellTube cell_tube(__global const real *win_f, __global const int *win_i,
     return c;
 }
 
+/* The per-item kernels below run their items past the count (the rest of the last work
+ * group) as copies of the last real one and drop them only before their first write:
+ * Intel's CPU compiler rounds the items of a SIMD vector that diverges at the kernel's
+ * entry otherwise than the rest (the last footprints of a launch came out a bit apart),
+ * which would make a result depend on where a compaction put its item. */
+
 /* One work item per cell of the batch's blocks (n_cells = blocks * SBR_CELLS): the
  * tube through the cell, unless an earlier window owns its direction, into the queue. */
 __kernel void sbr_launch(__global const real *win_f,
@@ -419,12 +425,14 @@ __kernel void sbr_launch(__global const real *win_f,
                          __global volatile int *n_queued)
 {
     int gid = get_global_id(0);
-    if (gid >= n_cells) return;
-    int cell, blk = quotient(gid, SBR_CELLS, &cell);
+    int item = min(gid, n_cells - 1);   /* past the count: a copy of the last */
+    int cell, blk = quotient(item, SBR_CELLS, &cell);
     CellTube c = cell_tube(win_f, win_i, blocks, first_block + blk, cell);
     /* owned unless an earlier window whose cone meets this one holds the direction */
-    for (int o = overlap_first[c.window]; o < overlap_first[c.window + 1]; ++o)
-        if (window_covers(win_f, win_i, masks, overlap_ids[o], c.dir)) return;
+    bool owned = true;
+    for (int o = overlap_first[c.window]; o < overlap_first[c.window + 1] && owned; ++o)
+        owned = !window_covers(win_f, win_i, masks, overlap_ids[o], c.dir);
+    if (gid >= n_cells || !owned) return;
     __global SbrTube *t = queue + atomic_inc(n_queued);
     pvec tx = pv_load(tx_and_k);
     pv_store(t->pos, tx);
@@ -456,8 +464,8 @@ __kernel void sbr_bounce(__global const Bvh8Node *nodes,
                          __global volatile int *n_footprints)
 {
     int gid = get_global_id(0);
-    if (gid >= n_tubes) return;
-    __global const SbrTube *t = queue + gid;
+    /* past the count: a copy of the last */
+    __global const SbrTube *t = queue + min(gid, n_tubes - 1);
     real3 d = load3(t->dir);
     pvec pos = pv_load(t->pos);
     PreparedRay pr = prepare_ray(pv_float3(pv_load(t->org)), to_float3(d));
@@ -473,6 +481,9 @@ __kernel void sbr_bounce(__global const Bvh8Node *nodes,
     if (!(ps_real(tt) > 0.0)) return;   /* on the plane it just left (a corner's edge) */
     pvec p = pv_along(pos, tt, d);
     pscal L = ps_add(ps_load(t->length), pv_len(pv_sub(p, pos)));
+    real3 d_out = d - 2.0 * dn * n;
+    pvec org = spawn(p, n, d_out);
+    if (gid >= n_tubes) return;
     if (bounce >= first_bounce && tri_record[tri]) {
         __global SbrFootprint *fp = footprints + atomic_inc(n_footprints);
         pv_store(fp->point, p);
@@ -482,10 +493,9 @@ __kernel void sbr_bounce(__global const Bvh8Node *nodes,
             fp->tri[k] = (k == bounce - 1) ? tri : t->tri[k];
     }
     if (bounce == max_bounces) return;
-    real3 d_out = d - 2.0 * dn * n;
     __global SbrTube *o = next_queue + atomic_inc(n_next);
     pv_store(o->pos, p);
-    pv_store(o->org, spawn(p, n, d_out));
+    pv_store(o->org, org);
     o->length = ps_out(L);
     store3(o->dir, d_out);
     o->tube = t->tube;
@@ -494,12 +504,14 @@ __kernel void sbr_bounce(__global const Bvh8Node *nodes,
 
 /* One work item per footprint of bounce m: the tube's cross-section and the fields of
  * both tx polarisations at it, replayed from its launch through its m - 1 reflections
- * (the operations sbr_bounce did on its direction, the same bits), the cross-section's
+ * (the operations sbr_bounce did on its direction), the cross-section's
  * edges projected on the facet and, on a penetrable facet, the fields it reflects. */
 __kernel void sbr_illuminate(__global const pelem *tri_n,       /* T*3, unit */
                              __global const int *tri_material,
-                             __global const real *mat_f,        /* per material: eps re, im, sigma_h, spec share */
-                             __global const int *mat_i,         /* per material: pec, roughness model */
+                             /* per material: eps re, im, sigma_h, specular share; pec,
+                              * roughness model */
+                             __global const real *mat_f,
+                             __global const int *mat_i,
                              __global const real *win_f,
                              __global const int *win_i,
                              __global const int *blocks,
@@ -512,8 +524,8 @@ __kernel void sbr_illuminate(__global const pelem *tri_n,       /* T*3, unit */
                              __global SbrIllumination *lit)
 {
     int gid = get_global_id(0);
-    if (gid >= n_footprints) return;
-    __global const SbrFootprint *fp = footprints + gid;
+    /* past the count: a copy of the last */
+    __global const SbrFootprint *fp = footprints + min(gid, n_footprints - 1);
     int cell, blk = quotient(fp->tube, SBR_CELLS, &cell);
     CellTube c = cell_tube(win_f, win_i, blocks, first_block + blk, cell);
     real k0 = ps_real(wavenumber_of(tx_and_k));
@@ -542,6 +554,7 @@ __kernel void sbr_illuminate(__global const pelem *tri_n,       /* T*3, unit */
     real3 a1 = w_side * e1, a2 = w_side * e2;
     a1 -= d * (dot(n_lit, a1) / kn);
     a2 -= d * (dot(n_lit, a2) / kn);
+    if (gid >= n_footprints) return;
     __global SbrIllumination *out = lit + gid;
     store3(out->dir, d);
     store3(out->normal, n_lit);
@@ -607,8 +620,8 @@ __kernel void sbr_radiate(__global const Bvh8Node *nodes,
                           __global volatile int *n_live_groups)
 {
     int gid = get_global_id(0);
-    if (gid >= n_footprints * n_rx) return;
-    int fi, r = quotient(gid, n_footprints, &fi);
+    /* past the count: a copy of the last */
+    int fi, r = quotient(min(gid, n_footprints * n_rx - 1), n_footprints, &fi);
     __global const SbrFootprint *fp = footprints + fi;
     __global const SbrIllumination *il = lit + fi;
     int tri = fp->tri[bounce - 1];
@@ -690,17 +703,20 @@ __kernel void sbr_radiate(__global const Bvh8Node *nodes,
     /* -j e^{-j k L} = (-sin kL, -cos kL) */
     cplx rot = (cplx)(-sin(ph), -cos(ph));
     real mag = amp * i_fp / (L_in * R_r);
-    int cell, group = quotient(fp->tube, SBR_CELLS, &cell) * n_rx + r;
-    int slot = group * SBR_CELLS + cell;
-    __global SbrContribution *out = contributions + slot;
+    real M[8];
     real wsum = 0.0;
     for (int a = 0; a < 2; ++a)
         for (int c = 0; c < 2; ++c) {
             cplx val = c_scale(c_mul(rot, cv_dot_real(g[c], (a == 0) ? rt : rp)), mag);
-            out->M[4 * a + 2 * c] = val.x;
-            out->M[4 * a + 2 * c + 1] = val.y;
+            M[4 * a + 2 * c] = val.x;
+            M[4 * a + 2 * c + 1] = val.y;
             wsum += val.x * val.x + val.y * val.y;
         }
+    if (gid >= n_footprints * n_rx) return;
+    int cell, group = quotient(fp->tube, SBR_CELLS, &cell) * n_rx + r;
+    int slot = group * SBR_CELLS + cell;
+    __global SbrContribution *out = contributions + slot;
+    for (int k = 0; k < 8; ++k) out->M[k] = M[k];
     out->weight = sqrt(wsum);
     out->length = ps_out(Ltot);
     out->pad_real = 0.0;
