@@ -40,9 +40,10 @@ __all__ = ["BATCH_TUBES", "PRECISIONS", "engine_precision", "record_dtype", "rec
 
 #: Tubes per batch at most (whole blocks): about 1 M.
 BATCH_TUBES = 1 << 20
-#: ... and on a CPU device, whose memory is the host's: the batch's queues and slots
-#: stay within some 100 MB
-CPU_BATCH_TUBES = 1 << 17
+#: ... and on a CPU device, whose memory is the host's, the batch's buffers within this
+#: many bytes (with two receivers about 88 k tubes; the street's SBR stage on PoCL took
+#: the same time, within the noise of a shared machine, from 32 to 256 MB)
+CPU_BATCH_BYTES = 1 << 26
 #: A batch's buffers take at most this fraction of the device's largest allocation.
 MEMORY_SHARE = 8
 #: Records the output buffer has room for at first, per block and receiver of a batch,
@@ -191,14 +192,14 @@ def near_triangles(caster: RayCaster, antennas) -> tuple[np.ndarray, np.ndarray]
 
 
 def _batch_tubes(rt, per_tube_bytes: int, batch_tubes: int) -> int:
-    """Tubes per batch (whole blocks): ``batch_tubes`` at most, the batch's buffers within
-    1/MEMORY_SHARE of the device's largest allocation, and CPU_BATCH_TUBES on a CPU
-    device (its memory is the host's)."""
+    """Tubes per batch (whole blocks): ``batch_tubes`` at most, the batch's buffers
+    (``per_tube_bytes`` a tube) within 1/MEMORY_SHARE of the device's largest allocation,
+    and within CPU_BATCH_BYTES on a CPU device (its memory is the host's)."""
     cells = BLOCK * BLOCK
     limit = int(rt.device.max_mem_alloc_size) // MEMORY_SHARE
-    n = min(int(batch_tubes), limit // max(1, per_tube_bytes))
     if rt.info.device_type == "CPU":
-        n = min(n, CPU_BATCH_TUBES)
+        limit = min(limit, CPU_BATCH_BYTES)
+    n = min(int(batch_tubes), limit // max(1, per_tube_bytes))
     return max(cells, n // cells * cells)
 
 
