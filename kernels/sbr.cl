@@ -289,8 +289,8 @@ typedef struct {
     real edge1[3], edge2[3]; /* the tube's cross-section edges projected on the facet */
     real area;               /* the footprint's area */
     real field[24];          /* per tx polarisation the incident field f and, on a
-                                penetrable facet, its reflection D f: f_t, f_p, Df_t,
-                                Df_p, x, y, z (re, im) each */
+                                penetrable facet only, its reflection D f: f_t, f_p,
+                                Df_t, Df_p, x, y, z (re, im) each */
 } SbrIllumination;
 
 /* One footprint's radiation toward one receiver (slot (block, receiver, cell) of a
@@ -564,13 +564,10 @@ __kernel void sbr_illuminate(__global const pelem *tri_n,       /* T*3, unit */
     cv_store(out->field, f_t);
     cv_store(out->field + 6, f_p);
     int mat = tri_material[tri];
-    if (!mat_i[2 * mat]) {
-        Reflection refl = material_reflection(d, n_lit, mat_f + 4 * mat, mat_i + 2 * mat, k0);
-        f_t = reflect(&refl, f_t);
-        f_p = reflect(&refl, f_p);
-    }
-    cv_store(out->field + 12, f_t);
-    cv_store(out->field + 18, f_p);
+    if (mat_i[2 * mat]) return;   /* PEC: sbr_radiate needs no reflected field */
+    Reflection refl = material_reflection(d, n_lit, mat_f + 4 * mat, mat_i + 2 * mat, k0);
+    cv_store(out->field + 12, reflect(&refl, f_t));
+    cv_store(out->field + 18, reflect(&refl, f_p));
 }
 
 /* One work item per (footprint, receiver), receiver-major (neighbouring items trace
