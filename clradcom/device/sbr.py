@@ -191,15 +191,17 @@ def near_triangles(caster: RayCaster, antennas) -> tuple[np.ndarray, np.ndarray]
             np.concatenate(tris).astype(np.int32) if tris else np.zeros(0, np.int32))
 
 
-def _batch_tubes(rt, per_tube_bytes: int, batch_tubes: int) -> int:
+def _batch_tubes(rt, per_tube_bytes: int, batch_tubes: int, n_rx: int) -> int:
     """Tubes per batch (whole blocks): ``batch_tubes`` at most, the batch's buffers
     (``per_tube_bytes`` a tube) within 1/MEMORY_SHARE of the device's largest allocation,
-    and within CPU_BATCH_BYTES on a CPU device (its memory is the host's)."""
+    and within CPU_BATCH_BYTES on a CPU device (its memory is the host's); its slots per
+    (tube, receiver) within the kernels' int indices."""
     cells = BLOCK * BLOCK
     limit = int(rt.device.max_mem_alloc_size) // MEMORY_SHARE
     if rt.info.device_type == "CPU":
         limit = min(limit, CPU_BATCH_BYTES)
-    n = min(int(batch_tubes), limit // max(1, per_tube_bytes))
+    n = min(int(batch_tubes), limit // max(1, per_tube_bytes),
+            (2**31 - 1) // max(1, n_rx) - cells)
     return max(cells, n // cells * cells)
 
 
@@ -258,7 +260,7 @@ class _Wavefront:
         # contribution and its footprint
         per_tube = (2 * tube_bytes + footprint_bytes + lit_bytes
                     + n_rx * (contribution_bytes + 4))
-        self.blocks_per_batch = _batch_tubes(rt, per_tube, batch_tubes) // cells
+        self.blocks_per_batch = _batch_tubes(rt, per_tube, batch_tubes, n_rx) // cells
         n = min(self.blocks_per_batch, n_blocks) * cells
         empty = rt.empty
         self.queues = [empty(n * tube_bytes), empty(n * tube_bytes)]
