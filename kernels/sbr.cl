@@ -1,16 +1,30 @@
-/* SBR-PO on the device. Work item = one covered block of a launch window
- * (clradcom/mechanisms/sbr.py: TubeWindows); it shoots the block's
- * SBR_BLOCK x SBR_BLOCK tubes one after the other. A tube leaves the transmitter
- * through its window cell, is dropped when an earlier window owns its direction,
- * follows up to SBR_MAX_BOUNCES specular reflections (closest hits in float32 over
- * the BVH; each hit point the exact intersection with the hit triangle's plane and the
- * unfolded length in double, or in precise.h's double-float without fp64; the field of
- * each tx polarisation carried through the material reflections in `real`) and, at every bounce from first_bounce on a recorded
- * triangle, radiates its PO footprint toward every receiver it sees: a 2x2
- * polarimetric matrix in the antennas' bases, summed per (bounce, receiver, face
- * sequence) over the block and written as one SbrRecord. The formulas are the host
- * reference's (clradcom/mechanisms/sbr.py: shoot_tubes, _chains, _radiate, and
- * clradcom/physics/em.py: polarimetric_matrix), step for step. */
+/* SBR-PO on the device as a wavefront: one small kernel per stage, one work item per
+ * tube, footprint or (footprint, receiver), queues compacted between bounces, the
+ * footprints' contributions reduced per work group. clradcom/device/sbr.py drives it, a
+ * batch of covered launch blocks (clradcom/mechanisms/sbr.py: TubeWindows) at a time:
+ *
+ *   sbr_launch      one item per cell of the batch's blocks: the tube's direction, its
+ *                   ownership against earlier windows, its initial state into the queue;
+ *   sbr_bounce      per bounce m, one item per live tube: the closest hit in float32
+ *                   over the BVH, the exact hit point on the triangle's plane and the
+ *                   unfolded length in `preal` (double, or precise.h's double-float
+ *                   without fp64), a footprint where m >= first_bounce on a recorded
+ *                   triangle, the mirrored tube into the next queue;
+ *   sbr_illuminate  one item per footprint: the tube's cross-section and the fields of
+ *                   both tx polarisations at it, replayed from the launch through its
+ *                   reflections (the queues carry only what the next hit needs);
+ *   sbr_radiate     one item per (footprint, receiver): the sight line (float32 any-hit,
+ *                   re-decided in float64 where the device has it), the antenna's near
+ *                   triangles, the 2x2 polarimetric matrix in the antennas' bases, into
+ *                   the slot of its (block, receiver, cell);
+ *   sbr_reduce      one work group of SBR_CELLS items per (block, receiver) with any
+ *                   contribution at bounce m: the cells with the same face sequence
+ *                   summed in cell (tube) order by the first of them, the representative
+ *                   the first of the largest |M|_F, one SbrRecord each.
+ *
+ * The formulas are the host reference's (clradcom/mechanisms/sbr.py: shoot_tubes,
+ * _chains, _radiate, _sum_blocks, and clradcom/physics/em.py: polarimetric_matrix),
+ * step for step; the records' sums are the host's groups exactly. */
 #include "intersect.h"
 #include "precise.h"
 
@@ -57,7 +71,9 @@ typedef float3 real3;
 
 inline real3 load3(__global const real *p) { return (real3)(p[0], p[1], p[2]); }
 
-inline float3 to_float3(real3 a) { return convert_float3(a); }
+/* component by component, as convert_float3 rounds them: the conversion of the vector
+ * reads its padding lane, which Oclgrind's uninitialised-value check reports */
+inline float3 to_float3(real3 a) { return (float3)((float)a.x, (float)a.y, (float)a.z); }
 
 #if PRECISE_MODE == 2
 typedef double3 pvec;   /* a position */
@@ -125,7 +141,7 @@ inline pvec spawn(pvec p, real3 n, real3 dir)
 inline float3 pv_float3(pvec a)
 {
 #if PRECISE_MODE == 2
-    return convert_float3(a);
+    return to_float3(a);
 #else
     return pr3_to_float3(a);
 #endif
@@ -157,31 +173,6 @@ inline bool window_covers(__global const real *win_f, __global const int *win_i,
     return masks[wi[4] + bi * wi[3] + bj] != 0;
 }
 
-
-#ifndef SBR_GROUPS
-#error "SBR_GROUPS must be passed as -D by the host"
-#endif
-
-/* One face sequence of one block toward one receiver at one bounce: the sum of its
- * tubes' polarimetric matrices. Mirrored by clradcom/device/sbr.py: record_dtype
- * (a test checks the size). */
-typedef struct {
-    pout length;             /* the representative's unfolded length tx -> rx */
-    pout point[3];           /* the representative's footprint centre */
-    real M[8];               /* sum of 2x2 complex M (VV VH HV HH), (re, im) pairs */
-    real weight;             /* sum of |M|_F */
-    real weighted_length;    /* sum of |M|_F L */
-    real rep_weight;         /* the representative's |M|_F */
-    real pad_real;           /* keeps `tube` on 8 bytes in both precisions */
-    long tube;               /* the representative: largest |M|_F, the first of equals */
-    int ordinal;             /* emission order within the block */
-    int count;               /* tubes summed */
-    short bounce;
-    short receiver;
-    int pad;
-    int face[SBR_TRI_SLOTS]; /* the planar faces hit, -1 after the bounce */
-    int tri[SBR_TRI_SLOTS];  /* the representative's triangles */
-} SbrRecord;
 
 /* em.h: antenna_frame_basis without the local direction */
 inline void antenna_basis(real3 d, __global const real *R, real3 *th, real3 *ph)
@@ -247,286 +238,580 @@ inline bool antenna_end_blocked(pvec ant, pvec other, real radius,
     return false;
 }
 
+/* One face sequence of one block toward one receiver at one bounce: the sum of its
+ * tubes' polarimetric matrices. Mirrored by clradcom/device/sbr.py: record_dtype
+ * (a test checks the size). */
+typedef struct {
+    pout length;             /* the representative's unfolded length tx -> rx */
+    pout point[3];           /* the representative's footprint centre */
+    real M[8];               /* sum of 2x2 complex M (VV VH HV HH), (re, im) pairs */
+    real weight;             /* sum of |M|_F */
+    real weighted_length;    /* sum of |M|_F L */
+    real rep_weight;         /* the representative's |M|_F */
+    real pad_real;           /* keeps `tube` on 8 bytes in both precisions */
+    long tube;               /* the representative: largest |M|_F, the first of equals */
+    int ordinal;             /* the group's first (cell, bounce, receiver) within the block */
+    int count;               /* tubes summed */
+    short bounce;
+    short receiver;
+    int pad;
+    int face[SBR_TRI_SLOTS]; /* the planar faces hit, -1 after the bounce */
+    int tri[SBR_TRI_SLOTS];  /* the representative's triangles */
+} SbrRecord;
+
+/* a tube's triangle history, padded so that the ints after the 8-byte fields pair up */
+#define SBR_TUBE_TRIS (SBR_TRI_SLOTS + ((SBR_TRI_SLOTS + 1) & 1))
+
+/* A live tube between two bounces (the queues): what its next closest hit needs. Its
+ * cross-section and fields are not carried: sbr_illuminate replays them, where a
+ * footprint needs them, from its launch through the triangles it hit. */
+typedef struct {
+    pout pos[3];             /* its last bounce point (tx at launch) */
+    pout org[3];             /* where its next ray starts: pos, spawned off the face */
+    pout length;             /* unfolded length tx -> pos */
+    real dir[3];             /* unit direction */
+    int tube;                /* within the batch: block * SBR_CELLS + cell */
+    int tri[SBR_TUBE_TRIS];  /* the triangles hit so far, -1 after */
+} SbrTube;
+
+/* A bounce on a recorded triangle at or after first_bounce. */
+typedef struct {
+    pout point[3];           /* the exact hit on the triangle's plane */
+    pout length;             /* unfolded length tx -> point */
+    int tube;                /* within the batch */
+    int tri[SBR_TUBE_TRIS];  /* the triangles hit, this one last */
+} SbrFootprint;
+
+/* What a footprint radiates from, whatever the receiver (sbr_illuminate). */
+typedef struct {
+    real dir[3];             /* the incident direction k_i */
+    real normal[3];          /* the lit side's unit normal n */
+    real edge1[3], edge2[3]; /* the tube's cross-section edges projected on the facet */
+    real area;               /* the footprint's area */
+    real field[24];          /* per tx polarisation the incident field f and, on a
+                                penetrable facet only, its reflection D f: f_t, f_p,
+                                Df_t, Df_p, x, y, z (re, im) each */
+} SbrIllumination;
+
+/* One footprint's radiation toward one receiver (slot (block, receiver, cell) of a
+ * bounce; contribution_footprint says which footprint wrote it, -1: none). */
+typedef struct {
+    pout length;             /* unfolded length tx -> footprint -> rx */
+    real M[8];               /* 2x2 complex polarimetric matrix, (re, im) pairs */
+    real weight;             /* |M|_F */
+    real pad_real;
+} SbrContribution;
+
 /* sizeof(SbrRecord) as this build lays it out, for the host's numpy twin's test */
 __kernel void sbr_record_size(__global int *out)
 {
     out[0] = (int)sizeof(SbrRecord);
 }
 
-inline void emit(__global SbrRecord *out, __global volatile int *count, int capacity,
-                 SbrRecord *rec, int *ordinal)
+/* the sizes of the stages' entries, for the host's buffers */
+__kernel void sbr_struct_sizes(__global int *out)
 {
-    rec->ordinal = (*ordinal)++;
-    int slot = atomic_inc(count);
-    if (slot < capacity) out[slot] = *rec;   /* else the host re-runs the batch with room */
+    out[0] = (int)sizeof(SbrRecord);
+    out[1] = (int)sizeof(SbrTube);
+    out[2] = (int)sizeof(SbrFootprint);
+    out[3] = (int)sizeof(SbrIllumination);
+    out[4] = (int)sizeof(SbrContribution);
 }
 
-/* One work item per covered block: its BLOCK x BLOCK tubes in order, their
- * contributions summed per (bounce, receiver, face sequence) in a small table
- * (the oldest entry is written out when it is full), so a block's records come
- * out in an order fixed by the block alone. */
-__kernel void sbr_blocks(__global const Bvh8Node *nodes,
-                         __global const float4 *tri4,
-                         __global const int *slot_prim,
-                         __global const pelem *tri_v,       /* T*9 */
-                         __global const pelem *tri_n,       /* T*3, unit */
-                         __global const int *tri_material,
-                         __global const int *tri_face,
-                         __global const uchar *tri_record,
-                         __global const real *mat_f,        /* per material: eps re, im, sigma_h, spec share */
-                         __global const int *mat_i,         /* per material: pec, roughness model */
-                         __global const real *win_f,
+inline void store3(__global real *p, real3 a) { p[0] = a.x; p[1] = a.y; p[2] = a.z; }
+
+inline void pv_store(__global pout *p, pvec a)
+{
+    p[0] = ps_out(a.x); p[1] = ps_out(a.y); p[2] = ps_out(a.z);
+}
+
+inline pscal ps_load(pout a)
+{
+#if PRECISE_MODE == 2
+    return a;
+#else
+    return pr_from_pair(a);
+#endif
+}
+
+inline cvec3 cv_load(__global const real *p)
+{
+    cvec3 r = {(cplx)(p[0], p[1]), (cplx)(p[2], p[3]), (cplx)(p[4], p[5])};
+    return r;
+}
+
+inline void cv_store(__global real *p, cvec3 a)
+{
+    p[0] = a.x.x; p[1] = a.x.y; p[2] = a.y.x; p[3] = a.y.y; p[4] = a.z.x; p[5] = a.z.y;
+}
+
+inline pscal ps_zero(void)
+{
+#if PRECISE_MODE == 2
+    return 0.0;
+#else
+    return pr_from_float(0.0f);
+#endif
+}
+
+inline pscal wavenumber_of(__global const pelem *tx_and_k)
+{
+#if PRECISE_MODE == 2
+    return tx_and_k[3];
+#else
+    return pr_from_pair(tx_and_k[3]);
+#endif
+}
+
+/* x / d, and the rest x - (x / d) d in *rest: never x % d beside x / d, which a compiler
+ * pairs through an instruction (freeze) that Oclgrind's uninitialised-value check
+ * cannot follow */
+inline int quotient(int x, int d, int *rest)
+{
+    int q = x / d;
+    *rest = x - q * d;
+    return q;
+}
+
+/* The tube through cell `cell` of covered block `blk` (sbr.py: window_tubes): its
+ * window, unit direction, the cell's solid angle and its first edge. */
+typedef struct {
+    int window;
+    real3 dir;
+    real solid_angle;
+    real3 edge1;
+} CellTube;
+
+inline CellTube cell_tube(__global const real *win_f, __global const int *win_i,
+                          __global const int *blocks, long blk, int cell)
+{
+    CellTube c;
+    c.window = blocks[3 * blk];
+    __global const real *f = win_f + WIN_F * c.window;
+    __global const int *wi = win_i + WIN_I * c.window;
+    real3 axis = load3(f), u = load3(f + 3), v = load3(f + 6);
+    real D = f[9], s = f[10];
+    int cx, cy = quotient(cell, SBR_BLOCK, &cx);
+    long i = (long)wi[0] + (long)blocks[3 * blk + 1] * SBR_BLOCK + cx;
+    long j = (long)wi[1] + (long)blocks[3 * blk + 2] * SBR_BLOCK + cy;
+    real3 vec = D * axis + ((real)i * s) * u + ((real)j * s) * v;
+    real dist = sqrt(dot(vec, vec));
+    c.dir = vec / dist;
+    real cos_a = D / dist;
+    c.solid_angle = s * s * cos_a * cos_a * cos_a / (D * D);
+    real3 e1 = u - dot(c.dir, u) * c.dir;
+    c.edge1 = e1 / sqrt(dot(e1, e1));
+    return c;
+}
+
+/* The per-item kernels below run their items past the count (the rest of the last work
+ * group) as copies of the last real one and drop them only before their first write:
+ * Intel's CPU compiler rounds the items of a SIMD vector that diverges at the kernel's
+ * entry otherwise than the rest (the last footprints of a launch came out a bit apart),
+ * which would make a result depend on where a compaction put its item. */
+
+/* One work item per cell of the batch's blocks (n_cells = blocks * SBR_CELLS): the
+ * tube through the cell, unless an earlier window owns its direction, into the queue. */
+__kernel void sbr_launch(__global const real *win_f,
                          __global const int *win_i,
                          __global const uchar *masks,
                          __global const int *blocks,        /* per covered block: window, i, j */
                          __global const int *overlap_first, /* W+1: window w's earlier overlaps */
                          __global const int *overlap_ids,
-                         __global const pelem *rx_pos,      /* R*3 */
-                         __global const real *rx_frame,     /* R*9, row-major */
-                         __global const real *tx_frame,     /* 9 */
                          __global const pelem *tx_and_k,    /* tx position (3), wavenumber */
-                         __global const int *near_first,    /* R+1: receiver r's near triangles */
-                         __global const int *near_tri,
-#if PRECISE_MODE == 2
-                         /* scene64.h's face tables (tri_v, tri_n, tri_face are its
-                          * vertices, normals and faces), for the float64 sight rounds */
-                         __global const uchar *seam,
-                         __global const int *face_first,
-                         __global const int *face_tris,
-                         __global const double *face_box,
-                         const int n_faces,
-                         const int rescue_rounds,
-                         const double look_past,
-                         const double sight_hi,     /* 1 - SIGHT_STOP */
-#endif
-                         const real on_face_tol_rel,   /* visibility.py: ON_FACE_TOL_REL */
-                         const real inside_tol_rel,    /* visibility.py: INSIDE_TOL_REL */
-                         const real confirm_tol_m,     /* visibility.py: CONFIRM_TOL_M */
-                         const int n_rx,
-                         const real wavelength,
-                         const float sight_tmax,
+                         const long first_block,
+                         const int n_cells,
+                         __global SbrTube *queue,
+                         __global volatile int *n_queued)
+{
+    int gid = get_global_id(0);
+    int item = min(gid, n_cells - 1);   /* past the count: a copy of the last */
+    int cell, blk = quotient(item, SBR_CELLS, &cell);
+    CellTube c = cell_tube(win_f, win_i, blocks, first_block + blk, cell);
+    /* owned unless an earlier window whose cone meets this one holds the direction */
+    bool owned = true;
+    for (int o = overlap_first[c.window]; o < overlap_first[c.window + 1] && owned; ++o)
+        owned = !window_covers(win_f, win_i, masks, overlap_ids[o], c.dir);
+    if (gid >= n_cells || !owned) return;
+    __global SbrTube *t = queue + atomic_inc(n_queued);
+    pvec tx = pv_load(tx_and_k);
+    pv_store(t->pos, tx);
+    pv_store(t->org, tx);
+    t->length = ps_out(ps_zero());
+    store3(t->dir, c.dir);
+    t->tube = gid;
+    for (int k = 0; k < SBR_TUBE_TRIS; ++k) t->tri[k] = -1;
+}
+
+/* Bounce m of every queued tube, one work item each: the closest hit, the exact point
+ * on the hit triangle's plane and the unfolded length; a footprint where m >=
+ * first_bounce on a recorded triangle; unless m is the last bounce, the tube mirrored
+ * into the next queue. A tube that misses, grazes or hits the plane it just left ends. */
+__kernel void sbr_bounce(__global const Bvh8Node *nodes,
+                         __global const float4 *tri4,
+                         __global const int *slot_prim,
+                         __global const pelem *tri_v,       /* T*9 */
+                         __global const pelem *tri_n,       /* T*3, unit */
+                         __global const uchar *tri_record,
+                         const int bounce,
                          const int first_bounce,
                          const int max_bounces,
+                         __global const SbrTube *queue,
+                         const int n_tubes,
+                         __global SbrTube *next_queue,
+                         __global volatile int *n_next,
+                         __global SbrFootprint *footprints,
+                         __global volatile int *n_footprints)
+{
+    int gid = get_global_id(0);
+    /* past the count: a copy of the last */
+    __global const SbrTube *t = queue + min(gid, n_tubes - 1);
+    real3 d = load3(t->dir);
+    pvec pos = pv_load(t->pos);
+    PreparedRay pr = prepare_ray(pv_float3(pv_load(t->org)), to_float3(d));
+    float tmax = INFINITY, hu = 0.0f, hv = 0.0f;
+    int slot = bvh_closest(nodes, tri4, slot_prim, &pr, 0.0f, &tmax, &hu, &hv, -1);
+    if (slot < 0) return;
+    int tri = slot_prim[slot];
+    pvec n_p = pv_load(tri_n + 3 * tri);
+    real3 n = pv_real(n_p);
+    real dn = dot(d, n);
+    if (!(fabs(dn) > 1e-9)) return;   /* grazing: no footprint */
+    pscal tt = plane_t(pv_load(tri_v + 9 * tri), pos, n_p, n, d, dn);
+    if (!(ps_real(tt) > 0.0)) return;   /* on the plane it just left (a corner's edge) */
+    pvec p = pv_along(pos, tt, d);
+    pscal L = ps_add(ps_load(t->length), pv_len(pv_sub(p, pos)));
+    real3 d_out = d - 2.0 * dn * n;
+    pvec org = spawn(p, n, d_out);
+    if (gid >= n_tubes) return;
+    if (bounce >= first_bounce && tri_record[tri]) {
+        __global SbrFootprint *fp = footprints + atomic_inc(n_footprints);
+        pv_store(fp->point, p);
+        fp->length = ps_out(L);
+        fp->tube = t->tube;
+        for (int k = 0; k < SBR_TUBE_TRIS; ++k)
+            fp->tri[k] = (k == bounce - 1) ? tri : t->tri[k];
+    }
+    if (bounce == max_bounces) return;
+    __global SbrTube *o = next_queue + atomic_inc(n_next);
+    pv_store(o->pos, p);
+    pv_store(o->org, org);
+    o->length = ps_out(L);
+    store3(o->dir, d_out);
+    o->tube = t->tube;
+    for (int k = 0; k < SBR_TUBE_TRIS; ++k) o->tri[k] = (k == bounce - 1) ? tri : t->tri[k];
+}
+
+/* One work item per footprint of bounce m: the tube's cross-section and the fields of
+ * both tx polarisations at it, replayed from its launch through its m - 1 reflections
+ * (the operations sbr_bounce did on its direction), the cross-section's
+ * edges projected on the facet and, on a penetrable facet, the fields it reflects. */
+__kernel void sbr_illuminate(__global const pelem *tri_n,       /* T*3, unit */
+                             __global const int *tri_material,
+                             /* per material: eps re, im, sigma_h, specular share; pec,
+                              * roughness model */
+                             __global const real *mat_f,
+                             __global const int *mat_i,
+                             __global const real *win_f,
+                             __global const int *win_i,
+                             __global const int *blocks,
+                             __global const real *tx_frame,     /* 9 */
+                             __global const pelem *tx_and_k,
+                             const long first_block,
+                             const int bounce,
+                             __global const SbrFootprint *footprints,
+                             const int n_footprints,
+                             __global SbrIllumination *lit)
+{
+    int gid = get_global_id(0);
+    /* past the count: a copy of the last */
+    __global const SbrFootprint *fp = footprints + min(gid, n_footprints - 1);
+    int cell, blk = quotient(fp->tube, SBR_CELLS, &cell);
+    CellTube c = cell_tube(win_f, win_i, blocks, first_block + blk, cell);
+    real k0 = ps_real(wavenumber_of(tx_and_k));
+    real3 d = c.dir, e1 = c.edge1, e2 = cross(c.dir, c.edge1);
+    /* the field leaving tx per unit tx-basis excitation: (I - k k^T) b_tx */
+    real3 bt, bp;
+    antenna_basis(d, tx_frame, &bt, &bp);
+    cvec3 f_t = cv_real(bt - dot(d, bt) * d), f_p = cv_real(bp - dot(d, bp) * d);
+    for (int m = 1; m < bounce; ++m) {
+        int tri = fp->tri[m - 1];
+        real3 n = pv_real(pv_load(tri_n + 3 * tri));
+        int mat = tri_material[tri];
+        /* one reflection's coefficients and basis for both polarisations */
+        Reflection refl = material_reflection(d, n, mat_f + 4 * mat, mat_i + 2 * mat, k0);
+        f_t = reflect(&refl, f_t);
+        f_p = reflect(&refl, f_p);
+        d = d - 2.0 * dot(d, n) * n;
+        e1 = e1 - 2.0 * dot(e1, n) * n;
+        e2 = e2 - 2.0 * dot(e2, n) * n;
+    }
+    int tri = fp->tri[bounce - 1];
+    real3 n = pv_real(pv_load(tri_n + 3 * tri));
+    real3 n_lit = (dot(d, n) > 0.0) ? -n : n;   /* -sign(dn) n */
+    real kn = dot(d, n_lit);
+    real w_side = sqrt(c.solid_angle) * ps_real(ps_load(fp->length));
+    real3 a1 = w_side * e1, a2 = w_side * e2;
+    a1 -= d * (dot(n_lit, a1) / kn);
+    a2 -= d * (dot(n_lit, a2) / kn);
+    if (gid >= n_footprints) return;
+    __global SbrIllumination *out = lit + gid;
+    store3(out->dir, d);
+    store3(out->normal, n_lit);
+    store3(out->edge1, a1);
+    store3(out->edge2, a2);
+    out->area = w_side * w_side / fabs(kn);
+    cv_store(out->field, f_t);
+    cv_store(out->field + 6, f_p);
+    int mat = tri_material[tri];
+    if (mat_i[2 * mat]) return;   /* PEC: sbr_radiate needs no reflected field */
+    Reflection refl = material_reflection(d, n_lit, mat_f + 4 * mat, mat_i + 2 * mat, k0);
+    cv_store(out->field + 12, reflect(&refl, f_t));
+    cv_store(out->field + 18, reflect(&refl, f_p));
+}
+
+/* One work item per (footprint, receiver), receiver-major (neighbouring items trace
+ * sight lines toward the same antenna): the footprint's PO radiation toward the
+ * receiver where it sees it, as a polarimetric matrix in the antennas' bases, into
+ * slot (block, receiver, cell) of this bounce, the (block, receiver) listed for the
+ * reduction with its first contribution. */
+__kernel void sbr_radiate(__global const Bvh8Node *nodes,
+                          __global const float4 *tri4,
+                          __global const int *slot_prim,
+                          __global const pelem *tri_v,       /* T*9 */
+                          __global const pelem *tri_n,       /* T*3, unit */
+                          __global const int *tri_material,
+                          __global const int *mat_i,
+                          __global const pelem *rx_pos,      /* R*3 */
+                          __global const real *rx_frame,     /* R*9, row-major */
+                          __global const pelem *tx_and_k,    /* tx position (3), wavenumber */
+                          __global const int *near_first,    /* R+1: receiver r's near triangles */
+                          __global const int *near_tri,
+#if PRECISE_MODE == 2
+                          /* scene64.h's face tables (tri_v, tri_n, tri_face are its
+                           * vertices, normals and faces), for the float64 sight rounds */
+                          __global const int *tri_face,
+                          __global const uchar *seam,
+                          __global const int *face_first,
+                          __global const int *face_tris,
+                          __global const double *face_box,
+                          const int n_faces,
+                          const int rescue_rounds,
+                          const double look_past,
+                          const double sight_hi,     /* 1 - SIGHT_STOP */
+#endif
+                          const real on_face_tol_rel,   /* visibility.py: ON_FACE_TOL_REL */
+                          const real inside_tol_rel,    /* visibility.py: INSIDE_TOL_REL */
+                          const real confirm_tol_m,     /* visibility.py: CONFIRM_TOL_M */
+                          const int n_rx,
+                          const real wavelength,
+                          const float sight_tmax,
+                          const int bounce,
+                          __global const SbrFootprint *footprints,
+                          __global const SbrIllumination *lit,
+                          const int n_footprints,
+                          __global SbrContribution *contributions,
+                          __global int *contribution_footprint,
+                          __global volatile int *group_tubes,   /* per (block, receiver) */
+                          __global int *live_groups,
+                          __global volatile int *n_live_groups)
+{
+    int gid = get_global_id(0);
+    /* past the count: a copy of the last */
+    int fi, r = quotient(min(gid, n_footprints * n_rx - 1), n_footprints, &fi);
+    __global const SbrFootprint *fp = footprints + fi;
+    __global const SbrIllumination *il = lit + fi;
+    int tri = fp->tri[bounce - 1];
+    pvec p = pv_load(fp->point);
+    real3 n_lit = load3(il->normal);
+
+    pvec rx = pv_load(rx_pos + 3 * r);
+    pvec dr = pv_sub(rx, p);
+    pscal R_rp = pv_len(dr);
+    real R_r = ps_real(R_rp);
+    if (!(R_r > 0.0)) return;
+    real3 sdir = pv_real(dr) / R_r;
+    if (!(dot(sdir, n_lit) > 0.0)) return;
+    /* visibility.py: surface_sees - the sight line from just off the facet, stopping
+     * SIGHT_STOP short of the antenna, the facet ignored */
+    pvec sorg = spawn(p, n_lit, sdir);
+    pvec sseg = pv_sub(rx, sorg);
+    PreparedRay sr = prepare_ray(pv_float3(sorg), to_float3(pv_real(sseg)));
+    if (bvh_any(nodes, tri4, slot_prim, &sr, 0.0f, sight_tmax, tri, -1)) {
+#if PRECISE_MODE == 2
+        /* visibility.py: blocked_in_float64, the facet skipped first */
+        Scene64 s64;
+        s64.vert = tri_v; s64.normal = tri_n; s64.tri_face = tri_face; s64.seam = seam;
+        s64.face_first = face_first; s64.face_tris = face_tris; s64.face_box = face_box;
+        s64.n_faces = n_faces; s64.inside_tol = inside_tol_rel;
+        if (blocked_in_float64(nodes, tri4, slot_prim, &s64, &sr, sight_tmax,
+                               sorg.x, sorg.y, sorg.z, sseg.x, sseg.y, sseg.z, 0.0,
+                               sight_hi, tri, rescue_rounds, look_past))
+            return;
+#else
+        return;
+#endif
+    }
+    int n_near = near_first[r + 1] - near_first[r];
+    if (n_near > 0) {
+        real3 ar = fabs(pv_real(rx));
+        real radius = 2.0 * (confirm_tol_m + 1e-6 * fmax(fmax(ar.x, ar.y), ar.z));
+        if (antenna_end_blocked(rx, sorg, radius, near_tri + near_first[r], n_near,
+                                tri_v, tri_n, on_face_tol_rel, inside_tol_rel))
+            return;
+    }
+
+    pscal k_p = wavenumber_of(tx_and_k);
+    real k0 = ps_real(k_p);
+    /* (lambda / 4 pi) (-j k0 / 2 pi): the real factor; the -j is applied below */
+    real amp = wavelength / (4.0 * M_PI) * k0 / (2.0 * M_PI);
+    real3 d = load3(il->dir);
+    real kn = dot(d, n_lit);
+    pscal L = ps_load(fp->length);
+    real L_in = ps_real(L);
+    int pec = mat_i[2 * tri_material[tri]];
+    real3 q = k0 * (sdir - d);
+    real i_fp = il->area * sinc_(0.5 * dot(q, load3(il->edge1)))
+                * sinc_(0.5 * dot(q, load3(il->edge2)));
+    real3 rt, rp;
+    antenna_basis(-sdir, rx_frame + 9 * r, &rt, &rp);
+    /* g = op f for f = f_t, f_p (PEC: k_i (n.f) - kn f, the projection I - s s^T
+     * dropped as b_rx is transverse to s; penetrable: half of po.py:
+     * penetrable_po_operator) */
+    cvec3 g[2];
+    for (int c = 0; c < 2; ++c) {
+        cvec3 fc = cv_load(il->field + 6 * c);
+        cvec3 gc = cv_axpy(cv_dot_real(fc, n_lit), d, cv_scale_real(fc, -kn));
+        if (!pec) {
+            cvec3 Dfc = cv_load(il->field + 12 + 6 * c);
+            real3 k_r = d - 2.0 * kn * n_lit;
+            /* a_r Df = k_r (n.Df) + kn Df */
+            cvec3 ar = cv_axpy(cv_dot_real(Dfc, n_lit), k_r, cv_scale_real(Dfc, kn));
+            /* [s]x[n]x (f + Df) = n (s.(f+Df)) - (f+Df)(s.n) */
+            cvec3 y = cv_add(fc, Dfc);
+            cvec3 sn = cv_axpy(cv_dot_real(y, sdir), n_lit, cv_scale_real(y, -dot(sdir, n_lit)));
+            /* P (a_i f + a_r Df): P drops against b_rx as well */
+            gc = cv_scale_real(cv_add(cv_add(gc, ar), sn), 0.5);
+        }
+        g[c] = gc;
+    }
+    pscal Ltot = ps_add(L, R_rp);
+    real ph = phase_of(k_p, Ltot);
+    /* -j e^{-j k L} = (-sin kL, -cos kL) */
+    cplx rot = (cplx)(-sin(ph), -cos(ph));
+    real mag = amp * i_fp / (L_in * R_r);
+    real M[8];
+    real wsum = 0.0;
+    for (int a = 0; a < 2; ++a)
+        for (int c = 0; c < 2; ++c) {
+            cplx val = c_scale(c_mul(rot, cv_dot_real(g[c], (a == 0) ? rt : rp)), mag);
+            M[4 * a + 2 * c] = val.x;
+            M[4 * a + 2 * c + 1] = val.y;
+            wsum += val.x * val.x + val.y * val.y;
+        }
+    if (gid >= n_footprints * n_rx) return;
+    int cell, group = quotient(fp->tube, SBR_CELLS, &cell) * n_rx + r;
+    int slot = group * SBR_CELLS + cell;
+    __global SbrContribution *out = contributions + slot;
+    for (int k = 0; k < 8; ++k) out->M[k] = M[k];
+    out->weight = sqrt(wsum);
+    out->length = ps_out(Ltot);
+    out->pad_real = 0.0;
+    contribution_footprint[slot] = fi;
+    /* the first contribution of its (block, receiver) lists the group for sbr_reduce */
+    if (atomic_inc(group_tubes + group) == 0)
+        live_groups[atomic_inc(n_live_groups)] = group;
+}
+
+/* One work group of SBR_CELLS items per (block, receiver) listed by sbr_radiate at this
+ * bounce, item = cell: the cells whose footprints hit the same sequence of planar faces
+ * form a group; its first cell sums the group's contributions in cell (tube) order, the
+ * host reference's order, and writes one SbrRecord, the representative the first of the
+ * largest |M|_F. A record past `capacity` is counted, not written: the host then grows
+ * the buffer and reduces this bounce again. */
+__kernel void sbr_reduce(__global const int *tri_face,
+                         __global const SbrFootprint *footprints,
+                         __global const SbrContribution *contributions,
+                         __global const int *contribution_footprint,
+                         __global const int *live_groups,
+                         const int bounce,
+                         const int n_rx,
                          const long first_block,
-                         const int n_blocks,
                          __global SbrRecord *out,
                          __global volatile int *count,
                          const int capacity)
 {
-    int gid = get_global_id(0);
-    if (gid >= n_blocks) return;
-    long blk = first_block + gid;
-    int w = blocks[3 * blk];
-    __global const real *f = win_f + WIN_F * w;
-    __global const int *wi = win_i + WIN_I * w;
-    real3 axis = load3(f), u = load3(f + 3), v = load3(f + 6);
-    real D = f[9], s = f[10];
-    pvec tx = pv_load(tx_and_k);
-#if PRECISE_MODE == 2
-    pscal k_p = tx_and_k[3];
-#else
-    pscal k_p = pr_from_pair(tx_and_k[3]);
-#endif
-    real k0 = ps_real(k_p);
-    /* (lambda / 4 pi) (-j k0 / 2 pi): the real factor; the -j is applied below */
-    real amp = wavelength / (4.0 * M_PI) * k0 / (2.0 * M_PI);
-
-    SbrRecord table[SBR_GROUPS];
-    int n_groups = 0, ordinal = 0;
-#if PRECISE_MODE == 2
-    Scene64 s64;
-    s64.vert = tri_v; s64.normal = tri_n; s64.tri_face = tri_face; s64.seam = seam;
-    s64.face_first = face_first; s64.face_tris = face_tris; s64.face_box = face_box;
-    s64.n_faces = n_faces; s64.inside_tol = inside_tol_rel;
-#endif
-
-    for (int cell = 0; cell < SBR_CELLS; ++cell) {
-        long tube = blk * SBR_CELLS + cell;
-        long i = (long)wi[0] + (long)blocks[3 * blk + 1] * SBR_BLOCK + cell % SBR_BLOCK;
-        long j = (long)wi[1] + (long)blocks[3 * blk + 2] * SBR_BLOCK + cell / SBR_BLOCK;
-        real3 vec = D * axis + ((real)i * s) * u + ((real)j * s) * v;
-        real dist = sqrt(dot(vec, vec));
-        real3 d = vec / dist;
-        bool owned = true;   /* unless an earlier window whose cone meets this one holds d */
-        for (int o = overlap_first[w]; o < overlap_first[w + 1] && owned; ++o)
-            owned = !window_covers(win_f, win_i, masks, overlap_ids[o], d);
-        if (!owned) continue;
-        real cos_a = D / dist;
-        real dom = s * s * cos_a * cos_a * cos_a / (D * D);
-        real3 e1 = u - dot(d, u) * d;
-        e1 /= sqrt(dot(e1, e1));
-        real3 e2 = cross(d, e1);
-        /* the field leaving tx per unit tx-basis excitation: (I - k k^T) b_tx */
-        real3 bt, bp;
-        antenna_basis(d, tx_frame, &bt, &bp);
-        cvec3 f_t = cv_real(bt - dot(d, bt) * d), f_p = cv_real(bp - dot(d, bp) * d);
-
-        pvec pos = tx, org = tx;
-#if PRECISE_MODE == 2
-        pscal L = 0.0;
-#else
-        pscal L = pr_from_float(0.0f);
-#endif
-        int tri_hist[SBR_TRI_SLOTS];
-        for (int m = 0; m < SBR_TRI_SLOTS; ++m) tri_hist[m] = -1;
-
-        for (int m = 1; m <= max_bounces; ++m) {
-            PreparedRay pr = prepare_ray(pv_float3(org), to_float3(d));
-            float t = INFINITY, hu = 0.0f, hv = 0.0f;
-            int slot = bvh_closest(nodes, tri4, slot_prim, &pr, 0.0f, &t, &hu, &hv, -1);
-            if (slot < 0) break;
-            int tri = slot_prim[slot];
-            pvec n_p = pv_load(tri_n + 3 * tri);
-            real3 n = pv_real(n_p);
-            real dn = dot(d, n);
-            if (!(fabs(dn) > 1e-9)) break;   /* grazing: no footprint */
-            pscal tt = plane_t(pv_load(tri_v + 9 * tri), pos, n_p, n, d, dn);
-            if (!(ps_real(tt) > 0.0)) break;   /* on the plane it just left (a corner's edge) */
-            pvec p = pv_along(pos, tt, d);
-            L = ps_add(L, pv_len(pv_sub(p, pos)));
-            tri_hist[m - 1] = tri;
-            int mat = tri_material[tri];
-            __global const real *mf = mat_f + 4 * mat;
-            __global const int *mi = mat_i + 2 * mat;
-            if (m >= first_bounce && tri_record[tri]) {
-                real3 n_lit = (dn > 0.0) ? -n : n;   /* -sign(dn) n */
-                real kn = dot(d, n_lit);
-                real L_in = ps_real(L);
-                real w_side = sqrt(dom) * L_in;
-                real3 a1 = w_side * e1, a2 = w_side * e2;
-                a1 -= d * (dot(n_lit, a1) / kn);
-                a2 -= d * (dot(n_lit, a2) / kn);
-                real area = w_side * w_side / fabs(kn);
-                int pec = mi[0];
-                cvec3 Df_t = f_t, Df_p = f_p;
-                if (!pec) {
-                    Reflection refl = material_reflection(d, n_lit, mf, mi, k0);
-                    Df_t = reflect(&refl, f_t);
-                    Df_p = reflect(&refl, f_p);
-                }
-                for (int r = 0; r < n_rx; ++r) {
-                    pvec rx = pv_load(rx_pos + 3 * r);
-                    pvec dr = pv_sub(rx, p);
-                    pscal R_rp = pv_len(dr);
-                    real R_r = ps_real(R_rp);
-                    if (!(R_r > 0.0)) continue;
-                    real3 sdir = pv_real(dr) / R_r;
-                    if (!(dot(sdir, n_lit) > 0.0)) continue;
-                    /* visibility.py: surface_sees - the sight line from just off the
-                     * facet, stopping SIGHT_STOP short of the antenna, the facet ignored */
-                    pvec sorg = spawn(p, n_lit, sdir);
-                    pvec sseg = pv_sub(rx, sorg);
-                    PreparedRay sr = prepare_ray(pv_float3(sorg), to_float3(pv_real(sseg)));
-                    if (bvh_any(nodes, tri4, slot_prim, &sr, 0.0f, sight_tmax, tri, -1)) {
-#if PRECISE_MODE == 2
-                        /* visibility.py: blocked_in_float64, the facet skipped first */
-                        if (blocked_in_float64(nodes, tri4, slot_prim, &s64, &sr, sight_tmax,
-                                               sorg.x, sorg.y, sorg.z, sseg.x, sseg.y,
-                                               sseg.z, 0.0, sight_hi, tri, rescue_rounds,
-                                               look_past))
-                            continue;
-#else
-                        continue;
-#endif
-                    }
-                    int n_near = near_first[r + 1] - near_first[r];
-                    if (n_near > 0) {
-                        real3 ar = fabs(pv_real(rx));
-                        real radius = 2.0 * (confirm_tol_m + 1e-6 * fmax(fmax(ar.x, ar.y), ar.z));
-                        if (antenna_end_blocked(rx, sorg, radius, near_tri + near_first[r], n_near,
-                                                tri_v, tri_n, on_face_tol_rel, inside_tol_rel))
-                            continue;
-                    }
-                    real3 q = k0 * (sdir - d);
-                    real i_fp = area * sinc_(0.5 * dot(q, a1)) * sinc_(0.5 * dot(q, a2));
-                    real3 rt, rp;
-                    antenna_basis(-sdir, rx_frame + 9 * r, &rt, &rp);
-                    /* g = op f for f = f_t, f_p (PEC: k_i (n.f) - kn f, the projection
-                     * I - s s^T dropped as b_rx is transverse to s; penetrable: half of
-                     * po.py: penetrable_po_operator) */
-                    cvec3 g[2];
-                    for (int c = 0; c < 2; ++c) {
-                        cvec3 fc = (c == 0) ? f_t : f_p;
-                        cvec3 gc = cv_axpy(cv_dot_real(fc, n_lit), d, cv_scale_real(fc, -kn));
-                        if (!pec) {
-                            cvec3 Dfc = (c == 0) ? Df_t : Df_p;
-                            real3 k_r = d - 2.0 * kn * n_lit;
-                            /* a_r Df = k_r (n.Df) + kn Df */
-                            cvec3 ar = cv_axpy(cv_dot_real(Dfc, n_lit), k_r, cv_scale_real(Dfc, kn));
-                            /* [s]x[n]x (f + Df) = n (s.(f+Df)) - (f+Df)(s.n) */
-                            cvec3 y = cv_add(fc, Dfc);
-                            cvec3 sn = cv_axpy(cv_dot_real(y, sdir), n_lit,
-                                               cv_scale_real(y, -dot(sdir, n_lit)));
-                            /* P (a_i f + a_r Df): P drops against b_rx as well */
-                            gc = cv_scale_real(cv_add(cv_add(gc, ar), sn), 0.5);
-                        }
-                        g[c] = gc;
-                    }
-                    pscal Ltot = ps_add(L, R_rp);
-                    real ph = phase_of(k_p, Ltot);
-                    /* -j e^{-j k L} = (-sin kL, -cos kL) */
-                    cplx rot = (cplx)(-sin(ph), -cos(ph));
-                    real mag = amp * i_fp / (L_in * R_r);
-                    real M[8];
-                    real wsum = 0.0;
-                    for (int a = 0; a < 2; ++a)
-                        for (int c = 0; c < 2; ++c) {
-                            cplx val = c_scale(c_mul(rot, cv_dot_real(g[c], (a == 0) ? rt : rp)), mag);
-                            M[4 * a + 2 * c] = val.x;
-                            M[4 * a + 2 * c + 1] = val.y;
-                            wsum += val.x * val.x + val.y * val.y;
-                        }
-                    real wgt = sqrt(wsum);
-                    /* the group of (bounce, receiver, face sequence) */
-                    int g_idx = -1;
-                    for (int k = 0; k < n_groups && g_idx < 0; ++k) {
-                        bool same = table[k].bounce == m && table[k].receiver == r;
-                        for (int e = 0; e < m && same; ++e)
-                            same = table[k].face[e] == tri_face[tri_hist[e]];
-                        if (same) g_idx = k;
-                    }
-                    if (g_idx < 0) {
-                        if (n_groups == SBR_GROUPS) {
-                            emit(out, count, capacity, &table[0], &ordinal);
-                            for (int k = 1; k < n_groups; ++k) table[k - 1] = table[k];
-                            --n_groups;
-                        }
-                        g_idx = n_groups++;
-                        SbrRecord *e = &table[g_idx];
-                        for (int k = 0; k < 8; ++k) e->M[k] = 0.0;
-                        e->weight = 0.0; e->weighted_length = 0.0; e->rep_weight = 0.0;
-                        e->pad_real = 0.0; e->count = 0;
-                        e->bounce = (short)m; e->receiver = (short)r; e->pad = 0;
-                        e->tube = -1;
-                        for (int k = 0; k < SBR_TRI_SLOTS; ++k)
-                            e->face[k] = (k < m) ? tri_face[tri_hist[k]] : -1;
-                    }
-                    SbrRecord *e = &table[g_idx];
-                    for (int k = 0; k < 8; ++k) e->M[k] += M[k];
-                    e->weight += wgt;
-                    e->weighted_length += wgt * ps_real(Ltot);
-                    e->count += 1;
-                    if (e->tube < 0 || wgt > e->rep_weight) {
-                        e->rep_weight = wgt;
-                        e->tube = tube;
-                        e->length = ps_out(Ltot);
-                        e->point[0] = ps_out(p.x); e->point[1] = ps_out(p.y);
-                        e->point[2] = ps_out(p.z);
-                        for (int k = 0; k < SBR_TRI_SLOTS; ++k) e->tri[k] = tri_hist[k];
-                    }
-                }
-            }
-            if (m == max_bounces) break;
-            /* one reflection's coefficients and basis for both polarisations */
-            Reflection refl = material_reflection(d, n, mf, mi, k0);
-            f_t = reflect(&refl, f_t);
-            f_p = reflect(&refl, f_p);
-            d = d - 2.0 * dn * n;
-            e1 = e1 - 2.0 * dot(e1, n) * n;
-            e2 = e2 - 2.0 * dot(e2, n) * n;
-            pos = p;
-            org = spawn(p, n, d);
+    __local int faces[SBR_CELLS * SBR_TRI_SLOTS];
+    __local uint keys[SBR_CELLS];
+    __local int leader[SBR_CELLS];
+    int group = live_groups[get_group_id(0)];
+    int cell = get_local_id(0);
+    int fi = contribution_footprint[group * SBR_CELLS + cell];
+    /* a hash of the face sequence (0: no footprint) tells most sequences apart in one
+     * comparison */
+    uint key = 0;
+    if (fi >= 0) {
+        key = 2166136261u;
+        for (int e = 0; e < bounce; ++e) {
+            int face = tri_face[footprints[fi].tri[e]];
+            faces[cell * SBR_TRI_SLOTS + e] = face;
+            key = (key ^ (uint)face) * 16777619u;
         }
+        key |= 1u;
     }
-    for (int k = 0; k < n_groups; ++k) emit(out, count, capacity, &table[k], &ordinal);
+    keys[cell] = key;
+    barrier(CLK_LOCAL_MEM_FENCE);
+    int lead = -1;
+    for (int c = 0; c <= cell && key != 0 && lead < 0; ++c) {
+        bool same = keys[c] == key;
+        for (int e = 0; e < bounce && same; ++e)
+            same = faces[c * SBR_TRI_SLOTS + e] == faces[cell * SBR_TRI_SLOTS + e];
+        if (same) lead = c;
+    }
+    leader[cell] = lead;
+    barrier(CLK_LOCAL_MEM_FENCE);
+    if (lead != cell) return;
+
+    real M[8];
+    for (int k = 0; k < 8; ++k) M[k] = 0.0;
+    real weight = 0.0, weighted_length = 0.0, rep_weight = 0.0;
+    int n = 0, rep = cell;
+    for (int c = cell; c < SBR_CELLS; ++c) {
+        if (leader[c] != cell) continue;
+        __global const SbrContribution *ct = contributions + group * SBR_CELLS + c;
+        for (int k = 0; k < 8; ++k) M[k] += ct->M[k];
+        real wgt = ct->weight;
+        weight += wgt;
+        weighted_length += wgt * ps_real(ps_load(ct->length));
+        if (n == 0 || wgt > rep_weight) {
+            rep_weight = wgt;
+            rep = c;
+        }
+        ++n;
+    }
+    int k_out = atomic_inc(count);
+    if (k_out >= capacity) return;
+    __global const SbrFootprint *fp =
+        footprints + contribution_footprint[group * SBR_CELLS + rep];
+    __global SbrRecord *e = out + k_out;
+    e->length = contributions[group * SBR_CELLS + rep].length;
+    for (int k = 0; k < 3; ++k) e->point[k] = fp->point[k];
+    for (int k = 0; k < 8; ++k) e->M[k] = M[k];
+    e->weight = weight;
+    e->weighted_length = weighted_length;
+    e->rep_weight = rep_weight;
+    e->pad_real = 0.0;
+    int r, blk = quotient(group, n_rx, &r);
+    e->tube = (first_block + blk) * SBR_CELLS + rep;
+    /* the host reference numbers a block's groups by first appearance in (tube,
+     * bounce, receiver) order: this key sorts them so */
+    e->ordinal = (cell * SBR_MAX_BOUNCES + bounce - 1) * n_rx + r;
+    e->count = n;
+    e->bounce = (short)bounce;
+    e->receiver = (short)r;
+    e->pad = 0;
+    for (int k = 0; k < SBR_TRI_SLOTS; ++k) {
+        e->face[k] = (k < bounce) ? faces[cell * SBR_TRI_SLOTS + k] : -1;
+        e->tri[k] = (k < bounce) ? fp->tri[k] : -1;
+    }
 }

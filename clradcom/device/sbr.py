@@ -1,12 +1,17 @@
 """Host side of the device SBR-PO engine (``kernels/sbr.cl``): scene tables, launch
-windows and receivers to the device; tube batches launched and their records back.
+windows and receivers to the device; the wavefront driven batch by batch, bounce by
+bounce, and the records back.
 
 Tubes are enumerated by index over the covered blocks of the launch windows
-(:class:`clradcom.mechanisms.sbr.TubeWindows`) and generated in the kernel, a batch of
+(:class:`clradcom.mechanisms.sbr.TubeWindows`) and generated on the device, a batch of
 blocks at a time, so device and host memory stay bounded whatever the number of tubes:
-only the records of footprints that see a receiver come back.  Records are appended with
-an atomic counter, so their order within a batch is the device's; they are sorted by
-(tube, bounce, receiver) so every run gives the same contributions in the same order.
+only the records of footprints that see a receiver come back.  Per batch: ``sbr_launch``
+queues the owned tubes; per bounce ``sbr_bounce`` follows the live ones (a compacted
+queue) and lists the footprints, ``sbr_radiate`` radiates each toward each receiver,
+``sbr_reduce`` sums them per block, receiver and face sequence in work groups.  Records
+are appended with an atomic counter, so their order within a batch is the device's;
+they are sorted by block and the group's first (tube, bounce, receiver), so every run
+and batch size gives the same records in the same order.
 """
 
 from __future__ import annotations
@@ -15,6 +20,7 @@ import numpy as np
 
 from clradcom.device.precision import join_pairs, split_pairs
 from clradcom.device.raycast import KERNEL_DEFINES, RayCaster
+from clradcom.device.runtime import OpenCLError
 from clradcom.device.visibility import (
     CONFIRM_TOL_M,
     INSIDE_TOL_REL,
@@ -32,15 +38,18 @@ from clradcom.geometry.silhouette import BLOCK
 __all__ = ["BATCH_TUBES", "PRECISIONS", "engine_precision", "record_dtype", "record_size",
            "shoot_and_radiate"]
 
-#: Tubes per kernel launch (whole blocks): about 1 M, some 10 ms to a second of work.
+#: Tubes per batch at most (whole blocks): about 1 M.
 BATCH_TUBES = 1 << 20
+#: ... and on a CPU device, whose memory is the host's, the batch's buffers within this
+#: many bytes (with two receivers about 88 k tubes; the street's SBR stage on PoCL took
+#: the same time, within the noise of a shared machine, from 32 to 256 MB)
+CPU_BATCH_BYTES = 1 << 26
+#: A batch's buffers take at most this fraction of the device's largest allocation.
+MEMORY_SHARE = 8
 #: Records the output buffer has room for at first, per block and receiver of a batch,
-#: and at most (about 60 MB); more records grow it and shoot the batch again.
+#: and at most (about 60 MB); more records grow it and reduce the bounce again.
 RECORDS_PER_BLOCK_RX = 4
 MAX_START_RECORDS = 1 << 18
-#: Face sequences a work item sums at once per block (the oldest is written out when a
-#: new one finds the table full: the sums stay exact, the block just yields more records).
-GROUPS = 16
 
 
 def tri_slots(max_bounces: int) -> int:
@@ -91,12 +100,14 @@ def record_size(runtime, max_bounces: int, precision: str = "fp64") -> int:
     """sizeof(SbrRecord) as the device lays it out in ``precision`` (for a test)."""
     import pyopencl as cl
 
+    # the BVH layout constants a build needs without a caster
     kernel = runtime.kernel("sbr.cl", "sbr_record_size", _options(precision),
-                            defines=_defines(max_bounces, precision))
+                            defines={**KERNEL_DEFINES, **_defines(max_bounces, precision)})
     out = np.zeros(1, dtype=np.int32)
     buf = runtime.empty(4)
-    kernel(runtime.queue, (1,), None, buf)
-    cl.enqueue_copy(runtime.queue, out, buf, is_blocking=True)
+    with runtime.guard("SBR record size"):
+        runtime.launch(kernel, 1, None, buf, name="sbr_record_size (sbr.cl)")
+        cl.enqueue_copy(runtime.queue, out, buf, is_blocking=True)
     return int(out[0])
 
 
@@ -107,8 +118,8 @@ def _options(precision: str) -> tuple:
 
 
 def _defines(max_bounces: int, precision: str) -> dict:
-    out = {**KERNEL_DEFINES, "SBR_MAX_BOUNCES": int(max_bounces),
-           "SBR_TRI_SLOTS": tri_slots(max_bounces), "SBR_BLOCK": BLOCK, "SBR_GROUPS": GROUPS}
+    out = {"SBR_MAX_BOUNCES": int(max_bounces),
+           "SBR_TRI_SLOTS": tri_slots(max_bounces), "SBR_BLOCK": BLOCK}
     if precision == "double-float":
         out["CLRADCOM_NO_FP64"] = 1
     elif precision == CONTROL_PRECISION:
@@ -180,6 +191,191 @@ def near_triangles(caster: RayCaster, antennas) -> tuple[np.ndarray, np.ndarray]
             np.concatenate(tris).astype(np.int32) if tris else np.zeros(0, np.int32))
 
 
+def _batch_tubes(rt, per_tube_bytes: int, batch_tubes: int, n_rx: int) -> int:
+    """Tubes per batch (whole blocks): ``batch_tubes`` at most, the batch's buffers
+    (``per_tube_bytes`` a tube) within 1/MEMORY_SHARE of the device's largest allocation,
+    and within CPU_BATCH_BYTES on a CPU device (its memory is the host's); its slots per
+    (tube, receiver) within the kernels' int indices."""
+    cells = BLOCK * BLOCK
+    limit = int(rt.device.max_mem_alloc_size) // MEMORY_SHARE
+    if rt.info.device_type == "CPU":
+        limit = min(limit, CPU_BATCH_BYTES)
+    n = min(int(batch_tubes), limit // max(1, per_tube_bytes),
+            (2**31 - 1) // max(1, n_rx) - cells)
+    return max(cells, n // cells * cells)
+
+
+def _struct_sizes(rt, options, defines) -> np.ndarray:
+    """sizeof SbrRecord, SbrTube, SbrFootprint, SbrIllumination and SbrContribution in
+    this build."""
+    import pyopencl as cl
+
+    kernel = rt.kernel("sbr.cl", "sbr_struct_sizes", options, defines)
+    sizes = np.zeros(5, np.int32)
+    buf = rt.empty(sizes.nbytes)
+    with rt.guard("SBR structure sizes"):
+        rt.launch(kernel, 1, None, buf, name="sbr_struct_sizes (sbr.cl)")
+        cl.enqueue_copy(rt.queue, sizes, buf, is_blocking=True)
+    return sizes
+
+
+class _Wavefront:
+    """kernels/sbr.cl's stages for one transmitter: one build's kernels, the scene,
+    window and receiver buffers (``*_args``, as each kernel takes them after its BVH
+    buffers), and one batch's queues, footprints, contribution slots and records.
+    :meth:`shoot` runs a batch of blocks through all of them."""
+
+    def __init__(self, caster: RayCaster, defines: dict, options: tuple, dtype: np.dtype,
+                 n_rx: int, n_blocks: int, batch_tubes: int, *, launch_args, bounce_args,
+                 illuminate_args, radiate_args, tri_face):
+        import pyopencl as cl
+
+        rt = caster.runtime
+        self.cl, self.caster, self.rt = cl, caster, rt
+        self.defines, self.options, self.dtype, self.n_rx = defines, options, dtype, n_rx
+        self.launch_args, self.bounce_args = launch_args, bounce_args
+        self.illuminate_args, self.radiate_args = illuminate_args, radiate_args
+        self.tri_face = tri_face
+        # the kernels that do not walk the BVH come from the same program as those that do
+        program_defines = {**defines, **caster.kernel_defines()}
+        self.launch_kernel = rt.kernel("sbr.cl", "sbr_launch", options, program_defines)
+        self.illuminate_kernel = rt.kernel("sbr.cl", "sbr_illuminate", options,
+                                           program_defines)
+        self.reduce_kernel = rt.kernel("sbr.cl", "sbr_reduce", options, program_defines)
+        cells = self.cells = BLOCK * BLOCK
+        self.launch_local = rt.local_size(self.launch_kernel, caster.LOCAL_SIZE)
+        self.illuminate_local = rt.local_size(self.illuminate_kernel, caster.LOCAL_SIZE)
+        self.reduce_local = rt.require_local_size(self.reduce_kernel, cells,
+                                                  "sbr_reduce (sbr.cl)")
+        # the reduction's local memory: faces (cells x slots), keys and leaders
+        need = 4 * cells * (tri_slots(defines["SBR_MAX_BOUNCES"]) + 2)
+        have = int(rt.device.local_mem_size)
+        if need > have:
+            raise OpenCLError(f"kernel sbr_reduce (sbr.cl) needs {need} bytes of local "
+                              f"memory and {rt.info.label} has {have}; use fewer bounces "
+                              f"or another device")
+        _, tube_bytes, footprint_bytes, lit_bytes, contribution_bytes = (
+            int(x) for x in _struct_sizes(rt, options, program_defines))
+        # per tube: two queues, a footprint and its illumination, per receiver a
+        # contribution and its footprint
+        per_tube = (2 * tube_bytes + footprint_bytes + lit_bytes
+                    + n_rx * (contribution_bytes + 4))
+        self.blocks_per_batch = _batch_tubes(rt, per_tube, batch_tubes, n_rx) // cells
+        n = min(self.blocks_per_batch, n_blocks) * cells
+        empty = rt.empty
+        self.queues = [empty(n * tube_bytes), empty(n * tube_bytes)]
+        self.footprints = empty(n * footprint_bytes)
+        self.lit = empty(n * lit_bytes)
+        self.contributions = empty(n * n_rx * contribution_bytes)
+        self.contribution_footprint = empty(n * n_rx * 4)
+        # per (block, receiver): its contributions at a bounce; those with any, listed
+        self.group_tubes = empty(n // cells * n_rx * 4)
+        self.live_groups = empty(n // cells * n_rx * 4)
+        # room for a few records per block and receiver: more grow it and reduce again
+        self.capacity = int(np.clip(RECORDS_PER_BLOCK_RX * max(1, n_rx) * (n // cells),
+                                    1 << 14, MAX_START_RECORDS))
+        self.records = empty(self.capacity * dtype.itemsize)
+        # the counters: tubes queued, the next bounce's tubes, footprints, groups, records
+        self.n_queued, self.n_next, self.n_footprints, self.n_groups, self.n_records = (
+            empty(4) for _ in range(5))
+
+    def _zero(self, *bufs):
+        for b in bufs:
+            self.cl.enqueue_copy(self.rt.queue, b, np.zeros(1, np.int32))
+
+    def _read(self, buf) -> int:
+        out = np.zeros(1, np.int32)
+        self.cl.enqueue_copy(self.rt.queue, out, buf, is_blocking=True)
+        return int(out[0])
+
+    def _run(self, kernel, global_size, local_size, *args, name):
+        """A kernel that does not walk the BVH, timed as the caster's are."""
+        rt = self.rt
+        with rt.kernel_clock():
+            rt.launch(kernel, global_size, local_size, *args, name=name, wait=True)
+
+    def _run_bvh(self, kernel_name, global_size, *args):
+        self.caster.run_kernel("sbr.cl", kernel_name, global_size, *args,
+                               defines=self.defines, options=self.options)
+
+    def shoot(self, first: int, n_blocks: int, max_bounces: int, first_bounce: int):
+        """The records of blocks first .. first + n_blocks - 1 (a list of arrays)."""
+        out = []
+        n_live = self._launch(first, n_blocks)
+        for m in range(1, max_bounces + 1):
+            if n_live == 0:
+                break
+            n_next, n_fp = self._bounce(m, n_live, first_bounce, max_bounces)
+            if n_fp:
+                self._illuminate(m, n_fp, first)
+                n_groups = self._radiate(m, n_fp, n_blocks)
+                if n_groups:
+                    out.append(self._reduce(m, n_groups, first))
+            self.queues.reverse()
+            n_live = n_next
+        return out
+
+    def _launch(self, first: int, n_blocks: int) -> int:
+        with self.rt.guard("SBR tube launch"):
+            self._zero(self.n_queued)
+            self._run(self.launch_kernel, n_blocks * self.cells, self.launch_local,
+                      *self.launch_args, np.int64(first), np.int32(n_blocks * self.cells),
+                      self.queues[0], self.n_queued, name="sbr_launch (sbr.cl)")
+            return self._read(self.n_queued)
+
+    def _bounce(self, m: int, n_live: int, first_bounce: int, max_bounces: int):
+        with self.rt.guard("SBR bounce"):
+            self._zero(self.n_next, self.n_footprints)
+        self._run_bvh("sbr_bounce", n_live, *self.bounce_args, np.int32(m),
+                      np.int32(first_bounce), np.int32(max_bounces), self.queues[0],
+                      np.int32(n_live), self.queues[1], self.n_next, self.footprints,
+                      self.n_footprints)
+        with self.rt.guard("SBR bounce counts"):
+            return self._read(self.n_next), self._read(self.n_footprints)
+
+    def _illuminate(self, m: int, n_fp: int, first: int):
+        with self.rt.guard("SBR illumination"):
+            self._run(self.illuminate_kernel, n_fp, self.illuminate_local,
+                      *self.illuminate_args, np.int64(first), np.int32(m), self.footprints,
+                      np.int32(n_fp), self.lit, name="sbr_illuminate (sbr.cl)")
+
+    def _radiate(self, m: int, n_fp: int, n_blocks: int) -> int:
+        cl, queue, slots = self.cl, self.rt.queue, n_blocks * self.n_rx
+        with self.rt.guard("SBR contribution slots"):
+            cl.enqueue_fill_buffer(queue, self.contribution_footprint, np.int32(-1), 0,
+                                   slots * self.cells * 4)
+            cl.enqueue_fill_buffer(queue, self.group_tubes, np.int32(0), 0, slots * 4)
+            self._zero(self.n_groups)
+        self._run_bvh("sbr_radiate", n_fp * self.n_rx, *self.radiate_args, np.int32(m),
+                      self.footprints, self.lit, np.int32(n_fp), self.contributions,
+                      self.contribution_footprint, self.group_tubes, self.live_groups,
+                      self.n_groups)
+        with self.rt.guard("SBR group count"):
+            return self._read(self.n_groups)
+
+    def _reduce(self, m: int, n_groups: int, first: int) -> np.ndarray:
+        rt = self.rt
+        while True:
+            with rt.guard("SBR reduction"):
+                self._zero(self.n_records)
+                self._run(self.reduce_kernel, n_groups * self.cells, self.reduce_local,
+                          self.tri_face, self.footprints, self.contributions,
+                          self.contribution_footprint, self.live_groups, np.int32(m),
+                          np.int32(self.n_rx), np.int64(first), self.records,
+                          self.n_records, np.int32(self.capacity), name="sbr_reduce (sbr.cl)")
+                n = self._read(self.n_records)
+            if n <= self.capacity:
+                break
+            # more records than the buffer holds: grow it and reduce this bounce again
+            self.capacity = max(n, 2 * self.capacity)
+            self.records = rt.empty(self.capacity * self.dtype.itemsize)
+        rec = np.empty(n, dtype=self.dtype)
+        if n:
+            with rt.guard("SBR records"):
+                self.cl.enqueue_copy(rt.queue, rec, self.records, is_blocking=True)
+        return rec
+
+
 def shoot_and_radiate(caster: RayCaster, scene, tri_face, windows, tx_frame, receivers,
                       rx_frames, *, wavenumber: float, wavelength: float, max_bounces: int,
                       first_bounce: int, record_triangles, batch_tubes: int = BATCH_TUBES,
@@ -189,35 +385,39 @@ def shoot_and_radiate(caster: RayCaster, scene, tri_face, windows, tx_frame, rec
     ``record_triangles`` (bool per scene triangle), receiver (positions (R,3), antenna
     frames (R,3,3); tx's frame ``tx_frame``) and sequence of planar faces ``tri_face``,
     the sum of the tubes' 2x2 polarimetric matrices at ``wavenumber`` (rad/m) and
-    ``wavelength`` (m), with the representative tube.  Sorted by block and emission
-    order, so every run returns the same records in the same order.  ``precision``
+    ``wavelength`` (m), with the representative tube.  Sorted by block and, within a
+    block, by the group's first (tube, bounce, receiver) - the order the host reference
+    numbers its groups in - so every run and batch size returns the same records in the
+    same order (``ordinal``: that rank within the block).  ``precision``
     (:data:`PRECISIONS`): fp64 where the device has it; "double-float" carries positions
     and lengths in kernels/precise.h's compensated float pairs and the fields in float
     (devices without fp64; tests force it on any device).  Records come back in the
     fp64 layout either way.  ``earlier`` (W, W) bool marks the earlier windows k < w whose
     directions can meet window w's (:func:`clradcom.mechanisms.sbr.earlier_overlaps`): a
     tube tests its ownership against those only (default: every earlier window).
-    """
-    import pyopencl as cl
 
+    The tubes go through the wavefront of kernels/sbr.cl a batch of blocks at a time (at
+    most ``batch_tubes`` tubes, fewer where the device's memory asks): launch, then per
+    bounce the closest hits of the live tubes, the footprints' radiation per receiver and
+    its reduction per (block, receiver) in work groups.
+    """
     rt = caster.runtime
     precision = engine_precision(rt, precision)
     fp64 = precision == "fp64"
     receivers = np.ascontiguousarray(np.asarray(receivers, np.float64).reshape(-1, 3))
-    if len(receivers) >= 2**15:
+    n_rx = len(receivers)
+    if n_rx >= 2**15:
         raise ArgumentError("at most 32767 receivers per transmitter", argument="receivers",
-                            value=len(receivers))
+                            value=n_rx)
     dtype = record_dtype(max_bounces, precision)
-    defines = _defines(max_bounces, precision)
     real = np.float64 if fp64 else np.float32
     mat_f, mat_i = _tables(scene)
     win_f, win_i, blocks = _windows(windows)
     near_first, near_tri = near_triangles(caster, receivers)
-    to_dev = rt.to_device
 
     def dev(a, dtype):
         a = np.ascontiguousarray(a, dtype=dtype)
-        return to_dev(a if a.size else np.zeros(1, dtype))
+        return rt.to_device(a if a.size else np.zeros(1, dtype))
 
     def precise(a):
         """float64 positions and lengths as the build reads them: doubles, or pairs"""
@@ -229,64 +429,34 @@ def shoot_and_radiate(caster: RayCaster, scene, tri_face, windows, tx_frame, rec
         tri_v, tri_n = data64["vertices"], data64["normals"]
     else:
         tri_v, tri_n = precise(caster.triangles), precise(caster.normals64())
-    tx_and_k = np.append(np.asarray(windows.tx, np.float64), float(wavenumber))
-    bufs = [tri_v, tri_n, dev(scene.tri_material, np.int32),
-            dev(tri_face, np.int32), dev(record_triangles, np.uint8), dev(mat_f, real),
-            dev(mat_i, np.int32), dev(win_f, real), dev(win_i, np.int32),
-            dev(windows.masks, np.uint8), dev(blocks, np.int32),
-            *(dev(a, np.int32) for a in _overlap_lists(windows.n_windows, earlier)),
-            precise(receivers),
-            dev(np.asarray(rx_frames, np.float64).reshape(-1, 9), real),
-            dev(np.asarray(tx_frame, np.float64).reshape(9), real), precise(tx_and_k),
-            dev(near_first, np.int32), dev(near_tri, np.int32)]
+    tri_material = dev(scene.tri_material, np.int32)
+    materials = [dev(mat_f, real), dev(mat_i, np.int32)]
+    tx_and_k = precise(np.append(np.asarray(windows.tx, np.float64), float(wavenumber)))
+    radiate_args = [tri_v, tri_n, tri_material, materials[1], precise(receivers),
+                    dev(np.asarray(rx_frames, np.float64).reshape(-1, 9), real), tx_and_k,
+                    dev(near_first, np.int32), dev(near_tri, np.int32)]
     if fp64:
         # the face tables of the float64 sight rounds (kernels/scene64.h)
-        seam, face_first, face_tris, face_box, n_faces = scene64_args(caster, tri_face)[3:8]
-        bufs += [seam, face_first, face_tris, face_box, n_faces, np.int32(RESCUE_ROUNDS),
-                 np.float64(LOOK_PAST), np.float64(1.0 - SIGHT_STOP)]
-    sight_tmax = np.float32(1.0 - SIGHT_STOP)
-    cells = BLOCK * BLOCK
-    blocks_per_batch = max(1, int(batch_tubes) // cells)
-    n_blocks = len(blocks)
-    count = np.zeros(1, dtype=np.int32)
-    count_buf = cl.Buffer(rt.context, cl.mem_flags.READ_WRITE, size=4)
-    # room for a few records per block and receiver: a batch whose records overflow the
-    # buffer is shot again (the street's first transmitter, 19k records, overflowed the
-    # 16k it once had, and the kernel ran twice)
-    capacity = int(np.clip(RECORDS_PER_BLOCK_RX * max(1, len(receivers))
-                           * min(blocks_per_batch, n_blocks), 1 << 14, MAX_START_RECORDS))
-    out_buf = cl.Buffer(rt.context, cl.mem_flags.READ_WRITE, size=capacity * dtype.itemsize)
+        radiate_args += [*scene64_args(caster, tri_face)[2:8], np.int32(RESCUE_ROUNDS),
+                         np.float64(LOOK_PAST), np.float64(1.0 - SIGHT_STOP)]
+    radiate_args += [real(ON_FACE_TOL_REL), real(INSIDE_TOL_REL), real(CONFIRM_TOL_M),
+                     np.int32(n_rx), real(wavelength), np.float32(1.0 - SIGHT_STOP)]
+    window_bufs = [dev(win_f, real), dev(win_i, np.int32), dev(blocks, np.int32)]
+    wave = _Wavefront(
+        caster, _defines(max_bounces, precision), _options(precision), dtype, n_rx,
+        len(blocks), batch_tubes,
+        launch_args=[*window_bufs[:2], dev(windows.masks, np.uint8), window_bufs[2],
+                     *(dev(a, np.int32) for a in _overlap_lists(windows.n_windows, earlier)),
+                     tx_and_k],
+        bounce_args=[tri_v, tri_n, dev(record_triangles, np.uint8)],
+        illuminate_args=[tri_n, tri_material, *materials, *window_bufs,
+                         dev(np.asarray(tx_frame, np.float64).reshape(9), real), tx_and_k],
+        radiate_args=radiate_args, tri_face=dev(tri_face, np.int32))
     parts = []
-    for first in range(0, n_blocks, blocks_per_batch):
-        nb = min(blocks_per_batch, n_blocks - first)
-        while True:
-            cl.enqueue_copy(rt.queue, count_buf, np.zeros(1, np.int32))
-            caster.run_kernel("sbr.cl", "sbr_blocks", nb, *bufs, real(ON_FACE_TOL_REL),
-                              real(INSIDE_TOL_REL), real(CONFIRM_TOL_M),
-                              np.int32(len(receivers)), real(wavelength), sight_tmax,
-                              np.int32(first_bounce), np.int32(max_bounces), np.int64(first),
-                              np.int32(nb), out_buf, count_buf, np.int32(capacity),
-                              defines=defines, options=_options(precision))
-            cl.enqueue_copy(rt.queue, count, count_buf)
-            n = int(count[0])
-            if n <= capacity:
-                break
-            # more records than the buffer holds: grow it and shoot this batch again
-            capacity = max(n, 2 * capacity)
-            out_buf = cl.Buffer(rt.context, cl.mem_flags.READ_WRITE,
-                                size=capacity * dtype.itemsize)
-        if n:
-            rec = np.empty(n, dtype=dtype)
-            cl.enqueue_copy(rt.queue, rec, out_buf)
-            parts.append(rec)
-    rec = np.concatenate(parts) if parts else np.zeros(0, dtype=dtype)
-    if len(rec):
-        # by block, then emission order: lexsort's order, from one int64 key whose
-        # records come nearly sorted (a stable sort runs through them)
-        key = (rec["tube"] // cells) * (int(rec["ordinal"].max()) + 1) + rec["ordinal"]
-        order = np.argsort(key, kind="stable")
-        if np.any(order != np.arange(len(order))):
-            rec = rec[order]
+    for first in range(0, len(blocks), wave.blocks_per_batch):
+        parts += wave.shoot(first, min(wave.blocks_per_batch, len(blocks) - first),
+                            max_bounces, first_bounce)
+    rec = _in_host_order(np.concatenate(parts) if parts else np.zeros(0, dtype=dtype))
     if fp64:
         return rec
     # double-float: lengths and points back to float64, the rest widened
@@ -297,3 +467,17 @@ def shoot_and_radiate(caster: RayCaster, scene, tri_face, windows, tx_frame, rec
         else:
             out[name] = rec[name]
     return out
+
+
+def _in_host_order(rec: np.ndarray) -> np.ndarray:
+    """Records sorted by block, then by their groups' first (cell, bounce, receiver)
+    (the kernel's ``ordinal`` key), which becomes the rank within the block."""
+    if len(rec) == 0:
+        return rec
+    cells = BLOCK * BLOCK
+    block = rec["tube"] // cells
+    rec = rec[np.lexsort((rec["ordinal"], block))]
+    block = rec["tube"] // cells
+    start = np.flatnonzero(np.diff(block, prepend=-1))
+    rec["ordinal"] = np.arange(len(rec)) - np.repeat(start, np.diff(start, append=len(rec)))
+    return rec
