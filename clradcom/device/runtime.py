@@ -554,6 +554,10 @@ class Runtime:
             options += ("-DCLR_INLINE_BUILTINS=1",)
         if self.force_no_fp64 and "-DCLRADCOM_NO_FP64=1" not in options:
             options += ("-DCLRADCOM_NO_FP64=1",)
+        if not self.info.has_double and "-cl-single-precision-constant" not in options:
+            # a literal such as 0.5 is a float, as a device without fp64 makes it
+            # (kernels/fp64.h)
+            options += ("-cl-single-precision-constant",)
         if self.info.simulator:
             options += ("-DCLR_NO_TARGET_BUILTINS=1",)
         try:
