@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from geometry_helpers import plate_tris
 
+from clradcom.device import visibility
 from clradcom.device.raycast import RayCaster, make_rays, spawn_origins
 from clradcom.device.visibility import (
     SIGHT_STOP,
@@ -156,11 +157,20 @@ def test_surface_sight_lines_decide_alike(device_ok):
             assert 0 < host.sum() < len(host)
 
 
-def test_engine_is_checked_and_no_fp64_means_the_host():
-    caster = SimpleNamespace(runtime=SimpleNamespace(info=SimpleNamespace(has_double=False)))
-    assert not uses_device(caster, "device")
+def test_engine_is_checked_and_only_an_unknown_dot_order_means_the_host(monkeypatch):
+    """Without fp64 the device decides in double-float (tests/test_no_fp64.py); with fp64
+    it needs numpy's dot-product order to repeat the host bit for bit, and says so."""
+    def caster(fp64):
+        return SimpleNamespace(runtime=SimpleNamespace(info=SimpleNamespace(has_double=fp64)))
+
+    assert uses_device(caster(False), "device") and uses_device(caster(True), "device")
+    assert not uses_device(caster(True), "host")
+    monkeypatch.setattr(visibility, "dot3_order", lambda: None)
+    assert uses_device(caster(False), "device")
+    assert not uses_device(caster(True), "device")
+    assert "dot products" in visibility.device_refusal(caster(True))
     with pytest.raises(ArgumentError, match="engine"):
-        uses_device(caster, "gpu")
+        uses_device(caster(False), "gpu")
 
 
 def _same_paths(a, b):

@@ -11,6 +11,7 @@ import time
 
 import numpy as np
 
+from clradcom.device.precision import kernel_float64
 from clradcom.device.runtime import Runtime, get_runtime
 from clradcom.errors import ArgumentError
 from clradcom.geometry import layout
@@ -250,18 +251,16 @@ class RayCaster:
 
     def scene_data64(self) -> dict:
         """Device buffers of the triangles in float64, uploaded once: ``vertices`` (T*9
-        doubles, v0 v1 v2 per triangle) and ``normals`` (T*3 doubles, the host's
+        values, v0 v1 v2 per triangle) and ``normals`` (T*3, the host's
         :func:`clradcom.geometry.triangles.triangle_normals`, so a kernel's exact plane
-        hits agree with the host's). Needs a device with fp64."""
+        hits agree with the host's): doubles, or (hi, lo) float pairs where the device
+        computes without fp64 (``kernels/precise.h``'s pr_elem,
+        :func:`clradcom.device.precision.kernel_float64`)."""
         if self._data64 is None:
-            if not self.runtime.info.has_double:
-                raise ArgumentError("this OpenCL device has no fp64; float64 scene data "
-                                    "needs one", argument="device",
-                                    value=self.runtime.info.device_name.strip())
             rt = self.runtime
             self._data64 = {
-                "vertices": rt.to_device(np.ascontiguousarray(self.triangles, np.float64)),
-                "normals": rt.to_device(np.ascontiguousarray(self.normals64(), np.float64)),
+                "vertices": rt.to_device(kernel_float64(rt, self.triangles)),
+                "normals": rt.to_device(kernel_float64(rt, self.normals64())),
             }
         return self._data64
 
