@@ -31,6 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from clradcom.device import engines
 from clradcom.device import images as device_images
 from clradcom.device.raycast import RayCaster
 from clradcom.device.visibility import confirm_paths, containing_triangles
@@ -329,13 +330,23 @@ def prepare(geom: Geometry, tx: Radar, settings: SpecularSettings) -> Candidates
     # on the device, where the lattice stays between transmitters: the same rays
     k = settings.max_reflections
     base = key_base(geom.faces.n_faces, k)
-    if geom.engine == "device" and base is not None and geom.runtime.has_double:
+    stage = "specular.candidates"
+    if geom.engine == "host":
+        engines.record(stage, "host", fallback=False)
+    else:
+        engines.record(stage, "device")
+    if geom.engine == "device" and base is not None:
         # each ray's sequence becomes one exact key on the device, and only the set of
         # distinct keys leaves it: no (R, k) rows to download, encode and sort on the
         # host (the reference engine does that)
-        keys = geom.caster.lattice_key_set(tx.position, local, rot, geom.faces.tri_face, k,
-                                           base)
+        keys = geom.caster.lattice_key_set(
+            tx.position, local, rot, geom.faces.tri_face, k, base,
+            on_host=lambda reason: engines.record(stage, "host", reason))
         return candidates_from_keys(keys, base, k)
+    if geom.engine == "device":
+        engines.record(stage, "host", f"{geom.faces.n_faces} faces and {k} reflections: a "
+                       "face sequence does not fit one 64-bit key, the host de-duplicates "
+                       "the sequences")
     seqs = geom.caster.lattice_sequences(tx.position, local, rot, geom.faces.tri_face, k)
     return unique_candidates(seqs)
 
