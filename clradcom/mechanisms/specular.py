@@ -214,15 +214,25 @@ def image_points(tx, rx, normals, offsets, seqs: np.ndarray, runtime=None):
     faces' planes; seqs (C,k) face ids. Returns points (C, k+2, 3) - tx, the
     k reflection points, rx - and a mask of candidates whose every point lies
     strictly between its neighbours' image line ends (so each reflection
-    happens on the side both segments are on). With a ``runtime`` whose device can
-    (:func:`clradcom.device.images.available`) the points come from its kernel, the
-    same bit for bit.
+    happens on the side both segments are on). With a ``runtime`` (the device engine)
+    the points come from its kernel unless
+    :func:`clradcom.device.images.device_refusal` gives a reason: the same bit for bit
+    with fp64, within ~1e-14 relative without. Where the points were computed is
+    recorded (stage "specular.image_points": :func:`clradcom.device.engines.record`).
     """
     seqs = np.asarray(seqs)
     C, k = seqs.shape
     tx = np.asarray(tx, dtype=np.float64)
     rx = np.asarray(rx, dtype=np.float64)
-    if runtime is not None and C and k and device_images.available(runtime):
+    refusal = None if runtime is None else device_images.device_refusal(runtime)
+    if C and k:
+        if runtime is None:
+            engines.record("specular.image_points", "host", fallback=False)
+        elif refusal is not None:
+            engines.record("specular.image_points", "host", refusal)
+        else:
+            engines.record("specular.image_points", "device")
+    if runtime is not None and C and k and refusal is None:
         points, ok, failed_last, failed_first = device_images.image_points(
             runtime, tx, rx, normals, offsets, seqs)
         for what, point, failed, i in (("receiver", rx, failed_last, k - 1),
