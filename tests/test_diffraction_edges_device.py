@@ -25,8 +25,9 @@ def grid_wall(x, y0, y1, z0, z1, ny, nz):
     return {"shape": "triangles", "vertices": verts, "faces": faces}
 
 
-@pytest.fixture(scope="module")
-def scene_and_geometry(runtime):
+def edge_scene():
+    """Boxes near and far, one hidden, one behind a tiled wall, a plain wall and two
+    screens side by side, and one radar among them."""
     objects = [
         {"name": "near", "material": "metal", "shape": "box", "extents": [1.0, 1.0, 3.0],
          "position": [4.0, 0.5, 1.5]},
@@ -45,9 +46,14 @@ def scene_and_geometry(runtime):
         {"name": "right", "material": "metal", "shape": "plane", "size": [8.0, 1.2],
          "position": [8.0, -0.5, 4.0], "rotation_deg": [0.0, -90.0, 0.0]},
     ]
-    scene = scene_from_dict({"scene": {"name": "edges", "carrier_hz": 24e9},
-                             "objects": objects,
-                             "radars": [{"name": "r", "position": [0.0, -1.0, 1.0]}]})
+    return scene_from_dict({"scene": {"name": "edges", "carrier_hz": 24e9},
+                            "objects": objects,
+                            "radars": [{"name": "r", "position": [0.0, -1.0, 1.0]}]})
+
+
+@pytest.fixture(scope="module")
+def scene_and_geometry(runtime):
+    scene = edge_scene()
     geom = build_geometry(scene, runtime)
     wedges = extract_wedges(scene.triangles, scene.tri_object, scene.tri_material)
     return scene, geom, wedges
