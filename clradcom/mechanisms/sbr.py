@@ -62,6 +62,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from clradcom.device import engines
 from clradcom.device import sbr as device_sbr
 from clradcom.device import silhouette as device_silhouette
 from clradcom.device.raycast import make_rays, spawn_origins
@@ -432,8 +433,7 @@ def launch_windows(geom, tx_pos, objects, spacing_m, *, mirrors: bool = True,
     masks)."""
     scene = geom.scene
     runtime = geom.runtime if geom.engine == "device" else None
-    if runtime is not None and not runtime.has_double:
-        runtime = None
+    engines.record("physical_optics.windows", geom.engine, fallback=False)
     tx = np.asarray(tx_pos, dtype=np.float64)
     objects = np.asarray(list(objects), dtype=np.int64)
     spacing = np.broadcast_to(np.asarray(spacing_m, dtype=np.float64), objects.shape)
@@ -1315,9 +1315,11 @@ def shoot_sbr(geom, tx, objects, receivers, *, spacing_wavelengths: float | None
     if not (windows.n_tubes and receivers and max_bounces >= first_bounce):
         sums = BlockSums.empty(max_bounces)
     elif geom.engine == "device":
+        engines.record("physical_optics.tubes", "device")
         sums = device_block_sums(geom, windows, tx, receivers, max_bounces, first_bounce,
                                  record, precision)
     else:
+        engines.record("physical_optics.tubes", "host", fallback=False)
         sums = host_block_sums(geom, windows, tx, receivers, max_bounces, first_bounce,
                                record)
     return SbrTubes(windows=windows, receivers=rx_pos, sums=sums, max_bounces=max_bounces,
