@@ -544,8 +544,9 @@ class Runtime:
         """Compile ``source``; a failure raises OpenCLError naming the device, file, line
         and the file the whole compiler log went to. On PoCL (:attr:`inline_builtins`) the
         build also gets -D CLR_INLINE_BUILTINS=1; in the forced no-fp64 mode
-        -D CLRADCOM_NO_FP64=1. Compiler output of a build that succeeds is kept in
-        :attr:`build_warnings`, not shown."""
+        -D CLRADCOM_NO_FP64=1, and without fp64 (forced or not)
+        -cl-single-precision-constant. Compiler output of a build that succeeds is kept
+        in :attr:`build_warnings`, not shown."""
         import warnings
 
         cl = _cl()
