@@ -6,6 +6,8 @@ import numpy as np
 import pytest
 
 from clradcom.device import edges as device_edges
+from clradcom.device import engines
+from clradcom.errors import DeviceFallbackWarning
 from clradcom.geometry.wedges import extract_wedges
 from clradcom.mechanisms import diffraction
 from clradcom.mechanisms.common import build_geometry
@@ -102,6 +104,16 @@ def test_wedges_seeing_engines_agree_and_fall_back(scene_and_geometry):
     assert np.array_equal(dev, host) and dev.any()
     assert not device_edges.usable(geom.caster, "device", 3, device_edges.MAX_DEPTH + 1)
     assert not device_edges.usable(geom.caster, "host", 3, 2)
+    # a test beyond the kernel's stack runs on the host, recorded and said once
+    deep = device_edges.MAX_DEPTH + 1
+    with engines.engine_log() as log, pytest.warns(DeviceFallbackWarning,
+                                                   match="diffraction.edge_sight.*halvings"):
+        deep_mask = diffraction.wedges_seeing(geom.caster, wedges, p,
+                                              tri_face=geom.faces.tri_face, max_depth=deep)
+    assert log.engine_of("diffraction.edge_sight") == "host"
+    assert "halvings" in log.metadata()["engine.diffraction.edge_sight"]
+    assert np.array_equal(deep_mask, diffraction.wedges_seeing(
+        geom.caster, wedges, p, tri_face=geom.faces.tri_face, max_depth=deep, engine="host"))
 
 
 def test_outside_every_is_outside(scene_and_geometry):
