@@ -99,6 +99,9 @@
 #ifndef CLRADCOM_PRECISE_H
 #define CLRADCOM_PRECISE_H
 
+/* fp64.h, and PoCL's inline fma and sqrt (first: it leaves contraction on) */
+#include "fastmath.h"
+
 /* a*b + c must never be contracted behind our back: every fma below is
  * explicit, and TwoSum's rounding errors must be the ones it computes. */
 #pragma OPENCL FP_CONTRACT OFF
@@ -109,8 +112,6 @@
 #ifndef CLRADCOM_PRECISE_FLOAT32
 #define CLRADCOM_PRECISE_FLOAT32 0
 #endif
-
-#include "fp64.h"
 
 #if CLRADCOM_PRECISE_FLOAT32
 #define PRECISE_MODE 0
