@@ -320,9 +320,9 @@ def test_tile_centres_without_fp64(no_fp64):
     rng = np.random.default_rng(3)
     tris = rng.uniform(-40.0, 40.0, size=(40, 3, 3)) + 500.0
     caster = build_geometry(scatter_tests.wall_scene(), no_fp64).caster
-    q, _, _, local = make_tiles(tris, 1.3)
+    q, _, _, local = make_tiles(tris, 2.5)
     nrm, two_a = triangle_normals_and_double_areas(tris)
-    n = scattering._subdivisions(tris, 1.3)
+    n = scattering._subdivisions(tris, 2.5)
     far = [900.0, 900.0, 900.0]
     got = device_scatter.tile_sight(caster, tris, nrm, 0.5 * two_a / (n * n),
                                     np.ones(len(tris)), np.zeros(len(tris)), n, far, far,
