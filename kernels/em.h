@@ -51,7 +51,7 @@ EM_INLINE cplx c_sqrt(cplx z)
 EM_INLINE void fresnel(cplx eps, real cos_theta, int pec, cplx *r_te, cplx *r_tm)
 {
     if (pec) { *r_te = (cplx)(-1.0, 0.0); *r_tm = (cplx)(1.0, 0.0); return; }
-    real c = fmin(fmax(fabs(cos_theta), 0.0), 1.0);
+    real c = fmin(fmax(fabs(cos_theta), (real)0.0), (real)1.0);
     cplx a = c_sqrt((cplx)((eps.x - 1.0) + c * c, eps.y));
     a.y = -fabs(a.y);
     cplx cc = (cplx)(c, 0.0);
@@ -146,7 +146,7 @@ EM_INLINE Reflection reflection_at(real3 k, real3 n, cplx r_te, cplx r_tm)
     real kn = dot(k, n);
     if (kn > 0.0) n = -n;
     kn = -fabs(kn);
-    real3 k_r = k - 2.0 * kn * n;
+    real3 k_r = k - (real)2.0 * kn * n;
     real3 x = cross(k, n);
     real sx = sqrt(dot(x, x));
     Reflection R;

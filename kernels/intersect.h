@@ -5,7 +5,8 @@
  * the edge functions U, V, W are then 2-D cross products that two triangles
  * sharing an edge evaluate with the same operands, so a ray through the edge
  * can never slip between them. Where an edge function rounds to exactly 0 it
- * is recomputed in double (when the device has it), as the paper advises.
+ * is recomputed in double (without fp64 by Kahan's fma algorithm, whose sign is
+ * exact as well), as the paper advises.
  * Leaves keep their triangles in groups of four (Tri4 below) tested with
  * float4 operations: every lane does exactly the scalar test's operations in
  * the same order, so each lane's result is the scalar test's, bit for bit.
@@ -142,6 +143,21 @@ CLR_INLINE PreparedRay prepare_ray(float3 org, float3 dir)
 
 #define ANY4(m) (((m).s0 | (m).s1 | (m).s2 | (m).s3) != 0)
 
+#ifndef CLRADCOM_HAS_FP64
+/* a*b - c*d by Kahan's algorithm (the rounding error of c*d recovered by an fma): within
+ * 2 ulp of the exact value (Jeannerod, Louvet & Muller, Math. Comp. 82, 2013), so its
+ * sign is exact and it is 0 only where the exact value is. The watertight test's
+ * re-evaluation of an edge function that rounded to 0 without fp64: the same signs as
+ * the double products (exact for float operands), the value within 2 ulp of theirs. */
+CLR_INLINE float4 kahan_det4(float4 a, float4 b, float4 c, float4 d)
+{
+    float4 w = c * d;
+    float4 e = fma(-c, d, w);
+    float4 f = fma(a, b, -w);
+    return f + e;
+}
+#endif
+
 /* Watertight test of the four triangles of group g: returns the lanes hit in
  * (tmin, tmax) (all bits set) and writes T, det and the edge functions V, W
  * (t = T/det, u = V/det, v = W/det). */
@@ -159,17 +175,21 @@ CLR_INLINE int4 ray_tri4(const PreparedRay *r, __global const float4 *g, float t
     float4 U = cx * by - cy * bx;
     float4 V = ax * cy - ay * cx;
     float4 W = bx * ay - by * ax;
-#ifdef CLRADCOM_HAS_FP64
     int4 zero = (U == 0.0f) | (V == 0.0f) | (W == 0.0f);
     if (ANY4(zero)) {
+#ifdef CLRADCOM_HAS_FP64
         double4 dax = convert_double4(ax), day = convert_double4(ay);
         double4 dbx = convert_double4(bx), dby = convert_double4(by);
         double4 dcx = convert_double4(cx), dcy = convert_double4(cy);
         U = zero ? convert_float4(dcx * dby - dcy * dbx) : U;
         V = zero ? convert_float4(dax * dcy - day * dcx) : V;
         W = zero ? convert_float4(dbx * day - dby * dax) : W;
-    }
+#else
+        U = zero ? kahan_det4(cx, by, cy, bx) : U;
+        V = zero ? kahan_det4(ax, cy, ay, cx) : V;
+        W = zero ? kahan_det4(bx, ay, by, ax) : W;
 #endif
+    }
     int4 mixed = ((U < 0.0f) | (V < 0.0f) | (W < 0.0f)) & ((U > 0.0f) | (V > 0.0f) | (W > 0.0f));
     float4 det = U + V + W;
     float4 sz = (float4)(r->sz);

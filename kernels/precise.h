@@ -74,11 +74,33 @@
  *   preal3 pr3_reflect(preal3 d, preal3 n) d - 2 (d.n) n, n of unit length
  *   preal  pr3_plane_t(preal3 o, preal3 d, preal3 v0, preal3 n)
  *   preal3 pr3_plane_hit(preal3 o, preal3 d, preal3 v0, preal3 n, preal *t)
+ *   float  pr_phase_reduced(preal ph)      ph less its whole turns (~[-pi, pi]), a float
+ *
+ * Float64 buffers whose values a kernel must read exactly where it has fp64 (the
+ * float64 scene of the visibility kernels, image points, tile centres: the host's
+ * numbers bit for bit) cross as pr_elem instead: double in mode 2, a (hi, lo) float2
+ * pair otherwise -- the same 8 bytes (clradcom.device.precision.kernel_float64 and
+ * host_float64 choose by the device's mode):
+ *   preal  pr_of(pr_elem e)                pr_elem pr_elem_of(preal a)
+ *   preal3 pr3_load(__global const pr_elem *p)   void pr3_store(__global pr_elem *p, preal3 v)
+ * and the decisions and conversions such kernels take, exact in every mode (mode 1:
+ * comparisons of normalised pairs):
+ *   bool   pr_lt, pr_le, pr_gt, pr_ge(preal a, preal b)
+ *   bool   pr_isfinite(preal a)            bool   pr_isnan(preal a)
+ *   preal  pr_fabs(preal a)                preal  pr_fmax, pr_fmin(preal a, preal b)
+ *   preal  pr_floor(preal a)               long   pr_to_long(preal a)   (a integral)
+ *   preal  pr_from_long(long a)            (exact to 2^48 in mode 1)
+ *   PR_CONST(x)                            a literal as preal (float in mode 1)
+ * In mode 2 every one of them is the double operation itself, so code written with
+ * them compiles to the double code it replaces, bit for bit.
  *
  * docs/precision.md gives the scheme and what tests/test_phase_precision.py
  * measures. */
 #ifndef CLRADCOM_PRECISE_H
 #define CLRADCOM_PRECISE_H
+
+/* fp64.h, and PoCL's inline fma and sqrt (first: it leaves contraction on) */
+#include "fastmath.h"
 
 /* a*b + c must never be contracted behind our back: every fma below is
  * explicit, and TwoSum's rounding errors must be the ones it computes. */
@@ -93,7 +115,7 @@
 
 #if CLRADCOM_PRECISE_FLOAT32
 #define PRECISE_MODE 0
-#elif !CLRADCOM_NO_FP64 && defined(cl_khr_fp64)
+#elif defined(CLRADCOM_FP64)
 #define PRECISE_MODE 2
 #else
 #define PRECISE_MODE 1
@@ -123,6 +145,21 @@ PR_INLINE preal pr_mul(preal a, preal b) { return a * b; }
 PR_INLINE preal pr_mul_f(preal a, float b) { return a * (double)b; }
 PR_INLINE preal pr_div(preal a, preal b) { return a / b; }
 PR_INLINE preal pr_sqrt(preal a) { return sqrt(a); }
+
+typedef double pr_elem;
+PR_INLINE preal pr_of(pr_elem e) { return e; }
+PR_INLINE pr_elem pr_elem_of(preal a) { return a; }
+PR_INLINE bool pr_lt(preal a, preal b) { return a < b; }
+PR_INLINE bool pr_le(preal a, preal b) { return a <= b; }
+PR_INLINE bool pr_isfinite(preal a) { return isfinite(a); }
+PR_INLINE bool pr_isnan(preal a) { return isnan(a); }
+PR_INLINE preal pr_fabs(preal a) { return fabs(a); }
+PR_INLINE preal pr_fmax(preal a, preal b) { return fmax(a, b); }
+PR_INLINE preal pr_fmin(preal a, preal b) { return fmin(a, b); }
+PR_INLINE preal pr_floor(preal a) { return floor(a); }
+PR_INLINE preal pr_from_long(long a) { return (double)a; }
+PR_INLINE long pr_to_long(preal a) { return (long)a; }
+#define PR_CONST(x) ((double)(x))
 
 /* ------------------------------------------------------------------------- */
 #elif PRECISE_MODE == 1
@@ -236,6 +273,43 @@ PR_INLINE preal pr_sqrt(preal x)
     return pr__fast_two_sum(sh, sl);
 }
 
+typedef float2 pr_elem;
+PR_INLINE preal pr_of(pr_elem e) { return pr_from_pair(e); }
+PR_INLINE pr_elem pr_elem_of(preal a) { return a; }
+
+/* Every operation above returns a normalised pair (hi the sum rounded to float, by a
+ * final Fast2Sum), and rounding to nearest is monotonic: so hi orders two pairs, and lo
+ * breaks a tie of hi, exactly. A NaN compares false, as in double. */
+PR_INLINE bool pr_lt(preal a, preal b) { return a.x < b.x || (a.x == b.x && a.y < b.y); }
+PR_INLINE bool pr_le(preal a, preal b) { return a.x < b.x || (a.x == b.x && a.y <= b.y); }
+PR_INLINE bool pr_isfinite(preal a) { return isfinite(a.x) && isfinite(a.y); }
+PR_INLINE bool pr_isnan(preal a) { return isnan(a.x) || isnan(a.y); }
+PR_INLINE preal pr_fabs(preal a) { return (a.x < 0.0f) ? -a : a; }
+/* fmax / fmin: a NaN argument gives the other one */
+PR_INLINE preal pr_fmax(preal a, preal b)
+{
+    return pr_isnan(a) ? b : (pr_isnan(b) ? a : (pr_lt(a, b) ? b : a));
+}
+PR_INLINE preal pr_fmin(preal a, preal b)
+{
+    return pr_isnan(a) ? b : (pr_isnan(b) ? a : (pr_lt(b, a) ? b : a));
+}
+/* floor: where hi is not an integer, no lo (|lo| <= ulp(hi)/2) reaches the next one */
+PR_INLINE preal pr_floor(preal a)
+{
+    float fh = floor(a.x);
+    if (fh != a.x) return (float2)(fh, 0.0f);
+    return pr__fast_two_sum(fh, floor(a.y));
+}
+/* exact for |a| < 2^48 */
+PR_INLINE preal pr_from_long(long a)
+{
+    float hi = (float)a;
+    return pr__fast_two_sum(hi, (float)(a - (long)hi));
+}
+PR_INLINE long pr_to_long(preal a) { return (long)a.x + (long)a.y; }   /* a integral */
+#define PR_CONST(x) pr_from_float((float)(x))
+
 /* ------------------------------------------------------------------------- */
 #else   /* PRECISE_MODE 0: plain float, the tests' negative control */
 
@@ -254,7 +328,26 @@ PR_INLINE preal pr_mul_f(preal a, float b) { return a * b; }
 PR_INLINE preal pr_div(preal a, preal b) { return a / b; }
 PR_INLINE preal pr_sqrt(preal a) { return sqrt(a); }
 
+typedef float2 pr_elem;
+PR_INLINE preal pr_of(pr_elem e) { return e.x; }
+PR_INLINE pr_elem pr_elem_of(preal a) { return (float2)(a, 0.0f); }
+PR_INLINE bool pr_lt(preal a, preal b) { return a < b; }
+PR_INLINE bool pr_le(preal a, preal b) { return a <= b; }
+PR_INLINE bool pr_isfinite(preal a) { return isfinite(a); }
+PR_INLINE bool pr_isnan(preal a) { return isnan(a); }
+PR_INLINE preal pr_fabs(preal a) { return fabs(a); }
+PR_INLINE preal pr_fmax(preal a, preal b) { return fmax(a, b); }
+PR_INLINE preal pr_fmin(preal a, preal b) { return fmin(a, b); }
+PR_INLINE preal pr_floor(preal a) { return floor(a); }
+PR_INLINE preal pr_from_long(long a) { return (float)a; }
+PR_INLINE long pr_to_long(preal a) { return (long)a; }
+#define PR_CONST(x) ((float)(x))
+
 #endif
+
+/* the rest of the comparisons, from pr_lt and pr_le */
+PR_INLINE bool pr_gt(preal a, preal b) { return pr_lt(b, a); }
+PR_INLINE bool pr_ge(preal a, preal b) { return pr_le(b, a); }
 
 /* ------------------------------------------------------------------------- */
 /* 3-vectors of preal: a struct in every mode (never shared with the host). */
@@ -293,6 +386,18 @@ PR_INLINE void pr3_store_pairs(__global float2 *p, preal3 v)
     p[2] = pr_to_pair(v.z);
 }
 
+PR_INLINE preal3 pr3_load(__global const pr_elem *p)
+{
+    return pr3_make(pr_of(p[0]), pr_of(p[1]), pr_of(p[2]));
+}
+
+PR_INLINE void pr3_store(__global pr_elem *p, preal3 v)
+{
+    p[0] = pr_elem_of(v.x);
+    p[1] = pr_elem_of(v.y);
+    p[2] = pr_elem_of(v.z);
+}
+
 PR_INLINE preal3 pr3_add(preal3 a, preal3 b)
 {
     return pr3_make(pr_add(a.x, b.x), pr_add(a.y, b.y), pr_add(a.z, b.z));
@@ -323,6 +428,18 @@ PR_INLINE preal3 pr3_reflect(preal3 d, preal3 n)
 {
     preal twice = pr_mul_f(pr3_dot(d, n), 2.0f);   /* times 2: exact */
     return pr3_sub(d, pr3_scale(n, twice));
+}
+
+/* A phase (radians, of any size) less its nearest whole number of turns, rounded to
+ * float, for the float sine and cosine of a build without fp64: k L of millions of
+ * radians keeps its fraction (2 pi as a pair, 2^-48 relative: 3e-8 rad at 1e6 rad). The
+ * turns come from a float quotient, so the result may pass +-pi by up to a hundredth
+ * of a turn near a half turn; sine and cosine do not mind. */
+PR_INLINE float pr_phase_reduced(preal ph)
+{
+    float turns = rint(pr_to_float(ph) / 6.2831855f);
+    preal two_pi = pr_from_pair((float2)(6.2831855f, -1.7484555e-07f));
+    return pr_to_float(pr_sub(ph, pr_mul_f(two_pi, turns)));
 }
 
 /* Ray parameter t of o + t d on the plane through v0 with normal n (any

@@ -85,3 +85,22 @@ __kernel void bounce_lengths(__global const float2 *origins,
     for (; k < max_bounces; ++k) pr3_store_pairs(out + 3 * k, pr3_from_float3((float3)(0.0f)));
     lengths[p] = pr_to_pair(total);
 }
+
+/* The decisions and conversions kernels take on preal, element by element:
+ * out[i*6 + 0..5] = (a < b, a <= b, fmax(a, b), fmin(a, b), floor(a),
+ * pr_phase_reduced(a)); the two comparisons as 1 or 0 in hi. */
+__kernel void precise_decisions(__global const float2 *a, __global const float2 *b,
+                                __global float2 *out, const int n)
+{
+    int i = get_global_id(0);
+    if (i >= n) return;
+    preal x = pr_from_pair(a[i]);
+    preal y = pr_from_pair(b[i]);
+    __global float2 *o = out + (size_t)i * 6;
+    o[0] = (float2)(pr_lt(x, y) ? 1.0f : 0.0f, 0.0f);
+    o[1] = (float2)(pr_le(x, y) ? 1.0f : 0.0f, 0.0f);
+    o[2] = pr_to_pair(pr_fmax(x, y));
+    o[3] = pr_to_pair(pr_fmin(x, y));
+    o[4] = pr_to_pair(pr_floor(x));
+    o[5] = (float2)(pr_phase_reduced(x), 0.0f);
+}

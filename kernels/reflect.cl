@@ -4,6 +4,7 @@
  * every sequence into a candidate and confirms it with the image method, so
  * nothing here needs to be exact: float32 geometry is enough. */
 #include "intersect.h"
+#include "precise.h"
 
 /* The host's spawn_origins offset (clradcom/device/raycast.py), so a bounce on
  * the device leaves a surface exactly as far as one on the host. */
@@ -99,21 +100,29 @@ __kernel void trace_reflections(__global const Bvh8Node *nodes,
                directions[gid].xyz, max_order, face_seq + (size_t)gid * max_order);
 }
 
-#ifdef CLRADCOM_HAS_FP64
+/* (l0 r0 + l1 r1) + l2 r2 rounded to float */
+CLR_INLINE float rotated(preal l0, preal l1, preal l2, pr_elem r0, pr_elem r1, pr_elem r2)
+{
+    return pr_to_float(pr_add(pr_add(pr_mul(l0, pr_of(r0)), pr_mul(l1, pr_of(r1))),
+                              pr_mul(l2, pr_of(r2))));
+}
+
 /* Lattice ray first + gid (N, 3) float64 rotated by r (row major 3x3, the antenna's axes
- * as columns): dir_j = (l0 r_j0 + l1 r_j1) + l2 r_j2 in double, as the host's numpy
- * rotation sums it (no contraction: intersect.h), then rounded to float as numpy's cast
- * rounds it, so each ray is the host-rotated one bit for bit. */
-CLR_INLINE float3 lattice_direction(__global const double *lattice, const size_t ray,
-                                    const double r00, const double r01, const double r02,
-                                    const double r10, const double r11, const double r12,
-                                    const double r20, const double r21, const double r22)
+ * as columns): dir_j = (l0 r_j0 + l1 r_j1) + l2 r_j2, as the host's numpy rotation sums
+ * it (no contraction: intersect.h), then rounded to float as numpy's cast rounds it. In
+ * precise.h's preal: double with fp64, so each ray is the host-rotated one bit for bit;
+ * double-float without (lattice and rotation as (hi, lo) pairs), whose sum is the
+ * float64 one to ~1e-14 relative: a component rounds to another float only where it
+ * lies that close to a rounding boundary (1 ulp, about one component in 10^6). */
+CLR_INLINE float3 lattice_direction(__global const pr_elem *lattice, const size_t ray,
+                                    const pr_elem r00, const pr_elem r01, const pr_elem r02,
+                                    const pr_elem r10, const pr_elem r11, const pr_elem r12,
+                                    const pr_elem r20, const pr_elem r21, const pr_elem r22)
 {
     size_t k = 3 * ray;
-    double l0 = lattice[k], l1 = lattice[k + 1], l2 = lattice[k + 2];
-    return (float3)((float)(l0 * r00 + l1 * r01 + l2 * r02),
-                    (float)(l0 * r10 + l1 * r11 + l2 * r12),
-                    (float)(l0 * r20 + l1 * r21 + l2 * r22));
+    preal l0 = pr_of(lattice[k]), l1 = pr_of(lattice[k + 1]), l2 = pr_of(lattice[k + 2]);
+    return (float3)(rotated(l0, l1, l2, r00, r01, r02), rotated(l0, l1, l2, r10, r11, r12),
+                    rotated(l0, l1, l2, r20, r21, r22));
 }
 
 /* The arguments every kernel over a rotated launch lattice starts with: the BVH, the
@@ -122,10 +131,10 @@ CLR_INLINE float3 lattice_direction(__global const double *lattice, const size_t
 #define ROTATED_LATTICE_ARGS                                                            \
     __global const Bvh8Node *nodes, __global const float4 *tri_verts,                   \
     __global const int *tri_index, __global const int *tri_face,                        \
-    const float ox, const float oy, const float oz, __global const double *lattice,     \
-    const double r00, const double r01, const double r02, const double r10,             \
-    const double r11, const double r12, const double r20, const double r21,             \
-    const double r22, const int first, const int max_order
+    const float ox, const float oy, const float oz, __global const pr_elem *lattice,    \
+    const pr_elem r00, const pr_elem r01, const pr_elem r02, const pr_elem r10,         \
+    const pr_elem r11, const pr_elem r12, const pr_elem r20, const pr_elem r21,         \
+    const pr_elem r22, const int first, const int max_order
 #define LATTICE_DIRECTION(gid)                                                          \
     lattice_direction(lattice, (size_t)first + (gid), r00, r01, r02, r10, r11, r12, r20, \
                       r21, r22)
@@ -188,5 +197,4 @@ __kernel void collect_reflection_keys_rotated(ROTATED_LATTICE_ARGS, const long b
     }
     atomic_or(overflow, 1);
 }
-#endif
 #endif

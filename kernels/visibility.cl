@@ -19,7 +19,10 @@
  *
  * Products are rounded one by one (FP_CONTRACT OFF, from intersect.h) and the
  * three-term dot products add in numpy's order (DOT3_ORDER, probed on the host:
- * numpy's einsum adds its lanes in an order that depends on the CPU). */
+ * numpy's einsum adds its lanes in an order that depends on the CPU). Without fp64 the
+ * same steps run in precise.h's double-float, the float64 inputs as (hi, lo) pairs
+ * (pr_elem): the decisions are the host's except within its rounding of a threshold
+ * (scene64.h). */
 #include "scene64.h"
 
 /* blocked[i] = 1 where something blocks segment i: rays[i] is its float32 cast
@@ -29,10 +32,10 @@
  * is re-decided in float64 (scene64.h: blocked_in_float64). */
 __kernel void segments_blocked(__global const Bvh8Node *nodes, __global const float4 *tri4,
                                __global const int *slot_prim, SCENE64_ARGS,
-                               __global const Ray *rays, __global const double *start,
-                               __global const double *seg, __global const double *tmin,
-                               __global const double *tmax, __global const int *ignore_prim,
-                               const int max_rounds, const double look_past,
+                               __global const Ray *rays, __global const pr_elem *start,
+                               __global const pr_elem *seg, __global const pr_elem *tmin,
+                               __global const pr_elem *tmax, __global const int *ignore_prim,
+                               const int max_rounds, const pr_elem look_past,
                                __global uchar *blocked, const int n)
 {
     int i = get_global_id(0);
@@ -46,9 +49,11 @@ __kernel void segments_blocked(__global const Bvh8Node *nodes, __global const fl
         return;
     }
     blocked[i] = blocked_in_float64(nodes, tri4, slot_prim, &s, &pr, ray.tmax,
-                                    start[3 * i], start[3 * i + 1], start[3 * i + 2],
-                                    seg[3 * i], seg[3 * i + 1], seg[3 * i + 2], tmin[i],
-                                    tmax[i], skip, max_rounds, look_past) ? 1 : 0;
+                                    pr_of(start[3 * i]), pr_of(start[3 * i + 1]),
+                                    pr_of(start[3 * i + 2]), pr_of(seg[3 * i]),
+                                    pr_of(seg[3 * i + 1]), pr_of(seg[3 * i + 2]),
+                                    pr_of(tmin[i]), pr_of(tmax[i]), skip, max_rounds,
+                                    pr_of(look_past)) ? 1 : 0;
 }
 
 /* tri[i]: the triangle of face faces[i] holding end[i] where the segment
@@ -57,8 +62,8 @@ __kernel void segments_blocked(__global const Bvh8Node *nodes, __global const fl
  * end - start, tmin, 1 + 2 slack). */
 __kernel void reach_faces(__global const Bvh8Node *nodes, __global const float4 *tri4,
                           __global const int *slot_prim, SCENE64_ARGS,
-                          __global const Ray *rays, __global const double *end,
-                          __global const int *faces, __global const double *slack,
+                          __global const Ray *rays, __global const pr_elem *end,
+                          __global const int *faces, __global const pr_elem *slack,
                           __global int *tri, const int n)
 {
     int i = get_global_id(0);
@@ -70,6 +75,8 @@ __kernel void reach_faces(__global const Bvh8Node *nodes, __global const float4 
     int slot = bvh_closest(nodes, tri4, slot_prim, &pr, ray.tmin, &t, &u, &v, -1);
     int prim = (slot >= 0) ? slot_prim[slot] : -1;
     int face = faces[i];
-    bool reached = prim < 0 || (tri_face[prim] == face && (double)fabs(t - 1.0f) <= slack[i]);
-    tri[i] = reached ? contains(&s, face, prim, end[3 * i], end[3 * i + 1], end[3 * i + 2]) : -1;
+    bool reached = prim < 0 || (tri_face[prim] == face
+                                && pr_le(pr_from_float(fabs(t - 1.0f)), pr_of(slack[i])));
+    tri[i] = reached ? contains(&s, face, prim, pr_of(end[3 * i]), pr_of(end[3 * i + 1]),
+                                pr_of(end[3 * i + 2])) : -1;
 }

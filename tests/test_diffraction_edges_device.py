@@ -6,6 +6,8 @@ import numpy as np
 import pytest
 
 from clradcom.device import edges as device_edges
+from clradcom.device import engines
+from clradcom.errors import DeviceFallbackWarning
 from clradcom.geometry.wedges import extract_wedges
 from clradcom.mechanisms import diffraction
 from clradcom.mechanisms.common import build_geometry
@@ -25,8 +27,9 @@ def grid_wall(x, y0, y1, z0, z1, ny, nz):
     return {"shape": "triangles", "vertices": verts, "faces": faces}
 
 
-@pytest.fixture(scope="module")
-def scene_and_geometry(runtime):
+def edge_scene():
+    """Boxes near and far, one hidden, one behind a tiled wall, a plain wall and two
+    screens side by side, and one radar among them."""
     objects = [
         {"name": "near", "material": "metal", "shape": "box", "extents": [1.0, 1.0, 3.0],
          "position": [4.0, 0.5, 1.5]},
@@ -45,9 +48,14 @@ def scene_and_geometry(runtime):
         {"name": "right", "material": "metal", "shape": "plane", "size": [8.0, 1.2],
          "position": [8.0, -0.5, 4.0], "rotation_deg": [0.0, -90.0, 0.0]},
     ]
-    scene = scene_from_dict({"scene": {"name": "edges", "carrier_hz": 24e9},
-                             "objects": objects,
-                             "radars": [{"name": "r", "position": [0.0, -1.0, 1.0]}]})
+    return scene_from_dict({"scene": {"name": "edges", "carrier_hz": 24e9},
+                            "objects": objects,
+                            "radars": [{"name": "r", "position": [0.0, -1.0, 1.0]}]})
+
+
+@pytest.fixture(scope="module")
+def scene_and_geometry(runtime):
+    scene = edge_scene()
     geom = build_geometry(scene, runtime)
     wedges = extract_wedges(scene.triangles, scene.tri_object, scene.tri_material)
     return scene, geom, wedges
@@ -96,6 +104,16 @@ def test_wedges_seeing_engines_agree_and_fall_back(scene_and_geometry):
     assert np.array_equal(dev, host) and dev.any()
     assert not device_edges.usable(geom.caster, "device", 3, device_edges.MAX_DEPTH + 1)
     assert not device_edges.usable(geom.caster, "host", 3, 2)
+    # a test beyond the kernel's stack runs on the host, recorded and said once
+    deep = device_edges.MAX_DEPTH + 1
+    with engines.engine_log() as log, pytest.warns(DeviceFallbackWarning,
+                                                   match="diffraction.edge_sight.*halvings"):
+        deep_mask = diffraction.wedges_seeing(geom.caster, wedges, p,
+                                              tri_face=geom.faces.tri_face, max_depth=deep)
+    assert log.engine_of("diffraction.edge_sight") == "host"
+    assert "halvings" in log.metadata()["engine.diffraction.edge_sight"]
+    assert np.array_equal(deep_mask, diffraction.wedges_seeing(
+        geom.caster, wedges, p, tri_face=geom.faces.tri_face, max_depth=deep, engine="host"))
 
 
 def test_outside_every_is_outside(scene_and_geometry):

@@ -7,8 +7,9 @@ import warnings
 import numpy as np
 import pytest
 
+from clradcom.device import engines
 from clradcom.device import images as device_images
-from clradcom.errors import ArgumentError, SurfaceContactWarning
+from clradcom.errors import ArgumentError, DeviceFallbackWarning, SurfaceContactWarning
 from clradcom.mechanisms.specular import image_points
 
 
@@ -66,3 +67,24 @@ def test_device_image_points_refuse_bad_sequences(runtime):
     with pytest.raises(ArgumentError, match="seqs"):
         device_images.image_points(runtime, np.zeros(3), np.ones(3), normals, [0.0],
                                    np.zeros((2, device_images.MAX_ORDER + 1), np.int32))
+
+
+def test_points_left_to_the_host_are_recorded_and_said(runtime, monkeypatch):
+    """Where the device cannot repeat the host bit for bit (fp64 and numpy's dot order
+    unknown) the host places the points: recorded with the reason, said once."""
+    normals = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])
+    offsets = np.array([0.0, 10.0])
+    tx, rx = np.array([0.0, 0.0, 1.0]), np.array([5.0, 1.0, 2.0])
+    seqs = np.array([[0], [1]], dtype=np.int32)
+    want = image_points(tx, rx, normals, offsets, seqs)
+    with engines.engine_log() as log:
+        got = image_points(tx, rx, normals, offsets, seqs, runtime=runtime)
+        assert log.engine_of("specular.image_points") == "device"
+        monkeypatch.setattr(device_images, "dot3_order", lambda: None)
+        if runtime.has_double:
+            with pytest.warns(DeviceFallbackWarning, match="specular.image_points.*dot"):
+                got = image_points(tx, rx, normals, offsets, seqs, runtime=runtime)
+            assert log.engine_of("specular.image_points") == "device+host"
+            np.testing.assert_array_equal(got[0], want[0])
+        else:   # double-float needs no particular order
+            assert device_images.available(runtime)

@@ -106,10 +106,16 @@ def test_lattice_key_set_is_the_distinct_keys_and_survives_a_full_table(runtime)
     keys = caster.lattice_keys(origin, local, rot, tri_face, 4, base)
     want = np.unique(keys[keys > 0])
     assert len(want) > 200
+    told = []
     np.testing.assert_array_equal(
-        caster.lattice_key_set(origin, local, rot, tri_face, 4, base, batch=7000), want)
-    # 2^6 slots for hundreds of keys: the set overflows, the host's path answers
+        caster.lattice_key_set(origin, local, rot, tri_face, 4, base, batch=7000,
+                               on_host=told.append), want)
+    assert told == [] and caster.key_set_refusal() is None
+    # 2^6 slots for hundreds of keys: the set overflows, the host's path answers, and
+    # says so
     np.testing.assert_array_equal(
-        caster.lattice_key_set(origin, local, rot, tri_face, 4, base, table_bits=6), want)
+        caster.lattice_key_set(origin, local, rot, tri_face, 4, base, table_bits=6,
+                               on_host=told.append), want)
+    assert len(told) == 1 and "2^6 slots filled up" in told[0]
     with pytest.raises(ArgumentError, match="table_bits"):
         caster.lattice_key_set(origin, local, rot, tri_face, 4, base, table_bits=40)

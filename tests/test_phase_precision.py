@@ -122,6 +122,41 @@ def test_scalar_ops_within_published_bounds(runtime, mode):
         print(f"{mode} {name}: {worst:.2f} u^2 (bound {bound})")
 
 
+@pytest.mark.parametrize("mode", ["fp64", "double-float"])
+def test_decisions_and_conversions_are_exact(runtime, mode):
+    """pr_lt, pr_le, pr_fmax, pr_fmin and pr_floor on pairs, against float64 on the same
+    values: exact, also for pairs that tie in hi and differ in lo, integers with a lo
+    below them (floor goes one down) and equal values; pr_phase_reduced within float
+    rounding of the float64 phase of up to 10^6 radians, within a tenth of a radian of
+    [-pi, pi]."""
+    if mode == "fp64" and not runtime.has_double:
+        mode = "double-float"
+    rng = np.random.default_rng(5)
+    n = 4000
+    a = rng.uniform(-1e3, 1e3, n) * 10.0 ** rng.uniform(-4, 0, n)
+    b = a + rng.normal(size=n) * np.abs(a) * 10.0 ** rng.uniform(-15, -6, n)
+    b[:200] = a[:200]                                         # equal
+    hi = np.float32(a[200:400]).astype(np.float64)
+    a[200:400] = hi + np.abs(a[200:400]) * 2.0**-30           # hi ties, lo differs
+    b[200:400] = hi - np.abs(b[200:400]) * 2.0**-31
+    ints = rng.integers(-2**20, 2**20, 200).astype(np.float64)
+    a[400:600] = ints - 2.0**-25 * np.maximum(np.abs(ints), 1)  # just below an integer
+    a[600:800] = ints                                         # an integer
+    a, b = (precision.join_pairs(precision.split_pairs(x)) for x in (a, b))
+    got = precision.precise_decisions(a, b, mode, runtime)
+    assert np.array_equal(got["lt"], a < b) and np.array_equal(got["le"], a <= b)
+    assert np.array_equal(got["fmax"], np.fmax(a, b))
+    assert np.array_equal(got["fmin"], np.fmin(a, b))
+    assert np.array_equal(got["floor"], np.floor(a))
+    assert (got["lt"] != got["le"]).sum() >= 200 and got["lt"][200:400].sum() == 0
+    ph = rng.uniform(-1e6, 1e6, n)
+    ph = precision.join_pairs(precision.split_pairs(ph))
+    phase = precision.precise_decisions(ph, ph, mode, runtime)["phase"]
+    err = np.angle(np.exp(1j * (phase - ph)))
+    assert np.abs(phase).max() <= np.pi + 0.1   # the nearest turn by a float quotient
+    assert np.abs(err).max() < 1e-6, np.abs(err).max()
+
+
 @pytest.mark.parametrize("mode", PRECISE)
 @pytest.mark.parametrize("center", [FAR, NEAR], ids=["1km", "origin"])
 def test_polyline_phase_within_one_degree(runtime, mode, center):

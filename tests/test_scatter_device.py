@@ -323,18 +323,6 @@ def test_street_links_match_host(runtime):
                           f"street {tx.name}->{rx.name}")
 
 
-def test_without_fp64_the_host_path_runs_and_says_so(runtime, monkeypatch):
-    sc = wall_scene()
-    device, host = engines(sc, runtime)
-    A = sc.radars[0]
-    monkeypatch.setattr(device_scatter, "has_fp64", lambda caster: False)
-    with pytest.warns(RuntimeWarning, match="no fp64"):
-        got = scattering_paths(device, A, A, tile_size_m=0.5)
-    want = scattering_paths(host, A, A, tile_size_m=0.5)
-    assert got[1] == want[1]
-    np.testing.assert_array_equal(got[0].gain, want[0].gain)
-
-
 def test_scattering_triangles_are_kept_per_scene_until_its_arrays_change():
     sc = wall_scene()
     st = scattering._scattering_triangles(sc)

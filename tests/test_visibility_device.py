@@ -5,6 +5,7 @@ float32 cannot tell), on the golden scene's paths and on the street's specular
 confirmation."""
 
 import dataclasses
+import warnings
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -12,6 +13,7 @@ import numpy as np
 import pytest
 from geometry_helpers import plate_tris
 
+from clradcom.device import visibility
 from clradcom.device.raycast import RayCaster, make_rays, spawn_origins
 from clradcom.device.visibility import (
     SIGHT_STOP,
@@ -25,7 +27,7 @@ from clradcom.device.visibility import (
     surface_sees,
     uses_device,
 )
-from clradcom.errors import ArgumentError
+from clradcom.errors import ArgumentError, DeviceFallbackWarning
 from clradcom.geometry.faces import merge_coplanar
 from clradcom.mechanisms import diffraction, specular
 from clradcom.mechanisms.common import build_geometry
@@ -156,11 +158,44 @@ def test_surface_sight_lines_decide_alike(device_ok):
             assert 0 < host.sum() < len(host)
 
 
-def test_engine_is_checked_and_no_fp64_means_the_host():
-    caster = SimpleNamespace(runtime=SimpleNamespace(info=SimpleNamespace(has_double=False)))
-    assert not uses_device(caster, "device")
+def test_engine_is_checked_and_only_an_unknown_dot_order_means_the_host(monkeypatch):
+    """Without fp64 the device decides in double-float (tests/test_no_fp64.py); with fp64
+    it needs numpy's dot-product order to repeat the host bit for bit, and says so."""
+    def caster(fp64):
+        return SimpleNamespace(runtime=SimpleNamespace(info=SimpleNamespace(has_double=fp64)))
+
+    assert uses_device(caster(False), "device") and uses_device(caster(True), "device")
+    assert not uses_device(caster(True), "host")
+    monkeypatch.setattr(visibility, "dot3_order", lambda: None)
+    assert uses_device(caster(False), "device")
+    assert not uses_device(caster(True), "device")
+    assert "dot products" in visibility.device_refusal(caster(True))
     with pytest.raises(ArgumentError, match="engine"):
-        uses_device(caster, "gpu")
+        uses_device(caster(False), "gpu")
+
+
+def test_a_decision_left_to_the_host_is_recorded_and_said(runtime, monkeypatch):
+    """With fp64 and numpy's dot order unknown the host decides: the same answer, the
+    stage recorded as host with the reason, one DeviceFallbackWarning; the host engine
+    records itself without a warning."""
+    triangles, tri_face = wall_and_floor()
+    caster = RayCaster(triangles, runtime=runtime)
+    start = np.array([[-1.0, 0.5, 1.0], [-1.0, 0.5, 6.0]])   # through the wall, above it
+    end = np.array([[4.0, 0.5, 1.0], [4.0, 0.5, 6.0]])
+    want = segments_clear(caster, tri_face, start, end, 0.0, 1.0)
+    assert want.tolist() == [False, True]
+    with visibility.engines.engine_log() as log:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            assert np.array_equal(segments_clear(caster, tri_face, start, end, 0.0, 1.0,
+                                                 engine="host"), want)
+        if runtime.has_double:
+            monkeypatch.setattr(visibility, "dot3_order", lambda: None)
+            with pytest.warns(DeviceFallbackWarning, match="visibility.segments.*dot"):
+                got = segments_clear(caster, tri_face, start, end, 0.0, 1.0)
+            assert np.array_equal(got, want)
+    text = log.metadata()["engine.visibility.segments"]
+    assert text.startswith("host") if runtime.has_double else text == "host"
 
 
 def _same_paths(a, b):

@@ -9,7 +9,9 @@ lies outside each wedge (an arctangent), passed in as ``gate`` bits.  The float3
 built as :func:`clradcom.device.raycast.make_rays` builds them and the float64 tests
 repeat the reference operation for operation, with the point-in-face test and the seam
 table of ``kernels/visibility.cl`` (:mod:`clradcom.device.visibility`'s tables, uploaded
-once per caster), so both engines keep the same wedges.
+once per caster), so both engines keep the same wedges: bit for bit in double where the
+device has fp64, in double-float without (``kernels/precise.h``; the same wedges except
+for a decision within ~1e-13 (1 + |p|) m of its threshold, tests/test_no_fp64.py).
 """
 
 from __future__ import annotations
@@ -17,10 +19,11 @@ from __future__ import annotations
 import numpy as np
 
 from clradcom.device import visibility
+from clradcom.device.precision import kernel_float64, kernel_scalar64
 from clradcom.device.raycast import RayCaster
 from clradcom.errors import ArgumentError
 
-__all__ = ["MAX_DEPTH", "SAMPLED", "SEEN", "usable", "wedges_seen"]
+__all__ = ["MAX_DEPTH", "SAMPLED", "SEEN", "device_refusal", "usable", "wedges_seen"]
 
 SOURCE = "edges.cl"
 #: the most halvings of a piece the kernel takes (EDGE_MAX_DEPTH in kernels/edges.cl)
@@ -30,13 +33,25 @@ MAX_DEPTH = 10
 SAMPLED, SEEN = 1, 2
 
 
+def device_refusal(caster: RayCaster, n_samples: int, max_depth: int) -> str | None:
+    """Why the kernel cannot take the edge test, or None where it can: a device whose
+    float64 tests cannot repeat numpy's (:func:`clradcom.device.visibility.device_refusal`),
+    more than 7 samples (a gate byte holds them and the pieces' bit) or more than
+    :data:`MAX_DEPTH` halvings (the kernel's stack)."""
+    refusal = visibility.device_refusal(caster)
+    if refusal is not None:
+        return refusal
+    if not 0 <= n_samples <= 7:
+        return f"{n_samples} sample points per edge: the kernel takes at most 7"
+    if not 0 <= max_depth <= MAX_DEPTH:
+        return f"{max_depth} halvings of an edge: the kernel takes at most {MAX_DEPTH}"
+    return None
+
+
 def usable(caster: RayCaster, engine: str, n_samples: int, max_depth: int) -> bool:
-    """True where the kernel can take the edge test: engine "device" on a device with
-    fp64 whose float64 tests repeat numpy's (:func:`clradcom.device.visibility.uses_device`),
-    at most 7 samples (a gate byte holds them and the pieces' bit) and at most
-    :data:`MAX_DEPTH` halvings."""
-    return (visibility.uses_device(caster, engine) and 0 <= n_samples <= 7
-            and 0 <= max_depth <= MAX_DEPTH)
+    """True where ``engine`` is "device" and the kernel can take the edge test
+    (:func:`device_refusal`)."""
+    return engine == "device" and device_refusal(caster, n_samples, max_depth) is None
 
 
 def wedges_seen(caster: RayCaster, tri_face, start, end, direction, length, normal0,
@@ -68,12 +83,13 @@ def wedges_seen(caster: RayCaster, tri_face, start, end, direction, length, norm
     rt = caster.runtime
 
     def vec(a):
-        return rt.to_device(np.ascontiguousarray(a, dtype=np.float64))
+        return rt.to_device(kernel_float64(rt, a))
 
     out = rt.empty(n)
     caster.run_kernel(SOURCE, "wedges_seen", n, *visibility.scene64_args(caster, tri_face),
                       vec(start), vec(end), vec(direction), vec(length), vec(normal0),
-                      vec(normal1), np.float64(edge_clearance_m), np.float64(edge_lift_m),
+                      vec(normal1), kernel_scalar64(rt, edge_clearance_m),
+                      kernel_scalar64(rt, edge_lift_m),
                       vec(points), vec(samples if len(samples) else np.zeros(1)),
                       np.int32(len(samples)), rt.to_device(gate), np.int32(max_depth), out,
                       np.int32(W), np.int32(n), defines=visibility.kernel_defines())

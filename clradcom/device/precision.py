@@ -4,9 +4,14 @@ A kernel whose lengths become phases carries them in ``preal``: ``double`` where
 device has fp64, else a double-float (hi + lo pair of floats, docs/precision.md).
 Float64 values cross to such kernels as float32 ``(hi, lo)`` pairs
 (:func:`split_pairs`) and come back the same way (:func:`join_pairs`), so one kernel
-signature serves every mode. :func:`polyline_lengths` and :func:`bounce_lengths` run
-the probes of ``kernels/precision_probe.cl``; the tests hold their phases at 24 and
-77 GHz to the float64 host values.
+signature serves every mode. Kernels that must read float64 values exactly where the
+device has fp64 (the visibility, image-point, edge, window and tile kernels) take them
+as ``pr_elem`` instead: the float64 array where the runtime computes in double, its pairs
+without (:func:`kernel_float64`, :func:`kernel_scalar64`, :func:`host_float64`; the same
+bytes either way). :func:`precise_ops`, :func:`precise_decisions`,
+:func:`polyline_lengths` and :func:`bounce_lengths` run the probes of
+``kernels/precision_probe.cl``; the tests hold their phases at 24 and 77 GHz to the
+float64 host values.
 """
 
 from __future__ import annotations
@@ -17,8 +22,9 @@ from clradcom.device.runtime import Runtime, get_runtime
 from clradcom.errors import ArgumentError
 from clradcom.geometry.triangles import triangle_normals
 
-__all__ = ["MODES", "split_pairs", "join_pairs", "triangle_plane_pairs", "mode_defines",
-           "build_mode", "precise_ops", "polyline_lengths", "bounce_lengths"]
+__all__ = ["MODES", "split_pairs", "join_pairs", "kernel_float64", "kernel_scalar64",
+           "host_float64", "triangle_plane_pairs", "mode_defines", "build_mode",
+           "precise_ops", "precise_decisions", "polyline_lengths", "bounce_lengths"]
 
 #: Requested precision modes: "auto" (fp64 where the device has it, else double-float),
 #: "fp64", "double-float" (forced, through ``-D CLRADCOM_NO_FP64=1``) and "float32"
@@ -44,6 +50,35 @@ def join_pairs(pairs) -> np.ndarray:
     """float32 array (..., 2) of (hi, lo) -> float64 array (...): hi + lo."""
     pairs = np.asarray(pairs)
     return pairs[..., 0].astype(np.float64) + pairs[..., 1].astype(np.float64)
+
+
+def kernel_float64(runtime: Runtime, x) -> np.ndarray:
+    """float64 values as a kernel reads them through ``kernels/precise.h``'s ``pr_elem``:
+    the float64 array itself where ``runtime``'s builds compute in double
+    (``runtime.has_double``), else its :func:`split_pairs` (..., 2) float32 -- the same
+    bytes, so buffer sizes and offsets do not depend on the mode."""
+    x = np.ascontiguousarray(x, dtype=np.float64)
+    return x if runtime.has_double else split_pairs(x)
+
+
+def kernel_scalar64(runtime: Runtime, x):
+    """One float64 kernel argument of type ``pr_elem``: a numpy float64, or a float2
+    (hi, lo) where the device computes without fp64."""
+    if runtime.has_double:
+        return np.float64(x)
+    from pyopencl import cltypes
+
+    hi, lo = split_pairs(float(x))
+    return cltypes.make_float2(hi, lo)
+
+
+def host_float64(runtime: Runtime, raw: np.ndarray) -> np.ndarray:
+    """A kernel's ``pr_elem`` results, copied into the float64 array ``raw`` of their
+    shape, as float64: ``raw`` itself with fp64, else the (hi, lo) pairs its bytes hold
+    joined (:func:`join_pairs`)."""
+    if runtime.has_double:
+        return raw
+    return join_pairs(raw.view(np.float32).reshape(*raw.shape, 2))
 
 
 def triangle_plane_pairs(triangles) -> tuple[np.ndarray, np.ndarray]:
@@ -152,6 +187,27 @@ def precise_ops(a, b, mode: str = "auto", runtime: Runtime | None = None) -> dic
     values = join_pairs(out)
     names = ("add", "sub", "mul", "div", "sqrt", "add_f", "mul_f")
     return {name: values[:, i] for i, name in enumerate(names)}
+
+
+def precise_decisions(a, b, mode: str = "auto", runtime: Runtime | None = None) -> dict:
+    """The decisions and conversions of ``preal`` on the device, element by element over
+    float64 arrays ``a`` and ``b`` (split into pairs first): a dict of "lt" and "le"
+    (bool: a < b, a <= b), "fmax", "fmin", "floor" (of a) as float64, and "phase" (a
+    less its whole turns, as a float: ``pr_phase_reduced``)."""
+    a = np.asarray(a, dtype=np.float64).ravel()
+    b = np.asarray(b, dtype=np.float64).ravel()
+    if a.shape != b.shape:
+        raise ArgumentError(f"must have the shape of a {a.shape}", argument="b",
+                            value=b.shape)
+    _finite("a", a)
+    _finite("b", b)
+    rt = _runtime(runtime)
+    n = len(a)
+    out = _run(rt, mode, "precise_decisions", n, [split_pairs(a), split_pairs(b)], (),
+               {"out": ((n, 6, 2), np.float32)}, (n,))["out"]
+    values = join_pairs(out)
+    return {"lt": values[:, 0] != 0, "le": values[:, 1] != 0, "fmax": values[:, 2],
+            "fmin": values[:, 3], "floor": values[:, 4], "phase": values[:, 5]}
 
 
 def polyline_lengths(points, mode: str = "auto", runtime: Runtime | None = None) -> np.ndarray:

@@ -11,6 +11,7 @@ import time
 
 import numpy as np
 
+from clradcom.device.precision import kernel_float64, kernel_scalar64
 from clradcom.device.runtime import Runtime, get_runtime
 from clradcom.errors import ArgumentError
 from clradcom.geometry import layout
@@ -255,18 +256,16 @@ class RayCaster:
 
     def scene_data64(self) -> dict:
         """Device buffers of the triangles in float64, uploaded once: ``vertices`` (T*9
-        doubles, v0 v1 v2 per triangle) and ``normals`` (T*3 doubles, the host's
+        values, v0 v1 v2 per triangle) and ``normals`` (T*3, the host's
         :func:`clradcom.geometry.triangles.triangle_normals`, so a kernel's exact plane
-        hits agree with the host's). Needs a device with fp64."""
+        hits agree with the host's): doubles, or (hi, lo) float pairs where the device
+        computes without fp64 (``kernels/precise.h``'s pr_elem,
+        :func:`clradcom.device.precision.kernel_float64`)."""
         if self._data64 is None:
-            if not self.runtime.info.has_double:
-                raise ArgumentError("this OpenCL device has no fp64; float64 scene data "
-                                    "needs one", argument="device",
-                                    value=self.runtime.info.device_name.strip())
             rt = self.runtime
             self._data64 = {
-                "vertices": rt.to_device(np.ascontiguousarray(self.triangles, np.float64)),
-                "normals": rt.to_device(np.ascontiguousarray(self.normals64(), np.float64)),
+                "vertices": rt.to_device(kernel_float64(rt, self.triangles)),
+                "normals": rt.to_device(kernel_float64(rt, self.normals64())),
             }
         return self._data64
 
@@ -334,14 +333,16 @@ class RayCaster:
     def lattice_sequences(self, origin, local, rotation, tri_face, max_order: int,
                           batch: int = 1 << 20) -> np.ndarray:
         """:meth:`specular_sequences` of the rays ``local @ rotation.T`` (local (R, 3)
-        float64 lattice, rotation (3, 3)), rotated on the device in double exactly as
-        numpy's column sums ``local[:, :1] * r[:, 0] + local[:, 1:2] * r[:, 1] +
-        local[:, 2:] * r[:, 2]`` do (kernels/reflect.cl: trace_reflections_rotated), so
-        the sequences are those of the host-rotated directions bit for bit. The lattice
-        is uploaded once and kept while ``local`` is the same array (a launch lattice
-        shared by transmitters and traces); without fp64 the host rotates."""
+        float64 lattice, rotation (3, 3)), rotated on the device as numpy's column sums
+        ``local[:, :1] * r[:, 0] + local[:, 1:2] * r[:, 1] + local[:, 2:] * r[:, 2]`` do
+        (kernels/reflect.cl: trace_reflections_rotated): in double where the device has
+        fp64, so the sequences are those of the host-rotated directions bit for bit; in
+        double-float without, each direction the host's float32 one but for a component
+        within ~1e-14 of a float rounding boundary (1 ulp off; about one in 10^6). The
+        lattice is uploaded once and kept while ``local`` is the same array (a launch
+        lattice shared by transmitters and traces)."""
         local, r = self._check_lattice(local, rotation)
-        if not self.runtime.info.has_double or max_order < 1:
+        if max_order < 1:
             dirs = local[:, :1] * r[:, 0] + local[:, 1:2] * r[:, 1] + local[:, 2:] * r[:, 2]
             return self.specular_sequences(origin, dirs, tri_face, max_order, batch)
         out = np.empty((len(local), max_order), dtype=np.int32)
@@ -356,33 +357,36 @@ class RayCaster:
         face + 1 in ``base``, first face most significant, and 0 from the first escape or
         the first face that repeats the one before it
         (:func:`clradcom.mechanisms.specular.sequence_keys`, the host's same keys).
-        ``base`` must exceed every face id + 1 and base^max_order fit in an int64; needs
-        a device with fp64."""
+        ``base`` must exceed every face id + 1 and base^max_order fit in an int64."""
         local, r = self._check_lattice(local, rotation)
         self._check_key_base(tri_face, max_order, base)
-        if not self.runtime.info.has_double:
-            raise ArgumentError("this OpenCL device has no fp64; use lattice_sequences",
-                                argument="device",
-                                value=self.runtime.info.device_name.strip())
         out = np.empty(len(local), dtype=np.int64)
         self._rotated_launch("trace_reflection_keys_rotated", origin, local, r, tri_face,
                              (np.int32(max_order), np.int64(base)), out, batch)
         return out
 
+    def key_set_refusal(self) -> str | None:
+        """Why :meth:`lattice_key_set` cannot gather its set on this device (no 64-bit
+        atomics), or None."""
+        if not self.runtime.info.int64_atomics:
+            return ("the device has no 64-bit atomics (cl_khr_int64_base_atomics): every "
+                    "ray's key comes back and the host de-duplicates them")
+        return None
+
     def lattice_key_set(self, origin, local, rotation, tri_face, max_order: int,
-                        base: int, batch: int = 1 << 20,
-                        table_bits: int | None = None) -> np.ndarray:
+                        base: int, batch: int = 1 << 20, table_bits: int | None = None,
+                        on_host=None) -> np.ndarray:
         """The distinct non-zero keys of :meth:`lattice_keys`, ascending: gathered into a
         hash set on the device (``collect_reflection_keys_rotated``) where it has 64-bit
         atomics, so only the set leaves the device; a set that fills up (or no such
-        atomics) falls back to every ray's key and ``np.unique`` on the host. The set
-        has 2^``table_bits`` slots (default: a quarter of the rays' count, at least
-        2^12)."""
+        atomics: :meth:`key_set_refusal`) falls back to every ray's key and ``np.unique``
+        on the host, and ``on_host`` (a callable) is told why. The set has
+        2^``table_bits`` slots (default: a quarter of the rays' count, at least 2^12)."""
         local, r = self._check_lattice(local, rotation)
         self._check_key_base(tri_face, max_order, base)
         rt = self.runtime
-        if (rt.info.has_double and "cl_khr_int64_base_atomics" in rt.queue.device.extensions
-                and len(local)):
+        refusal = self.key_set_refusal()
+        if refusal is None and len(local):
             import pyopencl as cl
 
             # 4 slots per expected distinct key at one distinct sequence in 16 rays
@@ -405,6 +409,10 @@ class RayCaster:
                 cl.enqueue_copy(rt.queue, overflow, overflow_buf, is_blocking=True)
             if not overflow[0]:
                 return np.sort(table[table > 0])
+            refusal = (f"the device's key set of 2^{bits} slots filled up: every ray's key "
+                       "came back and the host de-duplicated them")
+        if on_host is not None and refusal is not None and len(local):
+            on_host(refusal)
         keys = self.lattice_keys(origin, local, rotation, tri_face, max_order, base, batch)
         keys = np.unique(keys)
         return keys[keys > 0]
@@ -450,7 +458,7 @@ class RayCaster:
         with self._lock, rt.kernel_clock(), rt.guard(f"launch of kernel {kernel_name}"):
             cached = getattr(self, "_lattice", None)
             if cached is None or cached[0] is not local:
-                self._lattice = cached = (local, rt.to_device(np.ascontiguousarray(local)))
+                self._lattice = cached = (local, rt.to_device(kernel_float64(rt, local)))
             face_buf = rt.to_device(np.asarray(tri_face, dtype=np.int32))
             for start in range(0, len(local), batch):
                 n = min(batch, len(local) - start)
@@ -458,7 +466,8 @@ class RayCaster:
                 # whole work-groups, as in specular_sequences
                 rt.launch(kernel, n, local_size, self._nodes, self._tri4, self._slot_prim,
                           face_buf, np.float32(o[0]), np.float32(o[1]), np.float32(o[2]),
-                          cached[1], *(np.float64(x) for x in r.ravel()), np.int32(start),
+                          cached[1], *(kernel_scalar64(rt, x) for x in r.ravel()),
+                          np.int32(start),
                           *extra, *o_buf, np.int32(n), name=kernel_name)
                 if out is not None:
                     cl.enqueue_copy(rt.queue, out[start:start + n], o_buf[0])

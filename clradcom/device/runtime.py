@@ -546,8 +546,9 @@ class Runtime:
         """Compile ``source``; a failure raises OpenCLError naming the device, file, line
         and the file the whole compiler log went to. On PoCL (:attr:`inline_builtins`) the
         build also gets -D CLR_INLINE_BUILTINS=1; in the forced no-fp64 mode
-        -D CLRADCOM_NO_FP64=1. Compiler output of a build that succeeds is kept in
-        :attr:`build_warnings`, not shown."""
+        -D CLRADCOM_NO_FP64=1, and without fp64 (forced or not)
+        -cl-single-precision-constant. Compiler output of a build that succeeds is kept
+        in :attr:`build_warnings`, not shown."""
         import warnings
 
         cl = _cl()
@@ -556,6 +557,10 @@ class Runtime:
             options += ("-DCLR_INLINE_BUILTINS=1",)
         if self.force_no_fp64 and "-DCLRADCOM_NO_FP64=1" not in options:
             options += ("-DCLRADCOM_NO_FP64=1",)
+        if not self.info.has_double and "-cl-single-precision-constant" not in options:
+            # a literal such as 0.5 is a float, as a device without fp64 makes it
+            # (kernels/fp64.h)
+            options += ("-cl-single-precision-constant",)
         if self.info.simulator:
             options += ("-DCLR_NO_TARGET_BUILTINS=1",)
         try:

@@ -13,8 +13,10 @@ Only those rows come back (and, when asked, the per-tile flags and centres that 
 legs need); what stays with the caller: the antenna patterns (applied to the matrices as
 the SBR engine applies them), Gamma for the polarisation they send, the threshold, and the
 float64 antenna ends (:func:`clradcom.device.visibility.antenna_blocked`) of the rare rows
-the kernel leaves undecided. Needs a device with fp64 (:func:`has_fp64`); positions are
-double throughout.
+the kernel leaves undecided. Positions, lengths and the phase k L are double where the
+device has fp64 (the host's numbers bit for bit) and double-float without
+(``kernels/precise.h``: within ~1e-14 relative, float64 values crossing as (hi, lo)
+pairs); the fields are double, or float without fp64 (docs/precision.md).
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from clradcom.device.precision import host_float64, kernel_float64, kernel_scalar64
 from clradcom.device.raycast import RayCaster
 from clradcom.device.visibility import (
     LOOK_PAST,
@@ -37,7 +40,7 @@ from clradcom.device.visibility import (
 )
 from clradcom.errors import ArgumentError
 
-__all__ = ["FIELD_COLUMNS", "FieldInputs", "TileSight", "has_fp64", "tile_sight"]
+__all__ = ["FIELD_COLUMNS", "FieldInputs", "TileSight", "tile_sight"]
 
 SOURCE = "scatter.cl"
 #: flag bits of :func:`tile_sight`'s per-tile flags
@@ -103,11 +106,6 @@ class TileSight:
         return self.fields[:, first] if width == 1 else self.fields[:, first:first + width]
 
 
-def has_fp64(caster: RayCaster) -> bool:
-    """True when the caster's device has double precision (the kernels need it)."""
-    return bool(caster.runtime.info.has_double)
-
-
 def _xyz(name, value):
     a = np.asarray(value, dtype=np.float64).reshape(-1)
     if a.shape != (3,) or not np.all(np.isfinite(a)):
@@ -133,9 +131,6 @@ def tile_sight(caster: RayCaster, vertices, normals, tile_area, scattering, prim
     """
     import pyopencl as cl
 
-    if not has_fp64(caster):
-        raise ArgumentError("the device has no fp64; scattering tiles on the device need it",
-                            argument="device", value=caster.runtime.info.device_name.strip())
     v = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 9)
     K = len(v)
     n = np.asarray(subdivisions, dtype=np.int64).reshape(-1)
@@ -159,13 +154,21 @@ def tile_sight(caster: RayCaster, vertices, normals, tile_area, scattering, prim
     tx = _xyz("tx_pos", tx_pos)
     rx = _xyz("rx_pos", rx_pos)
     rt = caster.runtime
-    d_vert = rt.to_device(v)
+
+    def f64(a, shape):
+        """float64 values as the build reads them (doubles, or pairs without fp64)"""
+        return rt.to_device(kernel_float64(rt, np.asarray(a, dtype=np.float64).reshape(shape)))
+
+    def scalars(xs):
+        return [kernel_scalar64(rt, x) for x in xs]
+
+    d_vert = f64(v, (K, 9))
     d_first = rt.to_device(first.astype(np.int32))
     d_n = rt.to_device(n.astype(np.int32))
-    d_nrm = rt.to_device(np.ascontiguousarray(normals, dtype=np.float64).reshape(K, 3))
+    d_nrm = f64(normals, (K, 3))
     d_prim = rt.to_device(np.asarray(prim, dtype=np.int32).reshape(K))
-    d_area = rt.to_device(np.asarray(tile_area, dtype=np.float64).reshape(K))
-    d_S = rt.to_device(np.asarray(scattering, dtype=np.float64).reshape(K))
+    d_area = f64(tile_area, (K,))
+    d_S = f64(scattering, (K,))
     d_centres = rt.empty(N * 24)
     d_tri = rt.empty(N * 4)
     d_flags = rt.empty(N)
@@ -175,8 +178,8 @@ def tile_sight(caster: RayCaster, vertices, normals, tile_area, scattering, prim
     if tri_face is None:
         tri_face = np.arange(len(caster.triangles))
     run(SOURCE, "tile_sight", N, *scene64_args(caster, tri_face), np.int32(RESCUE_ROUNDS),
-        np.float64(LOOK_PAST), np.float64(1.0 - SIGHT_STOP), d_centres, d_tri, d_nrm, d_prim,
-        *tx, *rx,
+        *scalars([LOOK_PAST, 1.0 - SIGHT_STOP]), d_centres, d_tri, d_nrm, d_prim,
+        *scalars(tx), *scalars(rx),
         np.float32(1.0 - SIGHT_STOP), np.int32(bool(all_ends)), np.int32(bool(monostatic)),
         np.int32(N), d_flags, defines=_defines())
     flags = np.empty(N, dtype=np.uint8)
@@ -195,9 +198,10 @@ def tile_sight(caster: RayCaster, vertices, normals, tile_area, scattering, prim
         if fields is None:
             d_centre = rt.empty(R * 24)
             d_power = rt.empty(R * 8)
-            scale = np.float64(float(wavelength) ** 2 / (16.0 * math.pi ** 3))
+            scale = float(wavelength) ** 2 / (16.0 * math.pi ** 3)
             run(SOURCE, "tile_lambert", R, d_centres, d_tri, d_nrm, d_area, d_S, d_rows,
-                np.int32(R), *tx, *rx, scale, d_centre, d_power, defines=_defines())
+                np.int32(R), *scalars(tx), *scalars(rx), *scalars([scale]), d_centre,
+                d_power, defines=_defines())
             cl.enqueue_copy(rt.queue, out.centre, d_centre, is_blocking=False)
             cl.enqueue_copy(rt.queue, out.power, d_power, is_blocking=False)
         else:
@@ -208,6 +212,11 @@ def tile_sight(caster: RayCaster, vertices, normals, tile_area, scattering, prim
             out.centre = out.column("centre")
             out.power = out.column("power")
     rt.queue.finish()
+    if fields is None:
+        # the kernels' float64 values as float64 (pairs joined without fp64)
+        out.centre, out.power = host_float64(rt, out.centre), host_float64(rt, out.power)
+    if want_tiles:
+        out.centres = host_float64(rt, out.centres)
     return out
 
 
@@ -232,11 +241,12 @@ def _tile_fields(caster, fields: FieldInputs, d_centres, d_tri, within, triangle
     link = np.concatenate([
         ends.reshape(6), np.asarray(fields.tx_velocity, np.float64).reshape(3),
         np.asarray(fields.rx_velocity, np.float64).reshape(3),
-        np.asarray(fields.tx_frame, np.float64).reshape(9),
-        np.asarray(fields.rx_frame, np.float64).reshape(9),
         [2.0 * np.pi / lam, lam / (4.0 * np.pi), lam, lam ** 2 / (16.0 * math.pi ** 3)],
         radius])
-    if not np.all(np.isfinite(link)):
+    # the antenna frames, read as the fields' `real` (double, or float without fp64)
+    frames = np.concatenate([np.asarray(fields.tx_frame, np.float64).reshape(9),
+                             np.asarray(fields.rx_frame, np.float64).reshape(9)])
+    if not (np.all(np.isfinite(link)) and np.all(np.isfinite(frames))):
         raise ArgumentError("velocities and antenna frames must be finite",
                             argument="fields", value=link.tolist())
     near_first, near_tri = _near_lists(caster, ends, radius)
@@ -249,17 +259,20 @@ def _tile_fields(caster, fields: FieldInputs, d_centres, d_tri, within, triangle
 
     def dev(a, dtype):
         a = np.ascontiguousarray(a, dtype=dtype)
-        return rt.to_device(a if a.size else np.zeros(1, dtype))
+        if dtype == np.float64:
+            a = kernel_float64(rt, a)
+        return rt.to_device(a if a.size else np.zeros(1, a.dtype))
 
+    real = np.float64 if rt.has_double else np.float32
     caster.run_kernel(SOURCE, "tile_fields", R, d_centres, d_tri, d_nrm, d_area,
                       dev(tri_par, np.float64),
-                      dev(phases, np.float64), dev(link, np.float64),
+                      dev(phases, np.float64), dev(link, np.float64), dev(frames, real),
                       dev(near_first, np.int32), dev(near_tri, np.int32),
                       data64["vertices"], data64["normals"], d_rows, np.int32(R),
                       np.int32(mono), d_out, defines=_defines())
     out = np.empty((R, FIELD_WIDTH), dtype=np.float64)
     cl.enqueue_copy(rt.queue, out, d_out, is_blocking=True)
-    return out
+    return host_float64(rt, out)
 
 
 def _near_lists(caster: RayCaster, ends, radius):

@@ -6,15 +6,18 @@ tests in a kernel, one work item per triangle; :func:`beside_cull` is
 :func:`clradcom.mechanisms.sbr.beside_pairs` (the mirror windows' clip triangles culled by
 the pyramid through their covered blocks' rectangle), one work item per (window,
 triangle) pair. The host's :func:`~clradcom.geometry.silhouette.coverage_setup_many`
-gives the edge normals, offsets and reaches; the kernels evaluate the same expressions in
-double without contraction, so masks and culls are the host's bit for bit
-(tests/test_sbr_launch.py). Devices without fp64 use the host's functions.
+gives the edge normals, offsets and reaches; the kernels evaluate the same expressions without
+contraction, in double where the device has fp64, so masks and culls are the host's bit
+for bit (tests/test_sbr_launch.py), and in double-float without (``kernels/precise.h``:
+float64 values cross as (hi, lo) pairs; a block or cull differs from the host's only
+where its test lies within ~1e-14 relative of its threshold, tests/test_no_fp64.py).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from clradcom.device.precision import host_float64, kernel_float64, kernel_scalar64
 from clradcom.device.runtime import Runtime
 from clradcom.geometry import silhouette as host
 
@@ -24,26 +27,28 @@ __all__ = ["DEVICE_MIN_PAIRS", "beside_cull", "block_coverage", "cover_blocks_ma
 SOURCE = "silhouette.cl"
 #: below this many (triangle, block) pairs the host's numpy test is the faster
 DEVICE_MIN_PAIRS = 4096
+#: the preferred work-group size of the raster kernels (one triangle per work item, loops
+#: of very different lengths): kept small, then fitted to the device by Runtime.local_size
 LOCAL = 16
 
 
 def _in(runtime, a, dtype):
-    import pyopencl as cl
-
-    mf = cl.mem_flags
-    return cl.Buffer(runtime.context, mf.READ_ONLY | mf.COPY_HOST_PTR,
-                     hostbuf=np.ascontiguousarray(a, dtype=dtype))
+    """A read-only device buffer of ``a``; float64 values as the build reads them (double
+    or (hi, lo) pairs: :func:`clradcom.device.precision.kernel_float64`)."""
+    if dtype == np.float64:
+        return runtime.to_device(kernel_float64(runtime, a))
+    return runtime.to_device(np.ascontiguousarray(a, dtype=dtype))
 
 
 def cover_blocks_many(runtime: Runtime, setup: dict | None, block_size, origin, ny, offset,
                       size: int, min_pairs: int = DEVICE_MIN_PAIRS) -> np.ndarray:
     """(size,) bool: :func:`clradcom.geometry.silhouette.cover_blocks_many` of the same
     arguments, its pair tests on ``runtime``'s device in one launch when they number
-    ``min_pairs`` or more and the device has fp64."""
+    ``min_pairs`` or more (fewer are not worth a launch: the host's numpy)."""
 
     if setup is None:
         return np.zeros(int(size), dtype=bool)
-    if not runtime.has_double or int(setup["n_pairs"].sum()) < min_pairs:
+    if int(setup["n_pairs"].sum()) < min_pairs:
         return host.cover_blocks_many(setup, block_size, origin, ny, offset, size)
     n = len(setup["nrm"])
     mask = np.zeros(int(size), dtype=np.uint8)
@@ -62,10 +67,11 @@ def _raster(runtime: Runtime, kernel_name: str, args, n: int, mask: np.ndarray) 
     import pyopencl as cl
 
     kernel = runtime.kernel(SOURCE, kernel_name)
-    out = cl.Buffer(runtime.context, cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR,
-                    hostbuf=mask)
-    with runtime.kernel_clock():
-        kernel(runtime.queue, (-(-n // LOCAL) * LOCAL,), (LOCAL,), *args, np.int32(n), out)
+    with runtime.kernel_clock(), runtime.guard(f"launch window raster ({kernel_name})"):
+        out = cl.Buffer(runtime.context,
+                        cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR, hostbuf=mask)
+        runtime.launch(kernel, n, runtime.local_size(kernel, LOCAL), *args, np.int32(n), out,
+                       name=kernel_name)
         cl.enqueue_copy(runtime.queue, mask, out, is_blocking=True)
     return mask.view(bool)
 
@@ -74,7 +80,7 @@ def block_coverage(runtime: Runtime, tri_xy, block_size: float, origin, shape,
                    min_pairs: int = DEVICE_MIN_PAIRS) -> np.ndarray:
     """(shape) bool: :func:`clradcom.geometry.silhouette.block_coverage` of the same
     arguments, its pair tests on ``runtime``'s device when they number ``min_pairs`` or
-    more and the device has fp64."""
+    more."""
     nx, ny = (int(n) for n in shape)
     setup = host.coverage_setup(tri_xy, block_size, shape, origin)
     return cover_blocks_many(runtime, setup, np.array([float(block_size)]),
@@ -88,8 +94,7 @@ def beside_cull(runtime: Runtime, triangles, tri_index, tri_start, pair_start, f
     """(pairs,) bool: :func:`clradcom.mechanisms.sbr.beside_pairs` on the device, one
     launch. Window w's pairs are ``pair_start[w]`` .. ``pair_start[w+1] - 1``, with the
     triangles ``triangles[tri_index[tri_start[w] + k]]``; ``frame`` (W, 10) holds each
-    window's axis, u, v and distance, ``rect`` (W, 4) its rectangle (lo, hi). Needs
-    fp64."""
+    window's axis, u, v and distance, ``rect`` (W, 4) its rectangle (lo, hi)."""
     import pyopencl as cl
 
     pair_start = np.ascontiguousarray(pair_start, dtype=np.int64)
@@ -98,17 +103,15 @@ def beside_cull(runtime: Runtime, triangles, tri_index, tri_start, pair_start, f
     if n_pairs == 0:
         return out.view(bool)
     kernel = runtime.kernel(SOURCE, "beside_cull")
-    mf = cl.mem_flags
-    buf = cl.Buffer(runtime.context, mf.WRITE_ONLY, size=out.nbytes)
-    args = [_in(runtime, triangles, np.float64), _in(runtime, tri_index, np.int32),
-            _in(runtime, tri_start, np.int64), _in(runtime, pair_start, np.int64),
-            np.int32(len(pair_start) - 1), _in(runtime, frame, np.float64),
-            _in(runtime, rect, np.float64)]
     e = np.asarray(eye, dtype=np.float64)
-    local = 64
-    with runtime.kernel_clock():
-        kernel(runtime.queue, (-(-n_pairs // local) * local,), (local,), *args,
-               np.float64(e[0]), np.float64(e[1]), np.float64(e[2]), buf)
+    with runtime.kernel_clock(), runtime.guard("mirror clip cull (beside_cull)"):
+        buf = runtime.empty(out.nbytes)
+        args = [_in(runtime, triangles, np.float64), _in(runtime, tri_index, np.int32),
+                _in(runtime, tri_start, np.int64), _in(runtime, pair_start, np.int64),
+                np.int32(len(pair_start) - 1), _in(runtime, frame, np.float64),
+                _in(runtime, rect, np.float64)]
+        runtime.launch(kernel, n_pairs, runtime.local_size(kernel), *args,
+                       *(kernel_scalar64(runtime, x) for x in e), buf, name="beside_cull")
         cl.enqueue_copy(runtime.queue, out, buf, is_blocking=True)
     return out.view(bool)
 
@@ -117,18 +120,15 @@ def cover_xy_many(runtime: Runtime, tri_xy, window, block_size, origin, shape, o
                   size: int) -> np.ndarray:
     """(size,) bool: :func:`clradcom.geometry.silhouette.cover_xy_many` of the same
     arguments in one launch, each triangle's separating-axis data computed in the kernel
-    (block_cover_xy) as coverage_setup_many computes them; the host's where the device
-    has no fp64. ``tri_xy`` may be :func:`project_windows`' device buffer, which holds
-    every candidate window's triangles: a window of shape (0, 0) gets no mark."""
+    (block_cover_xy) as coverage_setup_many computes them. ``tri_xy`` may be
+    :func:`project_windows`' device buffer, which holds every candidate window's
+    triangles: a window of shape (0, 0) gets no mark."""
     import pyopencl as cl
 
     if isinstance(tri_xy, cl.Buffer):   # projected on the device (project_windows)
         n = len(window)
         xy_buf = tri_xy
     else:
-        if not runtime.has_double:
-            return host.cover_xy_many(tri_xy, window, block_size, origin, shape, offset,
-                                      size)
         n = len(tri_xy)
         xy_buf = _in(runtime, tri_xy, np.float64) if n else None
     mask = np.zeros(int(size), dtype=np.uint8)
@@ -144,22 +144,23 @@ def project_windows(runtime: Runtime, triangles, window, frame, eye):
     """The triangles (T,3,3) of windows ``window`` (T,) projected onto their planes
     (``frame`` (W, 10): axis, u, v, distance) from ``eye`` in one launch, as
     :func:`clradcom.mechanisms.sbr._project` does: (device buffer of xy (T,3,2), extents
-    (T,5) on the host: least depth, x min, x max, y min, y max). Needs fp64."""
+    (T,5) on the host: least depth, x min, x max, y min, y max). The buffer holds the
+    float64 values as the build does (doubles or pairs), which block_cover_xy reads."""
     import pyopencl as cl
 
     n = len(triangles)
     ext = np.empty((n, 5), dtype=np.float64)
-    mf = cl.mem_flags
-    xy = cl.Buffer(runtime.context, mf.READ_WRITE, size=max(1, n) * 48)
+    xy = runtime.empty(max(1, n) * 48)
     if n == 0:
         return xy, ext
     kernel = runtime.kernel(SOURCE, "project_windows")
-    ext_buf = cl.Buffer(runtime.context, mf.WRITE_ONLY, size=ext.nbytes)
     e = np.asarray(eye, dtype=np.float64)
-    with runtime.kernel_clock():
-        kernel(runtime.queue, (-(-n // LOCAL) * LOCAL,), (LOCAL,),
-               _in(runtime, triangles, np.float64), _in(runtime, window, np.int64),
-               _in(runtime, frame, np.float64), np.float64(e[0]), np.float64(e[1]),
-               np.float64(e[2]), np.int32(n), xy, ext_buf)
+    with runtime.kernel_clock(), runtime.guard("launch window projection (project_windows)"):
+        ext_buf = runtime.empty(ext.nbytes)
+        runtime.launch(kernel, n, runtime.local_size(kernel, LOCAL),
+                       _in(runtime, triangles, np.float64), _in(runtime, window, np.int64),
+                       _in(runtime, frame, np.float64),
+                       *(kernel_scalar64(runtime, x) for x in e), np.int32(n), xy, ext_buf,
+                       name="project_windows")
         cl.enqueue_copy(runtime.queue, ext, ext_buf, is_blocking=True)
-    return xy, ext
+    return xy, host_float64(runtime, ext)

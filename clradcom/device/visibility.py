@@ -19,14 +19,19 @@ float32 answer may disagree with the float64 geometry the fields are computed fr
 * :func:`surface_sees` - a point on a surface (a facet, a tile, a ray-tube hit) sees
   a target, the surface's own triangle ignored.
 
-Two engines give the same decisions.  ``engine="device"`` (the default, on a device
-with fp64) answers a whole batch of segments in one launch of ``kernels/visibility.cl``:
-the float32 cast and the float64 re-decision of every float32 "blocked" (or the float64
-"is the end inside its face") in the same work item, by the same rules and in the same
-operation order as the numpy functions here.  ``engine="host"`` is that numpy reference:
-float32 casts, then float64 rounds on the host (:func:`blocked_in_float64`,
-:func:`containing_triangles`); a device without fp64 always takes it.  The float64
-millimetre at an antenna (:func:`antenna_blocked`) is decided on the host for both.
+Two engines give the same decisions.  ``engine="device"`` (the default) answers a whole
+batch of segments in one launch of ``kernels/visibility.cl``: the float32 cast and the
+float64 re-decision of every float32 "blocked" (or the float64 "is the end inside its
+face") in the same work item, by the same rules and in the same operation order as the
+numpy functions here -- in double where the device has fp64 (the host's decisions bit for
+bit), else in double-float (``kernels/precise.h``; the host's decisions except within
+~1e-13 (1 + |p|) m of a threshold, docs/precision.md).  ``engine="host"`` is that numpy
+reference: float32 casts, then float64 rounds on the host (:func:`blocked_in_float64`,
+:func:`containing_triangles`).  Each call notes which engine decided
+(:func:`clradcom.device.engines.record`, stages "visibility.segments" and
+"visibility.surface_sight").  The float64 millimetre at an antenna
+(:func:`antenna_blocked`) is decided on the host for both: a few triangles within
+millimetres of the antenna, by design not a fallback.
 """
 
 from __future__ import annotations
@@ -36,6 +41,8 @@ import weakref
 
 import numpy as np
 
+from clradcom.device import engines
+from clradcom.device.precision import kernel_float64, kernel_scalar64
 from clradcom.device.raycast import RayCaster, make_rays, spawn_origins
 from clradcom.errors import ArgumentError
 from clradcom.geometry.rows import row_counts
@@ -362,12 +369,41 @@ def dot3_order() -> int | None:
     return None
 
 
+#: why the device engine leaves a float64 decision to the host on a device with fp64
+DOT3_UNKNOWN = ("numpy's order of three-term dot products on this host is unknown, so a "
+                "double kernel cannot repeat its float64 decisions bit for bit")
+
+
+def device_refusal(caster: RayCaster) -> str | None:
+    """Why the caster's device cannot take the float64 re-decisions, or None where it
+    can: always without fp64 (double-float), and with fp64 where numpy's dot-product
+    order is known (:func:`dot3_order`)."""
+    if caster.runtime.info.has_double and dot3_order() is None:
+        return DOT3_UNKNOWN
+    return None
+
+
 def uses_device(caster: RayCaster, engine: str = "device") -> bool:
     """True where ``engine`` is "device" and the caster's device can take the float64
-    re-decision (fp64, and numpy's dot-product order known); otherwise the host decides."""
+    re-decision (:func:`device_refusal`); otherwise the host decides."""
     _check_engine(engine)
-    return (engine == "device" and bool(caster.runtime.info.has_double)
-            and dot3_order() is not None)
+    return engine == "device" and device_refusal(caster) is None
+
+
+def decide_on_device(caster: RayCaster, engine: str, stage: str) -> bool:
+    """:func:`uses_device`, and the engine that decides noted for ``stage``
+    (:func:`clradcom.device.engines.record`: the host reference engine as such, a device
+    engine that cannot with its reason)."""
+    _check_engine(engine)
+    if engine == "host":
+        engines.record(stage, "host", fallback=False)
+        return False
+    reason = device_refusal(caster)
+    if reason is not None:
+        engines.record(stage, "host", reason)
+        return False
+    engines.record(stage, "device")
+    return True
 
 
 def face_tables(triangles, tri_face) -> dict:
@@ -422,7 +458,8 @@ def scene64_args(caster: RayCaster, tri_face) -> tuple:
     """The SCENE64_ARGS of kernels/scene64.h for ``tri_face``, uploaded once per caster
     and faces; a caster placed since (a time step of InstancedCaster) gets the float64
     scene buffers it holds now and its faces' boxes redone (the faces' triangles and
-    seams stay: a rigid motion moves the equal vertices of a seam alike)."""
+    seams stay: a rigid motion moves the equal vertices of a seam alike). Float64 values
+    as the device's mode reads them (:func:`clradcom.device.precision.kernel_float64`)."""
     tri_face = np.ascontiguousarray(tri_face, dtype=np.int32)
     key = tri_face.tobytes()
     cache = _DEVICE_TABLES.setdefault(caster, {})
@@ -440,15 +477,18 @@ def scene64_args(caster: RayCaster, tri_face) -> tuple:
     if generation != caster.generation:
         data64 = caster.scene_data64()
         box = face_boxes(caster.triangles, tri_face, n_faces)
+        rt = caster.runtime
         args = (data64["vertices"], data64["normals"], *topology,
-                caster.runtime.to_device(box), np.int32(n_faces), np.float64(INSIDE_TOL_REL))
+                rt.to_device(kernel_float64(rt, box)), np.int32(n_faces),
+                kernel_scalar64(rt, INSIDE_TOL_REL))
         cache[key] = (caster.generation, topology, n_faces, args)
     return args
 
 
 def kernel_defines() -> dict:
-    """The -D defines of the kernels that include kernels/scene64.h."""
-    return {"DOT3_ORDER": int(dot3_order())}
+    """The -D defines of the kernels that include kernels/scene64.h or dot3.h (an unknown
+    order, which only a build without fp64 runs with, adds as numpy's most common)."""
+    return {"DOT3_ORDER": int(dot3_order() or 0)}
 
 
 def download(caster: RayCaster, buf, n: int, dtype) -> np.ndarray:
@@ -460,9 +500,11 @@ def download(caster: RayCaster, buf, n: int, dtype) -> np.ndarray:
     return out
 
 
-def _f64(a, n: int, shape=()) -> np.ndarray:
-    return np.ascontiguousarray(np.broadcast_to(np.asarray(a, dtype=np.float64),
-                                                (n, *shape)))
+def _f64(rt, a, n: int, shape=()):
+    """A device buffer of float64 values ``a`` broadcast to (n, *shape), as the build
+    reads them (double or pairs)."""
+    return rt.to_device(kernel_float64(rt, np.broadcast_to(np.asarray(a, dtype=np.float64),
+                                                          (n, *shape))))
 
 
 def segments_blocked_device(caster: RayCaster, tri_face, start, seg, tmin, tmax,
@@ -485,10 +527,10 @@ def segments_blocked_device(caster: RayCaster, tri_face, start, seg, tmin, tmax,
         np.ascontiguousarray(np.broadcast_to(ignore_prim, (S,)), dtype=np.int32))
     out = rt.empty(S)
     caster.run_kernel("visibility.cl", "segments_blocked", S, *scene64_args(caster, tri_face),
-                      rt.to_device(rays), rt.to_device(_f64(start, S, (3,))),
-                      rt.to_device(_f64(seg, S, (3,))), rt.to_device(_f64(tmin, S)),
-                      rt.to_device(_f64(tmax, S)), ignore, np.int32(max_rounds),
-                      np.float64(LOOK_PAST), out, np.int32(S), defines=kernel_defines())
+                      rt.to_device(rays), _f64(rt, start, S, (3,)), _f64(rt, seg, S, (3,)),
+                      _f64(rt, tmin, S), _f64(rt, tmax, S), ignore, np.int32(max_rounds),
+                      kernel_scalar64(rt, LOOK_PAST), out, np.int32(S),
+                      defines=kernel_defines())
     return download(caster, out, S, np.uint8).astype(bool)
 
 
@@ -500,17 +542,17 @@ def reaches_face_device(caster: RayCaster, tri_face, start, end, faces, slack,
     start = np.asarray(start, dtype=np.float64)
     end = np.asarray(end, dtype=np.float64)
     S = len(start)
-    slack = _f64(slack, S)
+    slack = np.ascontiguousarray(np.broadcast_to(np.asarray(slack, dtype=np.float64), (S,)))
     rays = make_rays(start, end - start, tmin=tmin, tmax=1.0 + 2.0 * slack)
     if S == 0:
         return np.zeros(0, dtype=np.int32)
     rt = caster.runtime
     out = rt.empty(4 * S)
     caster.run_kernel("visibility.cl", "reach_faces", S, *scene64_args(caster, tri_face),
-                      rt.to_device(rays), rt.to_device(_f64(end, S, (3,))),
+                      rt.to_device(rays), _f64(rt, end, S, (3,)),
                       rt.to_device(np.ascontiguousarray(np.broadcast_to(faces, (S,)),
                                                         dtype=np.int32)),
-                      rt.to_device(slack), out, np.int32(S), defines=kernel_defines())
+                      _f64(rt, slack, S), out, np.int32(S), defines=kernel_defines())
     return download(caster, out, S, np.int32)
 
 
@@ -533,7 +575,7 @@ def reaches_face(caster: RayCaster, tri_face, start, end, faces, slack,
     start = np.asarray(start, dtype=np.float64)
     end = np.asarray(end, dtype=np.float64)
     faces = np.asarray(faces)
-    if uses_device(caster, engine):
+    if decide_on_device(caster, engine, "visibility.segments"):
         return reaches_face_device(caster, tri_face, start, end, faces, slack, tmin)
     hits = caster.closest_hit(make_rays(start, end - start, tmin=tmin, tmax=1.0 + 2.0 * slack))
     prim = hits["prim"]
@@ -555,7 +597,7 @@ def segments_clear(caster: RayCaster, tri_face, start, end, tmin, tmax,
     """
     start = np.asarray(start, dtype=np.float64)
     seg = np.asarray(end, dtype=np.float64) - start
-    if uses_device(caster, engine):
+    if decide_on_device(caster, engine, "visibility.segments"):
         return ~segments_blocked_device(caster, tri_face, start, seg, tmin, tmax)
     blocked = caster.occluded(make_rays(start, seg, tmin=tmin, tmax=tmax))
     if blocked.any():
@@ -693,7 +735,7 @@ def surface_sees(caster: RayCaster, points, normals, targets, ignore_prim, *,
     if tri_face is None:
         tri_face = np.arange(len(caster.triangles))
     ignore = np.asarray(ignore_prim).astype(np.int32)
-    if uses_device(caster, engine):
+    if decide_on_device(caster, engine, "visibility.surface_sight"):
         sees = ~segments_blocked_device(caster, tri_face, org, sight, 0.0, 1.0 - stop,
                                         ignore_prim=ignore)
     else:

@@ -38,6 +38,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from clradcom.device import edges as device_edges
+from clradcom.device import engines
 from clradcom.device.raycast import make_rays, spawn_origins
 from clradcom.device.visibility import (
     antenna_slack,
@@ -506,7 +507,7 @@ def wedges_seeing(caster, wedges: Wedges, point, samples=(0.25, 0.5, 0.75), tri_
     piece still open then is kept.  (Three samples alone dropped edges whose samples a
     plate hid while their Keller points were in plain sight.)
 
-    ``engine`` "device" (on a device with fp64) decides every wedge in one launch of
+    ``engine`` "device" decides every wedge in one launch of
     ``kernels/edges.cl`` (:func:`clradcom.device.edges.wedges_seen`), the same wedges as
     "host", this numpy reference over float32 casts."""
     return _seeing_many(caster, wedges, [point], samples, tri_face, max_depth,
@@ -517,11 +518,18 @@ def _seeing_many(caster, wedges: Wedges, points, samples=(0.25, 0.5, 0.75), tri_
                  max_depth: int = SEEING_MAX_DEPTH, outlines: dict | None = None,
                  engine: str = "device"):
     """[(seen at the samples, kept)] per point: :func:`_seeing` for several antenna
-    positions, on the device in one launch (engine "device", where
-    :func:`clradcom.device.edges.usable`), else point by point on the host."""
-    if not device_edges.usable(caster, engine, len(samples), max_depth) or len(wedges) == 0:
+    positions, on the device in one launch (engine "device", unless
+    :func:`clradcom.device.edges.device_refusal` gives a reason, which is recorded:
+    :func:`clradcom.device.engines.record`), else point by point on the host."""
+    refusal = device_edges.device_refusal(caster, len(samples), max_depth)
+    if engine == "host":
+        engines.record("diffraction.edge_sight", "host", fallback=False)
+    elif refusal is not None:
+        engines.record("diffraction.edge_sight", "host", refusal)
+    if engine == "host" or refusal is not None or len(wedges) == 0:
         return [_seeing(caster, wedges, p, samples, tri_face, max_depth, outlines)
                 for p in points]
+    engines.record("diffraction.edge_sight", "device")
     W, S = len(wedges), len(samples)
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     P = len(points)

@@ -433,8 +433,7 @@ def launch_windows(geom, tx_pos, objects, spacing_m, *, mirrors: bool = True,
     masks)."""
     scene = geom.scene
     runtime = geom.runtime if geom.engine == "device" else None
-    if runtime is not None and not runtime.has_double:
-        runtime = None
+    engines.record("physical_optics.windows", geom.engine, fallback=False)
     tx = np.asarray(tx_pos, dtype=np.float64)
     objects = np.asarray(list(objects), dtype=np.int64)
     spacing = np.broadcast_to(np.asarray(spacing_m, dtype=np.float64), objects.shape)

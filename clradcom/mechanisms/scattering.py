@@ -35,12 +35,12 @@ reflection dyad (Fresnel x roughness x sqrt(1 - S_mirror^2)) on that side.
 from __future__ import annotations
 
 import math
-import warnings
 import weakref
 from dataclasses import dataclass
 
 import numpy as np
 
+from clradcom.device import engines
 from clradcom.device import scatter as device_scatter
 from clradcom.device.raycast import spawn_origins
 from clradcom.device.visibility import (
@@ -671,8 +671,9 @@ def scattering_paths(geom, tx, rx, *, tile_size_m=None, threshold_db=-60.0, seed
     the object and scene triangle at each interaction.
 
     ``geom.engine`` "device" cuts the tiles and tests their sight of tx and rx in the
-    kernels of :mod:`clradcom.device.scatter` (the same numbers as the host's, bit for bit;
-    docs/scattering.md "On the device"); "host" is the numpy reference.
+    kernels of :mod:`clradcom.device.scatter` (the same numbers as the host's, bit for bit
+    with fp64, to ~1e-14 without; docs/scattering.md "On the device"); "host" is the
+    numpy reference.
     """
     mr = max_reflections
     if not (isinstance(mr, (int, np.integer)) and not isinstance(mr, bool) and 0 <= mr <= 2):
@@ -710,10 +711,7 @@ def scattering_paths(geom, tx, rx, *, tile_size_m=None, threshold_db=-60.0, seed
                              f"({len(scene.triangles)}), got shape {mask.shape}")
     monostatic = bool(np.array_equal(tx_pos, rx_pos))
     on_device = geom.engine == "device"
-    if on_device and not device_scatter.has_fp64(geom.caster):
-        warnings.warn("scattering tiles: the OpenCL device has no fp64, so they are resolved "
-                      "by the host's numpy path (engine 'host')", RuntimeWarning, stacklevel=2)
-        on_device = False
+    engines.record("scattering.tiles", geom.engine, fallback=False)
     if on_device and mr == 0:
         return _device_direct_paths(geom, tx, rx, st, size, seed, mask, tx_pos, rx_pos,
                                     monostatic, threshold_db, reference_gain)

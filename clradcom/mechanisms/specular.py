@@ -31,6 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from clradcom.device import engines
 from clradcom.device import images as device_images
 from clradcom.device.raycast import RayCaster
 from clradcom.device.visibility import confirm_paths, containing_triangles
@@ -213,15 +214,25 @@ def image_points(tx, rx, normals, offsets, seqs: np.ndarray, runtime=None):
     faces' planes; seqs (C,k) face ids. Returns points (C, k+2, 3) - tx, the
     k reflection points, rx - and a mask of candidates whose every point lies
     strictly between its neighbours' image line ends (so each reflection
-    happens on the side both segments are on). With a ``runtime`` whose device can
-    (:func:`clradcom.device.images.available`) the points come from its kernel, the
-    same bit for bit.
+    happens on the side both segments are on). With a ``runtime`` (the device engine)
+    the points come from its kernel unless
+    :func:`clradcom.device.images.device_refusal` gives a reason: the same bit for bit
+    with fp64, within ~1e-14 relative without. Where the points were computed is
+    recorded (stage "specular.image_points": :func:`clradcom.device.engines.record`).
     """
     seqs = np.asarray(seqs)
     C, k = seqs.shape
     tx = np.asarray(tx, dtype=np.float64)
     rx = np.asarray(rx, dtype=np.float64)
-    if runtime is not None and C and k and device_images.available(runtime):
+    refusal = None if runtime is None else device_images.device_refusal(runtime)
+    if C and k:
+        if runtime is None:
+            engines.record("specular.image_points", "host", fallback=False)
+        elif refusal is not None:
+            engines.record("specular.image_points", "host", refusal)
+        else:
+            engines.record("specular.image_points", "device")
+    if runtime is not None and C and k and refusal is None:
         points, ok, failed_last, failed_first = device_images.image_points(
             runtime, tx, rx, normals, offsets, seqs)
         for what, point, failed, i in (("receiver", rx, failed_last, k - 1),
@@ -329,13 +340,23 @@ def prepare(geom: Geometry, tx: Radar, settings: SpecularSettings) -> Candidates
     # on the device, where the lattice stays between transmitters: the same rays
     k = settings.max_reflections
     base = key_base(geom.faces.n_faces, k)
-    if geom.engine == "device" and base is not None and geom.runtime.has_double:
+    stage = "specular.candidates"
+    if geom.engine == "host":
+        engines.record(stage, "host", fallback=False)
+    else:
+        engines.record(stage, "device")
+    if geom.engine == "device" and base is not None:
         # each ray's sequence becomes one exact key on the device, and only the set of
         # distinct keys leaves it: no (R, k) rows to download, encode and sort on the
         # host (the reference engine does that)
-        keys = geom.caster.lattice_key_set(tx.position, local, rot, geom.faces.tri_face, k,
-                                           base)
+        keys = geom.caster.lattice_key_set(
+            tx.position, local, rot, geom.faces.tri_face, k, base,
+            on_host=lambda reason: engines.record(stage, "host", reason))
         return candidates_from_keys(keys, base, k)
+    if geom.engine == "device":
+        engines.record(stage, "host", f"{geom.faces.n_faces} faces and {k} reflections: a "
+                       "face sequence does not fit one 64-bit key, the host de-duplicates "
+                       "the sequences")
     seqs = geom.caster.lattice_sequences(tx.position, local, rot, geom.faces.tri_face, k)
     return unique_candidates(seqs)
 
