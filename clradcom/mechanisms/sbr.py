@@ -1319,8 +1319,7 @@ def shoot_sbr(geom, tx, objects, receivers, *, spacing_wavelengths: float | None
         sums = device_block_sums(geom, windows, tx, receivers, max_bounces, first_bounce,
                                  record, precision)
     else:
-        engines.record("physical_optics.tubes", "host", "the host engine was asked for",
-                       fallback=False)
+        engines.record("physical_optics.tubes", "host", fallback=False)
         sums = host_block_sums(geom, windows, tx, receivers, max_bounces, first_bounce,
                                record)
     return SbrTubes(windows=windows, receivers=rx_pos, sums=sums, max_bounces=max_bounces,
