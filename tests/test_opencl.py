@@ -140,3 +140,48 @@ def test_host_dtypes_match_kernel_structs(runtime):
         BVH8_NODE_DTYPE.fields["pad"][1],
     ]
     assert out.tolist() == expected
+
+
+class _Device:
+    """A device for pyopencl's NVIDIA check: which queries it was asked."""
+
+    def __init__(self, extensions: str):
+        self.asked: list[str] = []
+        self._extensions = extensions
+
+    @property
+    def extensions(self):
+        self.asked.append("extensions")
+        return self._extensions
+
+    @property
+    def compute_capability_major_nv(self):
+        self.asked.append("major_nv")
+        if "cl_nv_device_attribute_query" not in self._extensions:
+            raise cl.LogicError("clGetDeviceInfo failed: INVALID_VALUE")
+        return 9
+
+    @property
+    def compute_capability_minor_nv(self):
+        self.asked.append("minor_nv")
+        return 0
+
+
+def test_pyopencl_asks_for_nvidias_compute_capability_only_where_answered():
+    """pyopencl asks every device at every build and kernel for NVIDIA's compute
+    capability; where the device lacks the query's extension that is a refused call,
+    which Oclgrind's API check reports. After the runtime is loaded the answer is the
+    same (None: not NVIDIA) without the call; an NVIDIA device is still asked."""
+    from pyopencl.characterize import has_src_build_cache
+
+    opencl.list_devices()   # pyopencl through the runtime
+    import pyopencl.characterize as characterize
+
+    other = _Device("cl_khr_fp64 cl_khr_int64_base_atomics")
+    assert characterize.nv_compute_capability(other) is None
+    assert other.asked == ["extensions"]
+    nvidia = _Device("cl_khr_fp64 cl_nv_device_attribute_query")
+    assert characterize.nv_compute_capability(nvidia) == (9, 0)
+    assert "major_nv" in nvidia.asked
+    assert has_src_build_cache.__globals__["nv_compute_capability"] is \
+        characterize.nv_compute_capability

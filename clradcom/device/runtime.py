@@ -119,7 +119,40 @@ def _cl():
         import pyopencl as cl
     except ImportError as exc:  # pragma: no cover - pyopencl is a hard dependency
         raise OpenCLError(f"pyopencl is not importable ({exc}). {INSTALL_HINT}") from exc
+    _ask_nvidia_only_where_answered()
     return cl
+
+
+_NV_QUERY_EXTENSION = "cl_nv_device_attribute_query"
+
+
+def _ask_nvidia_only_where_answered() -> None:
+    """Make pyopencl ask a device for NVIDIA's compute capability only where the device
+    offers that query (its ``cl_nv_device_attribute_query`` extension).
+
+    pyopencl asks every device for ``CL_DEVICE_COMPUTE_CAPABILITY_MAJOR_NV`` at each
+    program build (``Program.build``: does the driver cache builds itself?) and each
+    kernel object it makes (``Kernel``: an argument-size check for NVIDIA), and reads a
+    refusal as "not NVIDIA". An implementation without the extension must refuse
+    (CL_INVALID_VALUE), and Oclgrind's API check reports every refusal as an error. The
+    answer is pyopencl's own wherever the query is answered; elsewhere it is the None
+    that a refusal gives, without the refused call."""
+    import pyopencl.characterize as characterize
+
+    asks = characterize.nv_compute_capability
+    if getattr(asks, "clradcom_checks_extension", False):
+        return
+
+    def nv_compute_capability(dev):
+        try:
+            offered = _NV_QUERY_EXTENSION in dev.extensions
+        except Exception:  # noqa: BLE001 - as pyopencl's own: any failure is "not NVIDIA"
+            return None
+        return asks(dev) if offered else None
+
+    nv_compute_capability.clradcom_checks_extension = True
+    nv_compute_capability.__doc__ = asks.__doc__
+    characterize.nv_compute_capability = nv_compute_capability
 
 
 def _type_name(device) -> str:
