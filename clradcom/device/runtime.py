@@ -63,6 +63,17 @@ VENDOR_NAMES = {
     "oclgrind": ("oclgrind",),
 }
 
+#: Oclgrind's builds (21.10, Debian's): OpenCL C's own builtins only (its interpreter runs
+#: neither llvm.cttz nor the AVX mask builtin: kernels/intersect.h), and unoptimised. Its
+#: optimised code is what it mishandles: its uninitialised-value check crashes on the
+#: shuffles with undefined lanes that LLVM makes of float3 code, and it evaluates a
+#: vector "not" of a comparison (xor <4 x i1> with true) as 1 and -2 instead of -1 and 0,
+#: which turned the watertight test's hits into misses. Unoptimised, always_inline is
+#: read as nothing: clang's always-inliner would leave llvm.experimental.noalias.scope.decl
+#: calls, which it cannot run either. docs/devices.md has the reproducers.
+SIMULATOR_BUILD_OPTIONS = ("-DCLR_NO_TARGET_BUILTINS=1", "-cl-opt-disable",
+                           "-Dalways_inline=")
+
 INSTALL_HINT = (
     "No OpenCL platform was found. clradcom needs one OpenCL device; the simplest is "
     "PoCL's CPU device from the package registry:\n"
@@ -588,7 +599,7 @@ class Runtime:
         if self.force_no_fp64 and "-DCLRADCOM_NO_FP64=1" not in options:
             options += ("-DCLRADCOM_NO_FP64=1",)
         if self.info.simulator:
-            options += ("-DCLR_NO_TARGET_BUILTINS=1",)
+            options += SIMULATOR_BUILD_OPTIONS
         try:
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always", cl.CompilerWarning)
