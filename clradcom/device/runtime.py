@@ -630,9 +630,23 @@ class Runtime:
             return cl.Buffer(self.context, flags, hostbuf=array)
 
     def empty(self, nbytes: int):
+        """A read-write device buffer of ``nbytes`` (at least 1) for kernels to fill.
+
+        On Oclgrind it is written from the host first, all 0xFF bytes (NaN in every float
+        and double, -1 in every integer). Its uninitialised-value check (21.10) keeps a
+        released buffer's record of which bytes were written for the next buffer that
+        gets the same id, with the old buffer's size: a kernel's writes past that size are
+        lost to it, and their reads reported as uninitialised. A whole-buffer host write
+        gives the buffer a record of its own size; a kernel that reads what it never
+        wrote then reads NaN or -1, which the tests' comparison with the host shows."""
         cl = _cl()
-        with self.guard(f"allocation of {int(nbytes)} bytes"):
-            return cl.Buffer(self.context, cl.mem_flags.READ_WRITE, size=max(int(nbytes), 1))
+        size = max(int(nbytes), 1)
+        mf = cl.mem_flags
+        with self.guard(f"allocation of {size} bytes"):
+            if self.info.simulator:
+                return cl.Buffer(self.context, mf.READ_WRITE | mf.COPY_HOST_PTR,
+                                 hostbuf=np.full(size, 0xFF, dtype=np.uint8))
+            return cl.Buffer(self.context, mf.READ_WRITE, size=size)
 
 
 _default_runtimes: dict[tuple, Runtime] = {}

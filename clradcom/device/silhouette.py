@@ -98,8 +98,7 @@ def beside_cull(runtime: Runtime, triangles, tri_index, tri_start, pair_start, f
     if n_pairs == 0:
         return out.view(bool)
     kernel = runtime.kernel(SOURCE, "beside_cull")
-    mf = cl.mem_flags
-    buf = cl.Buffer(runtime.context, mf.WRITE_ONLY, size=out.nbytes)
+    buf = runtime.empty(out.nbytes)
     args = [_in(runtime, triangles, np.float64), _in(runtime, tri_index, np.int32),
             _in(runtime, tri_start, np.int64), _in(runtime, pair_start, np.int64),
             np.int32(len(pair_start) - 1), _in(runtime, frame, np.float64),
@@ -149,12 +148,11 @@ def project_windows(runtime: Runtime, triangles, window, frame, eye):
 
     n = len(triangles)
     ext = np.empty((n, 5), dtype=np.float64)
-    mf = cl.mem_flags
-    xy = cl.Buffer(runtime.context, mf.READ_WRITE, size=max(1, n) * 48)
+    xy = runtime.empty(max(1, n) * 48)
     if n == 0:
         return xy, ext
     kernel = runtime.kernel(SOURCE, "project_windows")
-    ext_buf = cl.Buffer(runtime.context, mf.WRITE_ONLY, size=ext.nbytes)
+    ext_buf = runtime.empty(ext.nbytes)
     e = np.asarray(eye, dtype=np.float64)
     with runtime.kernel_clock():
         kernel(runtime.queue, (-(-n // LOCAL) * LOCAL,), (LOCAL,),
