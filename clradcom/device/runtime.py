@@ -380,7 +380,9 @@ def describe_cl_error(exc, device: str, what: str) -> str:
     kernel sbr_bounce (sbr.cl)"``) on ``device``: the status, the driver's words and what
     to try."""
     code = _error_code_name(exc)
-    words = " ".join(str(getattr(exc, "what", None) or exc).split())
+    # str() of a pyopencl error is "routine failed: STATUS - the driver's words"; its
+    # .what is a record object, whose repr is no message
+    words = " ".join(str(exc).split())
     hint = _HINTS.get(code, _DEFAULT_HINT)
     status = f"{code}: " if code and code not in words else ""
     return f"OpenCL {what} failed on {device}: {status}{words}; {hint}"
