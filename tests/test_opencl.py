@@ -18,15 +18,21 @@ from clradcom.geometry.bvh import BVH_NODE_DTYPE
 from clradcom.geometry.layout import BVH8_NODE_DTYPE
 
 
-def test_device_list_and_default_is_gpu_or_pocl():
+def test_device_list_and_default_is_gpu_or_pocl(monkeypatch):
+    """The default order (no --device, no CLRADCOM_DEVICE: the suite's --device sets it):
+    the first GPU, else PoCL's CPU device; never Oclgrind, a simulator that calls itself a
+    GPU."""
+    monkeypatch.delenv(opencl.ENV_DEVICE, raising=False)
     infos = list_devices()
     assert infos
     chosen = choose_device()
-    gpus = [i for i in infos if i.device_type == "GPU"]
+    assert not chosen.simulator
+    gpus = [i for i in infos if i.device_type == "GPU" and not i.simulator]
     if gpus:
         assert chosen == gpus[0]
     else:
         assert chosen.device_type == "CPU"
+        assert chosen.vendor == "pocl"
         assert "portable computing language" in chosen.platform_name.lower()
 
 
@@ -84,6 +90,15 @@ def test_build_error_names_file_line_and_log(runtime):
     text = str(info.value)
     assert "broken.cl:3" in text  # #line 1 numbers the line after it
     assert "undefined_thing" in text
+
+
+def test_a_failed_kernel_creation_is_one_line_naming_status_kernel_and_device(runtime):
+    with pytest.raises(OpenCLError) as info:
+        runtime.kernel("raycast.cl", "no_such_kernel", defines=KERNEL_DEFINES)
+    text = str(info.value)
+    assert "\n" not in text and "object at 0x" not in text
+    assert "INVALID_KERNEL_NAME" in text and "no_such_kernel" in text
+    assert runtime.info.label in text
 
 
 def test_programs_are_cached_per_runtime(runtime):
