@@ -53,6 +53,7 @@ OCLGRIND_TESTS = frozenset({
     "test_opencl::test_programs_are_cached_per_runtime",
     "test_opencl::test_kernels_see_the_hosts_numbers",
     "test_opencl::test_host_dtypes_match_kernel_structs",
+    "test_opencl::test_empty_buffers_and_oclgrinds_host_written_ones",
     "test_raycast::test_random_soup_matches_brute_force",
     "test_raycast::test_grazing_rays_hit_on_the_surface",
     "test_image_points",

@@ -108,6 +108,18 @@ def test_programs_are_cached_per_runtime(runtime):
     assert other.program("raycast.cl", defines=KERNEL_DEFINES) is not prog
 
 
+def test_empty_buffers_and_oclgrinds_host_written_ones(runtime):
+    """Runtime.empty gives at least the bytes asked (one for none); on Oclgrind every one
+    of them is 0xFF, written from the host so that its uninitialised-value check keeps a
+    record of the buffer's own size (docs/devices.md)."""
+    buf = runtime.empty(10)
+    assert buf.size >= 10 and runtime.empty(0).size >= 1
+    if runtime.info.simulator:
+        out = np.zeros(10, dtype=np.uint8)
+        cl.enqueue_copy(runtime.queue, out, buf)
+        assert np.all(out == 0xFF)
+
+
 def test_define_options_are_integer_macros():
     assert define_options({"B": 2, "A": np.int32(1)}) == ("-DA=1", "-DB=2")
     assert define_options(None) == ()
