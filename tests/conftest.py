@@ -9,9 +9,9 @@ import os
 from pathlib import Path
 
 import pytest
-from device_helpers import oclgrind_reports
+from device_helpers import oclgrind_reports, start_subset_runs
 
-from clradcom.device.runtime import ENV_DEVICE, ENV_FP64, get_runtime
+from clradcom.device.runtime import ENV_DEVICE, ENV_FP64, get_runtime, list_devices
 
 #: The kernel tests (issue #26): ray casting, reflection keys, image points, visibility,
 #: edges, silhouette rasters, SBR, scattering, precision, the runtime, and the whole trace
@@ -107,6 +107,20 @@ def pytest_collection_modifyitems(config, items):
             else name
         if module in OCLGRIND_TESTS or name in OCLGRIND_TESTS or base in OCLGRIND_TESTS:
             item.add_marker(pytest.mark.oclgrind)
+    # the device matrix last: its subprocesses, started when collection is done, run
+    # while the rest of the suite does
+    items.sort(key=lambda item: _module(item) == "test_device_matrix")
+
+
+def pytest_collection_finish(session):
+    if session.config.option.collectonly:
+        return
+    names = [item.callspec.params.get("name") for item in session.items
+             if _module(item) == "test_device_matrix"
+             and getattr(item, "originalname", "") == "test_kernel_tests_pass_on"
+             and hasattr(item, "callspec")]
+    present = {info.vendor for info in list_devices()}
+    start_subset_runs([n for n in names if n in present])
 
 
 @pytest.fixture(scope="session")

@@ -13,19 +13,16 @@ from __future__ import annotations
 
 import os
 import re
-import subprocess
-import sys
 import warnings
 from pathlib import Path
 
 import numpy as np
 import pytest
-from device_helpers import oclgrind_reports
+from device_helpers import SUBPROCESS_TIMEOUT_S, oclgrind_reports, subset_run
 
 from clradcom.commands.options import run_waveform
 from clradcom.commands.trace import build_parser, radar_noise, settings_from_args
 from clradcom.device.runtime import (
-    ENV_DEVICE,
     VENDOR_NAMES,
     choose_device,
     get_runtime,
@@ -40,11 +37,6 @@ from clradcom.trace import trace_scene
 ROOT = Path(__file__).resolve().parent.parent
 STREET = ROOT / "scenes" / "street" / "street.toml"
 ENV_REQUIRE = "CLRADCOM_REQUIRE_DEVICES"
-#: what Oclgrind checks when asked (docs/devices.md): all of it
-OCLGRIND_CHECKS = {"OCLGRIND_CHECK_API": "1", "OCLGRIND_DATA_RACES": "1",
-                   "OCLGRIND_UNINITIALIZED": "1"}
-#: a subprocess's wall-clock limit: several times what it takes on CI's two cores
-SUBPROCESS_TIMEOUT_S = 1500
 CHANNEL_NMSE_DB = -60.0
 
 
@@ -83,28 +75,19 @@ def _failures(output: str) -> str:
 @pytest.mark.parametrize("name", OTHERS)
 def test_kernel_tests_pass_on(name):
     """The conformance subset on implementation ``name`` (on Oclgrind: the oclgrind subset,
-    with every check on), in a subprocess; fails with the subprocess's failures."""
+    with every check on), in a subprocess (started at collection: tests/conftest.py);
+    fails with the subprocess's failures."""
     _present(name)
-    marker = "oclgrind" if name == "oclgrind" else "conformance"
-    env = dict(os.environ, **{ENV_DEVICE: name})
-    if name == "oclgrind":
-        env.update(OCLGRIND_CHECKS)
-    cmd = [sys.executable, "-m", "pytest", "-m", marker, "--device", name,
-           "-p", "no:cacheprovider", "-q", "-rfE", str(ROOT / "tests")]
-    try:
-        done = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True,
-                              timeout=SUBPROCESS_TIMEOUT_S)
-    except subprocess.TimeoutExpired as exc:
-        pytest.fail(f"{' '.join(cmd)} ran past {SUBPROCESS_TIMEOUT_S} s:\n"
-                    f"{(exc.stdout or '')[-3000:]}")
-    output = done.stdout + done.stderr
-    if done.returncode != 0:
-        pytest.fail(f"the {marker} tests on {name} failed ({' '.join(cmd)}, exit "
-                    f"{done.returncode}):\n{_failures(output) or output[-6000:]}",
-                    pytrace=False)
-    assert re.search(r"\d+ passed", output), output[-3000:]
+    run = subset_run(name)
+    cmd = " ".join(run.cmd)
+    if run.returncode is None:
+        pytest.fail(f"{cmd} ran past {SUBPROCESS_TIMEOUT_S} s:\n{run.output[-3000:]}")
+    if run.returncode != 0:
+        pytest.fail(f"the tests on {name} failed ({cmd}, exit {run.returncode}):\n"
+                    f"{_failures(run.output) or run.output[-6000:]}", pytrace=False)
+    assert re.search(r"\d+ passed", run.output), run.output[-3000:]
     # a report outside any test's capture (at exit, in a session fixture) counts too
-    assert not oclgrind_reports(output), oclgrind_reports(output)[:20]
+    assert not oclgrind_reports(run.output), oclgrind_reports(run.output)[:20]
 
 
 def _main_job(runtime):
