@@ -23,15 +23,19 @@ from clradcom.trace import TraceSettings
 
 CANONICAL = Path(__file__).resolve().parent.parent / "scenes" / "canonical"
 SETTINGS = TraceSettings.preset("paper").replace(specular__rays=2000)
+#: device against host: -60 dB NMSE; without fp64 (or --fp64=off) issue #26's target for
+#: that mode, -50 dB
+NMSE_DB, NMSE_NO_FP64_DB = -60.0, -50.0
 
 
 @pytest.mark.parametrize("name", ["plate", "dihedral"])
 def test_device_and_host_agree(runtime, name):
     dev, host = both(load_scene(CANONICAL / f"{name}.toml"), runtime, SETTINGS)
+    limit = NMSE_DB if runtime.has_double else NMSE_NO_FP64_DB
     assert dev.links and len(dev.links) == len(host.links)
     for a, b in zip(dev.links, host.links, strict=True):
         assert a.paths.n_paths == b.paths.n_paths > 0, a.label
-        assert nmse_db(channel(a.paths), channel(b.paths)) < -60.0, a.label
+        assert nmse_db(channel(a.paths), channel(b.paths)) < limit, a.label
 
 
 def test_edge_visibility_kernel_keeps_the_hosts_wedges(runtime):
@@ -51,7 +55,9 @@ def test_edge_visibility_kernel_keeps_the_hosts_wedges(runtime):
     wedges = extract_wedges(scene.triangles, scene.tri_object, scene.tri_material)
     points = [[0.0, -1.0, 1.0], [6.0, 2.5, 1.5]]
     samples, depth = (0.5,), 1
-    assert device_edges.usable(geom.caster, "device", len(samples), depth)
+    # without fp64 the kernel may leave it to the host, which then must agree with itself
+    assert device_edges.usable(geom.caster, "device", len(samples), depth) \
+        or not runtime.has_double
     device = diffraction._seeing_many(geom.caster, wedges, points, samples,
                                       geom.faces.tri_face, depth, engine="device")
     for p, (d_sampled, d_kept) in zip(points, device, strict=True):
