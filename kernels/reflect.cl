@@ -167,11 +167,12 @@ __kernel void trace_reflection_keys_rotated(ROTATED_LATTICE_ARGS, const long bas
 
 /* trace_reflection_keys_rotated with the keys gathered into a set on the device instead
  * of written per ray: an open-addressed table of 2^table_bits longs (-1: empty), linear
- * probing from a multiplicative hash. Rays repeat each other massively (a million rays,
- * some ten thousand distinct sequences), so most find their key already there and only
- * read. A key that finds no slot within MAX_PROBES sets *overflow: the host then
- * reads every ray's key instead (the set is not complete). Key 0 (no face) is left
- * out: it proposes no candidate. */
+ * probing from a multiplicative hash. Every probe is one compare-and-swap, which returns
+ * the slot's key where it holds one: a plain read of a slot that another work item may
+ * be swapping is a data race (Oclgrind reports it; a 64-bit read may tear on some
+ * devices, and a torn key would be stored twice). A key that finds no slot within
+ * MAX_PROBES sets *overflow: the host then reads every ray's key instead (the set is not
+ * complete). Key 0 (no face) is left out: it proposes no candidate. */
 #define KEY_SET_MAX_PROBES 64
 __kernel void collect_reflection_keys_rotated(ROTATED_LATTICE_ARGS, const long base,
                                               const int table_bits,
@@ -187,12 +188,8 @@ __kernel void collect_reflection_keys_rotated(ROTATED_LATTICE_ARGS, const long b
     ulong mask = ((ulong)1 << table_bits) - 1;
     ulong slot = ((ulong)key * 0x9E3779B97F4A7C15UL) >> (64 - table_bits);
     for (int probe = 0; probe < KEY_SET_MAX_PROBES; ++probe) {
-        long held = table[slot];
-        if (held == key) return;
-        if (held == -1) {
-            held = atom_cmpxchg(&table[slot], -1L, key);
-            if (held == -1 || held == key) return;
-        }
+        long held = atom_cmpxchg(&table[slot], -1L, key);
+        if (held == -1 || held == key) return;
         slot = (slot + 1) & mask;
     }
     atomic_or(overflow, 1);

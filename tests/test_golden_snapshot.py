@@ -7,9 +7,14 @@ below, on PoCL's CPU device (1 m scattering tiles keep the file small: 814 paths
 208 KiB). Gains, matrices, delays, Doppler shifts, points, object and face ids of every
 path but the SBR-PO ones (whose launch changed on purpose since) must match bit for bit;
 interaction codes too, once the physical-optics and SBR codes that format 2 added are
-read as the REFLECTION that format 1 wrote for them. Kernels on
-another OpenCL device may propose other candidates in float32; this reference holds for
-the PoCL CPU device the suite runs on.
+read as the REFLECTION that format 1 wrote for them. That holds on PoCL's CPU device with
+fp64, where the reference was traced. Any other device (or PoCL without fp64) computes in
+other roundings (its own libm, fused multiply-adds, float32 candidates), so there the
+snapshot is held to what a path's physics can tell apart instead: the same paths (by their
+interactions, objects and faces), delays within 1 ps (0.3 mm of path, 1/40 of a wavelength
+at 24 GHz), gains within -60 dB of each path's and Doppler shifts within 1 mHz, and every
+link's channel at the radar's 1024 subcarriers within -60 dB NMSE; a path that only one
+device finds may be missing only if it carries under -60 dB of the link's power.
 """
 
 from pathlib import Path
@@ -84,9 +89,13 @@ def sbr_rows(paths, *, format_1: bool) -> np.ndarray:
     return (nk >= 2) & (last == 2) & all_refl
 
 
-def test_same_paths_bit_for_bit(traced):
+def test_same_paths_bit_for_bit(traced, runtime):
     """Every path but SBR-PO's: those changed on purpose (tubes launched over silhouettes
-    and mirror images, the chain's sqrt(1 - S^2)); tests/test_sbr_engines.py holds them."""
+    and mirror images, the chain's sqrt(1 - S^2)); tests/test_sbr_engines.py holds them.
+    On the reference's device only: elsewhere the test above holds the snapshot."""
+    if not bit_exact_device(runtime):
+        pytest.skip(f"bit for bit on PoCL with fp64, where the reference was traced; on "
+                    f"{runtime.info.label} the physical tolerances hold it")
     reference, snap = traced
     assert [lk.label for lk in snap] == [lk.label for lk in reference]
     for old, new in zip(reference.links, snap.links, strict=True):
@@ -105,6 +114,94 @@ def test_same_paths_bit_for_bit(traced):
                                      f"{np.count_nonzero(~same)} entries (largest {worst})")
         np.testing.assert_array_equal(as_format_1(new_paths.interaction),
                                       old_paths.interaction, err_msg=old.label)
+
+
+def bit_exact_device(runtime) -> bool:
+    """The reference's device: PoCL's CPU device, in its fp64 mode."""
+    return runtime.info.vendor == "pocl" and runtime.has_double
+
+
+#: a path's tolerances off the reference's device (module docstring)
+DELAY_TOL_S = 1e-12
+POINT_TOL_M = 3e-4
+DOPPLER_TOL_HZ = 1e-3
+GAIN_TOL_DB = -60.0
+CHANNEL_NMSE_DB = -60.0
+
+
+def path_keys(paths, *, format_1: bool) -> list[tuple]:
+    """Each path's identity: its interactions (in format 1's codes), objects and faces."""
+    codes = paths.interaction if format_1 else as_format_1(paths.interaction)
+    out = []
+    for i, k in enumerate(paths.n_interactions.astype(int)):
+        out.append((tuple(codes[i, :k].tolist()), tuple(paths.object_id[i, :k].tolist()),
+                    tuple(paths.face_id[i, :k].tolist())))
+    return out
+
+
+def match_paths(old, old_keys, new, new_keys) -> tuple[np.ndarray, np.ndarray]:
+    """(a, b): old path a[i] is new path b[i]. Paths of one key (PO facets and scattering
+    tiles of one face share theirs) are told apart by their interaction points: each old
+    path takes the nearest unclaimed new one of its key within POINT_TOL_M."""
+    groups: dict[tuple, list[int]] = {}
+    for j, key in enumerate(new_keys):
+        groups.setdefault(key, []).append(j)
+    a, b = [], []
+    for i, key in enumerate(old_keys):
+        free = groups.get(key, [])
+        if not free:
+            continue
+        k = int(old.n_interactions[i])
+        off = [np.max(np.abs(np.nan_to_num(new.points[j, :k] - old.points[i, :k])),
+                      initial=0.0) for j in free]
+        best = int(np.argmin(off))
+        if off[best] <= POINT_TOL_M:
+            a.append(i)
+            b.append(free.pop(best))
+    return np.array(a, dtype=int), np.array(b, dtype=int)
+
+
+def channel(paths, n=1024, df=90.909e3):
+    """The link's channel at the paper's 1024 subcarriers (baseband)."""
+    k = np.arange(n)[:, None]
+    return np.exp(-2j * np.pi * k * df * paths.delay_s[None, :]) @ paths.gain
+
+
+def test_same_paths_within_physical_tolerances(traced):
+    """On every device: the non-SBR paths of every link are the reference's within what
+    their physics can tell apart (module docstring). On the reference's device this holds
+    trivially (the bits are the same); on another it is the test that counts."""
+    reference, snap = traced
+    assert [lk.label for lk in snap] == [lk.label for lk in reference]
+    for old, new in zip(reference.links, snap.links, strict=True):
+        old_paths = select_paths(old.paths, ~sbr_rows(old.paths, format_1=True))
+        new_paths = select_paths(new.paths, ~sbr_rows(new.paths, format_1=False))
+        a, b = match_paths(old_paths, path_keys(old_paths, format_1=True), new_paths,
+                           path_keys(new_paths, format_1=False))
+        total = float(np.sum(np.abs(old_paths.gain) ** 2))
+        only_old = np.setdiff1d(np.arange(old_paths.n_paths), a)
+        only_new = np.setdiff1d(np.arange(new_paths.n_paths), b)
+        unmatched = (np.sum(np.abs(old_paths.gain[only_old]) ** 2)
+                     + np.sum(np.abs(new_paths.gain[only_new]) ** 2))
+        assert unmatched <= total * 10 ** (CHANNEL_NMSE_DB / 10), (
+            old.label, len(only_old), len(only_new))
+        ga, gb = old_paths.gain[a], new_paths.gain[b]
+        worst = np.max(np.abs(gb - ga) / np.abs(ga), initial=0.0)
+        assert worst <= 10 ** (GAIN_TOL_DB / 20), (old.label, "gain", worst)
+        np.testing.assert_allclose(new_paths.matrix[b], old_paths.matrix[a], rtol=0,
+                                   atol=10 ** (GAIN_TOL_DB / 20)
+                                   * np.max(np.abs(old_paths.matrix), initial=0.0),
+                                   err_msg=old.label)
+        np.testing.assert_allclose(new_paths.delay_s[b], old_paths.delay_s[a], rtol=0,
+                                   atol=DELAY_TOL_S, err_msg=old.label)
+        np.testing.assert_allclose(new_paths.doppler_hz[b], old_paths.doppler_hz[a], rtol=0,
+                                   atol=DOPPLER_TOL_HZ, err_msg=old.label)
+        np.testing.assert_allclose(np.nan_to_num(new_paths.points[b]),
+                                   np.nan_to_num(old_paths.points[a]), rtol=0,
+                                   atol=POINT_TOL_M, err_msg=old.label)
+        h, ref = channel(new_paths), channel(old_paths)
+        nmse = np.sum(np.abs(h - ref) ** 2) / np.sum(np.abs(ref) ** 2)
+        assert nmse <= 10 ** (CHANNEL_NMSE_DB / 10), (old.label, 10 * np.log10(nmse))
 
 
 def test_po_and_sbr_returns_carry_their_own_codes(traced):

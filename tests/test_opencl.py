@@ -18,15 +18,21 @@ from clradcom.geometry.bvh import BVH_NODE_DTYPE
 from clradcom.geometry.layout import BVH8_NODE_DTYPE
 
 
-def test_device_list_and_default_is_gpu_or_pocl():
+def test_device_list_and_default_is_gpu_or_pocl(monkeypatch):
+    """The default order (no --device, no CLRADCOM_DEVICE: the suite's --device sets it):
+    the first GPU, else PoCL's CPU device; never Oclgrind, a simulator that calls itself a
+    GPU."""
+    monkeypatch.delenv(opencl.ENV_DEVICE, raising=False)
     infos = list_devices()
     assert infos
     chosen = choose_device()
-    gpus = [i for i in infos if i.device_type == "GPU"]
+    assert not chosen.simulator
+    gpus = [i for i in infos if i.device_type == "GPU" and not i.simulator]
     if gpus:
         assert chosen == gpus[0]
     else:
         assert chosen.device_type == "CPU"
+        assert chosen.vendor == "pocl"
         assert "portable computing language" in chosen.platform_name.lower()
 
 
@@ -86,11 +92,32 @@ def test_build_error_names_file_line_and_log(runtime):
     assert "undefined_thing" in text
 
 
+def test_a_failed_kernel_creation_is_one_line_naming_status_kernel_and_device(runtime):
+    with pytest.raises(OpenCLError) as info:
+        runtime.kernel("raycast.cl", "no_such_kernel", defines=KERNEL_DEFINES)
+    text = str(info.value)
+    assert "\n" not in text and "object at 0x" not in text
+    assert "INVALID_KERNEL_NAME" in text and "no_such_kernel" in text
+    assert runtime.info.label in text
+
+
 def test_programs_are_cached_per_runtime(runtime):
     prog = runtime.program("raycast.cl", defines=KERNEL_DEFINES)
     assert runtime.program("raycast.cl", defines=dict(reversed(KERNEL_DEFINES.items()))) is prog
     other = Runtime(runtime.info.spec)
     assert other.program("raycast.cl", defines=KERNEL_DEFINES) is not prog
+
+
+def test_empty_buffers_and_oclgrinds_host_written_ones(runtime):
+    """Runtime.empty gives at least the bytes asked (one for none); on Oclgrind every one
+    of them is 0xFF, written from the host so that its uninitialised-value check keeps a
+    record of the buffer's own size (docs/devices.md)."""
+    buf = runtime.empty(10)
+    assert buf.size >= 10 and runtime.empty(0).size >= 1
+    if runtime.info.simulator:
+        out = np.zeros(10, dtype=np.uint8)
+        cl.enqueue_copy(runtime.queue, out, buf)
+        assert np.all(out == 0xFF)
 
 
 def test_define_options_are_integer_macros():
@@ -140,3 +167,48 @@ def test_host_dtypes_match_kernel_structs(runtime):
         BVH8_NODE_DTYPE.fields["pad"][1],
     ]
     assert out.tolist() == expected
+
+
+class _Device:
+    """A device for pyopencl's NVIDIA check: which queries it was asked."""
+
+    def __init__(self, extensions: str):
+        self.asked: list[str] = []
+        self._extensions = extensions
+
+    @property
+    def extensions(self):
+        self.asked.append("extensions")
+        return self._extensions
+
+    @property
+    def compute_capability_major_nv(self):
+        self.asked.append("major_nv")
+        if "cl_nv_device_attribute_query" not in self._extensions:
+            raise cl.LogicError("clGetDeviceInfo failed: INVALID_VALUE")
+        return 9
+
+    @property
+    def compute_capability_minor_nv(self):
+        self.asked.append("minor_nv")
+        return 0
+
+
+def test_pyopencl_asks_for_nvidias_compute_capability_only_where_answered():
+    """pyopencl asks every device at every build and kernel for NVIDIA's compute
+    capability; where the device lacks the query's extension that is a refused call,
+    which Oclgrind's API check reports. After the runtime is loaded the answer is the
+    same (None: not NVIDIA) without the call; an NVIDIA device is still asked."""
+    from pyopencl.characterize import has_src_build_cache
+
+    opencl.list_devices()   # pyopencl through the runtime
+    import pyopencl.characterize as characterize
+
+    other = _Device("cl_khr_fp64 cl_khr_int64_base_atomics")
+    assert characterize.nv_compute_capability(other) is None
+    assert other.asked == ["extensions"]
+    nvidia = _Device("cl_khr_fp64 cl_nv_device_attribute_query")
+    assert characterize.nv_compute_capability(nvidia) == (9, 0)
+    assert "major_nv" in nvidia.asked
+    assert has_src_build_cache.__globals__["nv_compute_capability"] is \
+        characterize.nv_compute_capability

@@ -169,14 +169,13 @@ class RayCaster:
         of ``preferred``, default :attr:`LOCAL_SIZE`)."""
         return self.runtime.local_size(kernel, preferred or self.LOCAL_SIZE)
 
-    def _buffer(self, name, nbytes, flags):
-        """A device buffer of at least nbytes kept under name, grown by doubling."""
-        import pyopencl as cl
-
+    def _buffer(self, name, nbytes):
+        """A device buffer (Runtime.empty) of at least nbytes kept under name, grown by
+        doubling."""
         size, buf = self._buffers.get(name, (0, None))
         if size < nbytes:
             size = max(nbytes, 2 * size, 4096)
-            buf = cl.Buffer(self.runtime.context, flags, size=size)
+            buf = self.runtime.empty(size)
             self._buffers[name] = (size, buf)
         return buf
 
@@ -206,12 +205,12 @@ class RayCaster:
                 ign_buf = None if ignore is None else cl.Buffer(
                     rt.context, mf.READ_ONLY | mf.USE_HOST_PTR, hostbuf=np.array(ignore))
             else:
-                ray_buf = self._buffer("rays", rays.nbytes, mf.READ_ONLY)
-                out_buf = self._buffer(kernel_name, out.nbytes, mf.WRITE_ONLY)
+                ray_buf = self._buffer("rays", rays.nbytes)
+                out_buf = self._buffer(kernel_name, out.nbytes)
                 cl.enqueue_copy(rt.queue, ray_buf, rays, is_blocking=False)
                 ign_buf = None
                 if ignore is not None:
-                    ign_buf = self._buffer("ignore", ignore.nbytes, mf.READ_ONLY)
+                    ign_buf = self._buffer("ignore", ignore.nbytes)
                     cl.enqueue_copy(rt.queue, ign_buf, ignore, is_blocking=False)
             # ign_buf None is a NULL pointer: no ray ignores a triangle. The kernels
             # ignore the work items past n.

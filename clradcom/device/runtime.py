@@ -63,6 +63,17 @@ VENDOR_NAMES = {
     "oclgrind": ("oclgrind",),
 }
 
+#: Oclgrind's builds (21.10, Debian's): OpenCL C's own builtins only (its interpreter runs
+#: neither llvm.cttz nor the AVX mask builtin: kernels/intersect.h), and unoptimised. Its
+#: optimised code is what it mishandles: its uninitialised-value check crashes on the
+#: shuffles with undefined lanes that LLVM makes of float3 code, and it evaluates a
+#: vector "not" of a comparison (xor <4 x i1> with true) as 1 and -2 instead of -1 and 0,
+#: which turned the watertight test's hits into misses. Unoptimised, always_inline is
+#: read as nothing: clang's always-inliner would leave llvm.experimental.noalias.scope.decl
+#: calls, which it cannot run either. docs/devices.md has the reproducers.
+SIMULATOR_BUILD_OPTIONS = ("-DCLR_NO_TARGET_BUILTINS=1", "-cl-opt-disable",
+                           "-Dalways_inline=")
+
 INSTALL_HINT = (
     "No OpenCL platform was found. clradcom needs one OpenCL device; the simplest is "
     "PoCL's CPU device from the package registry:\n"
@@ -119,7 +130,40 @@ def _cl():
         import pyopencl as cl
     except ImportError as exc:  # pragma: no cover - pyopencl is a hard dependency
         raise OpenCLError(f"pyopencl is not importable ({exc}). {INSTALL_HINT}") from exc
+    _ask_nvidia_only_where_answered()
     return cl
+
+
+_NV_QUERY_EXTENSION = "cl_nv_device_attribute_query"
+
+
+def _ask_nvidia_only_where_answered() -> None:
+    """Make pyopencl ask a device for NVIDIA's compute capability only where the device
+    offers that query (its ``cl_nv_device_attribute_query`` extension).
+
+    pyopencl asks every device for ``CL_DEVICE_COMPUTE_CAPABILITY_MAJOR_NV`` at each
+    program build (``Program.build``: does the driver cache builds itself?) and each
+    kernel object it makes (``Kernel``: an argument-size check for NVIDIA), and reads a
+    refusal as "not NVIDIA". An implementation without the extension must refuse
+    (CL_INVALID_VALUE), and Oclgrind's API check reports every refusal as an error. The
+    answer is pyopencl's own wherever the query is answered; elsewhere it is the None
+    that a refusal gives, without the refused call."""
+    import pyopencl.characterize as characterize
+
+    asks = characterize.nv_compute_capability
+    if getattr(asks, "clradcom_checks_extension", False):
+        return
+
+    def nv_compute_capability(dev):
+        try:
+            offered = _NV_QUERY_EXTENSION in dev.extensions
+        except Exception:  # noqa: BLE001 - as pyopencl's own: any failure is "not NVIDIA"
+            return None
+        return asks(dev) if offered else None
+
+    nv_compute_capability.clradcom_checks_extension = True
+    nv_compute_capability.__doc__ = asks.__doc__
+    characterize.nv_compute_capability = nv_compute_capability
 
 
 def _type_name(device) -> str:
@@ -338,7 +382,9 @@ def describe_cl_error(exc, device: str, what: str) -> str:
     kernel sbr_bounce (sbr.cl)"``) on ``device``: the status, the driver's words and what
     to try."""
     code = _error_code_name(exc)
-    words = " ".join(str(getattr(exc, "what", None) or exc).split())
+    # str() of a pyopencl error is "routine failed: STATUS - the driver's words"; its
+    # .what is a record object, whose repr is no message
+    words = " ".join(str(exc).split())
     hint = _HINTS.get(code, _DEFAULT_HINT)
     status = f"{code}: " if code and code not in words else ""
     return f"OpenCL {what} failed on {device}: {status}{words}; {hint}"
@@ -562,7 +608,7 @@ class Runtime:
             # (kernels/fp64.h)
             options += ("-cl-single-precision-constant",)
         if self.info.simulator:
-            options += ("-DCLR_NO_TARGET_BUILTINS=1",)
+            options += SIMULATOR_BUILD_OPTIONS
         try:
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always", cl.CompilerWarning)
@@ -593,9 +639,23 @@ class Runtime:
             return cl.Buffer(self.context, flags, hostbuf=array)
 
     def empty(self, nbytes: int):
+        """A read-write device buffer of ``nbytes`` (at least 1) for kernels to fill.
+
+        On Oclgrind it is written from the host first, all 0xFF bytes (NaN in every float
+        and double, -1 in every integer). Its uninitialised-value check (21.10) keeps a
+        released buffer's record of which bytes were written for the next buffer that
+        gets the same id, with the old buffer's size: a kernel's writes past that size are
+        lost to it, and their reads reported as uninitialised. A whole-buffer host write
+        gives the buffer a record of its own size; a kernel that reads what it never
+        wrote then reads NaN or -1, which the tests' comparison with the host shows."""
         cl = _cl()
-        with self.guard(f"allocation of {int(nbytes)} bytes"):
-            return cl.Buffer(self.context, cl.mem_flags.READ_WRITE, size=max(int(nbytes), 1))
+        size = max(int(nbytes), 1)
+        mf = cl.mem_flags
+        with self.guard(f"allocation of {size} bytes"):
+            if self.info.simulator:
+                return cl.Buffer(self.context, mf.READ_WRITE | mf.COPY_HOST_PTR,
+                                 hostbuf=np.full(size, 0xFF, dtype=np.uint8))
+            return cl.Buffer(self.context, mf.READ_WRITE, size=size)
 
 
 _default_runtimes: dict[tuple, Runtime] = {}
