@@ -42,8 +42,9 @@ typedef float3 real3;
 #endif
 #define CLRADCOM_REAL_DEFINED 1
 #include "em.h"
-#if PRECISE_MODE == 2
-/* sight lines re-decided in float64 where float32 calls them blocked */
+#if PRECISE_MODE >= 1
+/* sight lines re-decided in float64 (double, or double-float without fp64) where
+ * float32 calls them blocked; the float32 control build keeps float32's word */
 #include "scene64.h"
 #endif
 
@@ -587,18 +588,18 @@ __kernel void sbr_radiate(__global const Bvh8Node *nodes,
                           __global const pelem *tx_and_k,    /* tx position (3), wavenumber */
                           __global const int *near_first,    /* R+1: receiver r's near triangles */
                           __global const int *near_tri,
-#if PRECISE_MODE == 2
+#if PRECISE_MODE >= 1
                           /* scene64.h's face tables (tri_v, tri_n, tri_face are its
                            * vertices, normals and faces), for the float64 sight rounds */
                           __global const int *tri_face,
                           __global const uchar *seam,
                           __global const int *face_first,
                           __global const int *face_tris,
-                          __global const double *face_box,
+                          __global const pr_elem *face_box,
                           const int n_faces,
                           const int rescue_rounds,
-                          const double look_past,
-                          const double sight_hi,     /* 1 - SIGHT_STOP */
+                          const pr_elem look_past,
+                          const pr_elem sight_hi,    /* 1 - SIGHT_STOP */
 #endif
                           const real on_face_tol_rel,   /* visibility.py: ON_FACE_TOL_REL */
                           const real inside_tol_rel,    /* visibility.py: INSIDE_TOL_REL */
@@ -638,15 +639,16 @@ __kernel void sbr_radiate(__global const Bvh8Node *nodes,
     pvec sseg = pv_sub(rx, sorg);
     PreparedRay sr = prepare_ray(pv_float3(sorg), to_float3(pv_real(sseg)));
     if (bvh_any(nodes, tri4, slot_prim, &sr, 0.0f, sight_tmax, tri, -1)) {
-#if PRECISE_MODE == 2
+#if PRECISE_MODE >= 1
         /* visibility.py: blocked_in_float64, the facet skipped first */
         Scene64 s64;
         s64.vert = tri_v; s64.normal = tri_n; s64.tri_face = tri_face; s64.seam = seam;
         s64.face_first = face_first; s64.face_tris = face_tris; s64.face_box = face_box;
-        s64.n_faces = n_faces; s64.inside_tol = inside_tol_rel;
+        s64.n_faces = n_faces; s64.inside_tol = pr_from_float(inside_tol_rel);
         if (blocked_in_float64(nodes, tri4, slot_prim, &s64, &sr, sight_tmax,
-                               sorg.x, sorg.y, sorg.z, sseg.x, sseg.y, sseg.z, 0.0,
-                               sight_hi, tri, rescue_rounds, look_past))
+                               sorg.x, sorg.y, sorg.z, sseg.x, sseg.y, sseg.z,
+                               PR_CONST(0.0), pr_of(sight_hi), tri, rescue_rounds,
+                               pr_of(look_past)))
             return;
 #else
         return;

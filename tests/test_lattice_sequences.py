@@ -20,17 +20,6 @@ def _room():
     return np.concatenate([box.triangles, ball.triangles]).astype(np.float64)
 
 
-def refuses_without_fp64(method, *args) -> bool:
-    """Whether the device has fp64 for the exact keys (the rotation in double); without
-    it ``method`` must refuse by name (tracing then takes lattice_sequences and the host's
-    keys: clradcom.mechanisms.specular.prepare)."""
-    if method.__self__.runtime.has_double:
-        return True
-    with pytest.raises(ArgumentError, match="no fp64; use lattice_sequences"):
-        method(*args)
-    return False
-
-
 def test_lattice_sequences_are_the_host_rotated_rays_bit_for_bit(runtime):
     tris = _room()
     caster = RayCaster(tris, runtime=runtime)
@@ -78,8 +67,6 @@ def test_lattice_keys_are_the_host_keys_of_the_sequences(runtime):
     k = 5
     base = sp.key_base(int(tri_face.max()) + 1, k)
     seqs = caster.lattice_sequences(origin, local, rot, tri_face, k)
-    if not refuses_without_fp64(caster.lattice_keys, origin, local, rot, tri_face, k, base):
-        return
     keys = caster.lattice_keys(origin, local, rot, tri_face, k, base, batch=1234)
     np.testing.assert_array_equal(keys, sp.sequence_keys(seqs, base))
     repeats = (seqs[:, 1:] == seqs[:, :-1]) & (seqs[:, 1:] >= 0)
@@ -116,9 +103,6 @@ def test_lattice_key_set_is_the_distinct_keys_and_survives_a_full_table(runtime)
     rot = np.eye(3)
     origin = np.array([0.7, -0.4, 0.2])
     base = sp.key_base(int(tri_face.max()) + 1, 4)
-    if not refuses_without_fp64(caster.lattice_key_set, origin, local, rot, tri_face, 4,
-                                base):
-        return
     keys = caster.lattice_keys(origin, local, rot, tri_face, 4, base)
     want = np.unique(keys[keys > 0])
     assert len(want) > 200

@@ -7,6 +7,7 @@ uninitialised value fails these tests by its report."""
 
 from __future__ import annotations
 
+import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -28,9 +29,26 @@ SETTINGS = TraceSettings.preset("paper").replace(specular__rays=2000)
 NMSE_DB, NMSE_NO_FP64_DB = -60.0, -50.0
 
 
+#: Without fp64 the radar sits this far (m) off the dihedral's plane of symmetry: on it,
+#: a column of SBR tubes aims exactly at the crease, and which plate each hits is
+#: decided by the rounding of its float32 launch direction, which the no-fp64 build
+#: computes in float and the host in float64 (1 % of the double bounce's gain on the
+#: plane, -45 dB of channel; 1.3 mm off it, -144 dB).
+OFF_SYMMETRY_M = (0.0, 0.0013, 0.0007)
+
+
 @pytest.mark.parametrize("name", ["plate", "dihedral"])
 def test_device_and_host_agree(runtime, name):
-    dev, host = both(load_scene(CANONICAL / f"{name}.toml"), runtime, SETTINGS)
+    path = CANONICAL / f"{name}.toml"
+    if runtime.has_double:
+        scene = load_scene(path)
+    else:
+        with open(path, "rb") as fh:
+            data = tomllib.load(fh)
+        for radar in data["radars"]:
+            radar["position"] = list(np.add(radar["position"], OFF_SYMMETRY_M))
+        scene = scene_from_dict(data)
+    dev, host = both(scene, runtime, SETTINGS)
     limit = NMSE_DB if runtime.has_double else NMSE_NO_FP64_DB
     assert dev.links and len(dev.links) == len(host.links)
     for a, b in zip(dev.links, host.links, strict=True):
@@ -55,9 +73,7 @@ def test_edge_visibility_kernel_keeps_the_hosts_wedges(runtime):
     wedges = extract_wedges(scene.triangles, scene.tri_object, scene.tri_material)
     points = [[0.0, -1.0, 1.0], [6.0, 2.5, 1.5]]
     samples, depth = (0.5,), 1
-    # without fp64 the kernel may leave it to the host, which then must agree with itself
-    assert device_edges.usable(geom.caster, "device", len(samples), depth) \
-        or not runtime.has_double
+    assert device_edges.usable(geom.caster, "device", len(samples), depth)
     device = diffraction._seeing_many(geom.caster, wedges, points, samples,
                                       geom.faces.tri_face, depth, engine="device")
     for p, (d_sampled, d_kept) in zip(points, device, strict=True):

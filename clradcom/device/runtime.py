@@ -658,6 +658,22 @@ class Runtime:
             return cl.Buffer(self.context, mf.READ_WRITE, size=size)
 
 
+    def fill(self, buffer, value, nbytes: int, offset: int = 0):
+        """Set ``nbytes`` of ``buffer`` from ``offset`` to copies of the numpy scalar
+        ``value`` (clEnqueueFillBuffer), enqueued, not waited for. On Oclgrind by a host
+        copy instead: its uninitialised-value check (21.10) does not count what a fill
+        writes as written, and would report every later read of it."""
+        cl = _cl()
+        value = np.asarray(value)
+        with self.guard(f"fill of {int(nbytes)} bytes"):
+            if self.info.simulator:
+                host = np.full(int(nbytes) // value.itemsize, value, dtype=value.dtype)
+                return cl.enqueue_copy(self.queue, buffer, host, dst_offset=int(offset),
+                                       is_blocking=True)
+            return cl.enqueue_fill_buffer(self.queue, buffer, value, int(offset),
+                                          int(nbytes))
+
+
 _default_runtimes: dict[tuple, Runtime] = {}
 _default_lock = threading.Lock()
 

@@ -30,6 +30,7 @@ from clradcom.device.visibility import (
     SIGHT_STOP,
     confirm_margin_m,
     dot3_order,
+    face_boxes,
     scene64_args,
 )
 from clradcom.errors import ArgumentError
@@ -124,7 +125,8 @@ def _defines(max_bounces: int, precision: str) -> dict:
         out["CLRADCOM_NO_FP64"] = 1
     elif precision == CONTROL_PRECISION:
         out["CLRADCOM_PRECISE_FLOAT32"] = 1
-    else:
+    if precision != CONTROL_PRECISION:
+        # the float64 sight rounds (kernels/scene64.h) add as numpy does
         out["DOT3_ORDER"] = int(dot3_order() or 0)
     return out
 
@@ -340,12 +342,10 @@ class _Wavefront:
                       np.int32(n_fp), self.lit, name="sbr_illuminate (sbr.cl)")
 
     def _radiate(self, m: int, n_fp: int, n_blocks: int) -> int:
-        cl, queue, slots = self.cl, self.rt.queue, n_blocks * self.n_rx
-        with self.rt.guard("SBR contribution slots"):
-            cl.enqueue_fill_buffer(queue, self.contribution_footprint, np.int32(-1), 0,
-                                   slots * self.cells * 4)
-            cl.enqueue_fill_buffer(queue, self.group_tubes, np.int32(0), 0, slots * 4)
-            self._zero(self.n_groups)
+        slots = n_blocks * self.n_rx
+        self.rt.fill(self.contribution_footprint, np.int32(-1), slots * self.cells * 4)
+        self.rt.fill(self.group_tubes, np.int32(0), slots * 4)
+        self._zero(self.n_groups)
         self._run_bvh("sbr_radiate", n_fp * self.n_rx, *self.radiate_args, np.int32(m),
                       self.footprints, self.lit, np.int32(n_fp), self.contributions,
                       self.contribution_footprint, self.group_tubes, self.live_groups,
@@ -435,10 +435,16 @@ def shoot_and_radiate(caster: RayCaster, scene, tri_face, windows, tx_frame, rec
     radiate_args = [tri_v, tri_n, tri_material, materials[1], precise(receivers),
                     dev(np.asarray(rx_frames, np.float64).reshape(-1, 9), real), tx_and_k,
                     dev(near_first, np.int32), dev(near_tri, np.int32)]
-    if fp64:
-        # the face tables of the float64 sight rounds (kernels/scene64.h)
-        radiate_args += [*scene64_args(caster, tri_face)[2:8], np.int32(RESCUE_ROUNDS),
-                         np.float64(LOOK_PAST), np.float64(1.0 - SIGHT_STOP)]
+    if precision != CONTROL_PRECISION:
+        # the face tables of the float64 sight rounds (kernels/scene64.h): the faces'
+        # boxes and the two scalars as this build reads float64 (doubles, or pairs even
+        # on a runtime with fp64, when double-float is forced)
+        tables = scene64_args(caster, tri_face)
+        n_faces = int(tables[7])
+        box = face_boxes(caster.triangles, tri_face, n_faces)
+        radiate_args += [*tables[2:6], precise(box), np.int32(n_faces),
+                         np.int32(RESCUE_ROUNDS), _scalar64(LOOK_PAST, fp64),
+                         _scalar64(1.0 - SIGHT_STOP, fp64)]
     radiate_args += [real(ON_FACE_TOL_REL), real(INSIDE_TOL_REL), real(CONFIRM_TOL_M),
                      np.int32(n_rx), real(wavelength), np.float32(1.0 - SIGHT_STOP)]
     window_bufs = [dev(win_f, real), dev(win_i, np.int32), dev(blocks, np.int32)]
@@ -467,6 +473,17 @@ def shoot_and_radiate(caster: RayCaster, scene, tri_face, windows, tx_frame, rec
         else:
             out[name] = rec[name]
     return out
+
+
+def _scalar64(x: float, fp64: bool):
+    """A ``pr_elem`` kernel argument of a build in fp64 (a double) or double-float (a
+    float2 (hi, lo) pair), whatever the runtime's own mode."""
+    if fp64:
+        return np.float64(x)
+    from pyopencl import cltypes
+
+    hi, lo = split_pairs(float(x))
+    return cltypes.make_float2(hi, lo)
 
 
 def _in_host_order(rec: np.ndarray) -> np.ndarray:
