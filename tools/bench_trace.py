@@ -242,6 +242,14 @@ def bench_devices(args, runtimes) -> list[tuple]:
           f"{args.repeats} timed traces each")
     runs = compare_devices(scene, settings, runtimes, repeats=args.repeats,
                            progress=lambda m: print(f"  {m}", flush=True))
+    rows = []
+    for name, r in list(runs.items()):
+        if r.error:
+            print(f"  {name}: FAILED: {r.error}")
+            rows.append((scene.name, name, "error", r.error, ""))
+            del runs[name]
+    if not runs:
+        return rows
     med = {name: median_timing(r.runs) for name, r in runs.items()}
     ref = "pocl" if "pocl" in runs else next(iter(runs))
     names = list(runs)
@@ -261,7 +269,6 @@ def bench_devices(args, runtimes) -> list[tuple]:
     wf = Waveform(carrier_hz=scene.carrier_hz)
     nf = radar_noise(scene, argparse.Namespace(no_noise=False))
     a = scene.radar_index("A") if any(r.name == "A" for r in scene.radars) else None
-    rows = []
     for name in names:
         agree = channel_agreement_db(runs[name].snapshot, runs[ref].snapshot, wf)
         if name != ref:

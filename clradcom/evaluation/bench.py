@@ -152,9 +152,11 @@ class DeviceRuns:
     included), the timed runs and the last run's snapshot."""
 
     label: str
-    first: TraceTiming
+    first: TraceTiming | None
     runs: list[TraceTiming]
-    snapshot: Snapshot
+    snapshot: Snapshot | None
+    #: the one-line error of a device that could not trace (its runs are then empty)
+    error: str = ""
 
 
 def compare_devices(scene: Scene, settings: TraceSettings, runtimes: dict[str, Runtime], *,
@@ -163,7 +165,10 @@ def compare_devices(scene: Scene, settings: TraceSettings, runtimes: dict[str, R
     """The device engine on each of ``runtimes`` (name -> Runtime): one warm-up trace per
     device (its time kept: the first run's cost, builds and caches included), then the
     devices take turns ``repeats`` times, so a machine that gets busier or quieter weighs
-    on each alike."""
+    on each alike. A device whose warm-up fails with an OpenCL error is reported with it
+    (``DeviceRuns.error``) and left out of the turns; the others go on."""
+    from clradcom.device.runtime import OpenCLError
+
     if isinstance(repeats, bool) or not isinstance(repeats, int) or repeats < 1:
         raise ArgumentError("must be an integer >= 1", argument="repeats", value=repeats)
     if not runtimes:
@@ -173,10 +178,18 @@ def compare_devices(scene: Scene, settings: TraceSettings, runtimes: dict[str, R
     out: dict[str, DeviceRuns] = {}
     for name, rt in runtimes.items():
         say(f"warm-up trace on {name} ({rt.info.label})")
-        first, snap = time_trace(scene, settings, rt)
+        try:
+            first, snap = time_trace(scene, settings, rt)
+        except OpenCLError as exc:
+            say(f"{name} failed: {exc}")
+            out[name] = DeviceRuns(label=rt.info.label, first=None, runs=[], snapshot=None,
+                                   error=str(exc))
+            continue
         out[name] = DeviceRuns(label=rt.info.label, first=first, runs=[], snapshot=snap)
     for i in range(repeats):
         for name, rt in runtimes.items():
+            if out[name].error:
+                continue
             timing, snap = time_trace(scene, settings, rt)
             say(f"run {i + 1}/{repeats} on {name}: {timing.seconds:.2f} s, "
                 f"{timing.kernel_share:.0%} in kernels")
