@@ -258,14 +258,17 @@ def main(argv=None) -> int:
         return 1
     opencl_vendors(env, args.site / "opencl-vendors")
     py = [sys.executable]
-    code, devices = run_step("devices", py + ["-m", "clradcom", "devices"], env, out,
+    # -P: no working directory on sys.path, so the installed clradcom (whose kernels are
+    # package data) is imported, not the tree's own folder of that name
+    py_m = [sys.executable, "-P"]
+    code, devices = run_step("devices", py_m + ["-m", "clradcom", "devices"], env, out,
                              budget.for_step("devices"))
     if code != 0 or not re.search(rf"\]\s+{re.escape(args.device)}\s", devices):
         print(f"gpu_check: no {args.device} device is listed", file=sys.stderr)
         failed.append("devices")
     has_pocl = bool(re.search(r"\]\s+pocl\s", devices))
 
-    code, conf = run_step("conformance", py + [
+    code, conf = run_step("conformance", py_m + [
         "-m", "pytest", "-m", "conformance", "-q", "-p", "no:cacheprovider", "-x",
         "--device", args.device], env, out, budget.for_step("conformance"))
     if code != 0:
