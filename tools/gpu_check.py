@@ -268,9 +268,11 @@ def main(argv=None) -> int:
         failed.append("devices")
     has_pocl = bool(re.search(r"\]\s+pocl\s", devices))
 
+    # the tests import their helpers as tests.*: the tree after the installed package
+    test_env = dict(env, PYTHONPATH=os.pathsep.join([env["PYTHONPATH"], str(REPO)]))
     code, conf = run_step("conformance", py_m + [
         "-m", "pytest", "-m", "conformance", "-q", "-p", "no:cacheprovider", "-x",
-        "--device", args.device], env, out, budget.for_step("conformance"))
+        "--device", args.device], test_env, out, budget.for_step("conformance"))
     if code != 0:
         failed.append("conformance")
     summary = re.findall(r"^=*\s*(\d+ passed.*?)\s*=*$", conf, re.M)
