@@ -220,3 +220,20 @@ def test_a_stage_that_leaves_the_device_says_so_once_and_the_log_records_it():
     assert meta["engine.scattering.tiles"] == "host: the host engine"
     with pytest.raises(ValueError, match="must be one of"):
         engines.record("no.such.stage", "device")
+
+
+def test_a_compiler_that_ignores_line_markers_is_mapped_back_to_our_files():
+    """NVIDIA names the program's lines by its own count ("<kernel>:N"), Oclgrind
+    "input.cl:N": the message must still name the kernel file and line a reader opens."""
+    source = opencl.kernel_source("reflect.cl")
+    lines = source.splitlines()
+    raw = next(k for k, text in enumerate(lines, start=1)
+               if "BVH_STACK_SIZE must be passed" in text)
+    own = next(k for k, text in enumerate(
+        opencl.importlib.resources.files("clradcom.kernels").joinpath(
+            "intersect.h").read_text().splitlines(), start=1)
+        if "BVH_STACK_SIZE must be passed" in text)
+    for style in ("<kernel>", "input.cl"):
+        log = f"{style}:{raw}:2: error: \"BVH_STACK_SIZE must be passed as -D by the host\""
+        assert opencl.locate_log_lines(log, source).startswith(f"intersect.h:{own}:2: error")
+    assert opencl.locate_log_lines("broken.cl:3:1: error", source) == "broken.cl:3:1: error"

@@ -101,6 +101,9 @@ class DeviceInfo:
     vendor: str = ""
     max_work_group_size: int = 1
     int64_atomics: bool = False
+    #: float / and sqrt correctly rounded when built with
+    #: -cl-fp32-correctly-rounded-divide-sqrt (the builds then ask for it)
+    correctly_rounded_divide_sqrt: bool = False
 
     @property
     def spec(self) -> str:
@@ -240,6 +243,9 @@ def list_devices() -> list[DeviceInfo]:
                                                       f"{_query(device, 'vendor', '')}"),
                     max_work_group_size=int(_query(device, "max_work_group_size", 1)),
                     int64_atomics="cl_khr_int64_base_atomics" in extensions,
+                    correctly_rounded_divide_sqrt=bool(
+                        int(_query(device, "single_fp_config", 0))
+                        & int(cl.device_fp_config.CORRECTLY_ROUNDED_DIVIDE_SQRT)),
                 )
             )
     if not infos:
@@ -415,6 +421,40 @@ def _format_build_log(name: str, log: str, device: str = "", options=()) -> str:
     saved = f" (compiler log: {path})" if path else ""
     return (f"OpenCL build of kernels/{name} failed{where} at {head}{saved}; "
             f"{_DEFAULT_HINT}")
+
+
+#: build options that let a compiler reassociate floating-point arithmetic
+UNSAFE_MATH_OPTIONS = ("-cl-fast-relaxed-math", "-cl-unsafe-math-optimizations")
+
+#: how compilers that ignore #line name the program in their messages (NVIDIA:
+#: "<kernel>:4:10: error", Oclgrind: "input.cl:4:10: error")
+_UNNAMED_SOURCE = re.compile(r"(?:<kernel>|<source>|<stdin>|input\.cl):(\d+)")
+_LINE_MARKER = re.compile(r'^#line (\d+) "([^"]+)"$')
+
+
+def locate_log_lines(log: str, source: str) -> str:
+    """``log`` with the lines of the expanded ``source`` that a compiler names by its own
+    count (it ignored the #line markers of :func:`kernel_source`) named as ``file:line``
+    of the original file, as compilers that honour #line name them."""
+    if not _UNNAMED_SOURCE.search(log):
+        return log
+    where: list[tuple[str, int]] = []   # per line of source, 1-based: (file, line)
+    name, line = "source", 0
+    for text in source.splitlines():
+        m = _LINE_MARKER.match(text.strip())
+        where.append((name, line))
+        if m:
+            name, line = m.group(2), int(m.group(1)) - 1
+        line += 1
+
+    def rename(m: re.Match) -> str:
+        k = int(m.group(1))
+        if not 1 <= k <= len(where):
+            return m.group(0)
+        file, at = where[k - 1]
+        return f"{file}:{at}"
+
+    return _UNNAMED_SOURCE.sub(rename, log)
 
 
 def _fp64_wanted(fp64: bool | None) -> bool:
@@ -609,6 +649,17 @@ class Runtime:
             options += ("-cl-single-precision-constant",)
         if self.info.simulator:
             options += SIMULATOR_BUILD_OPTIONS
+        if self.info.correctly_rounded_divide_sqrt:
+            # IEEE float / and sqrt (NVIDIA's default is 2.5 and 3 ulp): the kernels then
+            # divide alike on every device, and precise.h's double-float keeps its bounds
+            options += ("-cl-fp32-correctly-rounded-divide-sqrt",)
+        unsafe = [o for o in options if o in UNSAFE_MATH_OPTIONS]
+        if unsafe and ("-DCLRADCOM_NO_FP64=1" in options or not self.info.has_double):
+            # not every compiler defines __FAST_RELAXED_MATH__ for precise.h to refuse
+            raise OpenCLError(
+                f"OpenCL build of kernels/{name} refused: the double-float arithmetic of "
+                f"the no-fp64 mode needs IEEE rounding, and {' '.join(unsafe)} "
+                "(fast-relaxed-math or unsafe math) lets the compiler reassociate it away")
         try:
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always", cl.CompilerWarning)
@@ -622,6 +673,7 @@ class Runtime:
         except cl.RuntimeError as exc:
             log = getattr(exc, "build_log", None)
             text = str(exc) if not log else "\n".join(str(x[1]) for x in log)
+            text = locate_log_lines(text, source)
             raise OpenCLError(_format_build_log(name, text, self.info.label, options)) \
                 from None
         except cl.Error as exc:
