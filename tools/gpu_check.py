@@ -271,7 +271,7 @@ def main(argv=None) -> int:
     # the tests import their helpers as tests.*: the tree after the installed package
     test_env = dict(env, PYTHONPATH=os.pathsep.join([env["PYTHONPATH"], str(REPO)]))
     code, conf = run_step("conformance", py_m + [
-        "-m", "pytest", "-m", "conformance", "-q", "-p", "no:cacheprovider", "-x",
+        "-m", "pytest", "-m", "conformance", "-q", "-p", "no:cacheprovider", "-rf",
         "--device", args.device], test_env, out, budget.for_step("conformance"))
     if code != 0:
         failed.append("conformance")
