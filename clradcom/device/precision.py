@@ -169,10 +169,8 @@ def _points(name: str, value, ndim: int, shape_text: str) -> np.ndarray:
     return arr
 
 
-def precise_ops(a, b, mode: str = "auto", runtime: Runtime | None = None) -> dict:
-    """Scalar ``preal`` operations on the device, element by element over float64 arrays
-    ``a`` and ``b`` (split into pairs first): a dict of float64 arrays "add", "sub",
-    "mul", "div", "sqrt" (of |a|), "add_f" and "mul_f" (b rounded to float32)."""
+def _operands(a, b) -> tuple[np.ndarray, np.ndarray]:
+    """Two flat float64 arrays of one shape, finite, for the element-wise probes."""
     a = np.asarray(a, dtype=np.float64).ravel()
     b = np.asarray(b, dtype=np.float64).ravel()
     if a.shape != b.shape:
@@ -180,6 +178,14 @@ def precise_ops(a, b, mode: str = "auto", runtime: Runtime | None = None) -> dic
                             value=b.shape)
     _finite("a", a)
     _finite("b", b)
+    return a, b
+
+
+def precise_ops(a, b, mode: str = "auto", runtime: Runtime | None = None) -> dict:
+    """Scalar ``preal`` operations on the device, element by element over float64 arrays
+    ``a`` and ``b`` (split into pairs first): a dict of float64 arrays "add", "sub",
+    "mul", "div", "sqrt" (of |a|), "add_f" and "mul_f" (b rounded to float32)."""
+    a, b = _operands(a, b)
     rt = _runtime(runtime)
     n = len(a)
     out = _run(rt, mode, "precise_ops", n, [split_pairs(a), split_pairs(b)], (),
@@ -194,13 +200,7 @@ def precise_decisions(a, b, mode: str = "auto", runtime: Runtime | None = None) 
     float64 arrays ``a`` and ``b`` (split into pairs first): a dict of "lt" and "le"
     (bool: a < b, a <= b), "fmax", "fmin", "floor" (of a) as float64, and "phase" (a
     less its whole turns, as a float: ``pr_phase_reduced``)."""
-    a = np.asarray(a, dtype=np.float64).ravel()
-    b = np.asarray(b, dtype=np.float64).ravel()
-    if a.shape != b.shape:
-        raise ArgumentError(f"must have the shape of a {a.shape}", argument="b",
-                            value=b.shape)
-    _finite("a", a)
-    _finite("b", b)
+    a, b = _operands(a, b)
     rt = _runtime(runtime)
     n = len(a)
     out = _run(rt, mode, "precise_decisions", n, [split_pairs(a), split_pairs(b)], (),
