@@ -1,7 +1,8 @@
 """The device matrix's helpers: reading Oclgrind's reports (tests/conftest.py fails a
 test by them on Oclgrind; tests/test_device_matrix.py reads a whole run's), and running
-an implementation's test subset in a subprocess, in the background while the rest of
-the suite runs."""
+an entry's test subset in a subprocess, in the background while the rest of the suite
+runs. An entry is an implementation (``pocl``, ``intel``, ``oclgrind``), or one run as a
+device without fp64 (``pocl-fp64-off``: ``--fp64=off``)."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from clradcom.device.runtime import ENV_DEVICE
+from clradcom.device.runtime import ENV_DEVICE, ENV_FP64
 
 #: The first line of every report Oclgrind prints: an OpenCL API error, a fatal error, or
 #: a kernel's error or warning (memory, data race, uninitialised value), whose second line
@@ -47,6 +48,19 @@ OCLGRIND_CHECKS = {"OCLGRIND_CHECK_API": "1", "OCLGRIND_DATA_RACES": "1",
                    "OCLGRIND_UNINITIALIZED": "1"}
 #: one subprocess's wall-clock limit: several times what it takes on CI's two busy cores
 SUBPROCESS_TIMEOUT_S = 1800
+#: an entry's name for its implementation run as a device without fp64
+NO_FP64_SUFFIX = "-fp64-off"
+#: the implementations the matrix also runs without fp64 (--fp64=off): PoCL, as some
+#: mobile and integrated GPUs would run the kernels (tests/mode_helpers.py: the no-fp64
+#: build's contract the conformance tests hold it to)
+NO_FP64_DEVICES = ("pocl",)
+
+
+def entry_device(name: str) -> tuple[str, bool]:
+    """(implementation, without fp64) of the matrix entry ``name``."""
+    if name.endswith(NO_FP64_SUFFIX):
+        return name[:-len(NO_FP64_SUFFIX)], True
+    return name, False
 
 
 @dataclass
@@ -62,13 +76,19 @@ class SubsetRun:
 
 
 def subset_command(name: str) -> tuple[list[str], dict[str, str]]:
-    """The command and environment that run ``name``'s subset: ``-m conformance``, on
-    Oclgrind ``-m oclgrind`` with all its checks on."""
-    marker = "oclgrind" if name == "oclgrind" else "conformance"
-    env = dict(os.environ, **{ENV_DEVICE: name})
-    if name == "oclgrind":
+    """The command and environment that run entry ``name``'s subset: ``-m conformance``,
+    on Oclgrind ``-m oclgrind`` with all its checks on; ``--fp64=off`` for an entry
+    without fp64."""
+    device, no_fp64 = entry_device(name)
+    marker = "oclgrind" if device == "oclgrind" else "conformance"
+    env = dict(os.environ, **{ENV_DEVICE: device})
+    if device == "oclgrind":
         env.update(OCLGRIND_CHECKS)
-    cmd = [sys.executable, "-m", "pytest", "-m", marker, "--device", name,
+    mode = []
+    if no_fp64:
+        env[ENV_FP64] = "0"
+        mode = ["--fp64=off"]
+    cmd = [sys.executable, "-m", "pytest", "-m", marker, "--device", device, *mode,
            "-p", "no:cacheprovider", "-q", "-rfE", str(ROOT / "tests")]
     return cmd, env
 

@@ -2,8 +2,10 @@
 besides the one this suite runs on runs the kernel tests in a subprocess of its own
 (``pytest -m conformance --device NAME``), Oclgrind its ``oclgrind`` subset with all its
 checks on (memory, data races, uninitialised values, API use: any report fails the
-test that caused it, tests/conftest.py); and the street's main job gives the same Table
-III detections and every link's channel within -60 dB NMSE of PoCL's on each of them.
+test that caused it, tests/conftest.py), and PoCL runs them once more as a device
+without fp64 (``--fp64=off``: entry ``pocl-fp64-off``); and the street's main job gives
+the same Table III detections and every link's channel within -60 dB NMSE of PoCL's on
+each of them.
 
 ``CLRADCOM_REQUIRE_DEVICES=pocl,intel,oclgrind`` (CI sets it) makes a named
 implementation that is missing a failure; without it the matrix is what is present.
@@ -18,7 +20,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from device_helpers import SUBPROCESS_TIMEOUT_S, oclgrind_reports, subset_run
+from device_helpers import (
+    NO_FP64_DEVICES,
+    NO_FP64_SUFFIX,
+    SUBPROCESS_TIMEOUT_S,
+    entry_device,
+    oclgrind_reports,
+    subset_run,
+)
 
 from clradcom.commands.options import run_waveform
 from clradcom.commands.trace import build_parser, radar_noise, settings_from_args
@@ -51,9 +60,14 @@ def _required() -> list[str]:
 
 PRESENT = sorted({info.vendor for info in list_devices() if info.vendor in VENDOR_NAMES})
 OWN = choose_device().vendor
+#: this suite's own entry: its implementation, without fp64 where it runs so
+OWN_ENTRY = OWN if get_runtime().has_double else OWN + NO_FP64_SUFFIX
 REQUIRED = _required()
-#: the implementations this suite's device is not, and any required one (absent: fails)
-OTHERS = sorted((set(PRESENT) | set(REQUIRED)) - {OWN})
+#: the implementations this suite's device is not, and any required one (absent: fails);
+#: then those run without fp64 (PoCL), unless this suite is that run
+OTHERS = sorted((set(PRESENT) | set(REQUIRED)) - {OWN}) + [
+    name + NO_FP64_SUFFIX for name in NO_FP64_DEVICES
+    if name + NO_FP64_SUFFIX != OWN_ENTRY and (name in PRESENT or name in REQUIRED)]
 #: where the street's main job runs besides PoCL: Oclgrind would take days
 STREET_DEVICES = sorted((set(PRESENT) | set(REQUIRED)) - {"pocl", "oclgrind"})
 
@@ -74,10 +88,10 @@ def _failures(output: str) -> str:
 
 @pytest.mark.parametrize("name", OTHERS)
 def test_kernel_tests_pass_on(name):
-    """The conformance subset on implementation ``name`` (on Oclgrind: the oclgrind subset,
-    with every check on), in a subprocess (started at collection: tests/conftest.py);
-    fails with the subprocess's failures."""
-    _present(name)
+    """The conformance subset on entry ``name`` (on Oclgrind: the oclgrind subset, with
+    every check on; ``pocl-fp64-off``: PoCL as a device without fp64), in a subprocess
+    (started at collection: tests/conftest.py); fails with the subprocess's failures."""
+    _present(entry_device(name)[0])
     run = subset_run(name)
     cmd = " ".join(run.cmd)
     if run.returncode is None:

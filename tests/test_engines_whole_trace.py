@@ -1,6 +1,7 @@
 """The whole trace, device engine against the host reference (issue #16): on every
 canonical scene, the extra scenes and the paper's street, every link's channel at the
-radar's 1024 subcarriers agrees within -60 dB NMSE, with the same number of paths."""
+radar's 1024 subcarriers agrees within -60 dB NMSE, with the same number of paths; without
+fp64 too, the scenes on a knife edge moved just off it (tests/mode_helpers.py)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from mode_helpers import scene_in_mode
 
 from clradcom.scene import load_scene
 from clradcom.trace import TraceSettings, trace_scene
@@ -42,7 +44,10 @@ def both(scene, runtime, settings):
 
 @pytest.mark.parametrize("path", SCENES, ids=[p.stem for p in SCENES])
 def test_device_and_host_agree_on_every_link(runtime, path):
-    scene = load_scene(path)
+    # without fp64 the scenes on a knife edge (a radar on a corner's axis of symmetry, a
+    # ground bounce at the pole of a sector pattern) are traced just off it: that the
+    # double-float build decides those by its own rounding is no disagreement
+    scene = scene_in_mode(path, runtime)
     dev, host = both(scene, runtime, SETTINGS)
     for a, b in zip(dev.links, host.links, strict=True):
         assert a.paths.n_paths == b.paths.n_paths, a.label

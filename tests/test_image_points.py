@@ -1,11 +1,13 @@
 """The image method on the device (kernels/images.cl) against the host's numpy
-reference (clradcom.mechanisms.specular.image_points): the same points bit for bit, the
-same path mask and the same warnings."""
+reference (clradcom.mechanisms.specular.image_points): the same points bit for bit (in
+double-float without fp64: the paths' points within tests/mode_helpers.py's
+POINT_TOL_REL), the same path mask and the same warnings."""
 
 import warnings
 
 import numpy as np
 import pytest
+from mode_helpers import assert_points
 
 from clradcom.device import engines
 from clradcom.device import images as device_images
@@ -33,9 +35,16 @@ def test_device_image_points_are_the_hosts_bit_for_bit(runtime, k):
         want_pts, want_ok = image_points(tx, rx, normals, offsets, seqs)
         got_pts, got_ok = image_points(tx, rx, normals, offsets, seqs, runtime=runtime)
     np.testing.assert_array_equal(got_ok, want_ok)
-    np.testing.assert_array_equal(got_pts, want_pts)   # NaN-free: every step goes on
+    if runtime.has_double:
+        np.testing.assert_array_equal(got_pts, want_pts)   # NaN-free: every step goes on
+    else:
+        # double-float: the paths' points within POINT_TOL_REL (1 + |p|) of the host's; a
+        # candidate that is no path may be as ill-conditioned as its random planes make
+        # it (16 random mirrors: images metres apart), its points are never used
+        assert_points(runtime, got_pts[want_ok], want_pts[want_ok])
+        assert np.isfinite(got_pts).all()
     # random planes: some candidates are paths, some are not (at 16 random reflections
-    # none is; the points must still agree)
+    # none is; with fp64 the points must still agree)
     assert want_ok.sum() < len(seqs) and (k > 5 or want_ok.sum() > 0)
 
 

@@ -14,6 +14,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from clradcom.device import visibility
+from clradcom.device.precision import kernel_float64
 from clradcom.device.raycast import KERNEL_DEFINES, InstancedCaster, RayCaster, make_rays
 from clradcom.errors import ArgumentError
 from clradcom.geometry.instances import (
@@ -27,6 +28,7 @@ from clradcom.geometry.instances import (
     world_tri4,
 )
 from clradcom.geometry.layout import LEAF_GROUP_BITS
+from clradcom.geometry.triangles import triangle_normals
 from clradcom.mechanisms.common import GeometryCache, build_geometry
 from clradcom.physics.em import C0
 from clradcom.scene.motion import scene_at
@@ -304,32 +306,40 @@ def test_cache_places_instead_of_rebuilding(runtime, placement):
     np.testing.assert_array_equal(g.faces.offset, full.faces.offset)
     np.testing.assert_array_equal(g.caster.triangles, full.caster.triangles)
     np.testing.assert_array_equal(g.caster.normals64(), full.caster.normals64())
-    # the float64 device copy follows the moved parts
-    if runtime.info.has_double:
-        got = np.empty_like(g.caster.triangles)
-        cl.enqueue_copy(runtime.queue, got, g.caster.scene_data64()["vertices"])
-        g2 = cache.at(0.8)
-        cl.enqueue_copy(runtime.queue, got, g2.caster.scene_data64()["vertices"])
-        np.testing.assert_array_equal(got, scene_at(scene, 0.8).triangles)
-        # so do the faces' boxes the visibility kernels cut by (and their float64 copy)
-        g = cache.at(0.0)
-        visibility.scene64_args(g.caster, g.faces.tri_face)
-        g = cache.at(0.6)
-        args = visibility.scene64_args(g.caster, g.faces.tri_face)
-        box = np.empty((g.faces.n_faces, 6))
-        cl.enqueue_copy(runtime.queue, box, args[6])
-        want = visibility.face_tables(scene_at(scene, 0.6).triangles, g.faces.tri_face)
-        np.testing.assert_array_equal(box, want["face_box"])
-        assert args[0] is g.caster.scene_data64()["vertices"]
-        # and antenna_blocked's shortlist of triangles near an antenna
-        # (a corner of a moving triangle at 0.2 s, far from it at 0.6 s)
-        ant = scene_at(scene, 0.2).triangles[-1].min(axis=0)
-        assert len(visibility._boxes_near(g.caster, ant, 1e-3)) == 0
-        g = cache.at(0.2)
-        lo, hi = g.caster.triangle_bounds()
-        want = np.flatnonzero(np.all((ant >= lo - 1e-3) & (ant <= hi + 1e-3), axis=1))
-        assert len(want)
-        np.testing.assert_array_equal(visibility._boxes_near(g.caster, ant, 1e-3), want)
+    # the float64 device copy follows the moved parts, in the bytes the kernels read:
+    # doubles, or (hi, lo) pairs without fp64 (kernel_float64)
+    def on_device(buf, values):
+        got = np.empty_like(kernel_float64(runtime, values))
+        cl.enqueue_copy(runtime.queue, got, buf, is_blocking=True)
+        return got
+
+    g.caster.scene_data64()   # made at 0.4 s, then rewritten in place by the step to 0.8 s
+    g2 = cache.at(0.8)
+    want = scene_at(scene, 0.8)
+    np.testing.assert_array_equal(on_device(g2.caster.scene_data64()["vertices"],
+                                            want.triangles),
+                                  kernel_float64(runtime, want.triangles))
+    np.testing.assert_array_equal(on_device(g2.caster.scene_data64()["normals"],
+                                            g2.caster.normals64()),
+                                  kernel_float64(runtime, triangle_normals(want.triangles)))
+    # so do the faces' boxes the visibility kernels cut by (and their float64 copy)
+    g = cache.at(0.0)
+    visibility.scene64_args(g.caster, g.faces.tri_face)
+    g = cache.at(0.6)
+    args = visibility.scene64_args(g.caster, g.faces.tri_face)
+    want = visibility.face_tables(scene_at(scene, 0.6).triangles, g.faces.tri_face)
+    np.testing.assert_array_equal(on_device(args[6], want["face_box"]),
+                                  kernel_float64(runtime, want["face_box"]))
+    assert args[0] is g.caster.scene_data64()["vertices"]
+    # and antenna_blocked's shortlist of triangles near an antenna
+    # (a corner of a moving triangle at 0.2 s, far from it at 0.6 s)
+    ant = scene_at(scene, 0.2).triangles[-1].min(axis=0)
+    assert len(visibility._boxes_near(g.caster, ant, 1e-3)) == 0
+    g = cache.at(0.2)
+    lo, hi = g.caster.triangle_bounds()
+    want = np.flatnonzero(np.all((ant >= lo - 1e-3) & (ant <= hi + 1e-3), axis=1))
+    assert len(want)
+    np.testing.assert_array_equal(visibility._boxes_near(g.caster, ant, 1e-3), want)
     # a still scene gets one plain caster
     still = scene_from_dict({**spinner_doc(), "objects": spinner_doc()["objects"][:2]})
     sc = GeometryCache(still, runtime)

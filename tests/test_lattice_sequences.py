@@ -1,15 +1,25 @@
 """Specular face sequences of a launch lattice rotated on the device
-(RayCaster.lattice_sequences) against the host-rotated directions' sequences."""
+(RayCaster.lattice_sequences) against the host-rotated directions' sequences; their keys'
+set gathered on the device, and on the host where the device has no 64-bit atomics."""
+
+import dataclasses
+import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
 import trimesh
 
 from clradcom.device.raycast import RayCaster
-from clradcom.errors import ArgumentError
+from clradcom.device.runtime import Runtime
+from clradcom.errors import ArgumentError, DeviceFallbackWarning
 from clradcom.mechanisms import specular as sp
 from clradcom.mechanisms.specular import fibonacci_sphere
 from clradcom.physics.vectors import orthonormal_frame
+from clradcom.scene import load_scene
+from clradcom.trace import DiffractionSettings, SpecularSettings, TraceSettings, trace_scene
+
+GOLDEN = Path(__file__).resolve().parent / "data" / "all_mechanisms.toml"
 
 
 def _room():
@@ -119,3 +129,61 @@ def test_lattice_key_set_is_the_distinct_keys_and_survives_a_full_table(runtime)
     assert len(told) == 1 and "2^6 slots filled up" in told[0]
     with pytest.raises(ArgumentError, match="table_bits"):
         caster.lattice_key_set(origin, local, rot, tri_face, 4, base, table_bits=40)
+
+
+# ---------------------------------------------------------------------------
+# a device without 64-bit atomics (cl_khr_int64_base_atomics)
+
+def without_int64_atomics(runtime) -> Runtime:
+    """A fresh runtime on the session's device, in its fp64 mode, whose info says the
+    device has no 64-bit atomics: what the code reads to choose the key set's engine."""
+    info = runtime.info
+    fresh = Runtime(f"{info.platform_index}:{info.device_index}", fp64=runtime.has_double)
+    fresh.info = dataclasses.replace(fresh.info, int64_atomics=False)
+    return fresh
+
+
+def test_key_set_without_64_bit_atomics_is_gathered_on_the_host(runtime):
+    """Without the atomics the set is not gathered on the device: every ray's key comes
+    back, the host de-duplicates them and says why; the result is the device's set (or,
+    on a device that lacks the atomics itself, the distinct keys)."""
+    tris = _room()
+    tri_face = np.arange(len(tris), dtype=np.int32) // 2
+    local, rot, origin = fibonacci_sphere(20000), np.eye(3), np.array([0.7, -0.4, 0.2])
+    base = sp.key_base(int(tri_face.max()) + 1, 4)
+    plain = RayCaster(tris, runtime=without_int64_atomics(runtime))
+    told = []
+    got = plain.lattice_key_set(origin, local, rot, tri_face, 4, base, on_host=told.append)
+    assert told == [plain.key_set_refusal()] and "64-bit atomics" in told[0]
+    caster = RayCaster(tris, runtime=runtime)
+    keys = caster.lattice_keys(origin, local, rot, tri_face, 4, base)
+    np.testing.assert_array_equal(got, np.unique(keys[keys > 0]))
+    if runtime.info.int64_atomics:
+        np.testing.assert_array_equal(
+            got, caster.lattice_key_set(origin, local, rot, tri_face, 4, base))
+    assert len(got) > 200
+
+
+def test_trace_without_64_bit_atomics_says_so_and_finds_the_same_paths(runtime):
+    """The golden scene's specular paths traced on a device without 64-bit atomics: the
+    candidates' stage is recorded as left to the host with the reason, said once, and
+    the snapshot is the one the device's own key set gives, bit for bit."""
+    scene = load_scene(GOLDEN)
+    settings = TraceSettings(specular=SpecularSettings(max_reflections=3, rays=20_000),
+                             diffraction=DiffractionSettings(max_diffractions=0))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        got = trace_scene(scene, settings, runtime=without_int64_atomics(runtime))
+    said = [w for w in caught if issubclass(w.category, DeviceFallbackWarning)
+            and "specular.candidates" in str(w.message)]
+    assert len(said) == 1 and "64-bit atomics" in str(said[0].message)
+    assert "64-bit atomics" in got.metadata["engine.specular.candidates"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")   # the scene's expected physics warnings
+        want = trace_scene(scene, settings, runtime=runtime)
+    assert [lk.label for lk in got] == [lk.label for lk in want]
+    for a, b in zip(got.links, want.links, strict=True):
+        assert a.paths.n_paths == b.paths.n_paths > 0, a.label
+        for name in ("gain", "delay_s", "points", "face_id", "interaction"):
+            np.testing.assert_array_equal(getattr(a.paths, name), getattr(b.paths, name),
+                                          err_msg=f"{a.label} {name}")

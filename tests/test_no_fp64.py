@@ -5,11 +5,14 @@ double-float), forced on PoCL and on Intel's runtime where it is installed (the
 and the street's main job without fp64 against the fp64 run: every stage on the device,
 the same Table III detections, every link's channel within -50 dB NMSE.
 
-Tolerances: double-float carries ~1e-14 of a value, so a point or a length is the
-host's to 1e-12 (1 + |p|) m (1e-9 m at 1 km: 3e-7 of a wavelength at 77 GHz); a
-decision (inside a face, blocked, on the lit side) is the host's except where the
-float64 quantity it tests lies within ~1e-13 (1 + |p|) of its threshold, where float64
-decides by its own rounding; the fields without fp64 are float (~1e-6 relative).
+Tolerances (tests/mode_helpers.py, shared with the conformance tests, which hold the
+same contract when the session runs without fp64: ``--fp64=off``): double-float carries
+~1e-14 of a value, so a point or a length is the host's to POINT_TOL_REL = 1e-12
+(1 + |p|) m (1e-9 m at 1 km: 3e-7 of a wavelength at 77 GHz); a decision (inside a
+face, blocked, on the lit side) is the host's except where the float64 quantity it
+tests lies within DECISION_TOL_REL = 1e-13 (1 + |p|) of its threshold, where float64
+decides by its own rounding; the fields without fp64 are float (FIELD_TOL_REL = 1e-5 of
+the strongest).
 """
 
 from __future__ import annotations
@@ -26,6 +29,14 @@ import test_lattice_sequences as lattice_tests
 import test_sbr_windows as window_tests
 import test_scatter_device as scatter_tests
 import test_visibility_device as vis_tests
+from mode_helpers import (
+    DECISION_TOL_REL,
+    FIELD_TOL_REL,
+    NO_FP64_NMSE_DB,
+    POINT_TOL_REL,
+    face_margins,
+    segment_margins,
+)
 from test_visibility_device import edge_points, wall_and_floor
 
 from clradcom.device import engines
@@ -35,15 +46,13 @@ from clradcom.device.precision import host_float64
 from clradcom.device.raycast import RayCaster, make_rays, spawn_origins
 from clradcom.device.runtime import OpenCLError, get_runtime, kernel_source
 from clradcom.device.visibility import (
-    INSIDE_TOL_REL,
     SIGHT_STOP,
     confirm_slack,
-    edge_distances,
     reaches_face,
     segments_clear,
 )
 from clradcom.errors import DeviceFallbackWarning, SurfaceContactWarning
-from clradcom.geometry.triangles import triangle_normals, triangle_normals_and_double_areas
+from clradcom.geometry.triangles import triangle_normals_and_double_areas
 from clradcom.geometry.wedges import extract_wedges
 from clradcom.mechanisms import diffraction, sbr, scattering
 from clradcom.mechanisms.common import build_geometry
@@ -58,14 +67,8 @@ from clradcom.trace import trace_scene
 
 ROOT = Path(__file__).resolve().parent.parent
 STREET = ROOT / "scenes" / "street" / "street.toml"
-#: a point or length against the host's float64: metres per metre of 1 + |p|
-POINT_TOL_REL = 1e-12
-#: a decision may differ from the host's where its float64 quantity (a distance from a
-#: rim or a seam's tolerance, a crossing's parameter from the segment's ends; times the
-#: crossing's |cos| for a segment) lies within this of its threshold, relative to 1 + |p|
-DECISION_TOL_REL = 1e-13
 #: the issue's bound for the street's channels, no-fp64 against fp64
-STREET_NMSE_DB = -50.0
+STREET_NMSE_DB = NO_FP64_NMSE_DB
 
 
 def test_no_fp64_mode_is_what_the_kernels_see(no_fp64):
@@ -116,35 +119,6 @@ def test_edge_function_ties_resolve_as_with_fp64(no_fp64):
 # ---------------------------------------------------------------------------
 # visibility (kernels/visibility.cl, scene64.h)
 
-def segment_margins(triangles, start, end, tmin, tmax):
-    """(S,) how close each segment's float64 decisions come to their thresholds: over
-    every triangle whose plane it crosses in [tmin, tmax] (widened), the least of the
-    crossing's edge distances from 0 and from the seam tolerance and of the crossing's
-    distance along the segment from its ends, times |cos| of the crossing, relative to
-    1 + |crossing|."""
-    S = len(start)
-    n = triangle_normals(triangles)
-    g = end - start
-    L = np.linalg.norm(g, axis=1)
-    tmin, tmax = np.broadcast_to(tmin, (S,)), np.broadcast_to(tmax, (S,))
-    out = np.full(S, np.inf)
-    for k in range(len(triangles)):
-        den = g @ n[k]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = ((triangles[k, 0] - start) @ n[k]) / den
-            cos = np.abs(den) / L
-            x = start + t[:, None] * g
-            scale = 1.0 + np.abs(x).max(axis=1)
-            d = edge_distances(x, np.broadcast_to(triangles[k], (S, 3, 3)))
-            seam = -INSIDE_TOL_REL * scale
-            m = np.minimum(np.abs(d).min(axis=1), np.abs(d - seam[:, None]).min(axis=1))
-            m = np.minimum(m, np.minimum(np.abs(t - tmin), np.abs(t - tmax)) * L / cos)
-            m = m * cos / scale
-        near = np.isfinite(t) & (t > tmin - 1e-6) & (t < tmax + 1e-6)
-        out[near] = np.minimum(out[near], m[near])
-    return out
-
-
 @pytest.mark.parametrize("offset", [0.0, 1000.0])
 def test_segments_decide_as_float64_but_at_their_thresholds(no_fp64, offset):
     """tests/test_visibility_device.py's segments past edges, seams and rims (at 0 and
@@ -194,13 +168,8 @@ def test_reaching_a_face_decides_as_float64_but_at_its_rims(no_fp64, offset):
     host = reaches_face(caster, tri_face, start, end, tri_face[t], slack, engine="host")
     dev = reaches_face(caster, tri_face, start, end, tri_face[t], slack)
     bad = np.flatnonzero(host != dev)
-    own = tri_face[t[bad]]
-    for i, f in zip(bad, own, strict=True):   # the end's distances within its face
-        cand = np.flatnonzero(tri_face == f)
-        dist = edge_distances(np.broadcast_to(end[i], (len(cand), 3)), triangles[cand])
-        seam = -INSIDE_TOL_REL * (1.0 + np.abs(end[i]).max())
-        m = np.minimum(np.abs(dist), np.abs(dist - seam)).min() / (1.0 + np.abs(end[i]).max())
-        assert m <= DECISION_TOL_REL, (i, m)
+    margin = face_margins(triangles, tri_face, end[bad], tri_face[t[bad]])
+    assert (margin <= DECISION_TOL_REL).all(), margin.max()
     assert len(bad) < 0.01 * len(end) and (host >= 0).sum() > 100
 
 
@@ -333,8 +302,8 @@ def test_tile_centres_without_fp64(no_fp64):
 
 def test_tile_sight_flags_and_power_without_fp64(no_fp64):
     """tests/test_scatter_device.py's wall: the sight flags of the host's float32 casts,
-    the centres within rounding, the Lambertian power (float) within 1e-5 of its closed
-    form."""
+    the centres within rounding, the Lambertian power (float) within FIELD_TOL_REL of its
+    closed form."""
     sc = scatter_tests.wall_scene()
     geom = build_geometry(sc, no_fp64)
     sel, tris, nrm_t, tile_area, S, n = scatter_tests.triangle_inputs(sc, 0.4)
@@ -366,34 +335,24 @@ def test_tile_sight_flags_and_power_without_fp64(no_fp64):
              * -np.einsum("pi,pi->p", dt, nrm[both]) / ri
              * np.einsum("pi,pi->p", dr, nrm[both]) / rs
              / (16 * np.pi ** 3 * ri ** 2 * rs ** 2))
-    np.testing.assert_allclose(got.power, power, rtol=1e-5)
+    np.testing.assert_allclose(got.power, power, rtol=FIELD_TOL_REL)
 
 
 @pytest.mark.parametrize("max_reflections", [0, 1])
 def test_scattering_paths_within_rounding(no_fp64, max_reflections):
     """The wall scene's scattering paths (direct ones with their fields from tile_fields,
-    in float without fp64): the host's paths, points within POINT_TOL_REL, delays within
-    1e-18 s (0.3 nm), gains within 1e-5 of the strongest, Doppler within 0.01 Hz, the
-    channel at the radar's subcarriers within -80 dB NMSE."""
+    in float without fp64): tests/test_scatter_device.py's comparison in the no-fp64
+    mode (the host's paths, points within POINT_TOL_REL, delays within 1e-18 s, gains and
+    matrices within FIELD_TOL_REL of the strongest, Doppler within DOPPLER_TOL_HZ, the
+    channel within -100 dB NMSE)."""
     sc = scatter_tests.wall_scene()
     device, host = scatter_tests.engines(sc, no_fp64)
     A, B = sc.radars
     for tx, rx in ((A, A), (A, B)):
         kw = dict(tile_size_m=0.5, max_reflections=max_reflections, seed=7)
-        (pd, nd), (ph, nh) = (scattering_paths(g, tx, rx, **kw) for g in (device, host))
-        label = f"{tx.name}->{rx.name} mr={max_reflections}"
-        assert pd.n_paths == ph.n_paths > 0 and nd == nh, label
-        for name in ("n_interactions", "interaction", "object_id", "face_id"):
-            np.testing.assert_array_equal(getattr(pd, name), getattr(ph, name), label)
-        np.testing.assert_allclose(pd.points, ph.points, rtol=0, err_msg=label,
-                                   atol=POINT_TOL_REL * (1 + np.nanmax(np.abs(ph.points))))
-        np.testing.assert_allclose(pd.delay_s, ph.delay_s, rtol=0, atol=1e-18, err_msg=label)
-        np.testing.assert_allclose(pd.gain, ph.gain, rtol=0,
-                                   atol=1e-5 * np.abs(ph.gain).max(), err_msg=label)
-        np.testing.assert_allclose(pd.doppler_hz, ph.doppler_hz, rtol=0, atol=1e-2,
-                                   err_msg=label)
-        h, r = scatter_tests.channel(pd), scatter_tests.channel(ph)
-        assert 10 * np.log10(np.sum(np.abs(h - r) ** 2) / np.sum(np.abs(r) ** 2)) < -80.0
+        scatter_tests.assert_same_paths(scattering_paths(device, tx, rx, **kw),
+                                        scattering_paths(host, tx, rx, **kw),
+                                        f"{tx.name}->{rx.name} mr={max_reflections}", no_fp64)
 
 
 # ---------------------------------------------------------------------------

@@ -9,6 +9,7 @@ so the test can fail.
 from __future__ import annotations
 
 import types
+import warnings
 
 import numpy as np
 import pytest
@@ -204,6 +205,18 @@ def test_pairs_round_trip_to_2_pow_minus_48():
     pairs = precision.split_pairs(x)
     assert pairs.dtype == np.float32 and pairs.shape == (1000, 2)
     assert (np.abs(precision.join_pairs(pairs) - x) <= 2.0**-48 * np.abs(x)).all()
+
+
+def test_pairs_of_values_beyond_float_join_back_to_themselves():
+    """inf (a PEC's permittivity crosses to scatter.cl so), NaN and values past float's
+    range: lo = 0, no inf - inf = NaN, no warning."""
+    x = np.array([np.inf, -np.inf, np.nan, 1e300, -1e300, 3.0])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        pairs = precision.split_pairs(x)
+    np.testing.assert_array_equal(pairs[:5, 1], 0.0)
+    np.testing.assert_array_equal(precision.join_pairs(pairs),
+                                  [np.inf, -np.inf, np.nan, np.inf, -np.inf, 3.0])
 
 
 def test_bad_input_names_argument_and_value(runtime):

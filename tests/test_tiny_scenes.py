@@ -7,49 +7,34 @@ uninitialised value fails these tests by its report."""
 
 from __future__ import annotations
 
-import tomllib
 from pathlib import Path
 
 import numpy as np
 import pytest
+from mode_helpers import NO_FP64_NMSE_DB, scene_in_mode
 from test_engines_whole_trace import both, channel, nmse_db
 
 from clradcom.device import edges as device_edges
 from clradcom.geometry.wedges import extract_wedges
 from clradcom.mechanisms import diffraction
 from clradcom.mechanisms.common import build_geometry
-from clradcom.scene import load_scene
 from clradcom.scene.reader import scene_from_dict
 from clradcom.trace import TraceSettings
 
 CANONICAL = Path(__file__).resolve().parent.parent / "scenes" / "canonical"
 SETTINGS = TraceSettings.preset("paper").replace(specular__rays=2000)
 #: device against host: -60 dB NMSE; without fp64 (or --fp64=off) issue #26's target for
-#: that mode, -50 dB
-NMSE_DB, NMSE_NO_FP64_DB = -60.0, -50.0
-
-
-#: Without fp64 the radar sits this far (m) off the dihedral's plane of symmetry: on it,
-#: a column of SBR tubes aims exactly at the crease, and which plate each hits is
-#: decided by the rounding of its float32 launch direction, which the no-fp64 build
-#: computes in float and the host in float64 (1 % of the double bounce's gain on the
-#: plane, -45 dB of channel; 1.3 mm off it, -144 dB).
-OFF_SYMMETRY_M = (0.0, 0.0013, 0.0007)
+#: that mode (tests/mode_helpers.py)
+NMSE_DB = -60.0
 
 
 @pytest.mark.parametrize("name", ["plate", "dihedral"])
 def test_device_and_host_agree(runtime, name):
-    path = CANONICAL / f"{name}.toml"
-    if runtime.has_double:
-        scene = load_scene(path)
-    else:
-        with open(path, "rb") as fh:
-            data = tomllib.load(fh)
-        for radar in data["radars"]:
-            radar["position"] = list(np.add(radar["position"], OFF_SYMMETRY_M))
-        scene = scene_from_dict(data)
+    # without fp64 the radar just off the scene's plane of symmetry (tests/mode_helpers.py:
+    # OFF_SYMMETRY_M), where SBR tubes aim exactly at the dihedral's crease
+    scene = scene_in_mode(CANONICAL / f"{name}.toml", runtime)
     dev, host = both(scene, runtime, SETTINGS)
-    limit = NMSE_DB if runtime.has_double else NMSE_NO_FP64_DB
+    limit = NMSE_DB if runtime.has_double else NO_FP64_NMSE_DB
     assert dev.links and len(dev.links) == len(host.links)
     for a, b in zip(dev.links, host.links, strict=True):
         assert a.paths.n_paths == b.paths.n_paths > 0, a.label

@@ -39,10 +39,13 @@ _SOURCE = "precision_probe.cl"
 
 def split_pairs(x) -> np.ndarray:
     """float64 array (...) -> float32 array (..., 2) of (hi, lo): hi = f32(x),
-    lo = f32(x - hi), so hi + lo equals x to 2^-48 |x| (about 4e-12 m at 1 km)."""
+    lo = f32(x - hi), so hi + lo equals x to 2^-48 |x| (about 4e-12 m at 1 km). A value
+    that is not finite as a float (inf, NaN, beyond float's range) has lo = 0, so it
+    joins back to itself (a PEC's infinite permittivity stays inf, not inf - inf)."""
     x = np.asarray(x, dtype=np.float64)
-    hi = x.astype(np.float32)
-    lo = (x - hi.astype(np.float64)).astype(np.float32)
+    with np.errstate(over="ignore", invalid="ignore"):
+        hi = x.astype(np.float32)
+        lo = np.where(np.isfinite(hi), x - hi.astype(np.float64), 0.0).astype(np.float32)
     return np.ascontiguousarray(np.stack([hi, lo], axis=-1))
 
 

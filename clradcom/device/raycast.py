@@ -616,11 +616,13 @@ class InstancedCaster(RayCaster):
                     ids = self.part_ids[k]
                     if ids.size and np.all(np.diff(ids) == 1):   # one contiguous run
                         start = int(ids[0])
+                        # as scene_data64 wrote them: doubles, or (hi, lo) pairs
+                        # without fp64 (the same 8 bytes a value)
                         cl.enqueue_copy(rt.queue, self._data64["vertices"],
-                                        np.ascontiguousarray(self.triangles[ids]),
+                                        kernel_float64(rt, self.triangles[ids]),
                                         dst_offset=start * 72)
                         cl.enqueue_copy(rt.queue, self._data64["normals"],
-                                        np.ascontiguousarray(self.normals64()[ids]),
+                                        kernel_float64(rt, self.normals64()[ids]),
                                         dst_offset=start * 24)
                     else:
                         self._data64 = None
