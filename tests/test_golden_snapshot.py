@@ -99,14 +99,12 @@ def sbr_rows(paths, *, format_1: bool) -> np.ndarray:
 def test_same_paths_bit_for_bit(traced, runtime):
     """Every path but SBR-PO's: those changed on purpose (tubes launched over silhouettes
     and mirror images, the chain's sqrt(1 - S^2)); tests/test_sbr_engines.py holds them.
-    On the reference's implementation only (elsewhere the test below holds the snapshot):
-    with fp64, where the reference was traced, every field; without fp64 (--fp64=off),
-    the same paths in the same order, their interactions, objects and faces, while the
-    test below holds their numbers to the no-fp64 build's rounding."""
-    if runtime.info.vendor != REFERENCE_VENDOR:
-        pytest.skip(f"bit for bit on PoCL, where the reference was traced; on "
-                    f"{runtime.info.label} the physical tolerances hold it")
-    fields = EXACT_FIELDS if runtime.has_double else DISCRETE_FIELDS
+    On the reference's implementation with fp64, where the reference was traced, every
+    field; anywhere else (another implementation, or --fp64=off) the same paths in the
+    same order, their interactions, objects and faces, while the test below holds their
+    numbers to physical tolerances."""
+    exact = runtime.info.vendor == REFERENCE_VENDOR and runtime.has_double
+    fields = EXACT_FIELDS if exact else DISCRETE_FIELDS
     reference, snap = traced
     assert [lk.label for lk in snap] == [lk.label for lk in reference]
     for old, new in zip(reference.links, snap.links, strict=True):
