@@ -43,7 +43,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from clradcom.device.runtime import Runtime, get_runtime
+from clradcom.device.runtime import OpenCLError, Runtime, get_runtime
 from clradcom.errors import ArgumentError
 from clradcom.evaluation.accuracy import channel_nmse_db
 from clradcom.evaluation.rcs import dbsm
@@ -167,8 +167,6 @@ def compare_devices(scene: Scene, settings: TraceSettings, runtimes: dict[str, R
     devices take turns ``repeats`` times, so a machine that gets busier or quieter weighs
     on each alike. A device whose warm-up fails with an OpenCL error is reported with it
     (``DeviceRuns.error``) and left out of the turns; the others go on."""
-    from clradcom.device.runtime import OpenCLError
-
     if isinstance(repeats, bool) or not isinstance(repeats, int) or repeats < 1:
         raise ArgumentError("must be an integer >= 1", argument="repeats", value=repeats)
     if not runtimes:
