@@ -38,6 +38,7 @@ from clradcom.commands import trace as trace_cmd
 from clradcom.commands import tradeoff as tradeoff_cmd
 from clradcom.commands.options import (
     TOOL_ERRORS,
+    check_snapshot_scene,
     finite_float,
     float_in,
     int_in,
@@ -61,9 +62,9 @@ from clradcom.device.runtime import (
 from clradcom.presets import DEFAULT_PRESET, PRESETS
 from clradcom.trace import TraceSettings
 
-__all__ = ["TOOL_ERRORS", "finite_float", "float_in", "int_in", "list_of", "main",
-           "noise_figure_db", "non_negative_float", "non_negative_int", "output_folder",
-           "positive_float", "positive_int", "run_tool", "seed"]
+__all__ = ["TOOL_ERRORS", "check_snapshot_scene", "finite_float", "float_in", "int_in",
+           "list_of", "main", "noise_figure_db", "non_negative_float", "non_negative_int",
+           "output_folder", "positive_float", "positive_int", "run_tool", "seed"]
 
 
 def _cmd_devices(args) -> int:

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from clradcom.cli import (
+    check_snapshot_scene,
     finite_float,
     list_of,
     output_folder,
@@ -90,10 +91,12 @@ def main(argv=None) -> int:
                                 value=None)
         snap = load_snapshot(src)
         scene = load_scene(args.scene) if views else None
+        if scene is not None:
+            check_snapshot_scene(snap, scene, src, args.scene)
         out = Path(args.out) if args.out is not None else src.parent
         out.mkdir(parents=True, exist_ok=True)
         stem = src.name.removesuffix(".npz")
-        inputs = [src] + ([Path(args.scene)] if views else [])
+        inputs = [src] + (list(scene.input_files) if views else [])
         written = []
         if args.mat:
             written.append(save_mat(out / f"{stem}.mat", snap, inputs=inputs))

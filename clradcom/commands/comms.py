@@ -168,25 +168,25 @@ def run(args) -> int:
         p_tx, nf = scene_radars(args, scene)
         wf, frame = run_waveform(scene.carrier_hz, args, scene=scene,
                                  modulations=COMMS_MODULATIONS)
-        source, owned = args.scene, (*OUTPUTS, "snapshot.npz")
+        sources, owned = scene.input_files, (*OUTPUTS, "snapshot.npz")
     else:
         snap = read_snapshot(args.snapshot)
         p_tx, nf = args.tx_power_w, args.noise_figure_db
         wf, frame = run_waveform(snap.carrier_hz, args, snapshot=args.snapshot,
                                  modulations=COMMS_MODULATIONS)
-        source, owned = args.snapshot, OUTPUTS
+        sources, owned = [args.snapshot], OUTPUTS
         paths = link_paths(snap, args, args.snapshot)
     print(frame, flush=True)
     check_run(args, wf)
     check_exact_frame_memory(wf)
     pattern = PilotPattern.named(args.pilots, args.pilot_step)
-    with staged_folder(out, inputs=[source], owned=owned) as stage:
+    with staged_folder(out, inputs=sources, owned=owned) as stage:
         if args.scene is not None:
             snap = trace_into(stage, scene, preset_settings(args), args)
             paths = link_paths(snap, args, args.scene)
         if len(paths.gain) == 0:
             raise SnapshotError(f"the link {args.tx}->{args.rx} has no paths: D receives "
-                                "nothing", file=source)
+                                "nothing", file=args.scene or args.snapshot)
         snr_link = link_snr_db(paths.gain, paths.delay_s, paths.doppler_hz, wf, p_tx, nf)
         snrs = sorted(set(args.snr_db) | {round(snr_link, 2)})
         print(f"link {args.tx}->{args.rx}: {len(paths.gain)} paths, mean Es/N0 "
@@ -200,10 +200,10 @@ def run(args) -> int:
             dd_passes=args.dd_passes,
             progress=lambda msg: print(f"[{time.perf_counter() - t0:6.1f} s] {msg} ...",
                                        flush=True))
-        write_csv(stage / "comms.csv", csv_rows(mc), CSV_COLUMNS, inputs=[source])
+        write_csv(stage / "comms.csv", csv_rows(mc), CSV_COLUMNS, inputs=sources)
         fig = comms_figure(mc, f"{args.tx} -> {args.rx} data link", snr_link)
         for ext in ("png", "svg"):
-            save_figure(fig, stage / f"comms.{ext}", inputs=[source], dpi=120)
+            save_figure(fig, stage / f"comms.{ext}", inputs=sources, dpi=120)
     print(f"\n  {'Es/N0 dB':>8} {'BER':>10} {'AWGN BER':>10} {'SER':>10} {'EVM dB':>7} "
           f"{'timing err':>10}")
     for row in mc.rows:

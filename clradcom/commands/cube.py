@@ -40,7 +40,12 @@ from pathlib import Path
 import numpy as np
 
 from clradcom.commands import trace as trace_cmd
-from clradcom.commands.options import read_snapshot, run_tool, run_waveform
+from clradcom.commands.options import (
+    check_snapshot_scene,
+    read_snapshot,
+    run_tool,
+    run_waveform,
+)
 from clradcom.device.runtime import get_runtime
 from clradcom.errors import ArgumentError, SnapshotError
 from clradcom.files import staged_folder
@@ -117,9 +122,7 @@ def _paths(args, scene, index, settings):
                            links=[(index, index)])
         return snap.links[0].paths
     snap = read_snapshot(args.snapshot)
-    if snap.scene_hash and snap.scene_hash != scene.content_hash():
-        raise SnapshotError(f"was traced from another scene than {args.scene}",
-                            file=args.snapshot, key="scene_hash")
+    check_snapshot_scene(snap, scene, args.snapshot, args.scene)
     for link in snap:
         if link.tx_index == index and link.rx_index == index:
             return link.paths
@@ -174,7 +177,7 @@ def run(args) -> int:
     print(f"  {frame}")
     nf = trace_cmd.radar_noise(scene, args)[index]
     out = Path(args.out or Path("out") / scene.name)
-    inputs = [args.scene] + ([args.snapshot] if args.snapshot else [])
+    inputs = [*scene.input_files] + ([args.snapshot] if args.snapshot else [])
     with staged_folder(out, inputs=inputs, owned=CUBE_OUTPUTS) as stage:
         exact = args.array_channel == "exact"
         what = "snapshot" if args.snapshot else (

@@ -163,7 +163,7 @@ def _radar_outputs(stage: Path, scene, res, times, n_paths, trace_s, args) -> No
         rows += detection_table_rows(k, times[k], name, det, azimuth=res.azimuth)
     cols = DETECTION_TABLE_COLUMNS if res.azimuth else tuple(
         c for c in DETECTION_TABLE_COLUMNS if c != "azimuth_deg")
-    write_table(stage / f"{name}_detections.csv", rows, cols, inputs=[args.scene])
+    write_table(stage / f"{name}_detections.csv", rows, cols, inputs=scene.input_files)
     write_table(stage / f"{name}_tracks.csv", track_rows(res.tracks), TRACK_DTYPE.names)
     write_table(stage / f"{name}_track_truth.csv", score_rows(res.scores), SCORE_DTYPE.names)
     save_figure(tracks_figure(res, f"Radar {name}, scene {scene.name}: tracks against "
@@ -209,7 +209,7 @@ def run(args) -> int:
     links = None if index is None else [(index, index)]
     paths_of, n_paths, trace_s = [], [], []
     print(f"  {len(times)} steps on {cluster_text(args)}, retries {args.retries}")
-    with staged_folder(out, inputs=[args.scene], owned=OUTPUTS) as stage:
+    with staged_folder(out, inputs=scene.input_files, owned=OUTPUTS) as stage:
 
         def each(k, t, snap, seconds):
             trace_s.append(seconds)

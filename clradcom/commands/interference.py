@@ -191,18 +191,18 @@ def run(args) -> int:
         scene = load_scene(args.scene)
         p_a, p_d, nf = scene_radars(args, scene)
         wf, frame = run_waveform(scene.carrier_hz, args, scene=scene)
-        source, owned = args.scene, (*OUTPUTS, "snapshot.npz")
+        sources, owned = scene.input_files, (*OUTPUTS, "snapshot.npz")
     else:
         snap = read_snapshot(args.snapshot)
         p_a = p_d = args.tx_power_w
         nf = args.noise_figure_db
         wf, frame = run_waveform(snap.carrier_hz, args, snapshot=args.snapshot)
-        source, owned = args.snapshot, OUTPUTS
+        sources, owned = [args.snapshot], OUTPUTS
         own, dl = link_paths(snap, args, args.snapshot)
     print(frame, flush=True)
     check_offsets(args, wf)
     check_exact_frame_memory(wf)
-    with staged_folder(out, inputs=[source], owned=owned) as stage:
+    with staged_folder(out, inputs=sources, owned=owned) as stage:
         if args.scene is not None:
             snap = trace_into(stage, scene, preset_settings(args), args)
             own, dl = link_paths(snap, args, args.scene)

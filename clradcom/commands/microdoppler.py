@@ -93,8 +93,8 @@ def run(args) -> int:
     result = microdoppler_run(scene, settings, waveform=waveform, times=times,
                               radar=args.radar, runtime=runtime, noise=not args.no_noise,
                               seed=args.seed, dynamic_range_db=args.dynamic_range, each=each)
-    with staged_folder(out, inputs=[args.scene], owned=OUTPUTS) as stage:
-        save_microdoppler(result, stage, inputs=[args.scene])
+    with staged_folder(out, inputs=scene.input_files, owned=OUTPUTS) as stage:
+        save_microdoppler(result, stage, inputs=scene.input_files)
     bin_hz = float(result.doppler_hz[1] - result.doppler_hz[0])
     lo_err = np.nanmax(np.abs(result.measured_lo_hz - result.expected_lo_hz))
     hi_err = np.nanmax(np.abs(result.measured_hi_hz - result.expected_hi_hz))

@@ -553,6 +553,15 @@ def read_snapshot(path) -> Snapshot:
         raise SnapshotError(f"cannot read it ({exc.strerror or exc})", file=path) from None
 
 
+def check_snapshot_scene(snap: Snapshot, scene, snapshot_path, scene_path) -> None:
+    """Refuse a snapshot traced from another scene than ``scene`` (their content hashes
+    differ): its paths would be drawn or processed over geometry they never met."""
+    if snap.scene_hash and snap.scene_hash != scene.content_hash():
+        raise SnapshotError(f"was traced from another scene than {scene_path} (its scene "
+                            "hash differs); trace this scene again with clradcom trace",
+                            file=snapshot_path, key="scene_hash")
+
+
 def trace_into(stage: Path, scene, settings: TraceSettings, args) -> Snapshot:
     """Trace ``scene`` on ``--device`` with a progress bar (off with ``--quiet``) and keep
     the snapshot in the output folder being staged, as ``snapshot.npz``."""

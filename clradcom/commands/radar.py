@@ -22,12 +22,13 @@ from pathlib import Path
 from clradcom.commands.options import (
     add_frame_arguments,
     add_waveform_arguments,
+    check_snapshot_scene,
     output_folder,
     read_snapshot,
     run_waveform,
 )
 from clradcom.commands.trace import Stopwatch, radar_noise, radar_stage
-from clradcom.errors import ArgumentError, SnapshotError
+from clradcom.errors import ArgumentError
 from clradcom.files import staged_folder
 from clradcom.plots import plot_top_view
 from clradcom.radar.pipeline import check_frame_memory
@@ -56,10 +57,7 @@ def run_radar(args) -> int:
     sw = Stopwatch()
     scene = load_scene(args.scene)
     snap = read_snapshot(args.snapshot)
-    if snap.scene_hash and snap.scene_hash != scene.content_hash():
-        raise SnapshotError(f"was traced from another scene than {args.scene} (its scene "
-                            "hash differs); trace this scene again with clradcom trace",
-                            file=args.snapshot, key="scene_hash")
+    check_snapshot_scene(snap, scene, args.snapshot, args.scene)
     wf, frame = run_waveform(scene.carrier_hz, args, scene=scene)
     print(f"  {frame}")
     check_frame_memory(wf, args.synthesis)
@@ -70,7 +68,8 @@ def run_radar(args) -> int:
         raise ArgumentError("holds no link of a radar to itself, so there is no echo to "
                             "image", argument="snapshot", value=args.snapshot)
     out = Path(args.out) if args.out else Path(args.snapshot).parent
-    with staged_folder(out, inputs=[args.scene, args.snapshot], owned=RADAR_OUTPUTS) as stage:
+    with staged_folder(out, inputs=[*scene.input_files, args.snapshot],
+                      owned=RADAR_OUTPUTS) as stage:
         for link in mono:
             radar = scene.radars[link.tx_index]
             if radar.tx_power_w == 0:
@@ -96,12 +95,13 @@ def run_view(args) -> int:
     scene = load_scene(args.scene)
     if args.snapshot is not None:
         snap = read_snapshot(args.snapshot)
+        check_snapshot_scene(snap, scene, args.snapshot, args.scene)
     else:
         snap = Snapshot(scene_name=scene.name, carrier_hz=float(scene.carrier_hz),
                         scene_hash=scene.content_hash(), links=(), metadata={})
     mono = [lk for lk in snap if lk.tx_index == lk.rx_index]
     plot_top_view(scene, snap, mono[0] if mono else None, n_paths=args.paths,
-                  path=Path(args.out), inputs=[args.scene] + (
+                  path=Path(args.out), inputs=[*scene.input_files] + (
                       [args.snapshot] if args.snapshot else []))
     print(f"wrote {args.out}")
     return 0

@@ -164,7 +164,7 @@ def run(args) -> int:
           f"{cluster_text(args)}, retries {args.retries}")
     columns = ["preset", *(name for name, _ in args.vary)]
     rows: list = [None] * len(tasks)
-    with staged_folder(out, inputs=[args.scene], owned=OUTPUTS) as stage:
+    with staged_folder(out, inputs=scene.input_files, owned=OUTPUTS) as stage:
         bar = progress_bar(len(tasks), "sweep", quiet=args.quiet, unit="trace")
 
         def done(i, result):

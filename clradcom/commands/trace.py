@@ -274,7 +274,7 @@ def run(args) -> int:
     check_frame_memory(wf, args.synthesis)
     noise = radar_noise(scene, args)
     out = Path(args.out or Path("out") / scene.name)
-    with staged_folder(out, inputs=[args.scene], owned=OUTPUTS) as stage:
+    with staged_folder(out, inputs=scene.input_files, owned=OUTPUTS) as stage:
         with sw.stage("open OpenCL device"):
             runtime = get_runtime(args.device)
         print(f"  device: {runtime.info.describe()}")

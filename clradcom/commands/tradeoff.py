@@ -296,7 +296,7 @@ def run(args) -> int:
     out = Path(args.out or Path("out") / scene.name / "tradeoff")
     partial = out.parent / f"{out.name}.partial.csv"
     try:
-        with staged_folder(out, inputs=[args.scene], owned=OUTPUTS) as stage:
+        with staged_folder(out, inputs=scene.input_files, owned=OUTPUTS) as stage:
             runtime = get_runtime(args.device)
             code = sweep(args, scene, radar_idx, radar, wf, nf_db, floor, runtime, stage, out,
                          partial)

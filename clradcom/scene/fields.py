@@ -38,8 +38,16 @@ def key_path(base: str, key: str) -> str:
 class FieldReader:
     """Reads and checks values of one scene file's tables; every refusal names ``file``."""
 
-    def __init__(self, file: Path):
+    def __init__(self, file: Path, read_files: list[Path] | None = None):
         self.file = file
+        #: every file the scene's reading opened (meshes, patterns, imports), shared
+        #: with the readers of the files it imports: a run must never write over them
+        self.read_files: list[Path] = [] if read_files is None else read_files
+
+    def note_read(self, path: Path) -> None:
+        """Record that the scene's reading opened ``path``."""
+        if path not in self.read_files:
+            self.read_files.append(path)
 
     def err(self, key, value, reason) -> SceneError:
         return SceneError(reason, file=self.file, key=key, value=value)

@@ -123,6 +123,7 @@ def read_geojson_buildings(fields: FieldReader, tbl: dict, kp: str,
     path = base_dir / rel
     if not is_file(path):
         raise fields.err(key, rel, f"GeoJSON file not found (looked for {path})")
+    fields.note_read(path)
     coords = fields.get_str(tbl, "coordinates", kp, default="lonlat", choices=COORDINATES)
     level_h = fields.get_float(tbl, "level_height_m", kp, default=DEFAULT_LEVEL_HEIGHT_M,
                                lo=0.0, lo_open=True, unit="m")

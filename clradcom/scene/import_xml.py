@@ -183,6 +183,7 @@ def read_xml_scene(fields: FieldReader, rel: str, key: str, materials: MaterialT
     path = base_dir / rel
     if not is_file(path):
         raise fields.err(key, rel, f"XML scene not found (looked for {path})")
+    fields.note_read(path)
     root = parse_xml(path)
     if root.tag != "scene":
         raise SceneError("not a Mitsuba scene: the root element must be <scene>",
@@ -194,7 +195,7 @@ def read_xml_scene(fields: FieldReader, rel: str, key: str, materials: MaterialT
         if not name or "value" not in d.attrib:
             raise rd.err(d, "default", d.attrib, "a <default> needs name and value")
         params.setdefault(name, d.attrib["value"])
-    xml_fields = FieldReader(path)
+    xml_fields = FieldReader(path, fields.read_files)
     bsdfs: dict[str, XmlNode] = {}
     for b in root.find_all("bsdf"):
         if "id" in b.attrib:

@@ -119,6 +119,7 @@ def load_mesh(fields: FieldReader, base_dir: Path, rel: str, key: str,
     if not is_file(path):
         raise fields.err(key, rel, f"mesh file not found (looked for {path})")
     rp = path.resolve()
+    fields.note_read(path)
     if rp in mesh_cache:
         v, f = mesh_cache[rp]
         return v, f, str(path)

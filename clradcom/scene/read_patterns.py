@@ -139,6 +139,7 @@ def _file_pattern(fields, spec, k, polarization, base_dir) -> Pattern:
     path = base_dir / rel
     if not is_file(path):
         raise fields.err(f"{k}.path", rel, f"pattern file not found (looked for {path})")
+    fields.note_read(path)
     try:
         return load_pattern_file(path, polarization=polarization, normalize=normalize)
     except SceneError as exc:

@@ -117,6 +117,8 @@ def scene_from_dict(data: dict, *, file="<dict>", base_dir=".") -> Scene:
     _warn_out_of_range(fields, carrier, objects, triangles, radars)
     scene = _assemble_scene(file, name, description, carrier, materials.materials, objects,
                             triangles, radars)
+    own = [file] if scene.source is not None else []
+    scene.input_files = tuple(own + [p for p in fields.read_files if p not in own])
     if time_axis is not None:
         scene.time_s, scene.time_axis = time_axis.start_s, time_axis
     scene.waveform = waveform

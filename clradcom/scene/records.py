@@ -227,6 +227,9 @@ class Scene:
     time_axis: TimeAxis | None = None
     #: the file's ``[waveform]`` table, or None
     waveform: WaveformSpec | None = None
+    #: every file reading the scene opened: the scene file, its meshes, pattern tables
+    #: and imports (XML, GeoJSON); outputs of a run are refused over any of them
+    input_files: tuple[Path, ...] = ()
 
     # -- convenience -------------------------------------------------------
     @property
