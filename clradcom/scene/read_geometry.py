@@ -155,8 +155,52 @@ def load_mesh(fields: FieldReader, base_dir: Path, rel: str, key: str,
         j = int(np.flatnonzero(bad)[0])
         raise fields.err(key, rel, f"mesh file {path}: vertex {j} has NaN or inf "
                          f"coordinates {verts[j].tolist()}")
+    declared = _declared_counts(path)
+    if declared is not None:
+        n_verts, n_faces = declared
+        if len(verts) != n_verts or len(faces) < n_faces:
+            raise fields.err(key, rel, f"mesh file {path} declares {n_verts} vertices and "
+                             f"{n_faces} faces in its header but holds {len(verts)} "
+                             f"vertices and {len(faces)} triangles (a truncated file?)")
     mesh_cache[rp] = (verts, faces)
     return verts, faces, str(path)
+
+
+#: The largest mesh header read for its element counts.
+_HEADER_LIMIT = 1 << 16
+
+
+def _declared_counts(path: Path) -> tuple[int, int] | None:
+    """(vertices, faces) that a PLY or OFF file's header declares, or None for a format
+    without such a header (OBJ, STL, GLB: trimesh checks a binary file's lengths itself).
+    A polygon face becomes one triangle or more, so the faces read are at least as many."""
+    suffix = path.suffix.lower()
+    if suffix not in (".ply", ".off"):
+        return None
+    with open(path, "rb") as fh:
+        head = fh.read(_HEADER_LIMIT)
+    if suffix == ".ply":
+        end = head.find(b"end_header")
+        if end < 0:
+            return None  # trimesh refuses it
+        counts = {}
+        for line in head[:end].decode("latin-1").splitlines():
+            words = line.split()
+            if len(words) == 3 and words[0] == "element" and words[2].isdigit():
+                counts[words[1]] = int(words[2])
+        if "vertex" not in counts:
+            return None
+        return counts["vertex"], counts.get("face", 0)
+    # OFF: the first line that is neither the keyword nor a comment holds nv nf ne
+    lines = [ln.split("#")[0].strip() for ln in head.decode("latin-1").splitlines()]
+    lines = [ln for ln in lines if ln]
+    if not lines or not lines[0].upper().endswith("OFF"):
+        return None
+    rest = lines[0][len("OFF"):].split() if lines[0].upper() != "OFF" else []
+    words = rest or (lines[1].split() if len(lines) > 1 else [])
+    if len(words) < 2 or not all(w.isdigit() for w in words[:2]):
+        return None
+    return int(words[0]), int(words[1])
 
 
 def _first_line(exc: Exception, limit: int = 200) -> str:
