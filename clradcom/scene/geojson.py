@@ -18,7 +18,12 @@ extruded from ``min_height`` (or ``building:min_level`` levels; default 0) up to
 Coordinates are longitude/latitude in degrees on WGS 84 (RFC 7946, the default,
 ``coordinates = "lonlat"``) or already projected metres (``coordinates = "metres"``).
 Longitude/latitude become local east/north metres on the tangent plane at
-``origin_lonlat`` (:func:`lonlat_to_local`).
+``origin_lonlat`` (:func:`lonlat_to_local`). A file that names its coordinate reference
+system in a ``"crs"`` member (the 2008 GeoJSON form, which RFC 7946 dropped but QGIS and
+GDAL still write) is read in it: a projected CRS such as EPSG:3857 is reprojected to
+WGS 84 longitude/latitude with pyproj (then to the tangent plane, so ``origin_lonlat`` is
+needed as for any longitude/latitude); a CRS that pyproj does not know, or one given
+beside ``coordinates = "metres"``, is refused by name.
 """
 
 from __future__ import annotations
@@ -143,7 +148,8 @@ def read_geojson_buildings(fields: FieldReader, tbl: dict, kp: str,
     elif "origin_lonlat" in tbl:
         raise fields.err(f"{kp}.origin_lonlat", tbl["origin_lonlat"],
                          "only applies with coordinates = 'lonlat'")
-    features = _features(fields, path, key, rel)
+    features, crs = _features(fields, path, key, rel)
+    to_lonlat = _crs_to_lonlat(fields, key, rel, path, crs, coords)
     out: list[Building] = []
     skipped = []
     for i, feat in enumerate(features):
@@ -163,6 +169,9 @@ def read_geojson_buildings(fields: FieldReader, tbl: dict, kp: str,
                              f"({type(exc).__name__}: {exc})") from None
         if poly.is_empty:
             raise fields.err(key, rel, f"{where} of {path}: empty {gtype}")
+        if to_lonlat is not None:
+            poly = shapely.transform(poly, lambda p: np.column_stack(
+                to_lonlat.transform(p[:, 0], p[:, 1])))
         if origin is not None:
             xy = shapely.get_coordinates(poly)
             if np.any(np.abs(xy[:, 0]) > 180) or np.any(np.abs(xy[:, 1]) > 90):
@@ -197,7 +206,53 @@ def read_geojson_buildings(fields: FieldReader, tbl: dict, kp: str,
     return out
 
 
-def _features(fields: FieldReader, path: Path, key: str, rel: str) -> list[dict]:
+#: Names of WGS 84 longitude/latitude, the RFC 7946 default, that need no reprojection.
+_LONLAT_CRS_NAMES = ("urn:ogc:def:crs:OGC:1.3:CRS84", "urn:ogc:def:crs:OGC::CRS84",
+                     "OGC:CRS84", "CRS84", "EPSG:4326", "urn:ogc:def:crs:EPSG::4326")
+
+
+def _crs_name(fields, key, rel, path, crs) -> str:
+    """The name a GeoJSON 2008 ``crs`` member gives: {"type": "name", "properties":
+    {"name": ...}} (a linked CRS is refused: the file would depend on a download)."""
+    ok = (isinstance(crs, dict) and crs.get("type") == "name"
+          and isinstance(crs.get("properties"), dict)
+          and isinstance(crs["properties"].get("name"), str))
+    if not ok:
+        raise fields.err(key, rel, f"{path}: its 'crs' member {json.dumps(crs)[:120]} is not "
+                         "a named CRS ({\"type\": \"name\", \"properties\": {\"name\": "
+                         "\"EPSG:3857\"}}); give the name or drop the member for WGS 84")
+    return crs["properties"]["name"]
+
+
+def _crs_to_lonlat(fields, key, rel, path, crs, coords):
+    """A pyproj Transformer from the file's ``crs`` to WGS 84 longitude/latitude, or None
+    where the file has no ``crs`` or names WGS 84 longitude/latitude itself."""
+    if crs is None:
+        return None
+    name = _crs_name(fields, key, rel, path, crs)
+    if name.strip() in _LONLAT_CRS_NAMES:
+        return None
+    if coords == "metres":
+        raise fields.err(key, rel, f"{path} names its coordinate system '{name}', but the "
+                         "entry says coordinates = 'metres' (local metres, no CRS): drop "
+                         "coordinates = 'metres' to reproject it to WGS 84, or drop the "
+                         "file's crs member")
+    import pyproj
+
+    try:
+        source = pyproj.CRS.from_user_input(name)
+    except pyproj.exceptions.CRSError as exc:
+        raise fields.err(key, rel, f"{path}: its crs '{name}' is not a coordinate "
+                         f"reference system pyproj knows ({exc})") from None
+    if source.is_geographic and source.equals(pyproj.CRS("OGC:CRS84"),
+                                              ignore_axis_order=True):
+        return None
+    return pyproj.Transformer.from_crs(source, "OGC:CRS84", always_xy=True)
+
+
+def _features(fields: FieldReader, path: Path, key: str,
+              rel: str) -> tuple[list[dict], object]:
+    """The file's features and its ``crs`` member (None without one)."""
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError) as exc:
@@ -209,9 +264,9 @@ def _features(fields: FieldReader, path: Path, key: str, rel: str) -> list[dict]
         feats = data.get("features")
         if not isinstance(feats, list) or not all(isinstance(f, dict) for f in feats):
             raise fields.err(key, rel, f"{path}: 'features' is not a list of objects")
-        return feats
+        return feats, data.get("crs")
     if kind == "Feature":
-        return [data]
+        return [data], data.get("crs")
     raise fields.err(key, rel, f"{path} is not a GeoJSON FeatureCollection or Feature "
                      f"(type {kind!r})")
 
