@@ -35,16 +35,20 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import logging
 import math
 import os
+import pickle
+import signal
 import time
+import urllib.parse
 import uuid
 import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 from clradcom.device.runtime import Runtime, get_runtime
-from clradcom.errors import ArgumentError, ArgumentTypeError
+from clradcom.errors import ArgumentError, ArgumentTypeError, SceneError, SnapshotError
 from clradcom.scene.records import Scene
 from clradcom.series import check_times, trace_steps
 from clradcom.snapshot import Snapshot
@@ -66,6 +70,59 @@ __all__ = ["DevicePlugin", "Task", "TaskError", "TaskResult", "connect", "drive_
 POCL_THREADS_ENV = "POCL_MAX_PTHREAD_COUNT"
 #: the scheduler setting that bounds how often a task may take its worker down with it
 ALLOWED_FAILURES = "distributed.scheduler.allowed-failures"
+#: Address schemes of a Dask scheduler that --scheduler accepts (host and port required)
+SCHEDULER_SCHEMES = ("tcp", "tls", "ws", "wss")
+#: Seconds to wait for a scheduler to answer before the run is refused
+CONNECT_TIMEOUT_S = 5.0
+#: Refusals that a task meets alike on every attempt and every worker (bad input): they
+#: come back at once, as in a serial run, instead of being tried again
+REFUSALS = (SceneError, SnapshotError, ArgumentError, ArgumentTypeError)
+
+
+def quiet_dask_logs() -> None:
+    """Dask's own log lines, in this process and the local clusters it starts later,
+    errors only: at Ctrl-C every cancelled task and stopped worker logs a warning that is
+    not the user's business, and a command's own errors reach them as one line. For the
+    commands (``clradcom sweep``, ``drive``); a library caller keeps Dask's logging."""
+    os.environ["DASK_LOGGING__DISTRIBUTED"] = "error"   # read by each worker at start
+    logging.getLogger("distributed").setLevel(logging.ERROR)
+
+
+def max_local_workers() -> int:
+    """The most processes a local cluster may start: one per core (at least 2). More only
+    queue on the same cores (each worker's PoCL device gets its share of them) while each
+    holds its own interpreter, OpenCL runtime and scene."""
+    return max(2, os.cpu_count() or 1)
+
+
+def check_workers(workers, *, argument: str = "workers") -> int:
+    """``workers`` if it is an integer in 0 .. :func:`max_local_workers`."""
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 0:
+        raise ArgumentError("must be an integer >= 0", argument=argument, value=workers)
+    limit = max_local_workers()
+    if workers > limit:
+        raise ArgumentError(f"more local worker processes than this machine has cores "
+                            f"({limit}); give at most {limit}, or start workers on other "
+                            "machines and give --scheduler", argument=argument, value=workers)
+    return workers
+
+
+def check_scheduler_address(address, *, argument: str = "scheduler") -> str:
+    """``address`` if it has the form of a Dask scheduler's (``tcp://host:8786``)."""
+    if not isinstance(address, str):
+        raise ArgumentTypeError("must be a string such as tcp://host:8786",
+                                argument=argument, value=address)
+    try:
+        parts = urllib.parse.urlsplit(address)
+        port = parts.port
+    except ValueError:
+        parts, port = None, None
+    if (parts is None or parts.scheme not in SCHEDULER_SCHEMES or not parts.hostname
+            or port is None or parts.path not in ("", "/")):
+        raise ArgumentError(f"is not a Dask scheduler address: write SCHEME://HOST:PORT "
+                            f"with SCHEME one of {', '.join(SCHEDULER_SCHEMES)}, e.g. "
+                            "tcp://127.0.0.1:8786", argument=argument, value=address)
+    return address
 
 
 class TaskError(RuntimeError):
@@ -148,13 +205,47 @@ class DevicePlugin(WorkerPlugin):
         worker_runtime()  # open it now: a device problem shows before any task runs
 
 
+def _portable(exc: BaseException) -> BaseException:
+    """``exc`` as it can travel from a worker: a copy without the exceptions chained to
+    it (a pyopencl error record among them cannot be pickled, and Dask pickles the chain),
+    or, where ``exc`` itself does not survive pickling, a RuntimeError of its text."""
+    try:
+        copy = pickle.loads(pickle.dumps(exc))
+        if type(copy) is not type(exc) or str(copy) != str(exc):
+            raise TypeError("changed in pickling")
+    except Exception:  # noqa: BLE001 - whatever pickling refuses, the text travels
+        copy = RuntimeError(f"{type(exc).__name__}: {exc}")
+    copy.__cause__ = copy.__context__ = None
+    copy.__suppress_context__ = True
+    return copy
+
+
+@dataclass(frozen=True)
+class _Refused:
+    """A task's refusal (:data:`REFUSALS`), returned instead of raised so that it is not
+    tried again and reaches the caller as it would in a serial run."""
+
+    error: BaseException
+
+
 def _run(fn: Callable, args: tuple, kwargs: Mapping) -> tuple:
-    """A task on its worker: value, seconds, worker name and the warnings it raised."""
+    """A task on its worker: value, seconds, worker name and the warnings it raised. A
+    refusal comes back as the value (:class:`_Refused`); any other failure is raised
+    without its chained exceptions (:func:`_portable`), outside the handler so that none
+    is chained to it here either."""
+    failure = None
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         t0 = time.perf_counter()
-        value = fn(*args, **kwargs)
+        try:
+            value = fn(*args, **kwargs)
+        except REFUSALS as exc:
+            value = _Refused(_portable(exc))
+        except Exception as exc:  # noqa: BLE001 - re-raised below, picklable
+            failure = _portable(exc)
         seconds = time.perf_counter() - t0
+    if failure is not None:
+        raise failure
     try:
         name = str(distributed.get_worker().name)
     except ValueError:  # not inside a worker
@@ -244,15 +335,33 @@ def local_cluster(workers: int, *, retries: int = 2, threads_per_worker: int | N
     an explicit ``POCL_MAX_PTHREAD_COUNT`` in the environment wins)."""
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise ArgumentError("must be a positive integer", argument="workers", value=workers)
+    check_workers(workers)
     _check_retries(retries)
     env = dict(kwargs.pop("env", {}))
     if POCL_THREADS_ENV not in os.environ:
         threads = threads_per_worker or max(1, (os.cpu_count() or 1) // workers)
         env.setdefault(POCL_THREADS_ENV, str(threads))
-    with dask.config.set({ALLOWED_FAILURES: retries}):
+    with dask.config.set({ALLOWED_FAILURES: retries}), _interrupts_ignored():
         return distributed.LocalCluster(
             n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
             env=env, **kwargs)
+
+
+@contextlib.contextmanager
+def _interrupts_ignored():
+    """SIGINT ignored while the cluster's processes start, so that they inherit it
+    ignored (Python leaves an ignored SIGINT so): Ctrl-C at a terminal then interrupts
+    this process alone, which stops the cluster, instead of every worker printing its
+    own KeyboardInterrupt traceback. Elsewhere than the main thread, nothing changes."""
+    try:
+        old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    except ValueError:  # not the main thread: signals are not ours to set
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)
 
 
 def _check_retries(retries) -> None:
@@ -322,12 +431,19 @@ def connect(workers: int = 2, *, scheduler: str | None = None, client=None,
     caller's ``client``, one on ``scheduler``, or one on a local cluster of ``workers``
     processes (started here, stopped on leaving); None for ``workers=0`` (serial)."""
     _check_retries(retries)
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 0:
-        raise ArgumentError("must be an integer >= 0", argument="workers", value=workers)
+    check_workers(workers)
     if client is not None:
         yield client
     elif scheduler is not None:
-        with distributed.Client(scheduler) as own:
+        check_scheduler_address(scheduler)
+        try:
+            own = distributed.Client(scheduler, timeout=CONNECT_TIMEOUT_S)
+        except (OSError, TimeoutError) as exc:
+            raise ArgumentError(f"no Dask scheduler answered there within "
+                                f"{CONNECT_TIMEOUT_S:g} s ({type(exc).__name__}); start one "
+                                "(dask scheduler) or check the address", argument="scheduler",
+                                value=scheduler) from None
+        with own:
             yield own
     elif workers == 0:
         yield None
@@ -379,6 +495,14 @@ def run_drive(scene: Scene, settings: TraceSettings, times=None, *, workers: int
     return snaps, seconds
 
 
+def _raise_refusal(task: Task, value) -> None:
+    """A task's refusal, worded as the serial run words it wherever the task ran."""
+    if isinstance(value, _Refused):
+        exc = value.error
+        raise TaskError(f"task {task.key!r} failed: {type(exc).__name__}: {exc}",
+                        key=task.key) from None
+
+
 def _run_serial(tasks, devices, on_result, keep) -> list[TaskResult]:
     global _worker_device
     old = _worker_device
@@ -391,6 +515,7 @@ def _run_serial(tasks, devices, on_result, keep) -> list[TaskResult]:
             except Exception as exc:
                 raise TaskError(f"task {task.key!r} failed: {type(exc).__name__}: {exc}",
                                 key=task.key) from exc
+            _raise_refusal(task, value)
             result = TaskResult(task.key, value, seconds, name, caught)
             _reraise_warnings(result)
             if on_result is not None:
@@ -428,7 +553,8 @@ def _run_on(client, tasks, devices, retries, on_result, keep) -> list[TaskResult
                     f"allows ({exc})", key=task.key) from exc
             except Exception as exc:
                 raise TaskError(f"task {task.key!r} failed after {retries + 1} attempts: "
-                                f"{type(exc).__name__}: {exc}", key=task.key) from exc
+                                f"{type(exc).__name__}: {exc}", key=task.key) from None
+            _raise_refusal(task, value)
             result = TaskResult(task.key, value, seconds, name, caught)
             _reraise_warnings(result)
             if on_result is not None:

@@ -24,6 +24,10 @@ class _NoValue:
     def __repr__(self) -> str:  # pragma: no cover - trivial
         return "<no value>"
 
+    def __reduce__(self):
+        # one marker in every process: an error pickled from a Dask worker keeps it
+        return "NOVALUE"
+
 
 NOVALUE = _NoValue()
 

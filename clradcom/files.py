@@ -21,11 +21,15 @@ from __future__ import annotations
 import contextlib
 import csv
 import fnmatch
+import hashlib
 import io
 import os
+import re
 import secrets
 import shutil
+import socket
 import stat
+import warnings
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
@@ -36,6 +40,11 @@ __all__ = ["OutputError", "atomic_write", "save_figure", "staged_folder", "write
 
 #: Salt of matplotlib's SVG ids (clip paths, glyphs): fixed for byte-identical SVGs.
 SVG_HASH_SALT = "clradcom"
+
+
+class LeftoverWarning(UserWarning):
+    """A staging folder that a killed run left beside its output folder was removed (or,
+    where it cannot be known to be dead, is named)."""
 
 
 class OutputError(OSError):
@@ -217,7 +226,7 @@ def _swap_in(staging: Path, target: Path, parent: Path, owned) -> None:
                 os.rename(entry, staging / entry.name)
                 carried.append(entry.name)
         if target.exists():
-            old = parent / f".{target.name}.{secrets.token_hex(6)}.old"
+            old = parent / f".{target.name}.{_run_tag()}-{secrets.token_hex(6)}.old"
             os.replace(target, old)
         os.replace(staging, target)
     except BaseException as exc:
@@ -248,6 +257,52 @@ def _swap_in(staging: Path, target: Path, parent: Path, owned) -> None:
         raise
     if old is not None:
         shutil.rmtree(old, ignore_errors=True)
+
+
+def _host_tag() -> str:
+    """8 hex digits of this machine's name: a process number means something only on
+    the machine that gave it (output folders may be on a shared file system)."""
+    return hashlib.sha256(socket.gethostname().encode()).hexdigest()[:8]
+
+
+def _run_tag() -> str:
+    """This run's part of a staging folder's name: ``<host>p<pid>``."""
+    return f"{_host_tag()}p{os.getpid()}"
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # exists, owned by someone else
+        return True
+    return True
+
+
+def _remove_leftovers(parent: Path, name: str) -> None:
+    """Remove the staging (``.new``) and swapped-out (``.old``) folders that runs into
+    ``parent/name`` on this machine left when they were killed (their process is gone),
+    each named in a :class:`LeftoverWarning`; name those that cannot be known dead (made
+    on another machine or by an older clradcom) without touching them."""
+    own = re.compile(rf"^\.{re.escape(name)}\.([0-9a-f]{{8}})p(\d+)-[0-9a-f]{{12}}\.(new|old)$")
+    older = re.compile(rf"^\.{re.escape(name)}\.[0-9a-f]{{12}}\.(new|old)$")
+    host = _host_tag()
+    try:
+        entries = sorted(parent.iterdir())
+    except OSError:
+        return
+    for entry in entries:
+        m = own.match(entry.name)
+        if m and m.group(1) == host and not _alive(int(m.group(2))) and entry.is_dir():
+            shutil.rmtree(entry, ignore_errors=True)
+            warnings.warn(f"removed {entry}: left by an earlier run into {parent / name} "
+                          f"that was killed (process {m.group(2)} is gone)", LeftoverWarning,
+                          stacklevel=4)
+        elif ((m and m.group(1) != host) or older.match(entry.name)) and entry.is_dir():
+            warnings.warn(f"{entry} was left by a run into {parent / name} that may have been "
+                          "killed (on another machine, or by an older clradcom); remove it "
+                          "if no run is writing there", LeftoverWarning, stacklevel=4)
 
 
 @contextlib.contextmanager
@@ -293,7 +348,8 @@ def staged_folder(path: str | os.PathLike, *, inputs=(), owned=None) -> Iterator
     parent = target.parent
     try:
         parent.mkdir(parents=True, exist_ok=True)
-        staging = parent / f".{target.name}.{secrets.token_hex(6)}.new"
+        _remove_leftovers(parent, target.name)
+        staging = parent / f".{target.name}.{_run_tag()}-{secrets.token_hex(6)}.new"
         staging.mkdir()
     except OSError as exc:
         raise OutputError(f"{path}: cannot create the output folder "

@@ -119,3 +119,83 @@ def test_bad_arguments_are_refused():
         cd.Task("", always_die)
     with pytest.raises(ArgumentError, match="workers"):
         cd.local_cluster(0)
+
+
+class _Unpicklable:
+    def __reduce__(self):
+        raise TypeError("cannot pickle '_Record' object")
+
+
+def fail_like_a_kernel_build(counter: str):
+    """An OpenCLError chained from an exception that cannot be pickled, as pyopencl's
+    error records are; counts its attempts in ``counter``."""
+    from clradcom.device.runtime import OpenCLError
+    with open(counter, "a") as fh:
+        fh.write("x")
+    try:
+        raise RuntimeError(_Unpicklable())
+    except RuntimeError as exc:
+        raise OpenCLError("OpenCL build of kernels/x.cl failed on the test device") from exc
+
+
+def refuse_a_scene(counter: str):
+    from clradcom.errors import SceneError
+    with open(counter, "a") as fh:
+        fh.write("x")
+    raise SceneError("missing required key", file="scene.toml", key="scene.carrier_hz")
+
+
+def test_a_worker_fault_comes_back_as_one_picklable_line(client, tmp_path, capfd):
+    counter = tmp_path / "attempts"
+    with pytest.raises(cd.TaskError) as info:
+        cd.run_tasks([cd.Task("build", fail_like_a_kernel_build, (str(counter),))],
+                     client=client, retries=1)
+    text = str(info.value)
+    assert text == ("task 'build' failed after 2 attempts: OpenCLError: OpenCL build of "
+                    "kernels/x.cl failed on the test device")
+    assert counter.read_text() == "xx"
+    # nothing chained to it that a traceback would print, nothing pickling refused
+    assert info.value.__cause__ is None and info.value.__suppress_context__
+    assert "pickle" not in capfd.readouterr().err
+
+
+def test_a_refusal_on_a_worker_reads_as_in_a_serial_run_and_is_not_retried(client, tmp_path):
+    counter = tmp_path / "attempts"
+    with pytest.raises(cd.TaskError) as serial:
+        cd.run_tasks([cd.Task("scene", refuse_a_scene, (str(counter),))], workers=0)
+    with pytest.raises(cd.TaskError) as remote:
+        cd.run_tasks([cd.Task("scene", refuse_a_scene, (str(counter),))], client=client,
+                     retries=2)
+    assert str(remote.value) == str(serial.value) == (
+        "task 'scene' failed: SceneError: scene.toml: scene.carrier_hz: missing required key")
+    assert counter.read_text() == "xx"   # once serially, once on the worker: no retries
+
+
+def test_local_workers_are_bounded_by_the_cores():
+    limit = cd.max_local_workers()
+    assert limit >= 2 and limit >= (os.cpu_count() or 1)
+    assert cd.check_workers(limit) == limit
+    with pytest.raises(ArgumentError, match=r"workers = 10000: more local worker processes"):
+        cd.local_cluster(10_000)
+    with pytest.raises(ArgumentError, match=r"workers = .*at most"):
+        cd.run_tasks([], workers=limit + 1)
+
+
+@pytest.mark.parametrize("address", ["not-a-url", "127.0.0.1:8786", "http://host:8786",
+                                     "tcp://host", "tcp://:8786", "tcp://host:99999",
+                                     "tcp://host:8786/path"])
+def test_a_scheduler_address_of_the_wrong_form_is_refused(address):
+    with pytest.raises(ArgumentError, match="is not a Dask scheduler address"):
+        cd.check_scheduler_address(address)
+
+
+def test_an_unreachable_scheduler_is_refused_in_seconds():
+    import socket
+    import time
+    with socket.socket() as s:   # a port nobody listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    t0 = time.perf_counter()
+    with pytest.raises(ArgumentError, match=r"no Dask scheduler answered there within 5 s"):
+        cd.run_tasks([cd.Task("a", always_raise, (1,))], scheduler=f"tcp://127.0.0.1:{port}")
+    assert time.perf_counter() - t0 < 30

@@ -120,3 +120,39 @@ def test_identical_figures_give_identical_bytes(tmp_path, suffix):
         return path.read_bytes()
 
     assert draw(tmp_path / f"a.{suffix}") == draw(tmp_path / f"b.{suffix}")
+
+
+def _dead_pid() -> int:
+    import subprocess
+    import sys
+    p = subprocess.Popen([sys.executable, "-c", "pass"])
+    p.wait()
+    return p.pid
+
+
+def test_a_killed_runs_staging_folder_is_removed_by_the_next_run(tmp_path):
+    """SIGKILL leaves the staging folder; the next run into the same place names and
+    removes it where its process is gone, and leaves alone what may still be written."""
+    import warnings as _w
+
+    from clradcom import files
+    tag = files._host_tag()
+    dead = tmp_path / f".out.{tag}p{_dead_pid()}-{'a' * 12}.new"
+    live = tmp_path / f".out.{tag}p{os.getpid()}-{'b' * 12}.new"
+    elsewhere = tmp_path / f".out.{'0' * 8}p1-{'c' * 12}.new"
+    older = tmp_path / f".out.{'d' * 12}.new"
+    for d in (dead, live, elsewhere, older):
+        d.mkdir()
+        (d / "snapshot.npz").write_bytes(b"partial")
+    with _w.catch_warnings(record=True) as caught:
+        _w.simplefilter("always")
+        with files.staged_folder(tmp_path / "out") as stage:
+            (stage / "a.txt").write_text("new")
+    assert not dead.exists()
+    assert live.exists() and elsewhere.exists() and older.exists()
+    texts = [str(w.message) for w in caught if issubclass(w.category, files.LeftoverWarning)]
+    assert any(t.startswith(f"removed {dead}") for t in texts)
+    assert any(str(elsewhere) in t and "remove it" in t for t in texts)
+    assert any(str(older) in t for t in texts)
+    assert not any(str(live) in t for t in texts)
+    assert (tmp_path / "out" / "a.txt").read_text() == "new"

@@ -40,3 +40,37 @@ def test_sweep_refuses_bad_fields_in_one_line(tmp_path, capsys):
     assert code == 2
     assert "--vary" in err and "specular.nope" in err and "Traceback" not in err
     assert not (tmp_path / "o").exists()
+
+
+def test_ctrl_c_during_a_distributed_sweep_is_one_line_and_exit_130(tmp_path):
+    """Ctrl-C at a terminal signals the whole process group: the command stops the
+    cluster and says so in one line (exit 130); the workers print nothing, the output
+    folder is not created, no staging folder stays behind."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    street = Path(__file__).resolve().parents[1] / "scenes" / "street" / "street.toml"
+    out = tmp_path / "sweep"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "clradcom", "sweep", str(street), "--preset",
+         "fast,paper,paper,fast", "--workers", "2", "--out", str(out), "-q"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    try:
+        first = proc.stdout.readline().decode()
+        assert "traces of" in first, first
+        time.sleep(3.0)   # the cluster started and the workers are tracing
+        os.killpg(proc.pid, signal.SIGINT)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    lines = [ln for ln in err.decode().splitlines() if ln.strip()]
+    assert proc.returncode == 130, err.decode()
+    assert lines[-1] == "clradcom sweep: interrupted; the output folder was left as it was"
+    assert not any("Traceback" in ln or "KeyboardInterrupt" in ln for ln in lines), lines
+    assert not out.exists()
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".sweep.")]

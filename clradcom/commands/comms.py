@@ -37,6 +37,7 @@ from clradcom.commands.options import (
     check_two_radars,
     command_parser,
     finite_float,
+    float_in,
     list_of,
     noise_figure_db,
     non_negative_float,
@@ -70,6 +71,9 @@ from clradcom.trace import check_launch_memory
 
 #: the names this tool writes into its output folder (the snapshot only when tracing)
 OUTPUTS = ("comms.csv", "comms.png", "comms.svg")
+#: Es/N0 values --snr-db accepts (dB): beyond them the noise power under- or overflows a
+#: float64 (1e308 dB) long before it means anything; -100 to 200 dB spans every link
+SNR_DB_RANGE = (-100.0, 200.0)
 
 
 def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
@@ -90,9 +94,10 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
                          "--pilot-step-th subcarrier of every symbol (default block)")
     ap.add_argument("--pilot-step", type=positive_int, default=8,
                     help="pilot spacing in symbols (block) or subcarriers (comb), default 8")
-    ap.add_argument("--snr-db", type=list_of(finite_float, "Es/N0"),
+    ap.add_argument("--snr-db", type=list_of(float_in(*SNR_DB_RANGE), "Es/N0"),
                     default=[0.0, 2.0, 4.0, 6.0, 8.0, 10.0, 12.0, 14.0, 16.0, 18.0, 20.0],
-                    help="mean Es/N0 values in dB, comma separated (default 0,2,...,20)")
+                    help="mean Es/N0 values in dB, comma separated (default 0,2,...,20; "
+                         f"each in [{SNR_DB_RANGE[0]:g}, {SNR_DB_RANGE[1]:g}])")
     ap.add_argument("--frames", type=positive_int, default=1,
                     help="frames per Es/N0, each with its own data (default 1)")
     ap.add_argument("--dd-passes", type=non_negative_int, default=0,

@@ -66,7 +66,7 @@ from clradcom.commands.options import (
 )
 from clradcom.commands.sweep import add_cluster_arguments, cluster_text
 from clradcom.commands.trace import radar_noise, settings_from_args
-from clradcom.distributed import run_drive
+from clradcom.distributed import quiet_dask_logs, run_drive
 from clradcom.errors import ArgumentError
 from clradcom.files import save_figure, staged_folder
 from clradcom.radar.pipeline import check_frame_memory
@@ -222,6 +222,7 @@ def run(args) -> int:
             if index is not None:
                 paths_of.append(snap.links[0].paths)
 
+        quiet_dask_logs()
         snaps, _ = run_drive(scene, settings, times, workers=args.workers,
                              scheduler=args.scheduler, devices=devices, retries=args.retries,
                              links=links, chunk=args.chunk, each=each)

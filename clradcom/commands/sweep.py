@@ -38,7 +38,14 @@ from clradcom.commands.options import (
     run_tool,
 )
 from clradcom.commands.tradeoff import _vary
-from clradcom.distributed import run_tasks, trace_tasks
+from clradcom.distributed import (
+    check_scheduler_address,
+    check_workers,
+    max_local_workers,
+    quiet_dask_logs,
+    run_tasks,
+    trace_tasks,
+)
 from clradcom.errors import ArgumentError
 from clradcom.evaluation import tradeoff as tr
 from clradcom.files import staged_folder, write_csv
@@ -56,6 +63,22 @@ def _preset(text: str) -> str:
     if text not in PRESETS:
         raise argparse.ArgumentTypeError(f"must be one of {', '.join(PRESETS)}, got {text!r}")
     return text
+
+
+def _workers(text: str) -> int:
+    """--workers: an integer from 0 to the machine's cores."""
+    try:
+        return check_workers(non_negative_int(text))
+    except ArgumentError as exc:
+        raise argparse.ArgumentTypeError(f"{exc.reason}, got {text!r}") from None
+
+
+def _scheduler(text: str) -> str:
+    """--scheduler: SCHEME://HOST:PORT (reachability is checked when the run connects)."""
+    try:
+        return check_scheduler_address(text)
+    except ArgumentError as exc:
+        raise argparse.ArgumentTypeError(f"{exc.reason}, got {text!r}") from None
 
 
 def _device_list(text: str) -> list[str]:
@@ -94,10 +117,11 @@ def add_cluster_arguments(ap: argparse.ArgumentParser):
     ``--scheduler``, ``--devices``, ``--retries`` (clradcom.distributed.run_tasks), in an
     argument group, returned for a command's own options of the kind."""
     g = ap.add_argument_group("where the traces run (Dask, docs/scale.md)")
-    g.add_argument("--workers", type=non_negative_int, default=2,
-                   help="processes of the local Dask cluster (default 2; 0: serially in "
-                        "this process, without Dask)")
-    g.add_argument("--scheduler", default=None, metavar="ADDRESS",
+    g.add_argument("--workers", type=_workers, default=2,
+                   help="processes of the local Dask cluster (default 2, at most "
+                        f"{max_local_workers()} here: one per core; 0: serially in this "
+                        "process, without Dask)")
+    g.add_argument("--scheduler", type=_scheduler, default=None, metavar="ADDRESS",
                    help="a running Dask scheduler (tcp://host:8786) whose workers trace; "
                         "--workers is then not used")
     g.add_argument("--devices", type=_device_list, default=None,
@@ -177,6 +201,7 @@ def run(args) -> int:
             bar.write(f"  {result.key} {points[i][0]}: {n_paths} paths, "
                       f"{result.seconds:.2f} s on worker {result.worker}")
 
+        quiet_dask_logs()
         try:  # a task failing past --retries is a TaskError: one line, exit code 2
             results = run_tasks(tasks, workers=args.workers, scheduler=args.scheduler,
                                 devices=args.devices, retries=args.retries, on_result=done,
