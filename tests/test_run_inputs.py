@@ -100,3 +100,29 @@ def test_a_snapshot_of_another_scene_is_refused(tmp_path, capsys, tool):
         assert clradcom_main(["view", str(CANONICAL / "plate.toml"), "--snapshot", str(snap),
                               "--out", str(tmp_path / "v.png")]) == 0
         assert (tmp_path / "v.png").stat().st_size > 0
+
+
+def test_a_snapshot_without_a_hash_must_name_the_scenes_radars(tmp_path, capsys):
+    """A snapshot with no scene hash (written by another tool) is checked by its radars'
+    names and indices: against a scene without them it is refused in one line (it was an
+    IndexError in `clradcom radar`, and drawn silently by `view`)."""
+    import dataclasses
+
+    from clradcom.snapshot import load_snapshot
+    from clradcom.trace import TraceSettings, trace_scene
+    car = load_scene(CANONICAL / "moving_car.toml")
+    snap = trace_scene(car, TraceSettings.preset("go", specular__rays=2000))
+    assert len(snap.links) > 0
+    path = tmp_path / "nohash.npz"
+    save_snapshot(path, dataclasses.replace(snap, scene_hash=""))
+    assert load_snapshot(path).scene_hash == ""
+    for argv in (["radar", str(path), "--scene", str(CANONICAL / "plate.toml"),
+                  "--out", str(tmp_path / "r")],
+                 ["view", str(CANONICAL / "plate.toml"), "--snapshot", str(path),
+                  "--out", str(tmp_path / "v.png")]):
+        assert clradcom_main(argv) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "has no scene hash" in err[0] and "'radarA'" in err[0]
+    assert not (tmp_path / "r").exists() and not (tmp_path / "v.png").exists()
+    assert clradcom_main(["view", str(CANONICAL / "moving_car.toml"), "--snapshot",
+                          str(path), "--out", str(tmp_path / "v.png")]) == 0

@@ -556,10 +556,24 @@ def read_snapshot(path) -> Snapshot:
 def check_snapshot_scene(snap: Snapshot, scene, snapshot_path, scene_path) -> None:
     """Refuse a snapshot traced from another scene than ``scene`` (their content hashes
     differ): its paths would be drawn or processed over geometry they never met."""
-    if snap.scene_hash and snap.scene_hash != scene.content_hash():
-        raise SnapshotError(f"was traced from another scene than {scene_path} (its scene "
-                            "hash differs); trace this scene again with clradcom trace",
-                            file=snapshot_path, key="scene_hash")
+    if snap.scene_hash:
+        if snap.scene_hash != scene.content_hash():
+            raise SnapshotError(f"was traced from another scene than {scene_path} (its "
+                                "scene hash differs); trace this scene again with clradcom "
+                                "trace", file=snapshot_path, key="scene_hash")
+        return
+    # no hash (written by hand or by another tool): its radars must be the scene's
+    names = [r.name for r in scene.radars]
+    for link in snap:
+        for role, name, index in (("tx", link.tx_name, link.tx_index),
+                                  ("rx", link.rx_name, link.rx_index)):
+            if index >= len(names) or names[index] != name:
+                have = f"radar {index} is {names[index]!r}" if index < len(names) else \
+                    f"it has {len(names)} radar(s)"
+                raise SnapshotError(
+                    f"has no scene hash, and its link {link.label} names {role} {name!r} "
+                    f"as radar {index} where {scene_path} does not ({have}); give the scene "
+                    "it was traced from", file=snapshot_path, key="links")
 
 
 def trace_into(stage: Path, scene, settings: TraceSettings, args) -> Snapshot:
