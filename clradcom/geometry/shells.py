@@ -25,6 +25,8 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from clradcom.geometry.rows import unique_rows
+
 __all__ = ["Shells", "orient_shells"]
 
 
@@ -63,7 +65,8 @@ def orient_shells(triangles) -> Shells:
     if n == 0:
         return Shells(label=np.zeros(0, np.int64), closed=np.zeros(0, bool),
                       inward=np.zeros(0, bool))
-    _, index = np.unique(tri.reshape(-1, 3), axis=0, return_inverse=True)
+    # one lexsort (rows.py): np.unique(axis=0) took 6 of 14 s on a 1e5-vertex footprint
+    _, index, _ = unique_rows(tri.reshape(-1, 3))
     faces = index.reshape(n, 3)
     n_verts = int(faces.max()) + 1
     a = faces.reshape(-1)
@@ -95,10 +98,12 @@ def orient_shells(triangles) -> Shells:
     volume = np.bincount(shell, weights=np.einsum("ij,ij->i", t[:, 0],
                                                   np.cross(t[:, 1], t[:, 2])),
                          minlength=S) / 6.0
-    lo = np.full((S, 3), np.inf)
-    hi = np.full((S, 3), -np.inf)
-    np.minimum.at(lo, owner, pts)
-    np.maximum.at(hi, owner, pts)
+    # per-shell bounds by segments of the points sorted by shell (every shell has
+    # points): ufunc.at is some 10x slower on a million-vertex footprint
+    by_shell = np.argsort(owner, kind="stable")
+    starts = np.searchsorted(owner[by_shell], np.arange(S))
+    lo = np.minimum.reduceat(pts[by_shell], starts, axis=0)
+    hi = np.maximum.reduceat(pts[by_shell], starts, axis=0)
     diagonal = np.linalg.norm(hi - lo, axis=1)
     inward = closed & (volume < -1e-9 * diagonal ** 3)
     return Shells(label=shell, closed=closed, inward=inward)
