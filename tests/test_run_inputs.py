@@ -126,3 +126,14 @@ def test_a_snapshot_without_a_hash_must_name_the_scenes_radars(tmp_path, capsys)
     assert not (tmp_path / "r").exists() and not (tmp_path / "v.png").exists()
     assert clradcom_main(["view", str(CANONICAL / "moving_car.toml"), "--snapshot",
                           str(path), "--out", str(tmp_path / "v.png")]) == 0
+
+
+def test_export_checks_the_link_before_it_writes_anything(tmp_path, capsys):
+    plate = load_scene(CANONICAL / "plate.toml")
+    snap = _empty_snapshot(tmp_path / "plate.npz", plate)
+    out = tmp_path / "ex"
+    rc = _export_main([str(snap), "--scene", str(CANONICAL / "plate.toml"), "--mat",
+                       "--top-view", "--link", "X->Y", "--out", str(out)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "--link = 'X->Y'" in err[0]
+    assert not out.exists()   # no .mat written before the refusal, no folder either

@@ -93,6 +93,14 @@ def main(argv=None) -> int:
         scene = load_scene(args.scene) if views else None
         if scene is not None:
             check_snapshot_scene(snap, scene, src, args.scene)
+        link = None   # checked before anything is written
+        if args.link is not None:
+            tx, _, rx = args.link.partition("->")
+            try:
+                link = snap.link(tx, rx)
+            except KeyError as exc:
+                raise ArgumentError(str(exc.args[0]), argument="--link",
+                                    value=args.link) from None
         out = Path(args.out) if args.out is not None else src.parent
         out.mkdir(parents=True, exist_ok=True)
         stem = src.name.removesuffix(".npz")
@@ -113,14 +121,6 @@ def main(argv=None) -> int:
                                     argument="--compressed", value=str(target))
             written.append(save_snapshot(target, snap, compress=True))
         if args.top_view:
-            link = None
-            if args.link is not None:
-                tx, _, rx = args.link.partition("->")
-                try:
-                    link = snap.link(tx, rx)
-                except KeyError as exc:
-                    raise ArgumentError(str(exc.args[0]), argument="--link",
-                                        value=args.link) from None
             plot_top_view(scene, snap, link, n_paths=args.paths,
                           path=out / f"{stem}_top.png", inputs=inputs)
             written.append(out / f"{stem}_top.png")
