@@ -82,7 +82,7 @@ from clradcom.radar.pipeline import (
     process,
     radar_frame,
 )
-from clradcom.radar.plots import image_title, mounting_range_m, save_radar_image
+from clradcom.radar.plots import image_title, mounting_return_range_m, save_radar_image
 from clradcom.radar.report import (
     DETECTION_COLUMNS,
     STATIC_RANGE_M,
@@ -334,11 +334,13 @@ def radar_stage(sw, args, scene, wf, link, radar, nf, stage) -> None:
     with sw.stage(f"radar {radar.name}: image and tables"):
         truth = detection_truth(scene, radar.name, moving_objects(scene, radar))
         # colour down to the noise floor, so weak echoes beside the ground return show;
-        # 0 dB: the strongest return beyond the radar's own mounting return
+        # 0 dB: the strongest return beyond the radar's own mounting return, where it has
+        # one
         save_radar_image(image, stage / f"{radar.name}_image", dets,
                          dynamic_range_db=display_range_db(image),
                          title=image_title(radar.name, scene.name), truth=truth,
-                         mount_range_m=mounting_range_m(wf.range_resolution))
+                         mount_range_m=mounting_return_range_m(link.paths,
+                                                               wf.range_resolution))
         write_table(stage / f"{radar.name}_detections.csv", detection_rows(dets),
                     DETECTION_COLUMNS)
         matches = match_truth(dets, truth, *match_tolerances(wf))
