@@ -278,12 +278,16 @@ def test_dielectric_cylinder_broadside_through_trace_scene(runtime):
         assert np.all(p.interaction[:, 0] == int(InteractionType.PHYSICAL_OPTICS))
         got = sigma(p.matrix.sum(axis=0)[0, 0], R, R)
         assert abs(db(got / want)) < 0.1, (optics, db(got / want))
-    # without its own optics key a dielectric stays GO, whatever the PEC default
+    # without its own optics key skin (|Gamma(0)|^2 = -3.4 dB) is a body, a target: it
+    # takes the mode's default like a metal; concrete (-8.4 dB) stays GO
     scene = scene_of([tri_object(verts, faces, "skin")], [radar("r", (R, 0.0, h / 2))],
                      [material("skin", SKIN)])
-    for mode in ("none", "pec", "sbr"):
-        assert object_optics(scene, mode) == ["go"]
-    p = trace_scene(scene, settings, runtime=runtime).links[0].paths
+    assert [object_optics(scene, m)[0] for m in ("none", "pec", "sbr")] == ["go", "both",
+                                                                            "po"]
+    wall = scene_of([tri_object(verts, faces, "wall")], [radar("r", (R, 0.0, h / 2))],
+                    [material("wall", CONCRETE)])
+    assert [object_optics(wall, m)[0] for m in ("none", "pec", "sbr")] == ["go"] * 3
+    p = trace_scene(scene, settings, runtime=runtime).links[0].paths  # mode "none"
     assert not np.any(p.interaction == int(InteractionType.PHYSICAL_OPTICS))
 
 

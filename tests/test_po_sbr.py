@@ -352,7 +352,7 @@ def test_optics_key_in_the_scene_file():
     assert [object_optics(plain, m)[0] for m in ("none", "pec", "sbr")] == ["go", "both", "po"]
     assert plain.content_hash() != scene.content_hash()
     concrete = scene_of([dihedral(0.1, 0.1, material="itu_concrete")], [(3.0, 0.0, 0.0)])
-    assert object_optics(concrete, "sbr") == ["go"]  # defaults apply to PEC objects only
+    assert object_optics(concrete, "sbr") == ["go"]  # the default: conductors and bodies only
     with pytest.raises(SceneError, match=r"objects\[0\]\.optics.*mirror"):
         scene_of([dihedral(0.1, 0.1, optics="mirror")], [(3.0, 0.0, 0.0)])
     # "po" is an object's optics, not a scene-level mode

@@ -5,7 +5,9 @@ reference."""
 
 import numpy as np
 from dsp_helpers import small_waveform
+from test_snapshot import make_paths
 
+from clradcom.physics.em import C0
 from clradcom.radar import (
     radar_image,
     random_symbols,
@@ -15,7 +17,9 @@ from clradcom.radar import (
 from clradcom.radar.plots import (
     MOUNTING_RETURN_M,
     image_title,
+    mounting_paths,
     mounting_range_m,
+    mounting_return_range_m,
     plot_radar_image,
 )
 
@@ -81,3 +85,23 @@ def test_without_the_mounting_range_the_strongest_cell_is_the_reference():
     data = np.asarray(ax.images[0].get_array())
     assert np.nanmax(data) == 0.0
     assert not [ln for ln in ax.lines if ln.get_gid() == "mounting_return"]
+
+
+def test_the_mounting_return_needs_a_path_from_the_mounting():
+    """Issue 27, item 6: the label and the 0 dB rule hold only where the radar's own echoes
+    have a path from within MOUNTING_RETURN_M of it. A radar over the road of an imported
+    canyon (its nearest echo the road 1.5 m below) has none: no cell is its mounting
+    return, not even a noise cell at 3.4 m."""
+    res = small_waveform(n=256, m=64).range_resolution
+    street = make_paths([1, 2, 1], delays=2 * np.array([0.5, 16.1, 34.4]) / C0)
+    canyon = make_paths([1, 2, 0], delays=2 * np.array([1.5, 16.1, 0.3]) / C0)
+    assert mounting_paths(street).tolist() == [True, False, False]
+    assert mounting_return_range_m(street, res) == mounting_range_m(res)
+    # the road 1.5 m under the radar is no mounting; a 0.3 m line of sight is no echo
+    assert not mounting_paths(canyon).any()
+    assert mounting_return_range_m(canyon, res) is None
+    _, img = _image()
+    ax = plot_radar_image(img, mount_range_m=mounting_return_range_m(canyon, res)).axes[0]
+    assert not [ln for ln in ax.lines if ln.get_gid() == "mounting_return"]
+    ax = plot_radar_image(img, mount_range_m=mounting_return_range_m(street, res)).axes[0]
+    assert len([ln for ln in ax.lines if ln.get_gid() == "mounting_return"]) == 1

@@ -185,14 +185,22 @@ def nmse_db(h, ref):
 # device == host
 
 
-@pytest.mark.parametrize("case", ["golden", "dihedral", "trihedral"])
+@pytest.mark.parametrize("case", ["golden", "dihedral", "trihedral", "dihedral_itu_metal",
+                                  "dihedral_itu_glass"])
 def test_device_engine_equals_the_host_reference(runtime, case):
+    """Also on corners of a finite conductor (itu_metal) and a dielectric (itu_glass),
+    whose bounces take the material's Fresnel dyad and whose footprints radiate the
+    penetrable currents (docs/po.md; tests/test_po_dielectric.py and
+    tests/test_optics_choice.py hold them to closed forms): the two engines agree there
+    too."""
     if case == "golden":
         scene = load_scene(DATA)
         objects, tx, receivers = [2], scene.radars[0], list(scene.radars)
         kw = {"spacing_wavelengths": 1.0}
     else:
-        obj = dihedral(0.12, 0.08) if case == "dihedral" else trihedral(0.1)
+        material = case.partition("_")[2] or "metal"
+        obj = (dihedral(0.12, 0.08, material=material) if case.startswith("dihedral")
+               else trihedral(0.1))
         pos = [(3.0, 0.4, 0.3), (2.5, -0.6, 1.0)]
         scene = scene_of([obj], pos)
         objects, tx, receivers = [0], scene.radars[0], list(scene.radars)

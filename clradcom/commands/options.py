@@ -48,7 +48,7 @@ from clradcom.radar.pipeline import SYNTHESIS_METHODS, check_frame_memory
 from clradcom.radar.synthesis import check_noise_figure
 from clradcom.radar.waveform import Waveform, round_cyclic_prefix
 from clradcom.scene.motion import MAX_TIME_STEPS
-from clradcom.scene.records import MODULATIONS
+from clradcom.scene.records import MODULATIONS, OPTICS
 from clradcom.snapshot import Snapshot, load_snapshot, save_snapshot
 from clradcom.trace import TraceSettings, trace_scene
 
@@ -176,6 +176,17 @@ def list_of(convert: Callable, name: str = "value"):
         return out
     parse.__name__ = f"list_of_{getattr(convert, '__name__', 'values')}"
     return parse
+
+
+def object_optics_pair(text) -> tuple[str, str]:
+    """``NAME=OPTICS``: an object (its name, or an fnmatch pattern such as ``car*``) and
+    its optics, one of :data:`~clradcom.scene.records.OPTICS`."""
+    name, sep, optics = str(text).partition("=")
+    if not sep or not name.strip():
+        _refuse(text, f"NAME=OPTICS with OPTICS one of {', '.join(OPTICS)} (e.g. carA=po)")
+    if optics.strip() not in OPTICS:
+        _refuse(text, f"NAME=OPTICS with OPTICS one of {', '.join(OPTICS)}")
+    return name.strip(), optics.strip()
 
 
 def output_folder(text) -> str:

@@ -5,15 +5,18 @@
 
 (``python tools/trace.py ...`` runs the same.) The physics is the preset's (--preset,
 default "paper": 1e6 rays per transmitter, up to 5 reflections, 1 diffraction, PO + SBR
-for PEC objects, scattering from the trees; the same as trace_scene(scene) in Python);
-each option below changes one knob of it.
+for conductors and bodies (|Gamma(0)|^2 >= -4 dB: metals of any conductivity, skin),
+scattering from the trees; the same as trace_scene(scene) in Python); each option below
+changes one knob of it.
 
 Stages and what they write into the output folder (default: out/<scene name>/):
 
   1. trace      every transmitter -> receiver link with the OpenCL ray tracer
                 (line of sight, specular reflections up to --reflections, single
-                UTD edge diffraction, physical-optics returns of PEC objects,
-                Lambertian scattering from tiles of the trees)
+                UTD edge diffraction, physical-optics returns of conductors and
+                bodies (--optics NAME=po|both|go sets an object's own),
+                Lambertian scattering from tiles of the trees); printed once
+                first: which objects get which optics, and why
                 -> snapshot.npz (documented in docs/snapshot-format.md)
   2. radar      for every radar that both transmits and receives: its own
                 echoes (the monostatic link) drive the paper's OFDM frame
@@ -65,6 +68,7 @@ from clradcom.commands.options import (
     command_parser,
     float_in,
     int_in,
+    object_optics_pair,
     output_folder,
     positive_int,
     run_tool,
@@ -74,6 +78,7 @@ from clradcom.device.runtime import get_runtime
 from clradcom.errors import ArgumentError, SceneError
 from clradcom.files import staged_folder
 from clradcom.mechanisms.common import ENGINES
+from clradcom.mechanisms.optics import optics_summary
 from clradcom.mechanisms.sbr import ACCURACY_DB_RANGE
 from clradcom.plots import plot_top_view
 from clradcom.presets import DEFAULT_PRESET, PRESETS
@@ -82,7 +87,7 @@ from clradcom.radar.pipeline import (
     process,
     radar_frame,
 )
-from clradcom.radar.plots import image_title, mounting_range_m, save_radar_image
+from clradcom.radar.plots import image_title, mounting_return_range_m, save_radar_image
 from clradcom.radar.report import (
     DETECTION_COLUMNS,
     STATIC_RANGE_M,
@@ -101,7 +106,7 @@ from clradcom.radar.report import (
 from clradcom.radar.synthesis import check_noise_figure
 from clradcom.radar.truth import detection_truth, match_truth
 from clradcom.scene.reader import load_scene
-from clradcom.scene.records import SBR_SPACING_WAVELENGTHS
+from clradcom.scene.records import SBR_SPACING_WAVELENGTHS, with_object_optics
 from clradcom.snapshot import save_snapshot
 from clradcom.trace import (
     StageTimes,
@@ -166,11 +171,18 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
                          "(paper: 0; each one costs seconds on the street, see "
                          "tools/bench_paths.py)")
     ap.add_argument("--physical-optics", choices=("none", "pec", "sbr"), default=None,
-                    help="sbr (paper): PEC objects return their physical-optics facet "
+                    help="sbr (paper): conductors and bodies (PEC, any metal, skin: "
+                         "|Gamma(0)|^2 >= -4 dB) return their physical-optics facet "
                          "integrals instead of single GO mirror paths, and shooting-and-"
                          "bouncing-ray PO for their multi-bounce returns (what puts car D "
                          "where the paper has it); pec: facets only; none: pure GO (an "
-                         "object's own `optics` key always wins)")
+                         "object's own `optics` key, or --optics, always wins)")
+    ap.add_argument("--optics", type=object_optics_pair, action="append", default=[],
+                    metavar="NAME=OPTICS",
+                    help="an object's own optics, as its scene key `optics` would set it: "
+                         "po (PO facets + SBR-PO), both (PO facets, GO multi-bounce) or go; "
+                         "NAME may be a pattern (car*, 'buildings/*'); repeat for more "
+                         "objects, later ones win")
     ap.add_argument("--sbr-spacing", type=float_in(*SBR_SPACING_WAVELENGTHS), default=None,
                     metavar="WAVELENGTHS",
                     help="pitch of the SBR ray tubes at each object, in wavelengths "
@@ -269,6 +281,8 @@ def run(args) -> int:
     check_launch_memory(settings, argument=option, value=value)
     with sw.stage("load scene"):
         scene = load_scene(args.scene)
+        if getattr(args, "optics", None):
+            scene = with_object_optics(scene, args.optics, argument="--optics")
     wf, frame = run_waveform(scene.carrier_hz, args, scene=scene)
     print(f"  {frame}")
     check_frame_memory(wf, args.synthesis)
@@ -278,6 +292,8 @@ def run(args) -> int:
         with sw.stage("open OpenCL device"):
             runtime = get_runtime(args.device)
         print(f"  device: {runtime.info.describe()}")
+        for line in optics_summary(scene, settings.optics.mode):
+            print(f"  {line}")
         times = StageTimes()
         with sw.stage(f"trace {len(scene.triangles)} triangles, {settings.specular.rays} "
                       f"rays per tx ({describe_settings(args, settings)})"), \
@@ -334,11 +350,13 @@ def radar_stage(sw, args, scene, wf, link, radar, nf, stage) -> None:
     with sw.stage(f"radar {radar.name}: image and tables"):
         truth = detection_truth(scene, radar.name, moving_objects(scene, radar))
         # colour down to the noise floor, so weak echoes beside the ground return show;
-        # 0 dB: the strongest return beyond the radar's own mounting return
+        # 0 dB: the strongest return beyond the radar's own mounting return, where it has
+        # one
         save_radar_image(image, stage / f"{radar.name}_image", dets,
                          dynamic_range_db=display_range_db(image),
                          title=image_title(radar.name, scene.name), truth=truth,
-                         mount_range_m=mounting_range_m(wf.range_resolution))
+                         mount_range_m=mounting_return_range_m(link.paths,
+                                                               wf.range_resolution))
         write_table(stage / f"{radar.name}_detections.csv", detection_rows(dets),
                     DETECTION_COLUMNS)
         matches = match_truth(dets, truth, *match_tolerances(wf))

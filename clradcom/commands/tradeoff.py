@@ -8,7 +8,7 @@ For one radar's own echoes (the monostatic link) it traces every combination of
   --rays           rays per transmitter             (default 10000,100000,1000000)
   --reflections    most specular reflections        (default 0,1,2,5)
   --diffractions   most UTD edge diffractions       (default 0,1)
-  --optics         PEC objects: GO or PO            (default none,pec)
+  --optics         metal objects: GO or PO          (default none,pec)
   --scattering     diffuse tiles off/on             (default 0,1)
   --vary F=a,b     any other TraceSettings field, e.g. scattering.tile_size_m (nested
                    names, or the flat ones of docs/tradeoff.md: scattering_tile_size_m)

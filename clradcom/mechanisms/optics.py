@@ -4,7 +4,8 @@ A GO image path off a flat facet is the return of an infinite mirror; the PO int
 over the lit facets gives the facet's own strength and its off-specular lobes
 (:mod:`~clradcom.mechanisms.physical_optics`), and SBR-PO does the same for corners
 (:mod:`~clradcom.mechanisms.sbr`). Per object (:func:`object_optics`: its ``optics``
-key, else the default that :attr:`OpticsSettings.mode` gives PEC objects):
+key, else the default that :attr:`OpticsSettings.mode` gives objects that reflect like a
+conductor or a body, :func:`reflects_like_a_target`):
 
 * ``"both"``: its single GO reflections make way for PO facet returns; multi-bounce
   paths stay GO;
@@ -12,8 +13,12 @@ key, else the default that :attr:`OpticsSettings.mode` gives PEC objects):
   (first bounce) and SBR-PO tube returns (bounces 2..max_bounces);
 * ``"go"``: untouched.
 
-A non-PEC object gets PO only through its own ``optics`` key; its facets then carry the
-currents of a penetrable surface (Fresnel-weighted PO, docs/po.md).
+The rule is what the object is made of, not a PEC flag: a material that reflects at
+least :data:`TARGET_REFLECTANCE` of the power at normal incidence (|Gamma(0)|^2 >= 0.4,
+-4.0 dB) is a metal of any conductivity (itu_metal, a car's paint over steel) or a
+water-rich body (skin, a pedestrian); building materials, the road and vegetation reflect
+less and keep their GO mirror paths. A non-PEC object's facets and SBR footprints carry
+the currents of a penetrable surface, its own Fresnel coefficients (docs/po.md).
 """
 
 from __future__ import annotations
@@ -27,12 +32,25 @@ from clradcom.mechanisms.common import Geometry, check_number
 from clradcom.mechanisms.physical_optics import po_paths
 from clradcom.mechanisms.sbr import ACCURACY_DB_RANGE, SbrTubes, sbr_paths, shoot_sbr
 from clradcom.paths import InteractionType, Paths
+from clradcom.physics.em import fresnel_coefficients
 from clradcom.scene.records import OPTICS, Radar, Scene
 
-__all__ = ["MODES", "OpticsSettings", "SbrShot", "link_paths", "object_optics", "prepare",
-           "replaced_paths"]
+__all__ = ["MODES", "OPTICS_NAMES", "TARGET_REFLECTANCE", "OpticsSettings", "SbrShot",
+           "link_paths", "normal_reflectance", "object_optics", "optics_summary", "prepare",
+           "reflects_like_a_target", "replaced_paths"]
 
-#: OpticsSettings.mode -> the optics of PEC objects without their own ``optics`` key:
+#: the share of power at normal incidence, |Gamma(0)|^2, from which a material counts as
+#: a conductor or a body (a radar target) and its objects get the mode's physical optics:
+#: metals of any conductivity (itu_metal 0.999, -0.0045 dB; even sigma = 20 S/m 0.48) and
+#: water-rich tissue (skin-like 16 - 16j: 0.46) lie above; ITU concrete (0.15), glass
+#: (0.19), marble (0.21), brick (0.11), wood (0.03) and the paper's trees (0.32, -5.0 dB) below
+TARGET_REFLECTANCE = 0.4
+
+#: what each optics means, for the trace's summary line
+OPTICS_NAMES = {"po": "PO facets + SBR-PO", "both": "PO facets, GO multi-bounce",
+                "go": "GO image paths"}
+
+#: OpticsSettings.mode -> the optics of target objects without their own ``optics`` key:
 #: "none" GO image paths; "pec" PO facet integrals for the first bounce (a facet's true
 #: RCS, not an infinite mirror's), GO for later ones; "sbr" PO facets plus shooting-and-
 #: bouncing ray tubes with PO for bounces 2..max_bounces
@@ -74,14 +92,31 @@ class OpticsSettings:
                          integer=True)
 
 
+def normal_reflectance(scene: Scene) -> np.ndarray:
+    """(M,) |Gamma(0)|^2 of each of the scene's materials: the power a smooth half-space
+    of it reflects at normal incidence, (|1 - sqrt(eps_r)| / |1 + sqrt(eps_r)|)^2; 1 for
+    PEC (:func:`clradcom.physics.em.fresnel_coefficients` at cos theta = 1)."""
+    r_te, _ = fresnel_coefficients(scene.material_eps_r, 1.0, scene.material_pec)
+    return np.abs(r_te) ** 2
+
+
+def reflects_like_a_target(scene: Scene) -> np.ndarray:
+    """(M,) bool: the materials whose objects get the mode's physical optics by default:
+    PEC, or |Gamma(0)|^2 >= :data:`TARGET_REFLECTANCE` (metals of any conductivity, skin,
+    water)."""
+    return np.asarray(scene.material_pec, dtype=bool) | (
+        normal_reflectance(scene) >= TARGET_REFLECTANCE)
+
+
 def object_optics(scene: Scene, mode: str) -> list[str]:
-    """Optics per object: its own ``optics`` key, else the scene-level default for PEC
-    objects (``mode``: "none" -> go, "pec" -> both, "sbr" -> po); non-PEC objects without
-    a key are "go"."""
+    """Optics per object: its own ``optics`` key, else the scene-level default for objects
+    whose material reflects like a conductor or a body (:func:`reflects_like_a_target`;
+    ``mode``: "none" -> go, "pec" -> both, "sbr" -> po); other objects without a key are
+    "go"."""
     if not isinstance(mode, str) or mode not in MODES:
         raise ArgumentError(f"must be one of {', '.join(map(repr, MODES))}", argument="mode",
                             value=mode)
-    pec = scene.material_pec
+    target = reflects_like_a_target(scene)
     out = []
     for o in scene.objects:
         own = getattr(o, "optics", None)
@@ -91,8 +126,32 @@ def object_optics(scene: Scene, mode: str) -> list[str]:
                                  f"{', '.join(OPTICS)}, got {own!r}")
             out.append(own)
         else:
-            out.append(MODES[mode] if pec[o.material] else "go")
+            out.append(MODES[mode] if target[o.material] else "go")
     return out
+
+
+def optics_summary(scene: Scene, mode: str, most: int = 8) -> list[str]:
+    """Lines saying which objects get which optics under ``mode`` and why (their own key,
+    or their material's reflectance), at most ``most`` names per line."""
+    modes = object_optics(scene, mode)
+    refl = normal_reflectance(scene)
+    lines = [f"optics (OpticsSettings.mode {mode!r}; without their own optics key, objects "
+             f"reflecting |Gamma(0)|^2 >= {10 * np.log10(TARGET_REFLECTANCE):.1f} dB get "
+             f"{MODES[mode]!r}):"]
+    for kind in ("po", "both", "go"):
+        picked = [i for i, m in enumerate(modes) if m == kind]
+        if not picked:
+            continue
+        names = []
+        for i in picked[:most]:
+            o = scene.objects[i]
+            why = ("own key" if o.optics is not None else
+                   f"{o.material_name} {10 * np.log10(max(refl[o.material], 1e-30)):+.1f} dB")
+            names.append(f"{o.name} ({why})")
+        more = f" and {len(picked) - most} more" if len(picked) > most else ""
+        lines.append(f"  {kind} ({OPTICS_NAMES[kind]}): {len(picked)} object(s): "
+                     f"{', '.join(names)}{more}")
+    return lines
 
 
 def po_object_ids(scene: Scene, settings: OpticsSettings) -> np.ndarray:

@@ -17,6 +17,8 @@ from matplotlib.figure import Figure
 from clradcom.errors import ArgumentError
 from clradcom.figures import new_figure
 from clradcom.files import save_figure
+from clradcom.paths import Paths
+from clradcom.physics.em import C0
 from clradcom.radar.processing import RadarImage
 from clradcom.radar.report import INTERFERENCE_TITLES
 
@@ -30,6 +32,24 @@ def mounting_range_m(range_resolution_m: float) -> float:
     :data:`MOUNTING_RETURN_M` plus two range cells (the main lobe of the Hann window is
     ±2 cells wide), so its main lobe is not taken as a target or as the 0 dB reference."""
     return MOUNTING_RETURN_M + 2.0 * float(range_resolution_m)
+
+
+def mounting_paths(paths: Paths) -> np.ndarray:
+    """Mask of a monostatic link's paths that come from the radar's own mounting: echoes
+    (at least one interaction) whose range, half the path length, is below
+    :data:`MOUNTING_RETURN_M`."""
+    return (np.asarray(paths.n_interactions) > 0) & (
+        0.5 * C0 * np.asarray(paths.delay_s) < MOUNTING_RETURN_M)
+
+
+def mounting_return_range_m(paths: Paths, range_resolution_m: float) -> float | None:
+    """:func:`mounting_range_m` where the radar's own echoes ``paths`` hold a return from
+    its mounting (:func:`mounting_paths`), else None: then no cell is the mounting return
+    (a noise cell near the radar is not labelled so) and the image's 0 dB is its
+    strongest cell."""
+    if not mounting_paths(paths).any():
+        return None
+    return mounting_range_m(range_resolution_m)
 
 
 def image_title(radar_name: str, scene_name: str, what: str = "range–Doppler image") -> str:

@@ -31,7 +31,7 @@ from clradcom.figures import new_figure
 from clradcom.files import atomic_write
 from clradcom.radar.array_frame import run_array_radar
 from clradcom.radar.pipeline import process, radar_frame
-from clradcom.radar.plots import image_title, mounting_range_m, plot_radar_image
+from clradcom.radar.plots import image_title, mounting_return_range_m, plot_radar_image
 from clradcom.radar.processing import RadarImage
 from clradcom.radar.report import display_range_db, moving_objects
 from clradcom.radar.synthesis import thermal_noise_power
@@ -260,7 +260,6 @@ def drive_radar(scene, radar_index: int, times_s, paths_per_step, waveform: Wave
     trk = Tracker(tracker, use_azimuth=array)
     out = DriveRadar(radar.name, times, [], [], np.zeros(0), np.zeros(0), [], 0.0, 0.0, array)
     track_rows = []
-    mount = mounting_range_m(waveform.range_resolution)
     for k, (t, paths) in enumerate(zip(times, paths_per_step, strict=True)):
         t0 = time.perf_counter()
         scene_t = scene_at(scene, float(t))
@@ -290,7 +289,8 @@ def drive_radar(scene, radar_index: int, times_s, paths_per_step, waveform: Wave
             out.frames.append(_video_frame(image, det, truth, rows, title=title,
                                            range_lim_m=range_lim_m,
                                            velocity_lim_mps=velocity_lim_mps,
-                                           mount_range_m=mount))
+                                           mount_range_m=mounting_return_range_m(
+                                               paths, waveform.range_resolution)))
         out.detections.append(det)
         out.truth.append(truth)
         out.radar_s.append(time.perf_counter() - t0)

@@ -39,13 +39,15 @@ import numpy as np
 
 from clradcom.errors import NOVALUE, SceneWarning
 from clradcom.scene.fields import FieldReader, is_file
+from clradcom.scene.records import OPTICS
 
 __all__ = ["COORDINATES", "DEFAULT_LEVEL_HEIGHT_M", "GEOJSON_KEYS", "WGS84_A", "WGS84_F",
            "Building", "extrude_footprint", "lonlat_to_local", "read_geojson_buildings"]
 
 #: Keys of an ``[[objects]]`` entry that names a GeoJSON file.
 GEOJSON_KEYS = ("name", "geojson", "material", "coordinates", "origin_lonlat",
-                "level_height_m", "height_m", "position", "velocity", "description")
+                "level_height_m", "height_m", "position", "velocity", "optics",
+                "description")
 #: ``coordinates``: longitude/latitude in degrees (RFC 7946), or projected metres.
 COORDINATES = ("lonlat", "metres")
 #: Storey height (m) that turns ``building:levels`` into a height, unless the entry says.
@@ -68,6 +70,7 @@ class Building:
     material: str | None  #: the feature's ``material`` property, if any
     vertices: np.ndarray
     faces: np.ndarray
+    optics: str | None = None  #: the feature's ``optics`` property, if any
 
 
 def lonlat_to_local(lon_deg, lat_deg, origin_lonlat) -> tuple[np.ndarray, np.ndarray]:
@@ -192,11 +195,15 @@ def read_geojson_buildings(fields: FieldReader, tbl: dict, kp: str,
         if material is not None and not isinstance(material, str):
             raise fields.err(key, rel, f"{where} of {path}: property material = "
                              f"{material!r} is not a string")
+        optics = props.get("optics")
+        if optics is not None and optics not in OPTICS:
+            raise fields.err(key, rel, f"{where} of {path}: property optics = {optics!r} "
+                             f"must be one of {', '.join(OPTICS)}")
         verts, faces = extrude_footprint(poly, bottom, top)
         fid = feat.get("id")
         label = str(fid) if isinstance(fid, str | int) and not isinstance(fid, bool) \
             else str(i)
-        out.append(Building(i, label, str(path), material, verts, faces))
+        out.append(Building(i, label, str(path), material, verts, faces, optics))
     if skipped:
         warnings.warn(f"{fields.file}: {key}: {len(skipped)} feature(s) of {path} are not "
                       f"Polygon or MultiPolygon and were left out (first {skipped[:10]})",

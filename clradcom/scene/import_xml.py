@@ -25,7 +25,11 @@ frequency and the radars, which the XML does not hold, stay in the scene file
   ``<boolean name="flip_normals" value="true"/>`` reverses the faces' winding;
 * ``<vector name="velocity" x=".." y=".." z=".."/>`` (or ``<point>``, or
   ``value="vx vy vz"``) in a shape: the object's velocity in m/s, the property Sionna's
-  ``SceneObject.velocity`` sets.
+  ``SceneObject.velocity`` sets;
+* ``<string name="optics" value="po"/>`` (or ``go``, ``both``) in a shape: the object's
+  ``optics`` key, how the tracer models its returns (docs/po.md). Mitsuba itself does not
+  know this property; a file meant for both keeps it out and gives the optics from the
+  command line (``clradcom trace --optics NAME=po``).
 
 Render-only elements (integrator, sensor, emitter, ...) are ignored. Zero-area triangles
 of imported meshes are dropped with a warning. Imported objects follow the ``sides =
@@ -60,6 +64,7 @@ from clradcom.scene.materials import (
 from clradcom.scene.read_geometry import MeshCache, box_geometry, load_mesh, plane_geometry
 from clradcom.scene.read_materials import MaterialTable, material_index
 from clradcom.scene.read_objects import PlacedMesh, drop_or_refuse_degenerate
+from clradcom.scene.records import OPTICS
 
 __all__ = ["MESH_SHAPES", "PRIMITIVE_SHAPES", "XmlNode", "inward_closed_shells",
            "parse_xml", "read_xml_scene", "transform_matrix"]
@@ -388,6 +393,12 @@ def _read_shape(rd: _Reader, fields: FieldReader, shape: XmlNode, i: int, mats: 
             check_speed(fields, velocity, velocity.tolist(), f"{key}.velocity")
         except SceneError as exc:
             raise rd.err(node, exc.key, exc.value, exc.reason) from None
+    optics = None
+    if "optics" in props:
+        optics = rd.attr(props["optics"], "value", f"{key}.optics")
+        if optics not in OPTICS:
+            raise rd.err(props["optics"], f"{key}.optics", optics,
+                         f"must be one of {', '.join(OPTICS)}")
     world = verts @ lin.T + offset
     try:
         check_coordinates(fields, world, f"{key}.to_world", label,
@@ -398,7 +409,7 @@ def _read_shape(rd: _Reader, fields: FieldReader, shape: XmlNode, i: int, mats: 
     rotation, scale = _rotation_scale(lin)
     return PlacedMesh(name=name, key=key, mesh=label, triangles=tri, material=material,
                       material_name=mats.table.materials[material].name, position=offset,
-                      rotation=rotation, scale=scale, velocity=velocity)
+                      rotation=rotation, scale=scale, velocity=velocity, optics=optics)
 
 
 def _boolean(rd: _Reader, node: XmlNode, key: str) -> bool:

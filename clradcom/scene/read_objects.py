@@ -58,6 +58,8 @@ class PlacedMesh:
     rotation: np.ndarray
     scale: np.ndarray
     velocity: np.ndarray
+    #: "go" / "po" / "both" (:data:`OPTICS`), or None to follow the tracer's default
+    optics: str | None = None
 
 
 def read_objects(fields: FieldReader, entries: list, materials: MaterialTable,
@@ -103,7 +105,7 @@ def _placed_object(fields: FieldReader, p: PlacedMesh, start: int
         name=p.name, mesh=p.mesh, material=p.material, material_name=p.material_name,
         position=p.position, rotation_deg=matrix_to_euler_deg(p.rotation),
         rotation=p.rotation, scale=p.scale, velocity=p.velocity, tri_start=start,
-        tri_stop=start + tri.shape[0], two_sided=two_sided)
+        tri_stop=start + tri.shape[0], optics=p.optics, two_sided=two_sided)
     return obj, tri
 
 
@@ -159,6 +161,7 @@ def _read_geojson_entry(fields, kp, tbl, seen, materials, carrier, base_dir):
     velocity = fields.get_vec3(tbl, "velocity", kp, default=(0.0, 0.0, 0.0), unit="m/s")
     if "velocity" in tbl:
         check_speed(fields, velocity, tbl["velocity"], f"{kp}.velocity")
+    default_optics = fields.get_str(tbl, "optics", kp, default=None, choices=OPTICS)
     out = []
     for b in read_geojson_buildings(fields, tbl, kp, base_dir):
         bname = f"{name}/{b.label}"
@@ -184,7 +187,8 @@ def _read_geojson_entry(fields, kp, tbl, seen, materials, carrier, base_dir):
         out.append(PlacedMesh(
             name=bname, key=f"{kp} feature {b.index}", mesh=label, triangles=tri,
             material=mat, material_name=mat_name, position=position.copy(),
-            rotation=np.eye(3), scale=np.ones(3), velocity=velocity.copy()))
+            rotation=np.eye(3), scale=np.ones(3), velocity=velocity.copy(),
+            optics=b.optics if b.optics is not None else default_optics))
     return out
 
 

@@ -6,19 +6,21 @@ code may also build them directly.
 
 from __future__ import annotations
 
+import fnmatch
 import hashlib
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
+from clradcom.errors import ArgumentError
 from clradcom.scene.antenna import Pattern
 from clradcom.scene.materials import C0, ROUGHNESS_MODELS, Material
 
 __all__ = ["ARRAY_KINDS", "MODULATIONS", "OPTICS", "ROLES", "SBR_SPACING_WAVELENGTHS", "SIDES",
            "ArrayLayout", "Motion", "Radar", "Scene", "SceneObject", "TimeAxis",
-           "WaveformSpec"]
+           "WaveformSpec", "with_object_optics"]
 
 #: the radar's modulations (``[waveform] modulation``, ``Waveform.modulation``)
 MODULATIONS = ("bpsk", "qpsk", "8psk", "16psk", "16qam", "64qam", "256qam")
@@ -386,3 +388,26 @@ class Scene:
             h.update(repr(a.shape).encode())
             h.update(a.tobytes())
         return h.hexdigest()
+
+
+def with_object_optics(scene: Scene, overrides, argument: str = "overrides") -> Scene:
+    """A copy of ``scene`` whose objects matching each ``(pattern, optics)`` of
+    ``overrides`` (a name, or an fnmatch pattern such as ``buildings/*``; later pairs win)
+    have that ``optics`` key, as if the scene file had set it. A pattern that matches no
+    object, or an optics not in :data:`OPTICS`, is refused naming
+    ``argument`` and the pair."""
+    objects = list(scene.objects)
+    names = [o.name for o in objects]
+    for pattern, optics in (overrides.items() if isinstance(overrides, dict) else overrides):
+        value = f"{pattern}={optics}"
+        if optics not in OPTICS:
+            raise ArgumentError(f"the optics must be one of {', '.join(OPTICS)}",
+                                argument=argument, value=value)
+        hits = [i for i, n in enumerate(names) if fnmatch.fnmatchcase(n, str(pattern))]
+        if not hits:
+            shown = ", ".join(names[:10]) + (", ..." if len(names) > 10 else "")
+            raise ArgumentError(f"no object of scene {scene.name!r} is named so (its "
+                                f"objects: {shown})", argument=argument, value=value)
+        for i in hits:
+            objects[i] = replace(objects[i], optics=optics)
+    return replace(scene, objects=objects)
