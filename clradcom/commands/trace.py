@@ -18,9 +18,15 @@ Stages and what they write into the output folder (default: out/<scene name>/):
   2. radar      for every radar that both transmits and receives: its own
                 echoes (the monostatic link) drive the paper's OFDM frame
                 (N = 1024, M = 256, 24 GHz), with thermal noise from the
-                radar's tx_power_w and noise_figure_db
+                radar's tx_power_w and noise_figure_db, through the radar chain
+                every tool shares (clradcom.radar.pipeline.radar_chain; a radar
+                with an array: its TDM-MIMO cube, as clradcom cube)
                 -> <radar>_image.png / .svg  range-Doppler image, detections marked
-                -> <radar>_detections.csv    CFAR detections
+                -> <radar>_detections.csv    CFAR detections (range, velocity, power,
+                                              SNR, aliased: 1 where only a path beyond
+                                              the unambiguous range or velocity puts
+                                              it there); those beyond the longest
+                                              path, noise, are left out and printed
                 -> <radar>_truth.csv         each moving object's set range and
                                               relative velocity beside the detection
                                               that matches it (or none)
