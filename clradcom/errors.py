@@ -12,7 +12,7 @@ import reprlib
 from pathlib import Path
 
 __all__ = ["SceneError", "SceneWarning", "ValidityRangeWarning", "NOVALUE", "PhysicsWarning",
-           "CyclicPrefixWarning",
+           "CyclicPrefixWarning", "TileSizeWarning",
            "AliasingWarning", "NearFieldWarning", "SurfaceContactWarning",
            "BoundaryWarning", "CausticWarning", "SnapshotError", "ArgumentError",
            "ArgumentTypeError", "MemoryBudgetError"]
@@ -142,6 +142,14 @@ class AliasingWarning(PhysicsWarning):
     """A path's delay lies beyond the unambiguous range (tau >= 1/delta_f) or its Doppler
     beyond the unambiguous velocity (|f_D| > 1/(2 T_sym)): it shows in the radar image
     wrapped to r mod r_max, or v wrapped into [-v_max, v_max)."""
+
+
+class TileSizeWarning(PhysicsWarning):
+    """Diffuse-scattering tiles coarser than their accuracy bound (docs/scattering.md "Tile
+    size rule"): an explicit ``tile_size_m`` larger than the rule allows at a surface's
+    nearest point to the antennas, so a tile there is no point scatterer and the coherent
+    sum's speckle and the delay spread are off. The message names the surface (object),
+    the bound and the distance it holds for."""
 
 
 class NearFieldWarning(PhysicsWarning):

@@ -8,10 +8,16 @@ Radar equation with isotropic antennas: |a|^2 = lambda^2 sigma / ((4 pi)^3 R^4).
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 from geometry_helpers import plate_tris
+from scipy.integrate import quad
 
+from clradcom.errors import TileSizeWarning
+from clradcom.geometry.triangles import point_triangle_distance
+from clradcom.mechanisms import scattering
 from clradcom.mechanisms.common import build_geometry
 from clradcom.mechanisms.scattering import (
     choose_tile_size,
@@ -282,19 +288,143 @@ def test_no_scattering_material_gives_nothing(runtime):
     assert len(p) == 0 and d == 0
 
 
-def test_default_tile_size_and_cap(runtime):
+def test_default_tiles_are_within_their_bound_at_the_nearest_point(runtime):
+    # a long strip whose centroid lies 10 m from the radar but whose near end is 1 m away:
+    # the bound there is the nearest point's (0.077 m), not the centroid's (0.24 m)
+    verts = [[1.0, -0.5, -0.5], [1.0, 0.5, -0.5], [21.0, 0.5, -0.5], [21.0, -0.5, -0.5]]
+    sc = make_scene([obj("s", verts, [[0, 2, 1], [0, 3, 2]], material="roughpec")],
+                    [radar((0.0, 0.0, 0.0))])
+    st = scattering._scattering_triangles(sc)
+    plan = scattering.tile_plan(st, np.zeros(3), np.zeros(3), LAM)
+    tris = sc.triangles[st.sel]
+    nearest = point_triangle_distance(np.zeros(3), tris)
+    assert nearest.min() == pytest.approx(np.sqrt(1.25))
+    assert np.linalg.norm(tris.mean(axis=1), axis=1).min() > 7.0  # the centroids
+    # every tile within the bound at the nearest point of its piece (so at its own)
+    piece_nearest = point_triangle_distance(np.zeros(3), plan.vertices)
+    bound = np.array([choose_tile_size(LAM, d) for d in piece_nearest])
+    assert np.all(plan.tile_edges <= bound * (1 + 1e-9))
+    q, local = scattering._cut_tiles(plan.vertices, plan.n)
+    edge = plan.tile_edges[local]
+    assert edge.max() > 3 * edge.min()  # farther tiles are larger (adaptive)
+    # the tiles cover the strip exactly: areas add up, every centre on it
+    assert np.sum(plan.tile_area * plan.n**2) == pytest.approx(20.0, rel=1e-12)
+    r = sc.radars[0]
+    p, _ = scattering_paths(build_geometry(sc, runtime), r, r, threshold_db=-300)
+    assert len(p) == plan.first[-1]
+    near = np.linalg.norm(p.points[:, 1], axis=1) < 1.3
+    assert near.any()
+    # near the radar the tiles are within the bound there; the centroid rule's tiles were
+    # more than twice as large
+    centroid_rule = choose_tile_size(LAM, np.linalg.norm(tris.mean(axis=1), axis=1).min())
+    assert edge[np.linalg.norm(q, axis=1) < 1.3].max() <= choose_tile_size(LAM, 1.3)
+    assert centroid_rule > 2 * choose_tile_size(LAM, 1.3)
+
+
+def test_explicit_tiles_coarser_than_the_bound_warn_naming_the_surface(runtime):
     v, f = plate(2.0, x=5.0)
-    sc = make_scene([obj("p", v, f)], [radar((0.0, 0.0, 0.0))])
+    sc = make_scene([obj("hedge", v, f)], [radar((0.0, 0.0, 0.0))])
     geom = build_geometry(sc, runtime)
     r = sc.radars[0]
-    p, _ = scattering_paths(geom, r, r, threshold_db=-200)
-    d = choose_tile_size(LAM, np.linalg.norm(geom.scene.triangles.mean(axis=1), axis=-1).min())
-    n = int(np.ceil(2 * np.sqrt(2) / d))
-    assert len(p) == 2 * n * n
-    small, _ = scattering_paths(geom, r, r, threshold_db=-200, max_tiles=50)
-    assert 0 < len(small) <= 50
-    with pytest.raises(ValueError, match="max_tiles"):
-        scattering_paths(geom, r, r, tile_size_m=0.01, max_tiles=1000)
+    bound = choose_tile_size(LAM, 5.0)
+    with pytest.warns(TileSizeWarning, match=r"'hedge'.*accuracy bound 0\.17"):
+        scattering_paths(geom, r, r, tile_size_m=1.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", TileSizeWarning)
+        scattering_paths(geom, r, r, tile_size_m=bound * 0.99)  # within it: silent
+    # no cap: more than the 200 000 tiles that used to be refused, streamed in batches, and
+    # their incoherent sum is the coarse tiles' (the areas add up exactly)
+    v, f = plate(1.0, x=5.0)
+    sc = make_scene([obj("hedge", v, f, material="roughpec")], [radar((0.0, 0.0, 0.0))])
+    geom = build_geometry(sc, runtime)
+    r = sc.radars[0]
+    fine, _ = scattering_paths(geom, r, r, tile_size_m=0.004, threshold_db=-300)
+    plan = scattering.tile_plan(scattering._scattering_triangles(sc), r.position, r.position,
+                                LAM, tile_size_m=0.004)
+    assert len(fine) == plan.first[-1] > 200_000
+    coarse, _ = scattering_paths(geom, r, r, tile_size_m=0.1, threshold_db=-300)
+    assert np.sum(np.abs(fine.gain) ** 2) == pytest.approx(np.sum(np.abs(coarse.gain) ** 2),
+                                                          rel=1e-3)
+
+
+def _square_road(a, material="roughpec"):
+    verts = [[-a, -a, 0.0], [a, -a, 0.0], [a, a, 0.0], [-a, a, 0.0]]
+    return obj("road", verts, [[0, 1, 2], [0, 2, 3]], material=material)
+
+
+def lambertian_square_integral(a, h):
+    """I = int int_{[-a, a]^2} h^2 / (h^2 + x^2 + y^2)^3 dx dy (docs/scattering.md
+    "A Lambertian plane"): the radial integral in closed form, the angle by quadrature."""
+    def radial(theta):
+        return 2.0 * h**2 * (1.0 / h**4 - 1.0 / (h**2 + (a / np.cos(theta)) ** 2) ** 2)
+
+    return quad(radial, 0.0, np.pi / 4, epsabs=0.0, epsrel=1e-13)[0]
+
+
+def test_lambertian_square_integral_closed_form():
+    h = 0.55
+    # the infinite plane: pi / (2 h^2); the corners' share of a finite square by brute force
+    assert lambertian_square_integral(1e5, h) == pytest.approx(np.pi / (2 * h**2), rel=1e-12)
+    x = np.linspace(-2.0, 2.0, 2001)
+    X, Y = np.meshgrid(x, x)
+    brute = np.trapezoid(np.trapezoid(h**2 / (h**2 + X**2 + Y**2) ** 3, x), x)
+    assert lambertian_square_integral(2.0, h) == pytest.approx(brute, rel=1e-4)
+    # the closed form of docs/scattering.md
+    assert lambertian_square_closed_form(2.0, h) == pytest.approx(
+        lambertian_square_integral(2.0, h), rel=1e-10)
+
+
+def lambertian_square_closed_form(a, h):
+    """docs/scattering.md: I = pi/(2 h^2) - 2 h^2 J, J in closed form (b^2 = 1 + h^2/a^2)."""
+    b = np.sqrt(1.0 + h**2 / a**2)
+    c = h**2 / a**2
+    at = np.arctan(1.0 / b)
+    inner = ((np.pi / 4 - at / b) / c**2
+             - (1.0 / (2 * b**2 * (1 + b**2)) + at / (2 * b**3)) / c)
+    return np.pi / (2 * h**2) - 2 * h**2 * inner / a**4
+
+
+@pytest.mark.parametrize("half_width", [10.0, 200.0])
+def test_road_square_diffuse_power_follows_the_lambertian_plane(runtime, half_width):
+    # the issue's case: a monostatic radar 0.55 m over a PEC road square (S = 0.5); the
+    # incoherent sum of the tiles against lambda^2 S^2 / (16 pi^3) x I(a, h). With one tile
+    # size for the whole square from the 200 000-tile cap (1.88 m) it was 6.3 dB low.
+    h = 0.55
+    sc = make_scene([_square_road(half_width)], [radar((0.0, 0.0, h))])
+    r = sc.radars[0]
+    geom = build_geometry(sc, runtime)
+    # tiles 80 dB under the strongest (beyond ~22 m: |a|^2 ~ A/r^6 with A ~ r) carry
+    # ~1e-6 of the power; all ~1.2 million tiles of the 200 m square are streamed through
+    p, dropped = scattering_paths(geom, r, r, threshold_db=-80)
+    power = np.sum(np.abs(p.gain) ** 2)
+    expect = LAM**2 * S**2 / (16 * np.pi**3) * lambertian_square_integral(half_width, h)
+    assert 10 * np.log10(power / expect) == pytest.approx(0.0, abs=0.02)
+    # every tile within its bound
+    st = scattering._scattering_triangles(sc)
+    plan = scattering.tile_plan(st, r.position, r.position, LAM)
+    assert np.all(plan.tile_edges <= plan.bound * (1 + 1e-9))
+    assert len(p) + dropped == plan.first[-1]  # every tile lit and seen
+
+
+def test_streamed_batches_give_the_same_paths(runtime):
+    h = 0.55
+    sc = make_scene([_square_road(3.0)], [radar((0.0, 0.0, h))])
+    r = sc.radars[0]
+    for engine in ("device", "host"):
+        geom = build_geometry(sc, runtime, engine=engine)
+        whole, d0 = scattering_paths(geom, r, r, threshold_db=-30)
+        parts, d1 = scattering_paths(geom, r, r, threshold_db=-30, batch_tiles=500)
+        assert d0 == d1 > 0
+        for name in ("gain", "matrix", "delay_s", "doppler_hz", "points", "face_id"):
+            np.testing.assert_array_equal(getattr(parts, name), getattr(whole, name))
+
+
+def test_batch_phases_are_the_rows_of_one_draw():
+    first = np.array([0, 4, 5, 14, 30, 31, 47])
+    every = np.random.default_rng(11).uniform(0.0, 2.0 * np.pi, size=(47, 2))
+    for kb in ([0, 1, 2, 3, 4, 5], [1, 3, 4], [5], [2, 3]):
+        rows = np.concatenate([np.arange(first[k], first[k + 1]) for k in kb])
+        np.testing.assert_array_equal(scattering._batch_phases(11, first, kb), every[rows])
 
 
 # ---------------------------------------------------------------------------

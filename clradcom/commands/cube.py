@@ -53,16 +53,16 @@ from clradcom.radar.array_frame import (
     ARRAY_CHANNELS,
     REFINEMENTS,
     array_truth,
-    run_array_radar,
     truth_table,
 )
 from clradcom.radar.element_trace import element_pair_paths, element_scene, trace_elements
+from clradcom.radar.pipeline import radar_chain
 from clradcom.radar.pointcloud import (
     save_bird_eye,
     write_point_cloud_csv,
     write_point_cloud_ply,
 )
-from clradcom.radar.report import moving_objects, write_table
+from clradcom.radar.report import moving_objects, sorted_detections_line, write_table
 from clradcom.radar.truth import detection_truth
 from clradcom.scene.reader import load_scene
 from clradcom.snapshot import save_snapshot
@@ -187,10 +187,11 @@ def run(args) -> int:
             paths = None if exact else _paths(args, scene, index, settings)
         with sw.stage(f"radar {radar.name}: TDM frame ({args.array_channel} element "
                       "channels), cube, CFAR"):
-            res = run_array_radar(paths, radar, wf, seed=args.seed,
-                                  tx_power_w=radar.tx_power_w if nf is not None else None,
-                                  noise_figure_db=nf, refine=args.refine,
-                                  channel=args.array_channel, pair_paths=pairs)
+            chain = radar_chain(paths, wf, radar=radar, seed=args.seed,
+                                tx_power_w=radar.tx_power_w if nf is not None else None,
+                                noise_figure_db=nf, refine=args.refine,
+                                channel=args.array_channel, pair_paths=pairs)
+            res = chain.array
         truth = detection_truth(scene, radar.name, moving_objects(scene, radar))
         rows = array_truth(truth, res)
         et = 1 if radar.tx_array is None else radar.tx_array.n_elements
@@ -199,6 +200,9 @@ def run(args) -> int:
               f"{res.waveform.n_subcarriers} x {res.waveform.n_symbols}, cube "
               f"{' x '.join(str(k) for k in res.cube.power.shape[:3])}; "
               f"{res.detections.size} detections")
+        sorted_line = sorted_detections_line(chain)
+        if sorted_line:
+            print(f"  {radar.name}: {sorted_line}")
         for line in truth_table(rows, res):
             print(f"    {line}")
         with sw.stage(f"radar {radar.name}: point cloud and picture"):

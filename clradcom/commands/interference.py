@@ -78,9 +78,11 @@ from clradcom.radar.interference import MAX_FREQUENCY_OFFSET, two_radar_run
 from clradcom.radar.plots import save_interference_images
 from clradcom.radar.report import (
     INTERFERENCE_IMAGES,
+    INTERFERENCE_TITLES,
     interference_detections,
     interference_summary,
     recovered_detections,
+    sorted_detections_line,
     write_table,
 )
 from clradcom.scene.reader import load_scene
@@ -223,7 +225,7 @@ def run(args) -> int:
             failure = exc
         else:
             failure = None
-            dets = interference_detections(res.images)
+            dets = interference_detections(res)
             save_interference_images(res.images, stage / "interference", dets,
                                      res.floors["clean"], args.range_max)
             rows = interference_summary(res, wf)
@@ -244,6 +246,10 @@ def run(args) -> int:
     ref = dets["clean"]
     print(f"\n  detections without D: {len(ref)}; with D: {len(dets['interfered'])}; "
           f"genie: {len(dets['genie'])}; realistic: {len(dets['realistic'])}")
+    for k in INTERFERENCE_IMAGES:
+        line = sorted_detections_line(res.results[k])
+        if line:
+            print(f"  {INTERFERENCE_TITLES[k]}: {line}")
     found = {k: recovered_detections(ref, dets[k], wf) for k in INTERFERENCE_IMAGES[1:]}
     print(f"  {'range m':>8} {'v m/s':>7} {'SNR dB':>7}   with D  genie  realistic")
     for i, d in enumerate(ref):

@@ -21,9 +21,15 @@ Stages and what they write into the output folder (default: out/<scene name>/):
   2. radar      for every radar that both transmits and receives: its own
                 echoes (the monostatic link) drive the paper's OFDM frame
                 (N = 1024, M = 256, 24 GHz), with thermal noise from the
-                radar's tx_power_w and noise_figure_db
+                radar's tx_power_w and noise_figure_db, through the radar chain
+                every tool shares (clradcom.radar.pipeline.radar_chain; a radar
+                with an array: its TDM-MIMO cube, as clradcom cube)
                 -> <radar>_image.png / .svg  range-Doppler image, detections marked
-                -> <radar>_detections.csv    CFAR detections
+                -> <radar>_detections.csv    CFAR detections (range, velocity, power,
+                                              SNR, aliased: 1 where only a path beyond
+                                              the unambiguous range or velocity puts
+                                              it there); those beyond the longest
+                                              path, noise, are left out and printed
                 -> <radar>_truth.csv         each moving object's set range and
                                               relative velocity beside the detection
                                               that matches it (or none)
@@ -82,11 +88,7 @@ from clradcom.mechanisms.optics import optics_summary
 from clradcom.mechanisms.sbr import ACCURACY_DB_RANGE
 from clradcom.plots import plot_top_view
 from clradcom.presets import DEFAULT_PRESET, PRESETS
-from clradcom.radar.pipeline import (
-    check_frame_memory,
-    process,
-    radar_frame,
-)
+from clradcom.radar.pipeline import check_frame_memory, radar_chain
 from clradcom.radar.plots import image_title, mounting_return_range_m, save_radar_image
 from clradcom.radar.report import (
     DETECTION_COLUMNS,
@@ -97,6 +99,7 @@ from clradcom.radar.report import (
     match_tolerances,
     moving_objects,
     scene_reach_m,
+    sorted_detections_line,
     static_returns_beyond,
     strongest_static_cell,
     truth_rows,
@@ -343,10 +346,10 @@ def describe_settings(args, settings: TraceSettings) -> str:
 def radar_stage(sw, args, scene, wf, link, radar, nf, stage) -> None:
     """One radar's own echoes: frame, image, detections, truth; printed and written."""
     with sw.stage(f"radar {radar.name}: synthesise ({args.synthesis}), process, CFAR"):
-        D, Dr = radar_frame(link.paths, wf, seed=args.seed, method=args.synthesis,
-                            tx_power_w=radar.tx_power_w if nf is not None else None,
-                            noise_figure_db=nf)
-        image, dets = process(D, Dr, wf)
+        res = radar_chain(link.paths, wf, radar=radar, seed=args.seed, method=args.synthesis,
+                          tx_power_w=radar.tx_power_w if nf is not None else None,
+                          noise_figure_db=nf)
+        image, dets = res.image, res.detections
     with sw.stage(f"radar {radar.name}: image and tables"):
         truth = detection_truth(scene, radar.name, moving_objects(scene, radar))
         # colour down to the noise floor, so weak echoes beside the ground return show;
@@ -357,11 +360,13 @@ def radar_stage(sw, args, scene, wf, link, radar, nf, stage) -> None:
                          title=image_title(radar.name, scene.name), truth=truth,
                          mount_range_m=mounting_return_range_m(link.paths,
                                                                wf.range_resolution))
-        write_table(stage / f"{radar.name}_detections.csv", detection_rows(dets),
+        write_table(stage / f"{radar.name}_detections.csv", detection_rows(dets, res.aliased),
                     DETECTION_COLUMNS)
         matches = match_truth(dets, truth, *match_tolerances(wf))
         rows = truth_rows(truth, matches)
-        print(f"  {radar.name}: {len(dets)} detections; moving objects:")
+        sorted_line = sorted_detections_line(res)
+        print(f"  {radar.name}: {len(dets)} detections"
+              + (f" ({sorted_line})" if sorted_line else "") + "; moving objects:")
         for line in truth_table_lines(radar.name, truth, rows):
             print(line)
         static = static_returns_beyond(dets, radar, STATIC_RANGE_M, wf.velocity_resolution)

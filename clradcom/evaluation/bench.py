@@ -50,7 +50,7 @@ from clradcom.evaluation.rcs import dbsm
 from clradcom.geometry.triangles import triangle_double_areas, triangle_normals
 from clradcom.mechanisms.common import ENGINES
 from clradcom.paths import InteractionType
-from clradcom.radar.pipeline import process, radar_frame
+from clradcom.radar.pipeline import radar_chain
 from clradcom.radar.report import match_tolerances, moving_objects
 from clradcom.radar.truth import detection_truth, match_truth
 from clradcom.scene.reader import load_scene
@@ -228,9 +228,8 @@ def table_iii_detections(scene: Scene, snapshot: Snapshot, waveform, noise_figur
     r = scene.radar_index(radar_name)
     radar = scene.radars[r]
     link = next(lk for lk in snapshot.links if lk.tx_index == r and lk.rx_index == r)
-    D, Dr = radar_frame(link.paths, waveform, seed=seed, tx_power_w=radar.tx_power_w,
-                        noise_figure_db=noise_figure_db)
-    _, dets = process(D, Dr, waveform)
+    dets = radar_chain(link.paths, waveform, seed=seed, tx_power_w=radar.tx_power_w,
+                       noise_figure_db=noise_figure_db).detections
     truth = detection_truth(scene, radar.name, moving_objects(scene, radar))
     matches = match_truth(dets, truth, *match_tolerances(waveform))
     return {t["name"]: None if m is None else (float(m["range_m"]), float(m["velocity_mps"]))

@@ -37,7 +37,7 @@ from clradcom.radar import (
     synthesize_frequency_domain,
     synthesize_time_domain,
 )
-from clradcom.radar.pipeline import process
+from clradcom.radar.pipeline import frame_result
 from clradcom.radar.report import match_tolerances, moving_objects
 from clradcom.radar.truth import detection_truth
 from clradcom.radar.waveform import ofdm_demodulate
@@ -275,7 +275,7 @@ def measure(ctx: SweepContext, paths, backend: str, prune: bool):
     Dr = synthesize(paths, ctx.symbols, ctx.waveform, backend)
     rec["synth_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    _, dets = process(ctx.symbols, Dr + ctx.noise, ctx.waveform)
+    dets = frame_result(ctx.symbols, Dr + ctx.noise, paths, ctx.waveform).detections
     rec["process_s"] = time.perf_counter() - t0
     F = acc.frame_channel(ctx.symbols, Dr)
     if ctx.F_ref is not None:

@@ -35,6 +35,7 @@ reflection dyad (Fresnel x roughness x sqrt(1 - S_mirror^2)) on that side.
 from __future__ import annotations
 
 import math
+import warnings
 import weakref
 from dataclasses import dataclass
 
@@ -51,7 +52,7 @@ from clradcom.device.visibility import (
     reaches_face,
     surface_sees,
 )
-from clradcom.errors import ArgumentError
+from clradcom.errors import ArgumentError, TileSizeWarning
 from clradcom.geometry.triangles import (
     point_triangle_distance,
     triangle_areas,
@@ -114,29 +115,34 @@ def make_tiles(triangles, tile_size_m):
     if np.any(two_a == 0) or not np.all(np.isfinite(two_a)):
         raise ArgumentError("degenerate or non-finite triangle")
     ns = _subdivisions(v, tile_size_m)
-    centres, areas, normals, ids = [], [], [], []
-    cache = {}
+    centres, local = _cut_tiles(v, ns)
+    return (centres, np.repeat(0.5 * two_a / (ns * ns), ns * ns), np.repeat(nrm, ns * ns, axis=0),
+            local)
+
+
+def _cut_tiles(v, ns):
+    """Tile centroids (N,3) of triangles v (K,3,3) cut into ns (K,) x ns tiles each, and
+    each tile's triangle (N,): triangle by triangle, in :func:`make_tiles`' order (which
+    ``kernels/scatter.cl: tile_centres`` follows: the up tiles row by row, then the down
+    tiles)."""
+    centres, ids = [], []
     for n in np.unique(ns):
         n = int(n)
-        if n not in cache:
-            up = [((3 * i + 1) / (3 * n), (3 * j + 1) / (3 * n))
-                  for i in range(n) for j in range(n - i)]
-            dn = [((3 * i + 2) / (3 * n), (3 * j + 2) / (3 * n))
-                  for i in range(n) for j in range(n - 1 - i)]
-            cache[n] = np.array(up + dn, dtype=np.float64).reshape(-1, 2)
-        uv = cache[n]  # (n^2, 2) barycentric (u, v) of the tile centroids
+        up = [((3 * i + 1) / (3 * n), (3 * j + 1) / (3 * n))
+              for i in range(n) for j in range(n - i)]
+        dn = [((3 * i + 2) / (3 * n), (3 * j + 2) / (3 * n))
+              for i in range(n) for j in range(n - 1 - i)]
+        uv = np.array(up + dn, dtype=np.float64).reshape(-1, 2)  # barycentric (u, v)
         sel = np.flatnonzero(ns == n)
         vs = v[sel]
         pts = (vs[:, None, 0] + uv[None, :, 0, None] * (vs[:, None, 1] - vs[:, None, 0])
                + uv[None, :, 1, None] * (vs[:, None, 2] - vs[:, None, 0]))
-        m = len(uv)
         centres.append(pts.reshape(-1, 3))
-        areas.append(np.repeat(0.5 * two_a[sel] / (n * n), m))
-        normals.append(np.repeat(nrm[sel], m, axis=0))
-        ids.append(np.repeat(sel, m))
+        ids.append(np.repeat(sel, len(uv)))
+    if not centres:
+        return np.zeros((0, 3)), np.zeros(0, np.int64)
     order = np.argsort(np.concatenate(ids), kind="stable")
-    return (np.concatenate(centres)[order], np.concatenate(areas)[order],
-            np.concatenate(normals)[order], np.concatenate(ids)[order])
+    return np.concatenate(centres)[order], np.concatenate(ids)[order]
 
 
 def choose_tile_size(wavelength, distance, accuracy=DEFAULT_ACCURACY):
@@ -169,8 +175,13 @@ def choose_tile_size(wavelength, distance, accuracy=DEFAULT_ACCURACY):
     acc = float(accuracy)
     if not (lam > 0 and R > 0 and acc > 0):
         raise ArgumentError("wavelength, distance and accuracy must be > 0")
-    dphi = math.sqrt(45.0 * acc / 4.0)
-    return math.sqrt(2.0 * lam * R * dphi / math.pi)
+    return float(_tile_bounds(lam, np.float64(R), acc))
+
+
+def _tile_bounds(wavelength: float, distance, accuracy: float):
+    """:func:`choose_tile_size` over an array of distances (checked by the caller)."""
+    dphi = math.sqrt(45.0 * accuracy / 4.0)
+    return np.sqrt(2.0 * wavelength * np.asarray(distance, dtype=np.float64) * dphi / math.pi)
 
 
 def _power_weighted_gamma(e_te, e_tm, r_te, r_tm) -> np.ndarray:
@@ -251,10 +262,6 @@ def tile_transfer(centres, areas, normals, tx_pos, rx_pos, scattering, gamma,
     amp = (L / (r_i * r_s) * np.asarray(scattering, dtype=np.float64) * np.asarray(gamma)
            * np.sqrt(np.asarray(areas, dtype=np.float64) * cos_i * cos_s / np.pi))
     return amp[:, None, None] * X, L, ki, s
-
-
-def _estimate_count(triangles, size, longest=None):
-    return int(np.sum(_subdivisions(triangles, size, longest) ** 2))
 
 
 #: Reflecting faces smaller than this (m^2) take no part in scattering paths (see
@@ -374,16 +381,11 @@ def _antenna_clear(geom, q, nrm, end):
     return ~antenna_blocked(geom.caster, geom.faces.tri_face, t, org, 2.0 * confirm_margin_m(t))
 
 
-def _host_tiles(geom, tris, tri_sel, size, seed, mask, tx_pos, rx_pos, mr, monostatic):
-    """The numpy reference: every tile, its sight of tx and rx (``engine="host"``)."""
-    q, area, nrm, local = make_tiles(tris, size)
-    tri_ids = tri_sel[local]
-    # phases drawn for every tile before any selection: fixed per tile for a seed
-    phases = np.random.default_rng(seed).uniform(0.0, 2.0 * np.pi, size=(len(q), 2))
-    if mask is not None:
-        traced = mask[tri_ids]
-        q, area, nrm, tri_ids, phases = (q[traced], area[traced], nrm[traced],
-                                         tri_ids[traced], phases[traced])
+def _host_tiles(geom, plan, kb, phases, tx_pos, rx_pos, mr, monostatic):
+    """The numpy reference (``engine="host"``): the tiles of plan pieces ``kb`` (one batch),
+    their sight of tx and rx; ``phases`` theirs (:func:`_batch_phases`)."""
+    q, local = _cut_tiles(plan.vertices[kb], plan.n[kb])
+    area, nrm, tri_ids = plan.tile_area[kb][local], plan.normals[kb][local], plan.prim[kb][local]
     N = len(q)
     front_t = np.einsum("pi,pi->p", nrm, tx_pos - q) > 0
     front_r = np.einsum("pi,pi->p", nrm, rx_pos - q) > 0
@@ -406,26 +408,24 @@ def _host_tiles(geom, tris, tri_sel, size, seed, mask, tx_pos, rx_pos, mr, monos
     return q, area, nrm, tri_ids, phases, vis_t, vis_r, np.flatnonzero(vis_t & vis_r)
 
 
-def _device_tiles(geom, st, size, seed, mask, tx_pos, rx_pos, monostatic):
+def _device_tiles(geom, plan, kb, phases, tx_pos, rx_pos, monostatic):
     """The same as :func:`_host_tiles` with reflections around the tiles (``max_reflections``
     >= 1) from the kernels of :mod:`clradcom.device.scatter`.
 
     Tiles, front sides and the float32 sight casts run on the device; every tile's centre
     and flags come back (the reflected legs start from any of them); the host keeps the
-    per-triangle numbers (subdivisions, normals, areas: O(triangles)), the random phases
-    and the float64 antenna ends of the tiles the casts let through."""
-    nrm_t, tile_area, ns, first, phases_all, k = _traced_triangles(st, size, seed, mask)
+    per-piece numbers (subdivisions, normals, areas), the random phases and the float64
+    antenna ends of the tiles the casts let through."""
     scene = geom.scene
-    tris, tri_sel = st.tris, st.sel
-    S = scene.material_scattering[scene.tri_material[tri_sel]]
-    sight = device_scatter.tile_sight(geom.caster, tris[k], nrm_t[k], tile_area[k], S[k],
-                                      tri_sel[k], ns[k], tx_pos, rx_pos, scene.wavelength_m,
+    S = scene.material_scattering[scene.tri_material[plan.prim[kb]]]
+    sight = device_scatter.tile_sight(geom.caster, plan.vertices[kb], plan.normals[kb],
+                                      plan.tile_area[kb], S, plan.prim[kb], plan.n[kb],
+                                      tx_pos, rx_pos, scene.wavelength_m,
                                       all_ends=True, monostatic=monostatic,
                                       tri_face=geom.faces.tri_face)
-    first_k = np.concatenate([[0], np.cumsum(ns[k] * ns[k])])
-    j = np.searchsorted(first_k, np.arange(len(sight.flags)), side="right") - 1
-    kk, glob = k[j], first[k[j]] + (np.arange(len(sight.flags)) - first_k[j])
-    q, nrm = sight.centres, nrm_t[kk]
+    counts = plan.n[kb] * plan.n[kb]
+    j = np.repeat(np.arange(len(kb)), counts)  # each tile's piece within the batch
+    q, nrm = sight.centres, plan.normals[kb][j]
     vis_t = (sight.flags & device_scatter.SEES_TX) != 0
     vis_t[vis_t] = _antenna_clear(geom, q[vis_t], nrm[vis_t], tx_pos)
     if monostatic:
@@ -433,23 +433,179 @@ def _device_tiles(geom, st, size, seed, mask, tx_pos, rx_pos, monostatic):
     else:
         vis_r = (sight.flags & device_scatter.SEES_RX) != 0
         vis_r[vis_r] = _antenna_clear(geom, q[vis_r], nrm[vis_r], rx_pos)
-    return (q, tile_area[kk], nrm, tri_sel[kk], phases_all[glob], vis_t, vis_r,
+    return (q, plan.tile_area[kb][j], nrm, plan.prim[kb][j], phases, vis_t, vis_r,
             np.flatnonzero(vis_t & vis_r))
 
 
-def _traced_triangles(st, size, seed, mask):
-    """Per scattering triangle (``st``, :func:`_scattering_triangles`): normals, one tile's
-    area, subdivisions n at tile edge ``size``, the index of its first tile among all tiles
-    (K+1,); the phases of all tiles (drawn for every tile before any selection, as on the
-    host); the traced triangles k (indices into ``st.tris``)."""
+#: a piece of a scattering triangle is halved (cut into four by its edges' midpoints) while
+#: its tiles at its own accuracy bound would be more than this many to an edge: the pieces
+#: farther from the antennas then take larger tiles (the bound grows as sqrt(distance))
+ADAPTIVE_PIECE_N = 8
+#: with an explicit tile size, a triangle is cut into four while it holds more than this
+#: many tiles to an edge (so that one piece fits a batch; smaller triangles keep the
+#: regular n x n cut of make_tiles)
+EXPLICIT_PIECE_N = 256
+#: tiles handled at once: a surface of any size is streamed through in batches (a batch
+#: holds ~300 bytes per tile at its peak, host and device together: on a 200 m road
+#: square, 1.2 million tiles, the peak resident memory was 425 MB with batches of 2^14 to
+#: 2^17 tiles, most of it the OpenCL runtime, and 754 MB with 2^20)
+BATCH_TILES = 1 << 17
+
+
+@dataclass(frozen=True)
+class TilePlan:
+    """How one link's scattering triangles are cut into tiles: K pieces, each a triangle
+    (a scattering triangle or a part of it from repeated cuts into four) with n x n tiles.
+
+    ``vertices`` (K,3,3), ``prim`` (K,) scene triangle ids, ``normals`` (K,3) unit (their
+    triangle's), ``tile_area`` (K,), ``n`` (K,), ``first`` (K+1,) the index of each
+    piece's first tile among all tiles (the random phases' rows), ``bound`` (K,) the
+    accuracy bound (m) at each piece's nearest point to the nearer antenna, ``size`` the
+    explicit tile size or None (adaptive)."""
+
+    vertices: np.ndarray
+    prim: np.ndarray
+    normals: np.ndarray
+    tile_area: np.ndarray
+    n: np.ndarray
+    first: np.ndarray
+    bound: np.ndarray
+    size: float | None
+
+    @property
+    def tile_edges(self) -> np.ndarray:
+        """Each piece's longest tile edge (m)."""
+        return _longest_edges(self.vertices) / self.n
+
+
+def _split4(v):
+    """Each triangle (K,3,3) cut into four by its edges' midpoints (K*4,3,3), the four
+    of a triangle consecutive, each wound as it is."""
+    a, b, c = v[:, 0], v[:, 1], v[:, 2]
+    ab, bc, ca = 0.5 * (a + b), 0.5 * (b + c), 0.5 * (c + a)
+    return np.stack([np.stack([a, ab, ca], 1), np.stack([ab, b, bc], 1),
+                     np.stack([ca, bc, c], 1), np.stack([ab, bc, ca], 1)], 1).reshape(-1, 3, 3)
+
+
+def _nearest_distance(v, tx_pos, rx_pos, wavelength):
+    """Distance (K,) from each triangle's closest point to the nearer antenna, at least
+    one wavelength (the tile rule's far-field floor)."""
+    d = np.minimum(point_triangle_distance(tx_pos, v), point_triangle_distance(rx_pos, v))
+    return np.maximum(d, wavelength)
+
+
+def tile_plan(st, tx_pos, rx_pos, wavelength, *, tile_size_m=None,
+              accuracy=DEFAULT_ACCURACY) -> TilePlan:
+    """The tiles of one link (``st``: the scene's :class:`_ScatterTriangles`).
+
+    ``tile_size_m=None`` (adaptive): every piece takes the tile size that
+    :func:`choose_tile_size` allows at its own nearest point (closest point on the
+    triangle, not its centroid) to the nearer antenna, and a piece that would hold more
+    than :data:`ADAPTIVE_PIECE_N` tiles to an edge is cut into four first, again and
+    again, so the tiles grow with the distance as the bound does and no tile anywhere is
+    coarser than its bound. A road square of 200 m half-width seen from 0.55 m holds
+    1.2 million tiles this way, where one size everywhere would need 2 x 10^8.
+
+    An explicit ``tile_size_m``: the regular n x n cut of :func:`make_tiles` at that
+    size for every triangle (a triangle with more than :data:`EXPLICIT_PIECE_N` tiles to
+    an edge cut into four first); no cap.
+    """
     if st.degenerate:
         raise ArgumentError("degenerate or non-finite triangle")
-    ns = _subdivisions(st.tris, size, st.longest)
-    counts = ns * ns
+    lam = float(wavelength)
+    acc = float(accuracy)
+    if not (math.isfinite(acc) and acc > 0):
+        raise ArgumentError("must be a finite number > 0", argument="accuracy", value=accuracy)
+    size = None if tile_size_m is None else float(tile_size_m)
+    if size is not None and not (math.isfinite(size) and size > 0):
+        raise ArgumentError(f"tile_size_m must be > 0, got {tile_size_m}")
+    limit = ADAPTIVE_PIECE_N if size is None else EXPLICIT_PIECE_N
+    v, owner, level, longest = st.tris, np.arange(len(st.tris)), np.zeros(len(st.tris),
+                                                                         np.int64), st.longest
+    out = []
+    while len(v):
+        bound = _tile_bounds(lam, _nearest_distance(v, tx_pos, rx_pos, lam), acc)
+        # make_tiles' n = ceil(l / D), with D the piece's own bound or the explicit size
+        n = np.maximum(1, np.ceil(longest / (bound if size is None else size) - 1e-9)
+                       ).astype(np.int64)
+        split = n > limit
+        keep = ~split
+        out.append((v[keep], owner[keep], level[keep], n[keep], bound[keep]))
+        v = _split4(v[split])
+        owner = np.repeat(owner[split], 4)
+        level = np.repeat(level[split] + 1, 4)
+        longest = _longest_edges(v)
+    v, owner, level, n, bound = (np.concatenate(c) for c in zip(*out, strict=True))
+    order = np.argsort(owner, kind="stable")  # piece by piece within each triangle's order
+    v, owner, level, n, bound = v[order], owner[order], level[order], n[order], bound[order]
+    counts = n * n
     first = np.concatenate([[0], np.cumsum(counts)])
-    phases_all = np.random.default_rng(seed).uniform(0.0, 2.0 * np.pi, size=(int(first[-1]), 2))
-    k = np.arange(len(st.tris)) if mask is None else np.flatnonzero(mask[st.sel])
-    return st.normals, 0.5 * st.two_a / counts, ns, first, phases_all, k
+    return TilePlan(vertices=v, prim=st.sel[owner], normals=st.normals[owner],
+                    tile_area=0.5 * st.two_a[owner] / (counts * 4 ** level), n=n, first=first,
+                    bound=bound, size=size)
+
+
+def _warn_coarse_tiles(scene, plan: TilePlan, traced, accuracy):
+    """One :class:`~clradcom.errors.TileSizeWarning` when traced pieces' tiles are coarser
+    than their accuracy bound (an explicit tile size), naming the surface whose bound is
+    smallest, that bound and how many other surfaces share the fault."""
+    edges = plan.tile_edges[traced]
+    bound = plan.bound[traced]
+    coarse = np.flatnonzero(edges > bound * (1.0 + 1e-9))
+    if len(coarse) == 0:
+        return
+    worst = coarse[np.argmin(bound[coarse])]
+    prim = plan.prim[traced]
+    objects = np.unique(scene.tri_object[prim[coarse]])
+    obj = int(scene.tri_object[prim[worst]])
+    name = scene.objects[obj].name if obj < len(scene.objects) else str(obj)
+    others = len(objects) - 1
+    warnings.warn(TileSizeWarning(
+        f"scattering tiles of {edges[worst]:.3g} m on surface '{name}' (triangle "
+        f"{int(prim[worst])}) are coarser than their accuracy bound {bound[worst]:.3g} m "
+        f"(the tile-size rule at accuracy {accuracy:g}, for its nearest point "
+        f"{float(_bound_distance(bound[worst], scene.wavelength_m, accuracy)):.3g} m from "
+        f"the nearer antenna)" + (f"; {others} other surface(s) too" if others else "")
+        + ": a tile there is no point scatterer; set ScatteringSettings.tile_size_m = 0 "
+        "(tiles chosen per surface) or a size within the bound"), stacklevel=3)
+
+
+def _bound_distance(bound, wavelength, accuracy):
+    """The distance at which :func:`_tile_bounds` gives ``bound`` (its inverse)."""
+    dphi = math.sqrt(45.0 * accuracy / 4.0)
+    return bound ** 2 * math.pi / (2.0 * wavelength * dphi)
+
+
+def _batches(counts, batch_tiles):
+    """Consecutive index ranges [a, b) of pieces with ``counts`` tiles, each range holding
+    at most ``batch_tiles`` tiles (or one piece that alone holds more)."""
+    cum = np.concatenate([[0], np.cumsum(counts)])
+    out, a = [], 0
+    while a < len(counts):
+        b = int(np.searchsorted(cum, cum[a] + batch_tiles, side="right")) - 1
+        b = max(b, a + 1)
+        out.append((a, b))
+        a = b
+    return out
+
+
+def _batch_phases(seed, first, kb):
+    """The two random phases (chi1, chi2) of every tile of pieces ``kb`` (ascending), in
+    tile order: the rows first[k] .. first[k+1] of ``default_rng(seed).uniform(0, 2 pi,
+    (all tiles, 2))``, drawn by advancing the generator to each run of consecutive pieces
+    (so a batch costs memory for its own tiles only, and the phases never depend on the
+    batches or on which pieces are traced)."""
+    kb = np.asarray(kb, dtype=np.int64)
+    if len(kb) == 0:
+        return np.zeros((0, 2))
+    breaks = np.flatnonzero(np.diff(kb) != 1) + 1
+    out = []
+    for run in np.split(kb, breaks):
+        a, b = int(first[run[0]]), int(first[run[-1] + 1])
+        bitgen = np.random.PCG64(seed)
+        bitgen.advance(2 * a)  # two doubles (one 64-bit draw each) per tile before it
+        out.append(np.random.Generator(bitgen).uniform(0.0, 2.0 * np.pi, size=(b - a, 2)))
+    return np.concatenate(out)
 
 
 @dataclass(frozen=True, eq=False)
@@ -506,22 +662,19 @@ def _object_motion(scene):
     return np.asarray(scene.object_velocity, dtype=np.float64).reshape(n, 3), omega, centre
 
 
-def _device_direct_paths(geom, tx, rx, st, size, seed, mask, tx_pos, rx_pos, monostatic,
-                         threshold_db, reference_gain):
-    """Direct paths tx -> tile -> rx (``max_reflections`` 0) with their fields from the
-    kernels (:func:`clradcom.device.scatter.tile_sight` with ``tile_fields``): ``(Paths,
-    n_dropped)`` as :func:`scattering_paths` returns them.
+def _device_direct_rows(geom, tx, rx, plan, kb, phases, tx_pos, rx_pos, monostatic):
+    """Direct paths tx -> tile -> rx (``max_reflections`` 0) of plan pieces ``kb`` (one
+    batch) with their fields from the kernels (:func:`clradcom.device.scatter.tile_sight`
+    with ``tile_fields``): the rows of :func:`_path_rows`, before the threshold.
 
     The kernel gives each row its length, Doppler, antenna directions, polarimetric
     matrix for Gamma = 1, Fresnel coefficients and the tx basis' TE/TM projections at the
     tile; here the antenna patterns are applied (as to the SBR kernel's matrices), Gamma
-    for the polarisation tx sends (:func:`_path_rows`' rule), and the threshold. Rows
-    whose float64 antenna end the kernel leaves open (a triangle within millimetres of an
-    antenna) are decided by :func:`_antenna_clear`, the host's test."""
+    for the polarisation tx sends (:func:`_path_rows`' rule). Rows whose float64 antenna
+    end the kernel leaves open (a triangle within millimetres of an antenna) are decided
+    by :func:`_antenna_clear`, the host's test."""
     scene = geom.scene
-    nrm_t, tile_area, ns, first, phases_all, k = _traced_triangles(st, size, seed, mask)
-    tris, tri_sel = st.tris, st.sel
-    tid_k = tri_sel[k]
+    tid_k = plan.prim[kb]
     mat = scene.tri_material[tid_k]
     obj = scene.tri_object[tid_k]
     eps = np.asarray(scene.material_eps_r, dtype=np.complex128)[mat]
@@ -531,12 +684,15 @@ def _device_direct_paths(geom, tx, rx, st, size, seed, mask, tx_pos, rx_pos, mon
     S = scene.material_scattering[mat]
     tri_par = np.column_stack([S, scene.material_cross_pol_share[mat], eps.real, eps.imag,
                                pec.astype(np.float64), v_obj[obj], omega[obj], centre[obj]])
+    counts = plan.n[kb] * plan.n[kb]
     inputs = device_scatter.FieldInputs(
-        tri_par=tri_par, glob_first=first[k], phases=phases_all, tx_velocity=tx.velocity,
-        rx_velocity=rx.velocity, tx_frame=tx.orientation, rx_frame=rx.orientation)
-    sight = device_scatter.tile_sight(geom.caster, tris[k], nrm_t[k], tile_area[k], S,
-                                      tid_k, ns[k], tx_pos, rx_pos, scene.wavelength_m,
-                                      all_ends=False, monostatic=monostatic, fields=inputs,
+        tri_par=tri_par, glob_first=np.concatenate([[0], np.cumsum(counts)[:-1]]),
+        phases=phases, tx_velocity=tx.velocity, rx_velocity=rx.velocity,
+        tx_frame=tx.orientation, rx_frame=rx.orientation)
+    sight = device_scatter.tile_sight(geom.caster, plan.vertices[kb], plan.normals[kb],
+                                      plan.tile_area[kb], S, tid_k, plan.n[kb], tx_pos,
+                                      rx_pos, scene.wavelength_m, all_ends=False,
+                                      monostatic=monostatic, fields=inputs,
                                       tri_face=geom.faces.tri_face)
     F = sight.fields
 
@@ -547,7 +703,7 @@ def _device_direct_paths(geom, tx, rx, st, size, seed, mask, tx_pos, rx_pos, mon
     j = sight.triangle
     open_ = np.flatnonzero(sight.column("undecided") != 0)
     if len(open_):  # a triangle near an antenna: the host's float64 test decides
-        q, nrm = col("centre", open_), nrm_t[k[j[open_]]]
+        q, nrm = col("centre", open_), plan.normals[kb][j[open_]]
         clear = _antenna_clear(geom, q, nrm, tx_pos)
         clear[clear] = _antenna_clear(geom, q[clear], nrm[clear], rx_pos)
         keep = np.ones(len(F), dtype=bool)
@@ -555,7 +711,7 @@ def _device_direct_paths(geom, tx, rx, st, size, seed, mask, tx_pos, rx_pos, mon
         F, j = F[keep], j[keep]
     P = len(F)
     if P == 0:
-        return Paths.empty(1), 0
+        return None
     c_tx = np.asarray(tx.pattern.field(col("tx_dir")), dtype=np.complex128)
     if rx is tx:  # -k_arr = k_dep bit for bit (tile_fields negates exactly): the same field
         c_rx = c_tx
@@ -571,24 +727,71 @@ def _device_direct_paths(geom, tx, rx, st, size, seed, mask, tx_pos, rx_pos, mon
                     + c_rx[:, 1] * (M0[:, 2] * c_tx[:, 0] + M0[:, 3] * c_tx[:, 1]))
     L = col("length")
     em.check_path_lengths(L, scene.wavelength_m, stacklevel=3)
-    mag = np.abs(gain)
-    thr = 10.0 ** (-abs(float(threshold_db)) / 20.0)
-    top = float(np.abs(reference_gain)) if reference_gain is not None else mag.max()
-    sel = np.flatnonzero((mag > 0) & (mag >= top * thr))
-    m = len(sel)
-    kk = k[j[sel]]
-    tid = tri_sel[kk]
-    pts = np.empty((m, 3, 3))
+    tid = tid_k[j]
+    pts = np.empty((P, 3, 3))
     pts[:, 0] = tx_pos
-    pts[:, 1] = col("centre", sel)
+    pts[:, 1] = col("centre")
     pts[:, 2] = rx_pos
-    paths = Paths(gain=gain[sel], matrix=(gamma[sel, None] * M0[sel]).reshape(m, 2, 2),
-                  delay_s=em.delay_s(L[sel]), doppler_hz=col("doppler", sel),
-                  n_interactions=np.ones(m, np.int16),
-                  interaction=np.full((m, 1), int(InteractionType.SCATTERING), np.int8),
-                  points=pts, object_id=scene.tri_object[tid][:, None],
-                  face_id=tid[:, None])
-    return paths, int(P - m)
+    return (gain, (gamma[:, None] * M0).reshape(P, 2, 2), L, col("doppler"),
+            np.ones(P, np.int16), np.full((P, 1), int(InteractionType.SCATTERING), np.int8),
+            pts, scene.tri_object[tid][:, None], tid[:, None])
+
+
+class _KeptRows:
+    """Path rows gathered batch by batch under the link's threshold: rows below
+    |threshold| x the strongest so far are dropped at once (they stay below it, since the
+    strongest only grows), the rest when :meth:`paths` knows the final strongest. Memory:
+    the rows that may still be emitted."""
+
+    def __init__(self, threshold_db, reference_gain):
+        self.thr = 10.0 ** (-abs(float(threshold_db)) / 20.0)
+        self.top = float(np.abs(reference_gain)) if reference_gain is not None else 0.0
+        self.fixed = reference_gain is not None
+        self.rows = []
+        self.block = []
+        self.total = 0
+
+    def add(self, rows, block=None):
+        """rows: (gain, matrix, L, doppler, n_interactions, codes, points, object ids, face
+        ids), as :func:`_path_rows` returns them; ``block`` (P,) the kind of each row
+        (direct, prefix, suffix, both), the order of :meth:`paths`."""
+        if rows is None or len(rows[0]) == 0:
+            return
+        mag = np.abs(rows[0])
+        self.total += len(mag)
+        if not self.fixed:
+            self.top = max(self.top, float(mag.max()))
+        sel = np.flatnonzero((mag > 0) & (mag >= self.top * self.thr))
+        self.rows.append([c[sel] for c in rows])
+        self.block.append(np.zeros(len(sel), np.int8) if block is None else block[sel])
+
+    def paths(self):
+        """(Paths, n_dropped): the rows at or above the final threshold, by block (stable:
+        batch by batch and in each batch's order within a block)."""
+        if not self.rows:
+            return Paths.empty(1), self.total
+        width = max(c[6].shape[1] for c in self.rows)
+        cols = []
+        for i in range(9):
+            parts = [c[i] for c in self.rows]
+            if i in (5, 7, 8):  # codes, object and face ids: (P, K) padded to the widest
+                parts = [np.pad(c, ((0, 0), (0, width - 2 - c.shape[1])),
+                                constant_values=0 if i == 5 else -1) for c in parts]
+            elif i == 6:  # points (P, K + 2, 3), NaN padded
+                parts = [np.pad(c, ((0, 0), (0, width - c.shape[1]), (0, 0)),
+                                constant_values=np.nan) for c in parts]
+            cols.append(np.concatenate(parts))
+        gain, M, L, doppler, nk, code, pts, oid, fid = cols
+        order = np.argsort(np.concatenate(self.block), kind="stable")
+        mag = np.abs(gain[order])
+        sel = order[(mag > 0) & (mag >= self.top * self.thr)]
+        m = len(sel)
+        K = max(1, int(nk[sel].max())) if m else 1
+        paths = Paths(gain=gain[sel], matrix=M[sel], delay_s=em.delay_s(L)[sel],
+                      doppler_hz=doppler[sel], n_interactions=nk[sel],
+                      interaction=code[sel, :K], points=pts[sel, :K + 2],
+                      object_id=oid[sel, :K], face_id=fid[sel, :K])
+        return paths, int(self.total - m)
 
 
 def _mirror_dyads(scene, faces, face, k_in):
@@ -619,16 +822,19 @@ def _join(a_tile, b_tile):
 
 
 def scattering_paths(geom, tx, rx, *, tile_size_m=None, threshold_db=-60.0, seed=0,
-                     reference_gain=None, accuracy=DEFAULT_ACCURACY, max_tiles=200_000,
-                     max_reflections=0, min_face_area_m2=DEFAULT_MIN_FACE_AREA_M2,
-                     triangle_mask=None):
+                     reference_gain=None, accuracy=DEFAULT_ACCURACY, max_reflections=0,
+                     min_face_area_m2=DEFAULT_MIN_FACE_AREA_M2, triangle_mask=None,
+                     batch_tiles=BATCH_TILES):
     """Single diffuse-scattering paths of one tx -> rx link: ``(Paths, n_dropped)``.
 
-    Tiles (:func:`make_tiles`) are cut from every scene triangle whose material
-    has S > 0.  ``tile_size_m=None`` picks :func:`choose_tile_size` for the
-    distance from the nearer antenna to the closest scattering triangle's
-    centroid, then enlarges it if more than ``max_tiles`` tiles would result (an
-    explicit size with too many tiles raises ValueError).
+    Tiles are cut from every scene triangle whose material has S > 0 as
+    :func:`tile_plan` says: ``tile_size_m=None`` gives every part of a surface the
+    size :func:`choose_tile_size` allows at its nearest point to the nearer antenna
+    (pieces cut into four until it does), an explicit size the regular cut of
+    :func:`make_tiles` everywhere, with a :class:`~clradcom.errors.TileSizeWarning`
+    naming the surface where that is coarser than the bound.  There is no cap on the
+    number of tiles: they are streamed through in batches of about ``batch_tiles``
+    (host and device memory bounded by the batch and the rows kept).
 
     Paths, in this order (each block by tile, then mirror face):
 
@@ -664,7 +870,7 @@ def scattering_paths(geom, tx, rx, *, tile_size_m=None, threshold_db=-60.0, seed
     reflection dyad), Gamma^2 = (|r_te E_te|^2 + |r_tm E_tm|^2) / |E|^2 (the
     unpolarised mean (|r_te|^2 + |r_tm|^2)/2 where no field arrives).
     Each tile gets two random phases (chi1, chi2) from ``seed`` (the same for a
-    given scene, seed and tile size, so fixed across the frame, and shared by
+    given scene, seed and tile plan, so fixed across the frame, and shared by
     all paths through the tile); delay L/c0 (L unfolded); Doppler
     -(1/lambda) dL/dt with the tile and mirrors moving with their objects.
     Interactions SCATTERING, with REFLECTION before/after it; object_id/face_id
@@ -679,53 +885,65 @@ def scattering_paths(geom, tx, rx, *, tile_size_m=None, threshold_db=-60.0, seed
     if not (isinstance(mr, (int, np.integer)) and not isinstance(mr, bool) and 0 <= mr <= 2):
         raise ArgumentError(f"max_reflections must be 0, 1 or 2 (one reflection on each side "
                          f"of the tile at most), got {max_reflections!r}")
+    if isinstance(batch_tiles, bool) or not isinstance(batch_tiles, (int, np.integer)) \
+            or batch_tiles < 1:
+        raise ArgumentError("must be a positive integer", argument="batch_tiles",
+                            value=batch_tiles)
     scene = geom.scene
     if geom.caster is None or len(scene.triangles) == 0:
         return Paths.empty(1), 0
     st = _scattering_triangles(scene)
-    tri_sel, tris, longest = st.sel, st.tris, st.longest
-    if len(tri_sel) == 0:
+    if len(st.sel) == 0:
         return Paths.empty(1), 0
     tx_pos = np.asarray(tx.position, dtype=np.float64)
     rx_pos = np.asarray(rx.position, dtype=np.float64)
-    lam = scene.wavelength_m
-    if tile_size_m is None:
-        cen = st.centroids
-        d = min(np.linalg.norm(cen - tx_pos, axis=-1).min(),
-                np.linalg.norm(cen - rx_pos, axis=-1).min())
-        size = choose_tile_size(lam, max(d, lam), accuracy)
-        cnt = _estimate_count(tris, size, longest)
-        while cnt > max_tiles:
-            size *= 1.05 * math.sqrt(cnt / max_tiles)
-            cnt = _estimate_count(tris, size, longest)
-    else:
-        size = float(tile_size_m)
-        cnt = _estimate_count(tris, size, longest)
-        if cnt > max_tiles:
-            raise ArgumentError(f"tile_size_m={size} gives {cnt} tiles > max_tiles={max_tiles}")
-    mask = None
+    plan = tile_plan(st, tx_pos, rx_pos, scene.wavelength_m, tile_size_m=tile_size_m,
+                     accuracy=accuracy)
+    traced = np.arange(len(plan.prim))
     if triangle_mask is not None:
         mask = np.asarray(triangle_mask, dtype=bool)
         if mask.shape != (len(scene.triangles),):
             raise ArgumentError(f"triangle_mask must have one entry per scene triangle "
                              f"({len(scene.triangles)}), got shape {mask.shape}")
+        traced = np.flatnonzero(mask[plan.prim])
+    if plan.size is not None:
+        _warn_coarse_tiles(scene, plan, traced, accuracy)
     monostatic = bool(np.array_equal(tx_pos, rx_pos))
     on_device = geom.engine == "device"
     engines.record("scattering.tiles", geom.engine, fallback=False)
-    if on_device and mr == 0:
-        return _device_direct_paths(geom, tx, rx, st, size, seed, mask, tx_pos, rx_pos,
-                                    monostatic, threshold_db, reference_gain)
-    if on_device:
-        tiles = _device_tiles(geom, st, size, seed, mask, tx_pos, rx_pos, monostatic)
-    else:
-        tiles = _host_tiles(geom, tris, tri_sel, size, seed, mask, tx_pos, rx_pos, mr,
-                            monostatic)
+    kept = _KeptRows(threshold_db, reference_gain)
+    if mr >= 1:
+        mirrors, lo, hi = mirror_faces(geom, min_face_area_m2)
+    for a, b in _batches(plan.n[traced] ** 2, int(batch_tiles)):
+        kb = traced[a:b]
+        phases = _batch_phases(seed, plan.first, kb)
+        if on_device and mr == 0:
+            kept.add(_device_direct_rows(geom, tx, rx, plan, kb, phases, tx_pos, rx_pos,
+                                         monostatic))
+            continue
+        if on_device:
+            tiles = _device_tiles(geom, plan, kb, phases, tx_pos, rx_pos, monostatic)
+        else:
+            tiles = _host_tiles(geom, plan, kb, phases, tx_pos, rx_pos, mr, monostatic)
+        blocks = _tile_blocks(geom, tiles, tx_pos, rx_pos, mr, monostatic,
+                              (mirrors, lo, hi) if mr >= 1 else None)
+        cols = [np.concatenate(c) for c in zip(*blocks, strict=True)]
+        if len(cols[0]) == 0:
+            continue
+        kind = np.repeat(np.arange(len(blocks), dtype=np.int8), [len(b[0]) for b in blocks])
+        q, area, nrm, tri_ids, phases = tiles[:5]
+        kept.add(_path_rows(geom, tx, rx, q, area, nrm, tri_ids, phases, cols), kind)
+    return kept.paths()
+
+
+def _tile_blocks(geom, tiles, tx_pos, rx_pos, mr, monostatic, mirrors):
+    """The path rows through one batch's tiles, as blocks (direct, and with reflections
+    prefix, suffix, both): each (tile, f1, p1, im1, tr1, f2, p2, im2, tr2), a missing leg
+    being the direct one (no face, p = q, the end itself as image)."""
     q, area, nrm, tri_ids, phases, vis_t, vis_r, direct = tiles
     N = len(q)
 
     def block(t, pre=None, suf=None):
-        # rows of paths through tiles t: prefix and suffix legs (face, p, image, triangle),
-        # a missing leg being the direct one (no face, p = q, the end itself as image)
         n = len(t)
         none = np.full(n, -1, np.int64)
         a = pre if pre is not None else (none, q[t], np.broadcast_to(tx_pos, (n, 3)), none)
@@ -734,14 +952,14 @@ def scattering_paths(geom, tx, rx, *, tile_size_m=None, threshold_db=-60.0, seed
 
     blocks = [block(direct)]
     if mr >= 1:
-        mirrors, lo, hi = mirror_faces(geom, min_face_area_m2)
+        faces, lo, hi = mirrors
         everywhere = np.arange(N)
         # legs from tx matter only for tiles rx sees directly, unless a suffix may follow
         lt = reflection_legs(geom, tx_pos, q, nrm, tri_ids,
-                             everywhere if mr >= 2 else np.flatnonzero(vis_r), mirrors, lo, hi)
+                             everywhere if mr >= 2 else np.flatnonzero(vis_r), faces, lo, hi)
         lr = lt if monostatic else reflection_legs(
             geom, rx_pos, q, nrm, tri_ids, everywhere if mr >= 2 else np.flatnonzero(vis_t),
-            mirrors, lo, hi)
+            faces, lo, hi)
         pre = np.flatnonzero(vis_r[lt[0]])
         blocks.append(block(lt[0][pre], pre=[c[pre] for c in lt[1:]]))
         suf = np.flatnonzero(vis_t[lr[0]])
@@ -750,25 +968,7 @@ def scattering_paths(geom, tx, rx, *, tile_size_m=None, threshold_db=-60.0, seed
             i, j = _join(lt[0], lr[0])
             blocks.append(block(lt[0][i], pre=[c[i] for c in lt[1:]],
                                 suf=[c[j] for c in lr[1:]]))
-    cols = [np.concatenate(c) for c in zip(*blocks, strict=True)]
-    P = len(cols[0])
-    if P == 0:
-        return Paths.empty(1), 0
-    thr = 10.0 ** (-abs(float(threshold_db)) / 20.0)
-    top = float(np.abs(reference_gain)) if reference_gain is not None else None
-    gain, M, L, doppler, nk, code, pts, oid, fid = _path_rows(
-        geom, tx, rx, q, area, nrm, tri_ids, phases, cols)
-    mag = np.abs(gain)
-    if top is None:
-        top = mag.max()
-    sel = (mag > 0) & (mag >= top * thr)
-    m = int(sel.sum())
-    K = max(1, int(nk[sel].max())) if m else 1
-    paths = Paths(gain=gain[sel], matrix=M[sel], delay_s=em.delay_s(L)[sel],
-                  doppler_hz=doppler[sel], n_interactions=nk[sel],
-                  interaction=code[sel, :K], points=pts[sel, :K + 2],
-                  object_id=oid[sel, :K], face_id=fid[sel, :K])
-    return paths, int(P - m)
+    return blocks
 
 
 def _path_rows(geom, tx, rx, q, area, nrm, tri_ids, phases, cols):
@@ -890,7 +1090,9 @@ class ScatteringSettings:
     max_reflections: int = 0
     #: tiles more than this far (dB) below the link's strongest tile are dropped
     threshold_db: float = -60.0
-    #: tile edge (m); 0 picks it from the wavelength and distance (choose_tile_size)
+    #: tile edge (m); 0 gives every part of a surface the largest edge the accuracy bound
+    #: allows at its nearest point to the antennas (tile_plan); an explicit size coarser
+    #: than that bound somewhere warns (TileSizeWarning) naming the surface
     tile_size_m: float = 0.0
     #: faces smaller than this (m^2) reflect into no scattering path
     min_face_area_m2: float = DEFAULT_MIN_FACE_AREA_M2

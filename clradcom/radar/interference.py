@@ -35,6 +35,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from clradcom.errors import AliasingWarning, ArgumentError, CyclicPrefixWarning
+from clradcom.radar.pipeline import frame_result, radar_frame_parts
 from clradcom.radar.processing import get_window, radar_image, spectral_estimate
 from clradcom.radar.synthesis import (
     channel_transfer_function,
@@ -644,6 +645,9 @@ class InterferenceResult:
     predicted_residual_power: float  # P_I·(NMSE + SER·E|d − d̂|²), errors spread evenly
     predicted_residual_weighted: float  # P_I·NMSE + mean |Ĥ|²|d − d̂|²: errors where they fall
     estimate: DEstimate
+    #: same keys -> the radar chain's result on that case's frame (images and detections,
+    #: clradcom.radar.pipeline.frame_result), when A's own paths were given
+    results: dict | None = None
 
 
 def _own_frame(own_signal, waveform):
@@ -658,13 +662,24 @@ def run_interference(own_signal, own_symbols, d_stream, gains, delays_s, doppler
                      waveform: Waveform, *, timing_offset_s: float, cfo_hz: float,
                      phase_rad: float = 0.0, power_ratio: float = 1.0,
                      noise_variance: float = 0.0, rng=None, window="hann",
-                     zero_pad=(2, 2), **estimate_kw) -> InterferenceResult:
+                     zero_pad=(2, 2), own_frame=None, frame_noise=None, own_paths=None,
+                     **estimate_kw) -> InterferenceResult:
     """A's radar image without D, with D, after genie and after realistic cancellation.
 
     ``own_signal`` is A's echo on the capture (``own_echo_signal``), ``own_symbols`` A's
     frame (N, M), ``d_stream`` D's stream (N, ≥ ``stream_symbols``), the paths are the
     D->A link.  The same noise realisation is used in every case so the images differ by
     the interference and its residual only.
+
+    Each case's frame is A's frame without D plus what D leaves in A's FFT windows (the
+    capture's demodulation is linear): ``own_frame`` (N, M), when given, is that frame
+    (the radar chain's, :func:`clradcom.radar.pipeline.radar_frame_parts`, noise
+    included), else the clean capture's. ``frame_noise`` (N, M), when given, is the noise
+    inside ``own_frame``: the capture's noise in A's FFT windows is made of it (their
+    inverse DFTs), the cyclic prefixes and guard symbols get their own, so the receiver
+    that estimates D sees the noise that the images hold. With ``own_paths`` (A's own
+    echoes) every case also goes through the radar chain's detection
+    (:func:`clradcom.radar.pipeline.frame_result`): ``results``.
     """
     y_own = _own_frame(own_signal, waveform)
     d_a = check_symbols(own_symbols, waveform, "own_symbols")
@@ -674,18 +689,28 @@ def run_interference(own_signal, own_symbols, d_stream, gains, delays_s, doppler
     rng = np.random.default_rng(rng)
     noise = math.sqrt(nv / 2) * (rng.standard_normal(y_own.size)
                                  + 1j * rng.standard_normal(y_own.size))
+    if frame_noise is not None:
+        w = check_symbols(frame_noise, waveform, "frame_noise")
+        ell, n_cp = waveform.samples_per_symbol, waveform.n_cp
+        windows = noise[frame_slice(waveform)].reshape(waveform.n_symbols, ell)
+        windows[:, n_cp:] = np.fft.ifft(w, axis=0, norm="ortho").T  # their DFT is w
     y_int = interference_signal(d_stream, gains, delays_s, dopplers_hz, waveform,
                                 timing_offset_s, cfo_hz, phase_rad, power_ratio)
     clean = y_own + noise
     rx = clean + y_int
     est = estimate_interferer(rx, d_a, waveform, **estimate_kw)
     y_hat = reconstruct_interferer(est, waveform, rx.size)
-    genie = rx - y_int  # true data and channel: the bound
-    captures = {"clean": clean, "interfered": rx, "genie": genie, "realistic": rx - y_hat}
+    base = frame_symbols(clean, waveform) if own_frame is None else \
+        check_symbols(own_frame, waveform, "own_frame")
+    # genie: the true data and channel removed, the bound
+    frames = {"clean": base, "interfered": base + frame_symbols(y_int, waveform),
+              "genie": base, "realistic": base + frame_symbols(y_int - y_hat, waveform)}
     images = {}
-    for key, cap in captures.items():
-        f = spectral_estimate(frame_symbols(cap, waveform), d_a, "divide")
+    for key, fr_k in frames.items():
+        f = spectral_estimate(fr_k, d_a, "divide")
         images[key] = radar_image(f, waveform, window, window, zero_pad[0], zero_pad[1])
+    results = None if own_paths is None else \
+        {k: frame_result(d_a, fr_k, own_paths, waveform) for k, fr_k in frames.items()}
     floors = {k: image_floor(im) for k, im in images.items()}
     fr = frame_slice(waveform)
     p_i = float(np.mean(np.abs(y_int[fr]) ** 2))
@@ -723,7 +748,7 @@ def run_interference(own_signal, own_symbols, d_stream, gains, delays_s, doppler
     pred, pred_w = (p_i * (nmse + ser * err_e), p_i * nmse + weighted) if est.cancel \
         else (p_i, p_i)
     return InterferenceResult(images, floors, nv, p_i, p_pred, p_floor, rise_pred, rise_meas, res,
-                              nmse, ser, int(wrong.size), err_e, pred, pred_w, est)
+                              nmse, ser, int(wrong.size), err_e, pred, pred_w, est, results)
 
 
 def two_radar_run(own_paths, interferer_paths, waveform: Waveform, *, tx_power_w: float,
@@ -737,9 +762,15 @@ def two_radar_run(own_paths, interferer_paths, waveform: Waveform, *, tx_power_w
     (from ``tx_power_w`` and ``noise_figure_db``); D's power relative to A's is
     ``interferer_tx_power_w / tx_power_w``.
 
-    One seed drives A's data, then D's data, then the noise. ``own_synthesis`` is
-    ``own_echo_signal``'s method; ``progress`` (optional) is called with a line before
-    each of the two long stages.
+    A's frame without D is the radar chain's (:func:`clradcom.radar.pipeline.
+    radar_frame_parts` with ``seed``: A's data from ``seed``, the noise in A's FFT windows
+    from ``seed`` + 1, synthesised by ``own_synthesis``), so the image without D and its
+    detections (``results``, :func:`clradcom.radar.pipeline.frame_result`) are
+    ``clradcom trace``'s on the same paths and seed. D's data and the rest of the
+    capture's noise come from (``seed``, 13). For D's estimator A's echoes are on the
+    time-domain capture (``own_echo_signal`` with ``own_synthesis``; "fast": the strong
+    echoes exact, there the cyclic prefixes are no copies). ``progress`` (optional) is
+    called with a line before each of the two long stages.
     """
     for name, val in (("tx_power_w", tx_power_w), ("interferer_tx_power_w",
                                                    interferer_tx_power_w),
@@ -750,10 +781,11 @@ def two_radar_run(own_paths, interferer_paths, waveform: Waveform, *, tx_power_w
                          f"D {interferer_tx_power_w!r} W")
     say = progress or (lambda msg: None)
     noise_var = thermal_noise_power(waveform.bandwidth, noise_figure_db) / tx_power_w
-    rng = np.random.default_rng(seed)
-    d_a = random_symbols(waveform, rng)
-    d_d = random_symbols(replace(waveform, n_symbols=stream_symbols(waveform)), rng)
     say(f"synthesising {len(own_paths.gain)} own paths ({own_synthesis})")
+    d_a, dr_own, w = radar_frame_parts(own_paths, waveform, seed=seed, method=own_synthesis,
+                                       tx_power_w=tx_power_w, noise_figure_db=noise_figure_db)
+    rng = np.random.default_rng((seed, 13))
+    d_d = random_symbols(replace(waveform, n_symbols=stream_symbols(waveform)), rng)
     y_own = own_echo_signal(d_a, own_paths.gain, own_paths.delay_s, own_paths.doppler_hz,
                             waveform, method=own_synthesis)
     say(f"{len(interferer_paths.gain)} interferer paths (time domain), estimation, "
@@ -762,7 +794,8 @@ def two_radar_run(own_paths, interferer_paths, waveform: Waveform, *, tx_power_w
         y_own, d_a, d_d, interferer_paths.gain, interferer_paths.delay_s,
         interferer_paths.doppler_hz, waveform, timing_offset_s=timing_offset_s, cfo_hz=cfo_hz,
         phase_rad=phase_rad, power_ratio=interferer_tx_power_w / tx_power_w,
-        noise_variance=noise_var, rng=rng)
+        noise_variance=noise_var, rng=rng, own_frame=dr_own + w, frame_noise=w,
+        own_paths=own_paths)
 
 
 def _stream_from_capture(d_stream, est, waveform):

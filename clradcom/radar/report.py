@@ -13,7 +13,6 @@ import math
 import numpy as np
 
 from clradcom.files import write_csv
-from clradcom.radar.cfar import detect
 from clradcom.radar.interference import InterferenceResult
 from clradcom.radar.processing import RadarImage
 from clradcom.radar.waveform import Waveform
@@ -22,7 +21,7 @@ from clradcom.scene.street import TABLE_III
 __all__ = ["DETECTION_COLUMNS", "INTERFERENCE_IMAGES", "INTERFERENCE_TITLES", "STATIC_RANGE_M",
            "TRUTH_COLUMNS", "detection_rows", "display_range_db", "interference_detections",
            "interference_summary", "match_tolerances", "moving_objects", "paper_table_iii",
-           "recovered_detections", "truth_table_lines",
+           "recovered_detections", "sorted_detections_line", "truth_table_lines",
            "scene_reach_m", "static_returns_beyond", "strongest_static_cell", "truth_rows",
            "write_table"]
 
@@ -30,8 +29,10 @@ __all__ = ["DETECTION_COLUMNS", "INTERFERENCE_IMAGES", "INTERFERENCE_TITLES", "S
 #: the road, and they depict the velocity at which the radar is traveling".
 STATIC_RANGE_M = 60.0
 
-#: header of a detection table (:func:`detection_rows`)
-DETECTION_COLUMNS = ("range_m", "velocity_mps", "power_db", "snr_db")
+#: header of a detection table (:func:`detection_rows`); aliased: 1 where only a path
+#: beyond the unambiguous range or velocity puts the detection there, folded
+#: (:func:`clradcom.radar.pipeline.sort_detections`)
+DETECTION_COLUMNS = ("range_m", "velocity_mps", "power_db", "snr_db", "aliased")
 #: header of a truth table (:func:`truth_rows`)
 TRUTH_COLUMNS = ("object", "range_centre_m", "range_nearest_m", "v_rel_mps",
                  "range_detected_m", "velocity_detected_mps")
@@ -52,10 +53,29 @@ def write_table(path, rows, header, *, inputs=()) -> None:
     write_csv(path, rows, header, inputs=inputs)
 
 
-def detection_rows(detections) -> list[tuple[str, str, str, str]]:
-    """CFAR detections as text rows of :data:`DETECTION_COLUMNS` (mm, mm/s, 0.01 dB)."""
+def detection_rows(detections, aliased=None) -> list[tuple[str, ...]]:
+    """CFAR detections as text rows of :data:`DETECTION_COLUMNS` (mm, mm/s, 0.01 dB, and
+    0/1 for ``aliased``, one bool per detection, none when not given)."""
+    flags = np.zeros(len(detections), bool) if aliased is None else np.asarray(aliased, bool)
     return [(f"{d['range_m']:.3f}", f"{d['velocity_mps']:.3f}", f"{d['power_db']:.2f}",
-             f"{d['snr_db']:.2f}") for d in detections]
+             f"{d['snr_db']:.2f}", str(int(a))) for d, a in zip(detections, flags, strict=True)]
+
+
+def sorted_detections_line(result) -> str:
+    """One line on how a frame's detections were sorted against its paths
+    (:class:`clradcom.radar.pipeline.FrameResult`): how many are aliased, and the noise
+    false alarms beyond the longest path that were left out."""
+    parts = []
+    n_alias = int(np.count_nonzero(result.aliased))
+    if n_alias:
+        parts.append(f"{n_alias} aliased (a path beyond the unambiguous range or velocity, "
+                     "shown folded)")
+    if len(result.beyond):
+        where = ", ".join(f"{d['range_m']:.1f} m / {d['velocity_mps']:+.1f} m/s"
+                          for d in result.beyond[:4])
+        parts.append(f"{len(result.beyond)} CFAR detection(s) beyond the longest path "
+                     f"({result.longest_range_m:.1f} m) left out as noise: {where}")
+    return "; ".join(parts)
 
 
 def moving_objects(scene, radar) -> list[str]:
@@ -183,10 +203,12 @@ def display_range_db(image: RadarImage, minimum_db: float = 20.0) -> float:
 # ----------------------------------------------------------------------------------------
 # two radars
 # ----------------------------------------------------------------------------------------
-def interference_detections(images: dict) -> dict:
-    """CFAR detections of each image of a two-radar run (guard 3 x 2, training 8 x 4
-    cells)."""
-    return {k: detect(images[k], guard=(3, 2), train=(8, 4)) for k in INTERFERENCE_IMAGES}
+def interference_detections(result: InterferenceResult) -> dict:
+    """The detections of each image of a two-radar run: the radar chain's own
+    (:func:`clradcom.radar.pipeline.frame_result`, CFAR on the critical grid, refined,
+    sorted against A's own paths), so that A's image without D has the detections of
+    ``clradcom trace`` on the same paths and seed."""
+    return {k: result.results[k].detections for k in INTERFERENCE_IMAGES}
 
 
 def recovered_detections(reference, found, waveform: Waveform) -> list[bool]:

@@ -29,10 +29,8 @@ from PIL import Image
 from clradcom.errors import ArgumentError
 from clradcom.figures import new_figure
 from clradcom.files import atomic_write
-from clradcom.radar.array_frame import run_array_radar
-from clradcom.radar.pipeline import process, radar_frame
+from clradcom.radar.pipeline import radar_chain
 from clradcom.radar.plots import image_title, mounting_return_range_m, plot_radar_image
-from clradcom.radar.processing import RadarImage
 from clradcom.radar.report import display_range_db, moving_objects
 from clradcom.radar.synthesis import thermal_noise_power
 from clradcom.radar.tracking import Tracker, TrackerSettings, score_tracks
@@ -70,19 +68,13 @@ def radar_step(paths, radar, waveform: Waveform, *, seed: int = 0, method: str =
     cube's default ML refinement: a car is many unresolved scatterers in one cell, and the
     one-target ML fit then shows angular glint (on the two-car test drive it put car B at
     3.7°, 12.3° and 2.7° in three frames while the car spans 5.8°–9.7°; the parabola gave
-    7.0°, 8.2° and 6.1°), which a tracker cannot follow (docs/tracking.md)."""
+    7.0°, 8.2° and 6.1°), which a tracker cannot follow (docs/tracking.md): the one chain
+    of :func:`clradcom.radar.pipeline.radar_chain` with ``refine="parabola"``
+    (``clradcom cube --refine parabola`` on the same paths gives the same detections)."""
     tx_power = radar.tx_power_w if noise_figure_db is not None else None
-    if radar.tx_array is not None or radar.rx_array is not None:
-        res = run_array_radar(paths, radar, waveform, seed=seed, tx_power_w=tx_power,
-                              noise_figure_db=noise_figure_db, refine="parabola")
-        power = res.cube.power.sum(axis=(2, 3))
-        with np.errstate(divide="ignore"):
-            image = RadarImage(power, 10 * np.log10(power), res.cube.range_m,
-                               res.cube.velocity_mps)
-        return image, res.detections
-    D, Dr = radar_frame(paths, waveform, seed=seed, method=method, tx_power_w=tx_power,
-                        noise_figure_db=noise_figure_db)
-    return process(D, Dr, waveform)
+    res = radar_chain(paths, waveform, radar=radar, seed=seed, method=method,
+                      tx_power_w=tx_power, noise_figure_db=noise_figure_db, refine="parabola")
+    return res.image, res.detections
 
 
 def echo_snr_db(paths, object_index: int, waveform: Waveform, tx_power_w: float,
