@@ -395,7 +395,9 @@ def test_chain_carries_the_specular_share_of_a_scattering_face(runtime):
         # are linear in its dyad; the tubes fan out by a milliradian around it
         np.testing.assert_allclose(ratio, 1 - 0.6**2, rtol=1e-3)
     if runtime.has_double:
-        np.testing.assert_allclose(out[0.6, "device"], out[0.6, "host"], rtol=1e-9)
+        # the cross-polar terms are rounding (1e-20 of the co-polar ones), held to that
+        np.testing.assert_allclose(out[0.6, "device"], out[0.6, "host"], rtol=1e-9,
+                                   atol=1e-15 * np.abs(out[0.6, "host"]).max())
     else:   # float fields
         np.testing.assert_allclose(out[0.6, "device"], out[0.6, "host"], rtol=0,
                                    atol=FIELD_TOL_REL * np.abs(out[0.6, "host"]).max())
