@@ -99,7 +99,7 @@ HOST_BATCH_TUBES = 1 << 20
 #: rim of a corner's aperture the count is off by less than one row of tubes in all: an
 #: aperture of area A and perimeter P errs by < 20 log10(e) (P l / 2A) s / l dB at pitch
 #: s, 14.8 s / l for the square dihedral (A = sqrt(2) l^2), 12.3 s / l for the square
-#: trihedral (docs/po.md; tools/sbr_pitch.py measures at most half of that); 18 keeps a
+#: trihedral (docs/po.md; tools/sbr_pitch.py measures up to 0.74 of the target); 18 keeps a
 #: margin over both for less square faces...
 ERROR_DB_PER_PITCH = 18.0
 #: ... the share of an object's area in faces smaller than its feature size ...
