@@ -166,8 +166,8 @@ inline bool window_covers(__global const real *win_f, __global const int *win_i,
     real x = D * dot(d, load3(f + 3)) / depth;
     real y = D * dot(d, load3(f + 6)) / depth;
     if (!(fabs(x) < 1e12 * s && fabs(y) < 1e12 * s)) return false;
-    long ci = (long)floor(x / s + 0.5) - wi[0];
-    long cj = (long)floor(y / s + 0.5) - wi[1];
+    long ci = (long)floor(x / s) - wi[0];
+    long cj = (long)floor(y / s) - wi[1];
     long bi = (ci >= 0) ? ci / SBR_BLOCK : -((-ci + SBR_BLOCK - 1) / SBR_BLOCK);
     long bj = (cj >= 0) ? cj / SBR_BLOCK : -((-cj + SBR_BLOCK - 1) / SBR_BLOCK);
     if (bi < 0 || bi >= wi[2] || bj < 0 || bj >= wi[3]) return false;
@@ -395,7 +395,8 @@ inline CellTube cell_tube(__global const real *win_f, __global const int *win_i,
     int cx, cy = quotient(cell, SBR_BLOCK, &cx);
     long i = (long)wi[0] + (long)blocks[3 * blk + 1] * SBR_BLOCK + cx;
     long j = (long)wi[1] + (long)blocks[3 * blk + 2] * SBR_BLOCK + cy;
-    real3 vec = D * axis + ((real)i * s) * u + ((real)j * s) * v;
+    /* cell (i, j) centred on ((i + 1/2) s, (j + 1/2) s): sbr.py TubeWindows */
+    real3 vec = D * axis + (((real)i + 0.5) * s) * u + (((real)j + 0.5) * s) * v;
     real dist = sqrt(dot(vec, vec));
     c.dir = vec / dist;
     real cos_a = D / dist;

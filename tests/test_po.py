@@ -192,10 +192,14 @@ def test_go_and_po_agree_at_two_d2_over_lambda(runtime):
     assert len(a_go) == 1
     assert abs(a_go[0]) == pytest.approx(LAM / (4 * np.pi * 2 * R), rel=1e-9)
     # Fraunhofer PO of the plate, A / (4 pi R^2), equals it exactly here; the facet sum
-    # also carries the Fresnel-zone phase over the plate: 0.970 (2 facets) -> 0.9456
-    # (32 and more facets, the converged PO of the plate at this range)
+    # also carries the Fresnel-zone phase over the plate: 0.970 from its 2 facets (each
+    # 2 (sqrt(2) D)^2 / lambda from the radar: in its Fresnel zone) -> 0.9456 (32 and
+    # more facets, the converged PO of the plate at this range), which the facets split
+    # into far-field pieces (split="fresnel") give
     assert D**2 / (4 * np.pi * R**2) == pytest.approx(abs(a_go[0]), rel=1e-12)
     assert abs(a_po) / abs(a_go[0]) == pytest.approx(0.9696, abs=1e-3)
+    fresnel = link(scene, runtime, split="fresnel").gain.sum()
+    assert abs(fresnel) / abs(a_go[0]) == pytest.approx(0.9456, abs=2e-3)
 
 
 def test_shadowed_plate_gives_nothing(runtime):

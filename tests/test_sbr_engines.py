@@ -14,9 +14,9 @@ import warnings
 import numpy as np
 import pytest
 from mode_helpers import (
-    DOPPLER_TOL_HZ,
     FIELD_TOL_REL,
     SBR_DIRECTION_TOL_REL,
+    SBR_DOPPLER_TOL_HZ,
     SBR_SUM_TOL_REL,
     off_symmetry,
     sbr_row_tolerance,
@@ -128,7 +128,7 @@ def assert_same_paths(p, q, runtime, *, sums=None, receiver=0, wavenumber=None,
     ``sums``, rows of ``receiver``) and SBR_SUM_TOL_REL of the strongest path's sum of
     footprint norms, its gain within that times the patterns' peak field
     amplitudes (``patterns``: the peak gains), its delay within the float direction's
-    displacement, Doppler within DOPPLER_TOL_HZ; a path only one engine keeps lies within
+    displacement, Doppler within SBR_DOPPLER_TOL_HZ; a path only one engine keeps lies within
     its tolerance of the ``min_relative_db`` threshold."""
     if runtime.has_double:
         assert p.n_paths == q.n_paths > 0
@@ -168,7 +168,8 @@ def assert_same_paths(p, q, runtime, *, sums=None, receiver=0, wavenumber=None,
     length = p.delay_s[i] * 299_792_458.0
     np.testing.assert_array_less(np.abs(p.delay_s[i] - q.delay_s[j]) * 299_792_458.0,
                                  SBR_DIRECTION_TOL_REL * length)
-    np.testing.assert_allclose(p.doppler_hz[i], q.doppler_hz[j], rtol=0, atol=DOPPLER_TOL_HZ)
+    np.testing.assert_allclose(p.doppler_hz[i], q.doppler_hz[j], rtol=0,
+                               atol=SBR_DOPPLER_TOL_HZ)
 
 
 def channel(paths, n=1024, df=90.909e3):
@@ -403,7 +404,9 @@ def test_chain_carries_the_specular_share_of_a_scattering_face(runtime):
         # are linear in its dyad; the tubes fan out by a milliradian around it
         np.testing.assert_allclose(ratio, 1 - 0.6**2, rtol=1e-3)
     if runtime.has_double:
-        np.testing.assert_allclose(out[0.6, "device"], out[0.6, "host"], rtol=1e-9)
+        # the cross-polar terms are rounding (1e-20 of the co-polar ones), held to that
+        np.testing.assert_allclose(out[0.6, "device"], out[0.6, "host"], rtol=1e-9,
+                                   atol=1e-15 * np.abs(out[0.6, "host"]).max())
     else:   # float fields
         np.testing.assert_allclose(out[0.6, "device"], out[0.6, "host"], rtol=0,
                                    atol=FIELD_TOL_REL * np.abs(out[0.6, "host"]).max())

@@ -52,10 +52,11 @@ def window_loop(tx, centre, spacing, triangles, clip=None):
     xy, depth = project(triangles, tx, axis, u, v, D)
     if len(xy) == 0 or depth.min() < sbr.MIN_DEPTH_FRACTION * D:
         return None
-    lo = np.floor(xy.reshape(-1, 2).min(axis=0) / spacing + 0.5).astype(np.int64) - 1
-    hi = np.floor(xy.reshape(-1, 2).max(axis=0) / spacing + 0.5).astype(np.int64) + 1
+    # cells centred on half-integer multiples of the pitch since (sbr.TubeWindows)
+    lo = np.floor(xy.reshape(-1, 2).min(axis=0) / spacing).astype(np.int64) - 1
+    hi = np.floor(xy.reshape(-1, 2).max(axis=0) / spacing).astype(np.int64) + 1
     shape = -(-(hi - lo + 1) // BLOCK)
-    origin = (lo - 0.5) * spacing
+    origin = lo * spacing
     mask = block_coverage(xy, BLOCK * spacing, origin, shape)
     if clip is not None and mask.any():
         ij = np.argwhere(mask)
@@ -248,8 +249,8 @@ def test_blocks_in_pattern_keep_the_blocks_seen_at_a_corner_or_the_centre(runtim
     g = w.block_window.astype(np.int64)
     keep = np.zeros(len(g), dtype=bool)
     for fx, fy in ((0.0, 0.0), (0.0, 1.0), (1.0, 0.0), (1.0, 1.0), (0.5, 0.5)):
-        x = (w.cell0[g, 0] + w.block_i * BLOCK - 0.5 + fx * BLOCK) * w.spacing[g]
-        y = (w.cell0[g, 1] + w.block_j * BLOCK - 0.5 + fy * BLOCK) * w.spacing[g]
+        x = (w.cell0[g, 0] + w.block_i * BLOCK + fx * BLOCK) * w.spacing[g]
+        y = (w.cell0[g, 1] + w.block_j * BLOCK + fy * BLOCK) * w.spacing[g]
         d = w.distance[g, None] * w.axis[g] + x[:, None] * w.u[g] + y[:, None] * w.v[g]
         d /= np.linalg.norm(d, axis=1, keepdims=True)
         keep |= np.asarray(tx.pattern.gain(d @ np.asarray(tx.orientation))) > 0

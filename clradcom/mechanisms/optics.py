@@ -33,6 +33,7 @@ from clradcom.mechanisms.physical_optics import po_paths
 from clradcom.mechanisms.sbr import ACCURACY_DB_RANGE, SbrTubes, sbr_paths, shoot_sbr
 from clradcom.paths import InteractionType, Paths
 from clradcom.physics.em import fresnel_coefficients
+from clradcom.physics.po import SPLIT_RULES
 from clradcom.scene.records import OPTICS, Radar, Scene
 
 __all__ = ["MODES", "OPTICS_NAMES", "TARGET_REFLECTANCE", "OpticsSettings", "SbrShot",
@@ -73,6 +74,10 @@ class OpticsSettings:
     sbr_mirrors: bool = True
     #: most SBR bounces; None follows the specular search's max_reflections
     max_bounces: int | None = None
+    #: how far PO facets near an antenna are split (:data:`clradcom.physics.po.
+    #: SPLIT_RULES`): "near" out of its near zone (closer than twice their size),
+    #: "fresnel" also into their far field (2 D^2/lambda), "none" kept whole
+    po_split: str = "near"
 
     def __post_init__(self):
         if not isinstance(self.mode, str) or self.mode not in MODES:
@@ -90,6 +95,9 @@ class OpticsSettings:
         if self.max_bounces is not None:
             check_number("OpticsSettings", "max_bounces", self.max_bounces, low=0, high=16,
                          integer=True)
+        if not isinstance(self.po_split, str) or self.po_split not in SPLIT_RULES:
+            raise ArgumentError(f"must be one of {', '.join(map(repr, SPLIT_RULES))}",
+                                argument="OpticsSettings.po_split", value=self.po_split)
 
 
 def normal_reflectance(scene: Scene) -> np.ndarray:
@@ -218,7 +226,8 @@ def link_paths(geom: Geometry, shot: SbrShot, tx: Radar, rx: Radar,
     """PO facet returns and SBR-PO tube returns of one link (those that exist)."""
     if geom.caster is None or len(shot.po_objects) == 0:
         return []
-    parts = [po_paths(geom, tx, rx, objects=shot.po_objects)]
+    parts = [po_paths(geom, tx, rx, objects=shot.po_objects,
+                      split=settings.po_split)]
     if shot.tubes is not None:
         parts.append(sbr_paths(geom, tx, rx, objects=shot.sbr_objects,
                                max_bounces=shot.max_bounces, shot=shot.tubes))

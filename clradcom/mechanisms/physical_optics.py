@@ -18,13 +18,15 @@ paths tagged :attr:`~clradcom.paths.InteractionType.PHYSICAL_OPTICS`.
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 from clradcom.device.visibility import surface_sees
 from clradcom.geometry.triangles import triangle_normals
 from clradcom.paths import InteractionType, Paths
 from clradcom.physics import em
-from clradcom.physics.po import po_transfer
+from clradcom.physics.po import far_field_pieces, po_transfer
 
 __all__ = ["po_paths"]
 
@@ -53,7 +55,38 @@ def _mixed_transfer(scene, v, nrm, mat, pec, tx_pos, rx_pos):
     return T, L, c, k_dep, k_arr
 
 
-def po_paths(geom, tx, rx, *, objects=None, min_relative_db=-80.0, two_sided=None):
+def _near_field_gains(scene, v, nrm, mat, pec, tx, rx, tx_pos, rx_pos, obj, rule):
+    """Gains (F,) and matrices (F,2,2) of facets some antenna sees in its near field: the
+    sums over their far-field pieces (:func:`clradcom.physics.po.far_field_pieces`), each
+    with its own transfer, length and directions; None when every facet is in both
+    antennas' far field (``rule``: :data:`clradcom.physics.po.SPLIT_RULES`).  Warns once
+    per object whose pieces stay in a near field."""
+    pieces, parent, settled = far_field_pieces(v, [tx_pos, rx_pos], scene.wavelength_m,
+                                               rule)
+    if len(pieces) == len(v):
+        return None
+    if not settled.all():
+        for o in np.unique(obj[parent[~settled]]):
+            rows = parent[~settled][obj[parent[~settled]] == o]
+            c = v[rows].mean(axis=1)
+            dist = min(np.linalg.norm(c - tx_pos, axis=1).min(),
+                       np.linalg.norm(c - rx_pos, axis=1).min())
+            warnings.warn(f"PO facets of object {scene.objects[o].name!r} lie "
+                          f"{dist:.3g} m from antenna {tx.name!r} or {rx.name!r}, in their "
+                          f"near field even after subdivision: their returns are "
+                          f"approximate", stacklevel=3)
+    T, L, _, k_dep, k_arr = _mixed_transfer(scene, pieces, nrm[parent], mat[parent],
+                                            pec[parent], tx_pos, rx_pos)
+    g, M = em.path_gains(T, L, k_dep, k_arr, tx, rx, scene.carrier_hz)
+    gain = np.zeros(len(v), np.complex128)
+    matrix = np.zeros((len(v), 2, 2), np.complex128)
+    np.add.at(gain, parent, g)
+    np.add.at(matrix, parent, M)
+    return gain, matrix
+
+
+def po_paths(geom, tx, rx, *, objects=None, min_relative_db=-80.0, two_sided=None,
+             split="near"):
     """PO facet paths of one tx -> rx link as :class:`clradcom.snapshot.Paths`.
 
     One path per scene triangle of the chosen objects (default: every object
@@ -83,6 +116,12 @@ def po_paths(geom, tx, rx, *, objects=None, min_relative_db=-80.0, two_sided=Non
     each facet's own incidence angle), roughness factor and sqrt(1 - S^2) specular share
     (:func:`clradcom.physics.po.penetrable_po_operator`; docs/po.md).  PEC facets keep
     the PEC current J = 2 n x H_inc.
+
+    A facet with tx or rx in its near zone (closer than 2 D, D its longest edge) is split
+    until no piece has (``split`` "near", the default); with "fresnel" also until every
+    piece is in its Fraunhofer far field (2 D^2/lambda); "none" keeps facets whole
+    (:func:`clradcom.physics.po.far_field_pieces`).  The path's gain and matrix are then
+    the sums of its pieces', its delay, Doppler and point its centroid's.
 
     Paths whose |gain| lies more than |min_relative_db| below the link's strongest
     facet are dropped, as are facets outside either antenna's pattern.
@@ -132,6 +171,11 @@ def po_paths(geom, tx, rx, *, objects=None, min_relative_db=-80.0, two_sided=Non
     else:
         T, L, c, k_dep, k_arr = _mixed_transfer(scene, v, nrm, mat, pec, tx_pos, rx_pos)
     gain, M = em.path_gains(T, L, k_dep, k_arr, tx, rx, scene.carrier_hz)
+    if split != "none":
+        near = _near_field_gains(scene, v, nrm, mat, pec, tx, rx, tx_pos, rx_pos, obj,
+                                 split)
+        if near is not None:
+            gain, M = near
 
     P = len(tri_ids)
     pts = np.stack([np.broadcast_to(tx_pos, (P, 3)), c, np.broadcast_to(rx_pos, (P, 3))],

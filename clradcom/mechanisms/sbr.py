@@ -95,19 +95,25 @@ CHUNK_CLEARANCE = 1.25
 #: Tubes per host batch of the reference engine (bounds its memory).
 HOST_BATCH_TUBES = 1 << 20
 #: The spacing rule (:func:`spacing_for_accuracy`): dB of corner error per unit of
-#: pitch / feature size (the worst of the dihedral and trihedral closed-form checks,
-#: docs/po.md), calibrated for targets of ACCURACY_DB_RANGE...
+#: pitch / feature size.  Tubes count whole where their centre ray lands, so along each
+#: rim of a corner's aperture the count is off by less than one row of tubes in all: an
+#: aperture of area A and perimeter P errs by < 20 log10(e) (P l / 2A) s / l dB at pitch
+#: s, 14.8 s / l for the square dihedral (A = sqrt(2) l^2), 12.3 s / l for the square
+#: trihedral (docs/po.md; tools/sbr_pitch.py measures up to 0.74 of the target); 18 keeps a
+#: margin over both for less square faces...
 ERROR_DB_PER_PITCH = 18.0
 #: ... the share of an object's area in faces smaller than its feature size ...
 FEATURE_AREA_SHARE = 0.1
-#: ... and the pitch's bounds in wavelengths: finer buys nothing the footprint integral
-#: does not already give; coarser lets a tube straddle too much of a curved surface
-MIN_SPACING_WAVELENGTHS = 0.125
-MAX_SPACING_WAVELENGTHS = 4.0
-#: the accuracy targets (dB) the rule was calibrated for: below, the PO approximations'
-#: own 0.2 dB (plate sidelobes beating against a corner) dominate; above, pitch / feature
+#: the accuracy targets (dB) the rule holds for: below, the PO approximations' own
+#: 0.2 dB (plate sidelobes beating against a corner) dominate; above, pitch / feature
 #: passes 0.1, where the stair-stepping stops growing linearly
 ACCURACY_DB_RANGE = (0.25, 2.0)
+#: ... and the pitch's bounds in wavelengths: at least the rule's pitch for a corner of
+#: one wavelength at the tightest target (a smaller corner is beyond PO's reach anyway;
+#: the floor bounds the tubes of an object of tiny faces); coarser than the cap lets a
+#: tube straddle too much of a curved surface
+MIN_SPACING_WAVELENGTHS = ACCURACY_DB_RANGE[0] / ERROR_DB_PER_PITCH
+MAX_SPACING_WAVELENGTHS = 4.0
 
 @dataclass
 class TubeGrid:
@@ -191,8 +197,11 @@ class TubeWindows:
 
     Window w is the plane at ``distance[w]`` along the unit ``axis[w]`` from ``tx``, with
     in-plane unit vectors ``u[w]``, ``v[w]`` and cell pitch ``spacing[w]``; cell (i, j)
-    is centred on x = i * spacing, y = j * spacing.  Its blocks of BLOCK x BLOCK cells
-    start at cell ``cell0[w]`` and span ``shape[w]`` blocks; ``masks[mask_offset[w]:...]``
+    is centred on x = (i + 1/2) spacing, y = (j + 1/2) spacing: the window's axis, aimed
+    at the centre of what it covers, where a symmetric object's folds and apex lie,
+    falls between tubes (a tube through a fold ends there and its area would be lost).
+    Its blocks of BLOCK x BLOCK cells start at cell ``cell0[w]`` and span ``shape[w]``
+    blocks; ``masks[mask_offset[w]:...]``
     (row-major over ``shape[w]``) marks the covered ones.  ``object_id[w]`` is the SBR
     object it aims at, ``mirror_face[w]`` the face it is mirrored in (-1: direct).
     Covered block b is (``block_window[b]``, ``block_i[b]``, ``block_j[b]``); tube
@@ -512,12 +521,12 @@ def _make_windows(geom, runtime, tx, cands) -> TubeWindows:
         lo_xy = np.minimum.reduceat(ext[:, [1, 3]], starts, axis=0)
         hi_xy = np.maximum.reduceat(ext[:, [2, 4]], starts, axis=0)
         ok &= np.all(np.isfinite(lo_xy) & np.isfinite(hi_xy), axis=1)
-        lo = np.floor(np.where(ok[:, None], lo_xy, 0.0) / spacing[:, None] + 0.5
+        lo = np.floor(np.where(ok[:, None], lo_xy, 0.0) / spacing[:, None]
                       ).astype(np.int64) - 1
-        hi = np.floor(np.where(ok[:, None], hi_xy, 0.0) / spacing[:, None] + 0.5
+        hi = np.floor(np.where(ok[:, None], hi_xy, 0.0) / spacing[:, None]
                       ).astype(np.int64) + 1
     shape = np.where(ok[:, None], -(-(hi - lo + 1) // BLOCK), 0)
-    origin = (lo - 0.5) * spacing[:, None]
+    origin = lo * spacing[:, None]
     block = BLOCK * spacing
     sizes = shape[:, 0] * shape[:, 1]
     offset = np.concatenate([[0], np.cumsum(sizes)[:-1]])
@@ -630,8 +639,8 @@ def blocks_in_pattern(windows: TubeWindows, tx) -> TubeWindows:
     a_l = windows.distance[:, None] * a_l
 
     def seen(g, i, j, f):
-        x = (windows.cell0[g, 0] + i * BLOCK - 0.5 + f * BLOCK) * windows.spacing[g]
-        y = (windows.cell0[g, 1] + j * BLOCK - 0.5 + f * BLOCK) * windows.spacing[g]
+        x = (windows.cell0[g, 0] + i * BLOCK + f * BLOCK) * windows.spacing[g]
+        y = (windows.cell0[g, 1] + j * BLOCK + f * BLOCK) * windows.spacing[g]
         d = a_l[g] + x[:, None] * u_l[g] + y[:, None] * v_l[g]
         d /= np.linalg.norm(d, axis=-1, keepdims=True)
         return np.asarray(tx.pattern.gain(d)) > 0
@@ -670,8 +679,8 @@ def _tube_directions(windows: TubeWindows, tubes):
     i = windows.cell0[w, 0] + windows.block_i[blk] * BLOCK + cell % BLOCK
     j = windows.cell0[w, 1] + windows.block_j[blk] * BLOCK + cell // BLOCK
     s, D = windows.spacing[w], windows.distance[w]
-    vec = (D[:, None] * windows.axis[w] + (i * s)[:, None] * windows.u[w]
-           + (j * s)[:, None] * windows.v[w])
+    vec = (D[:, None] * windows.axis[w] + ((i + 0.5) * s)[:, None] * windows.u[w]
+           + ((j + 0.5) * s)[:, None] * windows.v[w])
     dist = np.linalg.norm(vec, axis=1)
     return w, vec / dist[:, None], D / dist
 
@@ -703,8 +712,8 @@ def earlier_overlaps(windows: TubeWindows) -> np.ndarray:
     directions (axis, and the half-angle of the grid extent's farthest corner) meet.
     Only those need the ownership test; the others never hold each other's directions."""
     W = windows.n_windows
-    lo = (windows.cell0 - 0.5) * windows.spacing[:, None]
-    hi = (windows.cell0 + windows.shape * BLOCK - 0.5) * windows.spacing[:, None]
+    lo = windows.cell0 * windows.spacing[:, None]
+    hi = (windows.cell0 + windows.shape * BLOCK) * windows.spacing[:, None]
     reach = np.hypot(np.maximum(np.abs(lo[:, 0]), np.abs(hi[:, 0])),
                      np.maximum(np.abs(lo[:, 1]), np.abs(hi[:, 1])))
     half = np.arctan2(reach, windows.distance)
@@ -722,8 +731,8 @@ def _covers(windows: TubeWindows, k: int, d) -> np.ndarray:
         y = windows.distance[k] * (d @ windows.v[k]) / depth
     s = windows.spacing[k]
     ok &= np.isfinite(x) & np.isfinite(y)
-    ci = np.floor(np.where(ok, x, 0.0) / s + 0.5).astype(np.int64) - windows.cell0[k, 0]
-    cj = np.floor(np.where(ok, y, 0.0) / s + 0.5).astype(np.int64) - windows.cell0[k, 1]
+    ci = np.floor(np.where(ok, x, 0.0) / s).astype(np.int64) - windows.cell0[k, 0]
+    cj = np.floor(np.where(ok, y, 0.0) / s).astype(np.int64) - windows.cell0[k, 1]
     bi, bj = np.floor_divide(ci, BLOCK), np.floor_divide(cj, BLOCK)
     nx, ny = windows.shape[k]
     ok &= (bi >= 0) & (bi < nx) & (bj >= 0) & (bj < ny)
@@ -1270,10 +1279,11 @@ def spacing_for_accuracy(geom, objects, accuracy_db: float) -> np.ndarray:
     MAX_SPACING_WAVELENGTHS wavelengths.
 
     The rule (docs/po.md): a tube grid of pitch s stair-steps the rim of a corner whose
-    faces are l across, and the corner's RCS errs by about ERROR_DB_PER_PITCH * s / l dB
-    at worst - the bound the 90 degree dihedral and the square trihedral show against
-    their closed forms for s = l/64 .. l/8 (tests/test_sbr_engines.py).  l is the
-    object's :func:`feature_size_m`; ``accuracy_db`` within ACCURACY_DB_RANGE.
+    faces are l across, and the corner's RCS errs by less than ERROR_DB_PER_PITCH * s / l
+    dB - a bound derived from the count of tubes along the rims, which the 90 degree
+    dihedral and the square trihedral keep against their closed forms from lambda to 100
+    lambda (tools/sbr_pitch.py, tests/test_sbr_pitch.py).  l is the object's
+    :func:`feature_size_m`; ``accuracy_db`` within ACCURACY_DB_RANGE.
     """
     lam = geom.scene.wavelength_m
     s = float(accuracy_db) * feature_size_m(geom, objects) / ERROR_DB_PER_PITCH
