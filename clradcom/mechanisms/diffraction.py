@@ -53,6 +53,7 @@ from clradcom.geometry.wedges import (
     Wedges,
     diffraction_point,
     extract_wedges,
+    free_wedges,
     multi_diffraction_points,
 )
 from clradcom.mechanisms.common import Geometry, check_number, seen_by_antennas
@@ -1069,7 +1070,9 @@ def prepare(geom: Geometry, settings: DiffractionSettings,
                             settings.wedge_angle_deg, two_sided=scene.tri_two_sided)
     if len(po_objects) and not settings.po_object_edges:
         wedges = wedges.select(~np.isin(wedges.object_id, np.asarray(po_objects)))
-    return wedges
+    # an edge whose face lies on another object (a box's floor edge on the road) is no
+    # wedge in free space: cut to where it stands free, for the host and device alike
+    return free_wedges(wedges, scene.triangles, scene.tri_object)
 
 
 def link_paths(geom: Geometry, wedges: Wedges, tx: Radar, rx: Radar,
