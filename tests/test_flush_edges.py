@@ -1,22 +1,32 @@
-"""Edges flush on another surface (a box's floor edge on the road) are no wedges.
+"""Edges flush on another surface (a box's floor edge on the road) are no wedges, and the
+image-method pre-test of single-diffraction candidates only ever over-accepts.
 
 The box-on-road scene is issue 27's: a box x -5..21 m, y -12..-7, z 0..10 on a road
 square, both antennas 0.55 m above the road 5 m in front of the box; the floor edge's
 Keller point (2, -7, 0) gave a -112 dB path although the box stands on the road.  Sionna
 RT gives that path only without the road or with the box lifted 1 mm."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from clradcom.geometry.wedges import FLUSH_TOL_M, extract_wedges, free_wedges
+from clradcom.mechanisms import diffraction, specular
+from clradcom.mechanisms.common import build_geometry
 from clradcom.mechanisms.diffraction import (
+    Chains,
     DiffractionSettings,
+    diffraction_angles,
+    diffraction_candidates,
+    unfold_points,
 )
 from clradcom.paths import InteractionType
 from clradcom.physics.em import C0
-from clradcom.scene.reader import scene_from_dict
+from clradcom.scene.reader import load_scene, scene_from_dict
 from clradcom.trace import SpecularSettings, TraceSettings, trace_scene
 
+STREET = Path(__file__).parents[1] / "scenes" / "street" / "street.toml"
 TX = np.array([2.0, -1.95, 0.55])
 RX = np.array([2.0, -1.55, 0.55])
 
@@ -131,3 +141,48 @@ def test_box_on_the_road_has_no_floor_edge_path_and_the_lifted_box_has_it(runtim
     assert lifted.delay_s[found[0]] * C0 == pytest.approx(length, rel=1e-12)
     # the issue's -112.32 dB, 1 mm higher
     assert 20 * np.log10(abs(lifted.gain[found[0]])) == pytest.approx(-112.3, abs=0.5)
+
+
+def test_pretest_keeps_every_candidate_the_exact_tests_keep(runtime):
+    """Over the street's candidates with up to 2 reflections on either side of the edge
+    (radar A to radar D): every candidate that unfold_points and diffraction_angles keep
+    passes the pre-test, in the product's order, and the pre-test rejects most others."""
+    scene = load_scene(STREET)
+    geom = build_geometry(scene, runtime)
+    budget = DiffractionSettings(max_reflections=2)
+    wedges = diffraction.prepare(geom, budget)
+    tx, rx = scene.radars[scene.radar_index("A")], scene.radars[scene.radar_index("D")]
+    spec = SpecularSettings(max_reflections=2, rays=300)
+    seq_tx, seq_rx = specular.prepare(geom, tx, spec), specular.prepare(geom, rx, spec)
+    faces = geom.faces
+
+    def exact(chains):
+        pts, ok = unfold_points(chains, tx.position, rx.position, faces.normal, faces.offset,
+                                wedges)
+        return diffraction_angles(chains, pts, wedges, ok)[-1]
+
+    def rows(with_pretest):
+        out = {}
+        kw = dict(face_normal=faces.normal, face_offset=faces.offset) if with_pretest else {}
+        for ch in diffraction_candidates(geom.caster, wedges, tx.position, rx.position,
+                                         seq_tx, seq_rx, budget, tri_face=faces.tri_face,
+                                         **kw):
+            out.setdefault(ch.pattern, []).append(ch.elements)
+        return {p: np.concatenate(e) for p, e in out.items()}
+
+    every, tested = rows(False), rows(True)
+    total = sum(len(e) for e in every.values())
+    assert total > 100_000 and len(every) == 5  # D, RD, RRD, DR, DRR
+    n_tested = n_exact = 0
+    for pattern, elements in every.items():
+        good = exact(Chains(pattern, elements))
+        kept = tested.get(pattern, np.zeros((0, len(pattern)), np.int64))
+        n_tested += len(kept)
+        n_exact += int(good.sum())
+        # the pre-test keeps a superset of the exact tests' candidates, in the same order
+        position = {tuple(r): i for i, r in enumerate(elements.tolist())}
+        have = [position[tuple(r)] for r in kept.tolist()]
+        assert have == sorted(have)
+        assert set(np.flatnonzero(good).tolist()) <= set(have)
+    assert n_exact > 100
+    assert n_tested < 0.1 * total
