@@ -27,13 +27,23 @@ from clradcom.errors import ArgumentError
 from clradcom.geometry.rows import unique_rows
 from clradcom.geometry.triangles import triangle_normals_and_double_areas
 
-__all__ = ["Wedges", "extract_wedges", "weld_vertices", "DiffractionPoint",
+__all__ = ["Wedges", "extract_wedges", "free_wedges", "weld_vertices", "DiffractionPoint",
            "diffraction_point", "MultiDiffraction", "multi_diffraction_points"]
 
 #: Unit-vector tolerance (normals, directions) for joining collinear segments of one crease.
 _MERGE_TOL = 1e-6
 #: Radians added to the threshold so turns equal to it are excluded deterministically.
 _ANGLE_MARGIN = 1e-9
+#: A wedge face lies flush on another object's surface where that surface's plane is
+#: within this distance (m) of the face next to the edge, and its triangles cover the face
+#: there to this slack: 0.1 mm, lambda/125 at 24 GHz, above the float32 rounding of
+#: meshes 100 m from the origin and far below the 1 mm a lifted object stands free.
+FLUSH_TOL_M = 1e-4
+#: ... whose normal is parallel or antiparallel to the face's within this angle (rad).
+FLUSH_ANGLE_RAD = 1e-3
+#: The face is probed for cover this far (m) from the edge, on a line parallel to it;
+#: free pieces of an edge shorter than this are dropped with the covered parts.
+FLUSH_PROBE_M = 1e-3
 
 
 @dataclass(eq=False)
@@ -391,6 +401,189 @@ def _merge_collinear(W, vs, ve):
     out["end"] = P[hi][keep_order]
     out["n_segments"] = np.bincount(labels, minlength=G)[keep_order]
     return out
+
+
+def free_wedges(wedges: Wedges, triangles, tri_object, tol: float = FLUSH_TOL_M,
+                angle: float = FLUSH_ANGLE_RAD, probe: float = FLUSH_PROBE_M) -> Wedges:
+    """The wedges clipped to the parts of their edges where both faces stand free.
+
+    A face lies flush on another surface next to its edge where a triangle of *another*
+    object lies in the face's plane (normals parallel or antiparallel within ``angle``,
+    plane within ``tol`` of both the edge and the face ``probe`` metres from it) and
+    covers the face there (to ``tol``): a box standing on a road, a box against a wall.
+    Such an edge is no wedge in free space (the box's floor edge is the foot of a wall
+    on the road, a concave corner), so the covered parts are cut away.  A wedge whose
+    edge is free everywhere is returned as it is (the same row, bit for bit); one
+    covered in parts gives a wedge per free piece (longer than ``probe``), in order along
+    the edge; one covered everywhere is dropped.  Triangles of the wedge's own object
+    never count (a mesh's own coincident sheets stay its business), nor do zero-area ones.
+    ``stats`` gains ``flush_dropped`` and ``flush_clipped`` (wedges) and
+    ``flush_tol_m``.  docs/wedges.md, "Edges flush on another surface"."""
+    stats = dict(wedges.stats)
+    stats.update(flush_dropped=0, flush_clipped=0, flush_tol_m=float(tol))
+    W = len(wedges)
+    tri = np.asarray(triangles, dtype=np.float64).reshape(-1, 3, 3)
+    tri_obj = np.asarray(tri_object, dtype=np.int64).reshape(-1)
+    if W == 0 or len(tri) == 0:
+        return Wedges(**{k: getattr(wedges, k) for k in _ARRAY_FIELDS}, stats=stats)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        tri_n, area2 = triangle_normals_and_double_areas(tri)
+    usable = np.flatnonzero(np.isfinite(tri_n).all(axis=1) & (area2 > 0))
+    if len(usable) == 0:
+        return Wedges(**{k: getattr(wedges, k) for k in _ARRAY_FIELDS}, stats=stats)
+    e = wedges.direction
+    # each face of a wedge: its normal and its in-plane direction away from the edge
+    # (t0 = n0 x e; face n: e x nn); a half-plane's two faces are one sheet
+    faces_w = np.concatenate([np.arange(W), np.flatnonzero(~wedges.half_plane)])
+    face_n = np.concatenate([wedges.normal0, wedges.normal1[~wedges.half_plane]])
+    face_t = np.concatenate([np.cross(wedges.normal0, e),
+                             np.cross(e[~wedges.half_plane],
+                                      wedges.normal1[~wedges.half_plane])])
+    f, t = _flush_pairs(wedges, faces_w, face_n, tri, tri_n, usable, tol, angle, probe)
+    w = faces_w[f]
+    keep = (tri_obj[t] != wedges.object_id[w]) & (
+        np.abs(np.einsum("ij,ij->i", tri_n[t], face_n[f])) >= np.cos(angle))
+    f, t, w = f[keep], t[keep], w[keep]
+    lo, hi = _covered_spans(wedges.start[w], e[w], wedges.length[w], face_t[f], tri[t],
+                            tri_n[t], tol, probe)
+    hit = hi > lo
+    if not hit.any():
+        return Wedges(**{k: getattr(wedges, k) for k in _ARRAY_FIELDS}, stats=stats)
+    w, lo, hi = w[hit], lo[hit], hi[hit]
+    order = np.lexsort((lo, w))
+    w, lo, hi = w[order], lo[order], hi[order]
+    rows, starts, ends = [], [], []
+    bounds = np.flatnonzero(np.diff(np.concatenate([[-1], w, [W]])))
+    covered = dict.fromkeys(w.tolist())
+    for a, b in zip(bounds[:-1], bounds[1:], strict=True):
+        k = int(w[a])
+        free, at = [], 0.0
+        for s0, s1 in zip(lo[a:b].tolist(), hi[a:b].tolist(), strict=True):
+            if s0 - at > probe:
+                free.append((at, s0))
+            at = max(at, s1)
+        if wedges.length[k] - at > probe:
+            free.append((at, float(wedges.length[k])))
+        covered[k] = free
+    for k in range(W):
+        pieces = covered.get(k)
+        if pieces is None:
+            rows.append(k)
+            starts.append(wedges.start[k])
+            ends.append(wedges.end[k])
+            continue
+        if not pieces:
+            stats["flush_dropped"] += 1
+            continue
+        stats["flush_clipped"] += 1
+        for s0, s1 in pieces:
+            rows.append(k)
+            starts.append(wedges.start[k] + s0 * e[k])
+            ends.append(wedges.start[k] + s1 * e[k])
+    out = {k: getattr(wedges, k)[np.asarray(rows, dtype=np.int64)] for k in _ARRAY_FIELDS}
+    if rows:
+        out["start"], out["end"] = np.array(starts), np.array(ends)
+        whole = np.asarray([k not in covered for k in rows])
+        length = _norm3(out["end"] - out["start"])
+        out["length"] = np.where(whole, out["length"], length)
+    return Wedges(**out, stats=stats)
+
+
+#: Planes shared by more triangles than this (a tessellated road) are searched by
+#: position too (a k-d tree over their centroids), not triangle by triangle.
+_FLUSH_GROUP_TREE = 64
+
+
+def _flush_pairs(wedges, faces_w, face_n, tri, tri_n, usable, tol, angle, probe):
+    """(face, triangle) candidate pairs of :func:`free_wedges`: triangles (of ``usable``)
+    whose plane may lie within ``tol`` of the face's edge with its normal within
+    ``angle`` (either orientation) and that may reach the face's probe line.
+
+    Triangles are grouped by their exact plane (n, n.x / L), L the scene's largest
+    coordinate; a k-d tree over those planes finds each face's groups within the radius
+    that a plane through the edge with its normal within ``angle`` can reach.  A large
+    group (a tessellated road) gives only its triangles whose centroid lies within reach
+    of the edge (half its length, the group's largest centroid-vertex distance, the
+    probe and tol, around its midpoint)."""
+    scale = max(float(np.abs(tri).max()), float(np.abs(wedges.start).max()),
+                float(np.abs(wedges.end).max()), 1.0)
+    tri_u = tri[usable]
+    keys = np.column_stack([tri_n[usable], np.einsum("ij,ij->i", tri_n[usable],
+                                                      tri_u[:, 0]) / scale])
+    planes, group, counts = unique_rows(keys)
+    members = np.argsort(group, kind="stable")
+    first = np.concatenate([[0], np.cumsum(counts)])
+    face_key = np.column_stack([face_n, np.einsum("ij,ij->i", face_n,
+                                                  wedges.start[faces_w]) / scale])
+    # |n - m| <= 2 sin(angle/2); the offsets differ by that times |x| <= scale, plus the
+    # tolerances, plus the tilt along the longest edge
+    turn = 2.0 * np.sin(0.5 * angle)
+    radius = 1.01 * (2.0 * turn + (tol + probe + np.sin(angle) * float(wedges.length.max()))
+                     / scale)
+    tree = cKDTree(planes)
+    f_g, g_g = [], []
+    for sign in (1.0, -1.0):
+        near = cKDTree(sign * face_key).sparse_distance_matrix(tree, radius,
+                                                               output_type="ndarray")
+        f_g.append(near["i"])
+        g_g.append(near["j"])
+    f_g = np.concatenate(f_g).astype(np.int64)
+    g_g = np.concatenate(g_g).astype(np.int64)
+    big = counts[g_g] > _FLUSH_GROUP_TREE
+    # small groups: every member
+    fs, gs = f_g[~big], g_g[~big]
+    n = counts[gs]
+    f_out = [np.repeat(fs, n)]
+    t_out = [members[np.repeat(first[gs], n) + np.arange(n.sum())
+                     - np.repeat(np.cumsum(n) - n, n)]]
+    # large groups: members near the edge
+    centroid = tri_u.mean(axis=1)
+    reach = _norm3(tri_u - centroid[:, None]).max(axis=1)
+    mid = 0.5 * (wedges.start + wedges.end)[faces_w]
+    half = 0.5 * wedges.length[faces_w]
+    for g in np.unique(g_g[big]):
+        idx = members[first[g]:first[g + 1]]
+        fg = f_g[big][g_g[big] == g]
+        found = cKDTree(centroid[idx]).query_ball_point(
+            mid[fg], half[fg] + float(reach[idx].max()) + probe + 2.0 * tol)
+        sizes = np.fromiter((len(x) for x in found), dtype=np.int64, count=len(found))
+        f_out.append(np.repeat(fg, sizes))
+        t_out.append(idx[np.concatenate([np.asarray(x, dtype=np.int64) for x in found])]
+                     if sizes.sum() else np.zeros(0, dtype=np.int64))
+    return np.concatenate(f_out), usable[np.concatenate(t_out)]
+
+
+def _covered_spans(start, direction, length, inward, tri, tri_n, tol, probe):
+    """(lo, hi) (P,): the span of each edge (metres from its start) along which the
+    triangle tri[i] covers the face: the probe line ``start + s direction + probe
+    inward`` within the triangle (to ``tol``), and the triangle's plane within ``tol``
+    of that line and of the edge itself.  Every condition is linear in s, so the span is
+    one interval (empty where hi <= lo)."""
+    lo = np.zeros(len(start))
+    hi = np.asarray(length, dtype=np.float64).copy()
+    line0 = start + probe * inward
+
+    def at_least(alpha, beta, bound):
+        # alpha + s beta >= -bound for s in [lo, hi]
+        nonlocal lo, hi
+        with np.errstate(invalid="ignore", divide="ignore"):
+            s = -(alpha + bound) / beta
+        lo = np.where(beta > 0, np.maximum(lo, s), lo)
+        hi = np.where(beta < 0, np.minimum(hi, s), hi)
+        hi = np.where((beta == 0) & (alpha + bound < 0), -np.inf, hi)
+
+    slope = np.einsum("ij,ij->i", tri_n, direction)
+    for origin in (start, line0):
+        g = np.einsum("ij,ij->i", tri_n, origin - tri[:, 0])
+        at_least(g, slope, tol)
+        at_least(-g, -slope, tol)
+    for k in range(3):
+        v, nxt = tri[:, k], tri[:, (k + 1) % 3]
+        inner = np.cross(tri_n, nxt - v)
+        inner = inner / _norm3(inner)[:, None]
+        at_least(np.einsum("ij,ij->i", inner, line0 - v),
+                 np.einsum("ij,ij->i", inner, direction), tol)
+    return lo, hi
 
 
 # ---------------------------------------------------------------------------

@@ -53,6 +53,7 @@ from clradcom.geometry.wedges import (
     Wedges,
     diffraction_point,
     extract_wedges,
+    free_wedges,
     multi_diffraction_points,
 )
 from clradcom.mechanisms.common import Geometry, check_number, seen_by_antennas
@@ -80,6 +81,15 @@ EDGE_LIFT_M = 1e-4
 #: this many times (pieces down to 1/16 of an edge) before keeping the wedge anyway.
 #: Halving only helps where blockers overlap; deeper cost more than it saved on the street.
 SEEING_MAX_DEPTH = 2
+
+#: The candidate pre-test (:func:`_keller_plausible_grid`, :func:`_angles_plausible`)
+#: rejects only beyond these margins of the exact tests it anticipates: Keller points
+#: this far (relative to 1 + the largest coordinate of the antennas' images) off the
+#: usable edge, reflection crossings this far outside their segment, directions this far
+#: (rad) inside the wedge; the exact float64 tests then decide, so a candidate they would
+#: keep is never pre-rejected.
+PLAUSIBLE_REL = 1e-6
+PLAUSIBLE_RAD = 1e-5
 
 REFLECTION = int(InteractionType.REFLECTION)
 DIFFRACTION = int(InteractionType.DIFFRACTION)
@@ -891,7 +901,7 @@ def _product(parts, chunk: int):
 def diffraction_candidates(caster, wedges: Wedges, tx_pos, rx_pos, tx_sequences: dict,
                            rx_sequences: dict, budget: DiffractionSettings, stats=None,
                            chunk: int = 1 << 19, tri_face=None, seeing: dict | None = None,
-                           engine: str = "device"):
+                           engine: str = "device", face_normal=None, face_offset=None):
     """Candidate :class:`Chains` of one link, yielded in chunks of at most ``chunk``.
 
     * one diffraction: [tx's ray-found face sequence of a reflections] + wedge, or
@@ -901,6 +911,14 @@ def diffraction_candidates(caster, wedges: Wedges, tx_pos, rx_pos, tx_sequences:
     * two or three diffractions: chains of wedges where the first sees tx, the last
       sees rx and neighbours see each other within budget.max_hop_m, with at most one
       reflection before the first or after the last edge when the budget allows.
+
+    With ``face_normal`` and ``face_offset`` (the planar faces' planes, as
+    :func:`unfold_points` takes them) single-diffraction candidates are pre-tested by the
+    image method (:func:`_keller_plausible_grid`, :func:`_angles_plausible`) and only
+    those that may pass :func:`unfold_points` and :func:`diffraction_angles` are yielded,
+    in the same order;
+    ``stats["pretested"]`` counts the candidates tested, ``stats["candidates"]`` (by the
+    caller) those yielded.  Without them every candidate of the product is yielded.
 
     ``stats`` (a dict) receives ``chains_over_cap``: chains the cap left out.
     ``tri_face``: the planar face of every triangle, for :func:`wedges_seeing`;
@@ -937,9 +955,16 @@ def diffraction_candidates(caster, wedges: Wedges, tx_pos, rx_pos, tx_sequences:
         suf = _prefixes(rx_sequences, b)[:, ::-1]
         ws = np.flatnonzero(mask)[:, None]
         pattern = (REFLECTION,) * a + (DIFFRACTION,) + (REFLECTION,) * b
-        if len(pre) and len(suf) and len(ws):
+        if not (len(pre) and len(suf) and len(ws)):
+            continue
+        if face_normal is None:
             for elem in _product([pre, ws, suf], chunk):
                 yield Chains(pattern, elem)
+            continue
+        stats["pretested"] = stats.get("pretested", 0) + len(pre) * len(ws) * len(suf)
+        for elem in _plausible_product(wedges, pre, ws[:, 0], suf, tx_pos, rx_pos,
+                                       face_normal, face_offset, chunk):
+            yield Chains(pattern, elem)
     if budget.max_diffractions < 2:
         return
     every = np.arange(len(wedges))
@@ -986,6 +1011,143 @@ def diffraction_candidates(caster, wedges: Wedges, tx_pos, rx_pos, tx_sequences:
                 yield Chains(pattern, elem)
 
 
+def _images(point, normal, offset, seqs) -> np.ndarray:
+    """(S, k + 1, 3): ``point`` and its mirror images through the first 1..k faces of each
+    face sequence ``seqs`` (S, k)."""
+    S, k = seqs.shape
+    out = np.empty((S, k + 1, 3))
+    out[:, 0] = np.asarray(point, dtype=np.float64)
+    for i in range(k):
+        n, d = normal[seqs[:, i]], offset[seqs[:, i]]
+        cur = out[:, i]
+        out[:, i + 1] = cur - 2.0 * (np.einsum("ij,ij->i", cur, n) - d)[:, None] * n
+    return out
+
+
+def _plausible_product(wedges: Wedges, pre, ws, suf, tx, rx, face_normal, face_offset,
+                       chunk: int):
+    """The rows (prefix, wedge, suffix) of the product of ``pre`` (P, a) face sequences,
+    wedges ``ws`` (W,) and ``suf`` (S, b), in the product's order, that
+    :func:`_keller_plausible_grid` and :func:`_angles_plausible` keep, yielded in chunks
+    of about ``chunk`` rows.  Blocks of the many prefixes (or suffixes) are tested
+    against every wedge at once."""
+    tx_img = _images(tx, face_normal, face_offset, pre)  # through f1..fa
+    rx_img = _images(rx, face_normal, face_offset, suf[:, ::-1])  # through gb..g1
+    P, S = len(pre), len(suf)
+    if P > 1 and S > 1:
+        raise ArgumentError("reflections on both sides of one edge are not searched "
+                            f"({P} prefixes, {S} suffixes)", argument="sequences",
+                            value=(P, S))
+    kept, n_kept = [], 0
+    if S == 1:  # rows p-major: blocks of prefixes x every wedge
+        blocks = [(np.arange(lo, min(P, lo + max(1, chunk // len(ws)))), slice(None))
+                  for lo in range(0, P, max(1, chunk // len(ws)))]
+    else:  # P == 1 here (a reflection on one side only): rows w-major, s-minor
+        blocks = [(np.arange(lo, min(len(ws), lo + max(1, chunk // S))), None)
+                  for lo in range(0, len(ws), max(1, chunk // S))]
+    for rows, _ in blocks:
+        if S == 1:
+            good, t, sure = _keller_plausible_grid(wedges, ws[None, :],
+                                                   tx_img[rows, -1][:, None],
+                                                   rx_img[0, -1][None, None])
+            i, j = np.nonzero(good)
+            p, w, s = rows[i], ws[j], np.zeros(len(i), np.int64)
+        else:
+            good, t, sure = _keller_plausible_grid(wedges, ws[rows][:, None],
+                                                   tx_img[0, -1][None, None],
+                                                   rx_img[:, -1][None, :])
+            i, j = np.nonzero(good)
+            p, w, s = np.zeros(len(i), np.int64), ws[rows[i]], j
+        sel = np.flatnonzero(_angles_plausible(wedges, w, p, s, t[i, j], sure[i, j], tx_img,
+                                               pre, rx_img, suf, face_normal, face_offset))
+        if len(sel):
+            kept.append(np.concatenate([pre[p[sel]], w[sel, None], suf[s[sel]]], axis=1))
+            n_kept += len(sel)
+        if n_kept >= chunk:
+            yield np.concatenate(kept)
+            kept, n_kept = [], 0
+    if n_kept:
+        yield np.concatenate(kept)
+
+
+def _keller_plausible_grid(wedges: Wedges, w, src, dst):
+    """(good, t, sure): good is False only where :func:`unfold_points` must reject a
+    single diffraction at wedge ``w`` between the images ``src`` and ``dst`` (arrays
+    broadcast: w (...), src and dst (..., 3)) by more than the margin: a concave wedge,
+    or Keller's point more than PLAUSIBLE_REL (1 + the images' largest coordinate) off
+    the usable edge (an ill-conditioned point, ``sure`` False, is kept); t and sure are
+    :func:`_keller_t`'s."""
+    t, sure, margin = _keller_t(wedges, w, src, dst)
+    length = wedges.length[w]
+    off = (t < EDGE_CLEARANCE_M - margin) | (t > length - EDGE_CLEARANCE_M + margin)
+    return (wedges.n[w] >= 1.0) & ~(off & sure), t, sure
+
+
+def _keller_t(wedges: Wedges, w, src, dst):
+    """(t, sure, margin): Keller's point (m along wedge w from its start) between src
+    and dst, as :func:`clradcom.geometry.wedges.diffraction_point` places it; ``sure``
+    where it is well conditioned (the images' distances from the edge line add up to
+    more than ``margin``, PLAUSIBLE_REL (1 + their largest coordinate)).  Component by
+    component: a (blocks x wedges) grid needs no (..., 3) temporaries."""
+    a = [wedges.start[w, k] for k in range(3)]
+    e = [wedges.direction[w, k] for k in range(3)]
+    scale = 1.0 + np.maximum(np.abs(src).max(axis=-1), np.abs(dst).max(axis=-1))
+    vs = [src[..., k] - a[k] for k in range(3)]
+    vr = [dst[..., k] - a[k] for k in range(3)]
+    ts = vs[0] * e[0] + vs[1] * e[1] + vs[2] * e[2]
+    tr = vr[0] * e[0] + vr[1] * e[1] + vr[2] * e[2]
+    ds = np.sqrt(sum((vs[k] - ts * e[k]) ** 2 for k in range(3)))
+    dr = np.sqrt(sum((vr[k] - tr * e[k]) ** 2 for k in range(3)))
+    den = ds + dr
+    margin = PLAUSIBLE_REL * scale
+    with np.errstate(invalid="ignore", divide="ignore"):
+        t = (ts * dr + tr * ds) / den
+    return t, np.isfinite(t) & (den > margin), margin
+
+
+def _angles_plausible(wedges: Wedges, w, p, s, t, sure, tx_img, pre, rx_img, suf,
+                      face_normal, face_offset) -> np.ndarray:
+    """(C,) False only for single-diffraction candidates (wedge w, prefix p, suffix s,
+    Keller point t metres along the edge where ``sure``) that :func:`unfold_points` or
+    :func:`diffraction_angles` must reject (up to the PLAUSIBLE_* margins): a source or
+    observer inside the wedge, or a reflection whose plane the image line does not cross
+    between its neighbours.
+
+    The image method in the real frame, equivalent to the unfolding: tx_img (P, a + 1,
+    3) are tx and its images through the prefix faces ``pre`` (P, a) in order, rx_img
+    (S, b + 1, 3) rx and its images through the suffix faces ``suf`` (S, b) from the last
+    one back; the Keller point Q lies on the real edge between the two full images, the
+    last reflection before Q on the line from Q to tx's full image, and so on back."""
+    good = np.ones(len(w), bool)
+    idx = np.flatnonzero(sure)  # an ill-conditioned point is kept
+    w, p, s = w[idx], p[idx], s[idx]
+    q = wedges.start[w] + t[idx, None] * wedges.direction[w]
+    # a neighbour inside a convex wedge lies behind both faces (phi in (n pi, 2 pi)); the
+    # margin, sin(PLAUSIBLE_RAD) |d|, is at least PLAUSIBLE_RAD of angle about the edge
+    n0, n1 = wedges.normal0[w], wedges.normal1[w]
+    inside = np.zeros(len(idx), bool)
+    for end in (tx_img[p, -1], rx_img[s, -1]):
+        d = end - q
+        m = np.sin(PLAUSIBLE_RAD) * np.sqrt(np.einsum("ij,ij->i", d, d))
+        inside |= (np.einsum("ij,ij->i", d, n0) < -m) & (np.einsum("ij,ij->i", d, n1) < -m)
+    inside &= (wedges.n[w] > 1.0) & (wedges.n[w] < 2.0)
+    good[idx[inside]] = False
+    idx, q, p, s = idx[~inside], q[~inside], p[~inside], s[~inside]
+    # the reflections, from Q back to each antenna
+    for images, faces in ((tx_img[p], pre[p, ::-1]), (rx_img[s], suf[s])):
+        cur = q
+        k = faces.shape[1]
+        for i in range(k):
+            n, d = face_normal[faces[:, i]], face_offset[faces[:, i]]
+            line = images[:, k - i] - cur
+            with np.errstate(invalid="ignore", divide="ignore"):
+                u = (d - np.einsum("ij,ij->i", n, cur)) / np.einsum("ij,ij->i", n, line)
+            finite = np.isfinite(u)
+            good[idx[finite & ((u < -PLAUSIBLE_REL) | (u > 1.0 + PLAUSIBLE_REL))]] = False
+            cur = cur + np.where(finite, u, 0.5)[:, None] * line
+    return good
+
+
 def _chains_of(first_pairs: np.ndarray, last_pairs: np.ndarray) -> np.ndarray:
     """Three-wedge chains (i, j, k) with (i, j) in ``first_pairs`` and (j, k) in
     ``last_pairs``, i != k."""
@@ -1013,8 +1175,13 @@ def _chain_hop(wedges: Wedges, chain: np.ndarray) -> np.ndarray:
 def diffraction_link_paths(scene, faces, caster, wedges: Wedges, tx, rx, tx_sequences,
                            rx_sequences, budget: DiffractionSettings, keep_fn=None,
                            go_sequences: set | None = None, seeing: dict | None = None,
-                           engine: str = "device"):
+                           engine: str = "device", pretest: bool = True):
     """All confirmed diffraction paths of one link: (list of Paths per pattern, stats).
+
+    ``pretest`` (default) lets only the single-diffraction candidates that the image
+    method finds plausible reach the exact tests (:func:`diffraction_candidates`); False
+    sends every candidate through them, the reference that gives the same paths
+    (tests/test_flush_edges.py, tools/bench_paths.py).
 
     ``keep_fn(k_dep, k_arr)`` (optional) drops paths outside the antennas' patterns
     before their fields are computed.  ``go_sequences`` (optional) are the face
@@ -1025,7 +1192,9 @@ def diffraction_link_paths(scene, faces, caster, wedges: Wedges, tx, rx, tx_sequ
     out = []
     for ch in diffraction_candidates(caster, wedges, tx.position, rx.position, tx_sequences,
                                      rx_sequences, budget, stats, tri_face=faces.tri_face,
-                                     seeing=seeing, engine=engine):
+                                     seeing=seeing, engine=engine,
+                                     face_normal=faces.normal if pretest else None,
+                                     face_offset=faces.offset if pretest else None):
         stats["candidates"] += len(ch)
         pts, ok = unfold_points(ch, tx.position, rx.position, faces.normal, faces.offset,
                                 wedges)
@@ -1069,7 +1238,9 @@ def prepare(geom: Geometry, settings: DiffractionSettings,
                             settings.wedge_angle_deg, two_sided=scene.tri_two_sided)
     if len(po_objects) and not settings.po_object_edges:
         wedges = wedges.select(~np.isin(wedges.object_id, np.asarray(po_objects)))
-    return wedges
+    # an edge whose face lies on another object (a box's floor edge on the road) is no
+    # wedge in free space: cut to where it stands free, for the host and device alike
+    return free_wedges(wedges, scene.triangles, scene.tri_object)
 
 
 def link_paths(geom: Geometry, wedges: Wedges, tx: Radar, rx: Radar,
