@@ -12,7 +12,7 @@ import reprlib
 from pathlib import Path
 
 __all__ = ["SceneError", "SceneWarning", "ValidityRangeWarning", "NOVALUE", "PhysicsWarning",
-           "CyclicPrefixWarning", "TileSizeWarning",
+           "CyclicPrefixWarning", "TileSizeWarning", "FresnelZoneWarning",
            "AliasingWarning", "NearFieldWarning", "SurfaceContactWarning",
            "BoundaryWarning", "CausticWarning", "SnapshotError", "ArgumentError",
            "ArgumentTypeError", "MemoryBudgetError"]
@@ -150,6 +150,12 @@ class TileSizeWarning(PhysicsWarning):
     nearest point to the antennas, so a tile there is no point scatterer and the coherent
     sum's speckle and the delay spread are off. The message names the surface (object),
     the bound and the distance it holds for."""
+
+
+class FresnelZoneWarning(PhysicsWarning):
+    """PO facets lie closer to an antenna than their Fraunhofer distance 2D^2/lambda: the
+    facet integral drops the quadratic phase across them there (docs/po.md, "Facets near
+    an antenna"); OpticsSettings.po_split = "fresnel" splits them into their far field."""
 
 
 class NearFieldWarning(PhysicsWarning):

@@ -179,3 +179,26 @@ def test_an_antenna_on_the_facet_is_warned_once_per_object(runtime):
 def test_setting_names_a_rule(bad):
     with pytest.raises(ValueError, match="OpticsSettings.po_split"):
         OpticsSettings(po_split=bad)
+
+
+@pytest.mark.parametrize("distance_m, rule, warned", [
+    (0.3, "near", True),      # beyond 2D = 0.11 m, inside 2D^2/lambda = 0.51 m
+    (0.3, "fresnel", False),  # split into the far field: nothing to say
+    (2.0, "near", False)])    # in the far field already
+def test_facets_in_the_fresnel_zone_are_named_with_their_distance(runtime, distance_m,
+                                                                   rule, warned):
+    from clradcom.errors import FresnelZoneWarning
+    c, n, _, _ = plate_frame()
+    at = c + distance_m * n
+    scene = scene_from_dict({
+        "scene": {"name": "fresnel", "carrier_hz": F_C}, "objects": near_scene_objects(),
+        "radars": [{"name": "radar", "position": at.tolist(), "pattern": "isotropic"}]})
+    geom = build_geometry(scene, runtime)
+    radar = scene.radars[0]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        po_paths(geom, radar, radar, min_relative_db=-300, split=rule)
+    msgs = [str(w.message) for w in caught if issubclass(w.category, FresnelZoneWarning)]
+    assert len(msgs) == (1 if warned else 0), msgs
+    if warned:
+        assert "'plate' (2, the nearest 0.3" in msgs[0] and "of 'radar'," in msgs[0]

@@ -23,10 +23,11 @@ import warnings
 import numpy as np
 
 from clradcom.device.visibility import surface_sees
+from clradcom.errors import FresnelZoneWarning
 from clradcom.geometry.triangles import triangle_normals
 from clradcom.paths import InteractionType, Paths
 from clradcom.physics import em
-from clradcom.physics.po import far_field_pieces, po_transfer
+from clradcom.physics.po import far_field_pieces, fresnel_zone, po_transfer
 
 __all__ = ["po_paths"]
 
@@ -55,6 +56,28 @@ def _mixed_transfer(scene, v, nrm, mat, pec, tx_pos, rx_pos):
     return T, L, c, k_dep, k_arr
 
 
+def _warn_fresnel_zone(scene, pieces, owner, tx, rx, tx_pos, rx_pos) -> None:
+    """One FresnelZoneWarning per link naming each object whose PO facets (after the
+    near-zone split) lie inside their Fraunhofer distance of tx or rx, with the nearest
+    such facet's distance and that facet's 2D^2/lambda."""
+    inside, far = fresnel_zone(pieces, [tx_pos, rx_pos], scene.wavelength_m)
+    if not inside.any():
+        return
+    c = pieces[inside].mean(axis=1)
+    dist = np.minimum(np.linalg.norm(c - tx_pos, axis=1), np.linalg.norm(c - rx_pos, axis=1))
+    parts = []
+    for o in np.unique(owner[inside]):
+        rows = np.flatnonzero(owner[inside] == o)
+        k = rows[np.argmin(dist[rows])]
+        parts.append(f"{scene.objects[o].name!r} ({len(rows)}, the nearest {dist[k]:.3g} m "
+                     f"away where its 2D^2/lambda is {far[inside][k]:.3g} m)")
+    who = repr(tx.name) if tx.name == rx.name else f"{tx.name!r} or {rx.name!r}"
+    warnings.warn(f"PO facets in the Fresnel zone of {who}, closer than their "
+                  f"2D^2/lambda: {', '.join(parts)}; their facet integrals drop "
+                  "the quadratic phase across them (po_split='fresnel' splits them into "
+                  "their far field, docs/po.md)", FresnelZoneWarning, stacklevel=4)
+
+
 def _near_field_gains(scene, v, nrm, mat, pec, tx, rx, tx_pos, rx_pos, obj, rule):
     """Gains (F,) and matrices (F,2,2) of facets some antenna sees in its near field: the
     sums over their far-field pieces (:func:`clradcom.physics.po.far_field_pieces`), each
@@ -63,6 +86,8 @@ def _near_field_gains(scene, v, nrm, mat, pec, tx, rx, tx_pos, rx_pos, obj, rule
     per object whose pieces stay in a near field."""
     pieces, parent, settled = far_field_pieces(v, [tx_pos, rx_pos], scene.wavelength_m,
                                                rule)
+    if rule == "near":
+        _warn_fresnel_zone(scene, pieces, obj[parent], tx, rx, tx_pos, rx_pos)
     if len(pieces) == len(v):
         return None
     if not settled.all():

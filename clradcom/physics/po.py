@@ -48,8 +48,8 @@ from clradcom.geometry.triangles import triangle_normals_and_double_areas
 from clradcom.physics import em
 
 __all__ = ["FAR_FIELD_FACTOR", "MAX_SUBDIVISION_LEVELS", "NEAR_SIZE_FACTOR", "SPLIT_RULES",
-           "far_field_pieces", "penetrable_po_operator", "po_facet_field", "po_transfer",
-           "sinc", "triangle_po_integral"]
+           "far_field_pieces", "fresnel_zone", "penetrable_po_operator", "po_facet_field",
+           "po_transfer", "sinc", "triangle_po_integral"]
 
 #: Below this spread max|q.(v_i - c)| (rad) the integral uses its Taylor series.
 _SERIES_SPREAD = 2.0
@@ -165,6 +165,17 @@ def _in_far_field(v, antennas, wavelength, fresnel):
     if fresnel:
         ok &= R >= FAR_FIELD_FACTOR * D * D / wavelength
     return ok
+
+
+def fresnel_zone(vertices, antennas, wavelength):
+    """(F,) bool: facets (F,3,3) outside every antenna's near zone but closer to one than
+    their Fraunhofer distance :data:`FAR_FIELD_FACTOR` D^2/lambda, and (F,) that distance."""
+    v = np.asarray(vertices, dtype=np.float64).reshape(-1, 3, 3)
+    ant = np.asarray(antennas, dtype=np.float64).reshape(-1, 3)
+    D = np.sqrt(np.max(np.sum((v - v[:, [1, 2, 0]]) ** 2, axis=-1), axis=1))
+    near_ok = _in_far_field(v, ant, float(wavelength), False)
+    far_ok = _in_far_field(v, ant, float(wavelength), True)
+    return near_ok & ~far_ok, FAR_FIELD_FACTOR * D * D / float(wavelength)
 
 
 def _split4(v):
