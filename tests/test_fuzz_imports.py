@@ -16,6 +16,7 @@ runs 50x the examples with a new seed each time (test_fuzz.fuzz).
 from __future__ import annotations
 
 import contextlib
+import copy
 import hashlib
 import io
 import json
@@ -45,10 +46,14 @@ from clradcom.paths import Paths
 from clradcom.scene import load_scene
 from clradcom.snapshot import Link, Snapshot, load_snapshot, save_snapshot
 
-# -- shared -----------------------------------------------------------------------------------
+# -- hostile XML, the files it names, byte mutations ----------------------------------------
 
+#: Text XML 1.0 can hold (no control characters, no surrogates or non-characters).
+XML_TEXT = st.text(st.characters(blacklist_categories=("Cs", "Cc"),
+                                 blacklist_characters="\ufffe\uffff"), max_size=12)
 #: Attribute and property values: numbers at and beyond every bound, lists of the wrong
-#: length, text where numbers go, parameters, paths out of the folder.
+#: length, text where numbers go, parameters, paths out of the folder, any text (control
+#: characters included, which expat must refuse cleanly).
 XML_VALUES = st.one_of(
     st.sampled_from(["0", "-0", "1", "-1", "2.5", "1e-320", "1e-300", "1e300", "1.7e308",
                      "1e999", "-1e999", "nan", "inf", "-inf", "0x10", "", " ", "1,2,3",
@@ -60,13 +65,8 @@ XML_VALUES = st.one_of(
                      "missing.ply", "m.PLY", "mat-itu_concrete", "mat-itu_metal.001",
                      "mat-custom", "mat-", "mesh-", "itu_brick", "3e8", "299792458"]),
     st.floats(allow_nan=True, allow_infinity=True).map(repr),
-    huge_ints.map(str),
+    huge_ints.map(str), XML_TEXT, XML_TEXT,
     st.text(max_size=12).filter(lambda s: "\x00" not in s))
-
-#: Characters XML 1.0 allows (no control characters but tab and newline, no surrogates).
-XML_TEXT = st.text(st.characters(blacklist_categories=("Cs", "Cc"), blacklist_characters=
-                                 "\ufffe\uffff"), max_size=12)
-XML_VALUES = st.one_of(XML_VALUES, XML_TEXT)
 
 #: Tags an element may be changed to: the ones the reader knows, and some it does not.
 XML_TAGS = ["shape", "bsdf", "ref", "transform", "translate", "rotate", "scale", "matrix",
@@ -166,14 +166,13 @@ def hostile_xml(draw) -> str:
             if kind == "delete":
                 del children[i]
             else:
-                children.insert(i, [children[i][0], dict(children[i][1]),
-                                    list(children[i][2])])
+                children.insert(i, copy.deepcopy(children[i]))
         elif kind == "retag" and node is not tree:
             node[0] = draw(st.sampled_from(XML_TAGS))
         elif kind == "adopt":
             donor = draw(st.sampled_from(nodes))
-            if donor is not tree:
-                children.append([donor[0], dict(donor[1]), list(donor[2])])
+            if donor is not tree:  # a copy: an ancestor adopted makes no cycle
+                children.append(copy.deepcopy(donor))
     return xml_text(tree) + "\n"
 
 
