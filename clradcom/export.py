@@ -76,12 +76,19 @@ def channel_frequency_response(gains, delays_s, frequencies_hz) -> np.ndarray:
         raise ArgumentError(f"gains ({a.size}) and delays_s ({tau.size}) differ in length",
                             argument="delays_s", value=tau.size)
     f = _check_frequencies(frequencies_hz)
+    _check_phase_cycles(f, tau)
     h = np.zeros(f.size, dtype=np.complex128)
     for start in range(0, a.size, _CFR_BLOCK):
         sl = slice(start, start + _CFR_BLOCK)
         cycles = np.multiply.outer(f, tau[sl])  # (F, block) f * tau in cycles
         cycles -= np.round(cycles)  # exact reduction keeps the phase small and accurate
-        h += np.exp(-2j * np.pi * cycles) @ a[sl]
+        with np.errstate(over="ignore", invalid="ignore"):
+            h += np.exp(-2j * np.pi * cycles) @ a[sl]
+    if not np.all(np.isfinite(h)):
+        with np.errstate(over="ignore"):
+            largest = float(np.abs(a).max())
+        raise ArgumentError(f"the sum of the paths' gains (largest |a| = {largest!r}) "
+                            f"overflows float64", argument="gains", value=largest)
     return h
 
 
@@ -160,8 +167,26 @@ def sionna_arrays(snapshot: Snapshot, frequencies_hz=None, *,
     return out
 
 
+def _check_phase_cycles(frequencies_hz: np.ndarray, delays_s: np.ndarray) -> None:
+    """Refuse delays and frequencies whose product f * tau (the phase in cycles)
+    overflows float64: its phase would be NaN (a delay of 1e300 s, found by
+    tests/test_fuzz_imports.py)."""
+    if frequencies_hz.size == 0 or delays_s.size == 0:
+        return
+    f_max = float(np.max(np.abs(frequencies_hz)))
+    tau = np.abs(delays_s)
+    with np.errstate(over="ignore", invalid="ignore"):
+        bad = np.flatnonzero(~np.isfinite(tau * f_max))
+    if bad.size:
+        raise ArgumentError(f"delay {delays_s[bad[0]]!r} s times frequency {f_max!r} Hz "
+                            f"overflows: no phase can be formed", argument="delays_s",
+                            value=float(delays_s[bad[0]]))
+
+
 def _reduced_cycles(frequency_hz: float, delays_s: np.ndarray) -> np.ndarray:
-    cycles = frequency_hz * np.asarray(delays_s, dtype=np.float64)
+    delays_s = np.asarray(delays_s, dtype=np.float64)
+    _check_phase_cycles(np.array([frequency_hz]), delays_s)
+    cycles = frequency_hz * delays_s
     return cycles - np.round(cycles)
 
 

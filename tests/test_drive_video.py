@@ -7,6 +7,9 @@ from __future__ import annotations
 import contextlib
 import csv
 import io
+import json
+import shutil
+import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +23,7 @@ from clradcom.radar.video import (
     FRAME_COLUMNS,
     ffmpeg_available,
     save_gif,
+    save_mp4,
 )
 from clradcom.scene.reader import load_scene
 
@@ -204,15 +208,69 @@ def test_drive_radar_refuses_bad_options(tmp_path, capsys, extra, needle):
     assert not (tmp_path / "o").exists()
 
 
-def test_mp4_needs_ffmpeg(tmp_path, capsys):
+def test_mp4_needs_ffmpeg(tmp_path, capsys, monkeypatch):
+    """Refused, before any work, where ffmpeg is missing (made missing here, so that the
+    refusal is tested where ffmpeg is installed too)."""
+    which = shutil.which
+    monkeypatch.setattr(shutil, "which", lambda name, *a, **kw:
+                        None if name == "ffmpeg" else which(name, *a, **kw))
+    assert not ffmpeg_available()
     scene = tmp_path / "two_cars.toml"
     scene.write_text(SCENE)
-    if ffmpeg_available():
-        pytest.skip("ffmpeg present: the refusal cannot happen")
     code = cli.main(["drive", str(scene), "--out", str(tmp_path / "o"), "--radar", "radarA",
                      "--mp4"])
     assert code == 2
     assert "ffmpeg" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+    with pytest.raises(ArgumentError, match="needs ffmpeg"):
+        save_mp4(tmp_path / "x.mp4", [np.zeros((8, 8, 3), np.uint8)])
+    assert not (tmp_path / "x.mp4").exists()
+
+
+def mp4_frames(n: int, h: int, w: int) -> list[np.ndarray]:
+    """Frames of flat colour blocks that move and change from frame to frame (flat
+    areas survive H.264 and 4:2:0 chroma nearly unchanged)."""
+    frames = []
+    for i in range(n):
+        f = np.zeros((h, w, 3), np.uint8)
+        f[:, :] = (30 + 40 * i, 200 - 30 * i, 90)
+        x = 8 + 8 * i
+        f[8:24, x:x + 16] = (250, 250, 40 * i)
+        frames.append(f)
+    return frames
+
+
+@pytest.mark.skipif(not ffmpeg_available(),
+                    reason="ffmpeg is not on the PATH: save_mp4's success path runs where "
+                           "it is (.ci/run installs Debian's ffmpeg)")
+def test_save_mp4_writes_frames_ffmpeg_reads_back(tmp_path):
+    """An odd-sized frame (H.264 needs even sides: padded) at 5 fps: ffprobe finds an
+    H.264 video of the padded size, the frame count and the rate; ffmpeg decodes frames
+    whose picture is the one written, within H.264's loss on flat colours."""
+    n, h, w = 5, 45, 63
+    frames = mp4_frames(n, h, w)
+    path = save_mp4(tmp_path / "v.mp4", frames, fps=5.0)
+    assert path == tmp_path / "v.mp4" and sorted(tmp_path.iterdir()) == [path]
+    probe = subprocess.run(
+        [shutil.which("ffprobe") or "ffprobe", "-v", "error", "-select_streams", "v:0",
+         "-count_frames", "-show_entries",
+         "stream=codec_name,width,height,r_frame_rate,nb_read_frames", "-of", "json",
+         str(path)], capture_output=True, text=True, check=True)
+    stream = json.loads(probe.stdout)["streams"][0]
+    assert stream["codec_name"] == "h264"
+    assert (stream["width"], stream["height"]) == (64, 46)
+    assert stream["r_frame_rate"] == "5/1" and int(stream["nb_read_frames"]) == n
+    raw = subprocess.run([shutil.which("ffmpeg"), "-v", "error", "-i", str(path), "-f",
+                          "rawvideo", "-pix_fmt", "rgb24", "-"], capture_output=True,
+                         check=True).stdout
+    back = np.frombuffer(raw, np.uint8).reshape(n, 46, 64, 3)[:, :h, :w].astype(int)
+    for i, (got, want) in enumerate(zip(back, frames, strict=True)):
+        # away from the blocks' edges (where 4:2:0 chroma and the codec blur)
+        inner = np.ones((h, w), bool)
+        inner[4:28, :] = False
+        assert np.abs(got[inner] - want[inner]).mean() < 4, i
+        assert np.abs(got[12:20, 12 + 8 * i:20 + 8 * i] - want[12:20, 12 + 8 * i:20 + 8 * i]
+                      ).mean() < 6, i
 
 
 def test_save_gif_refuses_frames_of_different_sizes(tmp_path):

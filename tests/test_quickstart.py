@@ -11,6 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from clradcom.radar import SPEED_OF_LIGHT, Waveform
+from clradcom.radar.truth import detection_truth
+
 ROOT = Path(__file__).resolve().parents[1]
 DOC = ROOT / "docs" / "quickstart.md"
 SMALL = ROOT / "tests" / "data" / "all_mechanisms.toml"
@@ -44,6 +47,26 @@ def test_the_quickstart_example_runs_and_detects(tmp_path, monkeypatch, capsys):
     reach = float(np.max(np.linalg.norm(
         scene.triangles.reshape(-1, 3) - scene.radars[0].position, axis=1)))
     assert 0 < max(dets, key=lambda d: d["snr_db"])["range_m"] < reach + 1.0
+    # the car (the scene's one moving object) is detected where its echo is. Its
+    # strongest echo path (here the car-hedge double bounce, 35 dB above the rotated
+    # box's own return) lies between the car's nearest point and its centre, give or take
+    # a range cell, and closes within two velocity cells of the car's 17.8 m/s, faster
+    # than anything static (at most the radar's 10 m/s). A detection lies within half a
+    # cell of it in range and in velocity.
+    wf = Waveform(carrier_hz=scene.carrier_hz)
+    cell_m, cell_mps = wf.range_resolution, wf.velocity_resolution
+    (car,) = detection_truth(scene, "A", ["car"], wf.wavelength)
+    paths = ns["link"].paths
+    on_car = np.flatnonzero(np.any(paths.object_id == scene.object_index("car"), axis=1))
+    assert on_car.size
+    echo = on_car[np.argmax(np.abs(paths.gain[on_car]))]
+    echo_m = paths.delay_s[echo] * SPEED_OF_LIGHT / 2
+    echo_mps = paths.doppler_hz[echo] * wf.wavelength / 2
+    assert car["range_nearest_m"] - cell_m <= echo_m <= car["range_centre_m"] + cell_m
+    assert abs(echo_mps - car["v_rel_m_s"]) < 2 * cell_mps and echo_mps > 10.0 + cell_mps
+    at_car = [d for d in dets if abs(d["range_m"] - echo_m) <= 0.5 * cell_m
+              and abs(d["velocity_mps"] - echo_mps) <= 0.5 * cell_mps]
+    assert at_car, (echo_m, echo_mps, [(d["range_m"], d["velocity_mps"]) for d in dets])
     assert (tmp_path / "A_image.png").stat().st_size > 0
     out = capsys.readouterr().out
     assert re.search(r"-?\d+\.\d\d m +-?\d+\.\d\d m/s", out)

@@ -41,7 +41,8 @@ from clradcom.errors import NOVALUE, SceneWarning
 from clradcom.scene.fields import FieldReader, is_file
 from clradcom.scene.records import OPTICS
 
-__all__ = ["COORDINATES", "DEFAULT_LEVEL_HEIGHT_M", "GEOJSON_KEYS", "WGS84_A", "WGS84_F",
+__all__ = ["COORDINATES", "DEFAULT_LEVEL_HEIGHT_M", "GEOJSON_KEYS", "MAX_FOOTPRINT_M",
+           "WGS84_A", "WGS84_F",
            "Building", "extrude_footprint", "lonlat_to_local", "read_geojson_buildings"]
 
 #: Keys of an ``[[objects]]`` entry that names a GeoJSON file.
@@ -52,6 +53,9 @@ GEOJSON_KEYS = ("name", "geojson", "material", "coordinates", "origin_lonlat",
 COORDINATES = ("lonlat", "metres")
 #: Storey height (m) that turns ``building:levels`` into a height, unless the entry says.
 DEFAULT_LEVEL_HEIGHT_M = 3.0
+#: Largest footprint coordinate or height (m) read: no projected coordinate on Earth is
+#: larger (Web Mercator's reach ~2e7 m), and trimesh's extrusion fails beyond ~1e10 m.
+MAX_FOOTPRINT_M = 1e8
 #: WGS 84 ellipsoid: semi-major axis (m) and flattening.
 WGS84_A = 6378137.0
 WGS84_F = 1.0 / 298.257223563
@@ -110,7 +114,9 @@ def extrude_footprint(polygon, bottom: float, top: float) -> tuple[np.ndarray, n
     for part in parts:
         part = shapely.geometry.polygon.orient(part, 1.0)
         mesh = trimesh.creation.extrude_polygon(part, top - bottom)
-        if mesh.volume < 0:  # defensive: the extrusion is outward by construction
+        with np.errstate(divide="ignore", invalid="ignore"):  # a footprint of ~zero
+            volume = mesh.volume  # area: trimesh's centre of mass divides by it
+        if volume < 0:  # defensive: the extrusion is outward by construction
             mesh.invert()
         v = np.asarray(mesh.vertices, dtype=np.float64).copy()
         v[:, 2] += bottom
@@ -183,9 +189,20 @@ def read_geojson_buildings(fields: FieldReader, tbl: dict, kp: str,
                                  "for projected metres write coordinates = 'metres'")
             poly = shapely.transform(poly, lambda p: np.column_stack(
                 lonlat_to_local(p[:, 0], p[:, 1], origin)))
-        if not np.all(np.isfinite(shapely.get_coordinates(poly))):
+        xy = shapely.get_coordinates(poly)
+        if not np.all(np.isfinite(xy)):
             raise fields.err(key, rel, f"{where} of {path}: NaN or inf coordinates")
-        if not poly.is_valid:
+        if np.abs(xy).max() > MAX_FOOTPRINT_M:
+            raise fields.err(key, rel, f"{where} of {path}: coordinate "
+                             f"{np.abs(xy).max():g} m beyond {MAX_FOOTPRINT_M:g} m (no "
+                             "projected coordinate on Earth is)")
+        try:
+            valid = poly.is_valid
+        except shapely.errors.GEOSException as exc:  # GEOS cannot even tell (found by
+            # tests/test_fuzz_imports.py: rings 1e300 m wide)
+            raise fields.err(key, rel, f"{where} of {path}: invalid footprint "
+                             f"({exc})") from None
+        if not valid:
             from shapely.validation import explain_validity
             raise fields.err(key, rel, f"{where} of {path}: invalid footprint "
                              f"({explain_validity(poly)})")
@@ -283,7 +300,10 @@ def _metres(value, what: str) -> float:
     if isinstance(value, bool):
         raise ValueError(f"{what} = {value!r} is not a number of metres")
     if isinstance(value, int | float):
-        x = float(value)
+        try:
+            x = float(value)
+        except OverflowError:  # an int beyond float64 (found by tests/test_fuzz_imports.py)
+            raise ValueError(f"{what} = {value!r} is not finite") from None
     elif isinstance(value, str) and (m := _HEIGHT_RE.match(value)):
         x = float(m.group(1))
     else:
@@ -316,4 +336,7 @@ def _heights(fields, key, rel, path, where, props, level_h, default_h) -> tuple[
     if not (top > bottom >= 0.0):
         raise fields.err(key, rel, f"{where} of {path}: height {top:g} m must be above "
                          f"its base {bottom:g} m (and the base >= 0)")
+    if top > MAX_FOOTPRINT_M:
+        raise fields.err(key, rel, f"{where} of {path}: height {top:g} m beyond "
+                         f"{MAX_FOOTPRINT_M:g} m")
     return bottom, top

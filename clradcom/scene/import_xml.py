@@ -358,6 +358,9 @@ def _read_shape(rd: _Reader, fields: FieldReader, shape: XmlNode, i: int, mats: 
             raise rd.err(shape, f"{key}.filename", None,
                          "a mesh shape needs <string name=\"filename\" value=\"...\"/>")
         rel = rd.attr(props["filename"], "value", f"{key}.filename")
+        if rel is None:
+            raise rd.err(props["filename"], f"{key}.filename", None,
+                         "missing attribute 'value' (the mesh file's name)")
         if Path(rel).suffix.lower() != MESH_SHAPES[kind]:
             raise rd.err(props["filename"], f"{key}.filename", rel,
                          f"a shape of type '{kind}' reads {MESH_SHAPES[kind]} files")
