@@ -5,11 +5,15 @@
   independent cells).
 - OS-CFAR (Rohling, IEEE T-AES 19(4), 1983): T = α·x_(k), the k-th smallest training cell;
   P_fa = Π_{i=0}^{k−1} (N_T − i)/(N_T − i + α), solved for α.
+- Correlated cells (a window, zero padding; the map's :class:`CellCorrelation`): those
+  closed forms overstate the training cells' information (a Hann image's CA-CFAR gave
+  2.3-5.3x its P_fa), so α is designed for the correlation (:func:`cfar_alpha`): CA by
+  the exact P_fa of a Hermitian form in correlated Gaussian cells (Turin, Biometrika 47,
+  1960), OS by importance-sampled conditional Monte Carlo (docs/dsp.md §5).
 - Training cells: a rectangle of half-size guard+train around the cell under test, minus
   the guard rectangle; the map wraps around on both axes (range and Doppler are DFT axes,
   so the map is periodic).  Sizes are in image bins: with zero padding, scale them by the
-  padding factor, and note that padded cells are correlated, so the design P_fa no longer
-  holds exactly (it does for an unpadded rectangular-window image).
+  padding factor.
 - Training sums are sums of non-negative cells (two separable correlations over disjoint
   bands), never a running sum or an outer-minus-inner difference: those cancel, and beside
   a strong peak their rounding error (~1e-16 of the peak) exceeds, or turns negative, the
