@@ -37,19 +37,21 @@ from scipy import fft as sfft
 from clradcom.errors import ArgumentError
 from clradcom.radar.angle_estimation import refine_mimo_detections
 from clradcom.radar.cfar import (
-    ca_cfar_alpha,
+    RADAR_GUARD,
+    RADAR_TRAIN,
+    cfar_alpha,
     numerical_floor,
     parabolic_offset,
     training_footprint,
     training_sums,
 )
 from clradcom.radar.mimo import RangeDoppler
-from clradcom.radar.processing import get_window
+from clradcom.radar.processing import CellCorrelation, get_window
 from clradcom.radar.waveform import Waveform, check_symbols
 
 __all__ = ["CUBE_DETECTION_DTYPE", "POINT_DTYPE", "Cube", "angle_grid", "capon_angles",
-           "capon_spectrum", "detect_cube", "point_cloud", "radar_cube", "refine_detections",
-           "tdm_channels"]
+           "capon_spectrum", "cube_threshold", "detect_cube", "point_cloud", "radar_cube",
+           "refine_detections", "tdm_channels"]
 
 CUBE_DETECTION_DTYPE = np.dtype([
     ("range_m", float), ("velocity_mps", float), ("azimuth_rad", float),
@@ -67,13 +69,16 @@ POINT_DTYPE = np.dtype([("x", float), ("y", float), ("z", float), ("velocity_mps
 class Cube(NamedTuple):
     """Power cube (N', M', A_y, A_z) float64, noise-normalised like the radar image
     (white noise σ² per cell of F keeps σ² per cell), and its axes; ``u_y``/``u_z`` are
-    direction cosines along the radar's local y and z (ascending, fftshifted)."""
+    direction cosines along the radar's local y and z (ascending, fftshifted);
+    ``correlation``: the range–Doppler correlation of the noise within an angle bin (that
+    of the channels' spectra; None: independent cells)."""
 
     power: np.ndarray
     range_m: np.ndarray
     velocity_mps: np.ndarray
     u_y: np.ndarray
     u_z: np.ndarray
+    correlation: CellCorrelation | None = None
 
 
 def angle_grid(virtual_positions_local, wavelength_m, tol: float = 1e-6):
@@ -178,7 +183,8 @@ def radar_cube(rd: RangeDoppler, virtual_positions_local, wavelength_m, *, windo
            else np.zeros(1))
     u_z = ((np.arange(az) - az // 2) * lam / (az * spacing[1]) if spacing[1] > 0
            else np.zeros(1))
-    return Cube(power, np.asarray(rd.range_m), np.asarray(rd.velocity_mps), u_y, u_z)
+    return Cube(power, np.asarray(rd.range_m), np.asarray(rd.velocity_mps), u_y, u_z,
+                rd.correlation)
 
 
 def _db(power, cells):
@@ -214,7 +220,35 @@ def _local_maxima(power, cells):
     return tuple(c[keep] for c in cells)
 
 
-def detect_cube(cube: Cube, guard=(2, 1), train=(4, 2), p_fa: float = 1e-6,
+def cube_threshold(cube: Cube, guard=RADAR_GUARD, train=RADAR_TRAIN, p_fa: float = 1e-6,
+                   accuracy: float | None = None):
+    """(threshold, noise) of CA-CFAR on every cell of the cube: training band in range ×
+    Doppler of each angle bin, α designed for the noise correlation of those cells
+    (``cube.correlation``; :func:`clradcom.radar.cfar.cfar_alpha`), noise estimates no
+    lower than the numerical floor."""
+    power = np.asarray(cube.power, dtype=float)
+    if power.ndim != 4:
+        raise ArgumentError("must be a (N, M, A_y, A_z) cube", argument="cube",
+                            value=f"shape {power.shape}")
+    fp = training_footprint(guard, train)
+    if fp.shape[0] > power.shape[0] or fp.shape[1] > power.shape[1]:
+        raise ArgumentError(f"is larger than the cube's {power.shape[0]} x {power.shape[1]} "
+                            "range-Doppler cells", argument="guard + train",
+                            value=f"CFAR window {fp.shape}")
+    correlation = cube.correlation
+    if correlation is not None and (np.size(correlation.range), np.size(correlation.doppler)) \
+            != power.shape[:2]:
+        raise ArgumentError(f"must give one lag per range and Doppler cell {power.shape[:2]}",
+                            argument="cube.correlation",
+                            value=f"lengths {np.size(correlation.range)}, "
+                                  f"{np.size(correlation.doppler)}")
+    alpha, _ = cfar_alpha(guard, train, p_fa, "ca", None, correlation)
+    floor = numerical_floor(power, accuracy)
+    noise = np.maximum(training_sums(power, guard, train) / int(fp.sum()), floor)
+    return alpha * noise, noise
+
+
+def detect_cube(cube: Cube, guard=RADAR_GUARD, train=RADAR_TRAIN, p_fa: float = 1e-6,
                 accuracy: float | None = None, max_detections: int | None = None,
                 sidelobe_db: float | None = 30.0):
     """CA-CFAR over the cube (training band in range × Doppler of each angle bin), local
@@ -227,14 +261,8 @@ def detect_cube(cube: Cube, guard=(2, 1), train=(4, 2), p_fa: float = 1e-6,
     range–Doppler sidelobes at that angle's own sidelobe level). 30 dB is below the peak
     sidelobe of the Hann window (−31.5 dB); None keeps every CFAR detection."""
     power = np.asarray(cube.power, dtype=float)
-    if power.ndim != 4:
-        raise ArgumentError("must be a (N, M, A_y, A_z) cube", argument="cube",
-                            value=f"shape {power.shape}")
-    n_t = int(training_footprint(guard, train).sum())
-    alpha = ca_cfar_alpha(n_t, p_fa)
-    floor = numerical_floor(power, accuracy)
-    noise = np.maximum(training_sums(power, guard, train) / n_t, floor)
-    cells = _local_maxima(power, np.nonzero(power > alpha * noise))
+    threshold, noise = cube_threshold(cube, guard, train, p_fa, accuracy)
+    cells = _local_maxima(power, np.nonzero(power > threshold))
     out = np.zeros(cells[0].size, CUBE_DETECTION_DTYPE)
     if out.size == 0:
         return out

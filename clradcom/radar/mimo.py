@@ -33,7 +33,7 @@ import numpy as np
 from scipy import fft as sfft
 
 from clradcom.errors import ArgumentError
-from clradcom.radar.processing import get_window, range_axis
+from clradcom.radar.processing import CellCorrelation, dft_correlation, get_window, range_axis
 from clradcom.radar.synthesis import channel_transfer_function
 from clradcom.radar.waveform import SPEED_OF_LIGHT, Waveform, check_symbols
 
@@ -46,11 +46,14 @@ MIMO_MODES = ("tdm", "ddm")
 class RangeDoppler(NamedTuple):
     """Range–Doppler spectra of the virtual channels: ``spectra`` (N', M', V) complex,
     windowed and normalised so that white noise of variance σ² per cell of F = D_r/D has
-    power σ² per cell (docs/dsp.md §4); ``velocity_mps`` ascending (fftshifted)."""
+    power σ² per cell (docs/dsp.md §4); ``velocity_mps`` ascending (fftshifted);
+    ``correlation``: how the windows correlate the noise of a channel's cells (the same in
+    every channel and in any combination of channels; None: independent cells)."""
 
     spectra: np.ndarray
     range_m: np.ndarray
     velocity_mps: np.ndarray
+    correlation: CellCorrelation | None = None
 
 
 def virtual_positions(tx_positions, rx_positions) -> np.ndarray:
@@ -159,7 +162,11 @@ def tdm_range_doppler(received, symbols, waveform: Waveform, n_tx: int, *, windo
         h *= np.exp(-2j * np.pi * np.outer(tx_index, fd) * waveform.symbol_duration)[:, None, :]
     h = np.fft.fftshift(h, axes=2).transpose(1, 2, 0)
     vel = np.fft.fftshift(fd) * SPEED_OF_LIGHT / (2.0 * waveform.carrier_hz)
-    return RangeDoppler(np.ascontiguousarray(h), range_axis(waveform, n), vel)
+    # the compensation is a phase per Doppler bin and transmitter: it leaves each
+    # channel's power correlation as it is and turns the lag-k coefficient of a sum of
+    # channels by at most 2π(E_tx − 1)k/M (docs/dsp.md §9)
+    correlation = CellCorrelation(dft_correlation(wn, n, +1), dft_correlation(wm, mv, -1))
+    return RangeDoppler(np.ascontiguousarray(h), range_axis(waveform, n), vel, correlation)
 
 
 def ddm_range_doppler(received, symbols, waveform: Waveform, n_tx: int, *,
@@ -189,4 +196,9 @@ def ddm_range_doppler(received, symbols, waveform: Waveform, n_tx: int, *,
         cols = (q + i * band) % m
         spectra[:, :, i * er:(i + 1) * er] = h[:, :, cols].transpose(1, 2, 0)
     vel = q / (m * waveform.symbol_duration) * SPEED_OF_LIGHT / (2.0 * waveform.carrier_hz)
-    return RangeDoppler(spectra, range_axis(waveform, n), vel)
+    # a band of M/N_c bins of the M-point transform, taken as periodic like the CFAR's map
+    lag = np.arange(band)
+    lag = np.where(lag <= band - lag, lag, lag - band)
+    correlation = CellCorrelation(dft_correlation(wn, n, +1),
+                                  dft_correlation(wm, m, -1)[lag % m])
+    return RangeDoppler(spectra, range_axis(waveform, n), vel, correlation)

@@ -32,6 +32,7 @@ from clradcom.radar import (
     synthesize_time_domain,
 )
 from clradcom.radar.array_frame import run_array_radar
+from clradcom.radar.cfar import RADAR_GUARD, RADAR_TRAIN
 from clradcom.radar.cube import point_cloud
 from clradcom.radar.estimation import estimate_detections
 from clradcom.radar.processing import RadarImage
@@ -137,7 +138,8 @@ def radar_frame_parts(paths, waveform: Waveform, *, seed: int = 0, method: str =
 
 
 def find_targets(spectral, waveform: Waveform, *, window="hann", p_fa=1e-6, cfar="ca",
-                 guard=(2, 1), train=(4, 2), accuracy: float = SYNTHESIS_ACCURACY,
+                 guard=RADAR_GUARD, train=RADAR_TRAIN,
+                 accuracy: float = SYNTHESIS_ACCURACY,
                  refine: bool = True, critical: RadarImage | None = None) -> np.ndarray:
     """Detections of the channel estimate F (N, M): CFAR on the critically sampled
     windowed image (``critical``, computed here when not given), then each detection's
@@ -156,16 +158,20 @@ def find_targets(spectral, waveform: Waveform, *, window="hann", p_fa=1e-6, cfar
 
 
 def process(D, Dr, waveform: Waveform, *, window="hann", zero_pad=(2, 2), p_fa=1e-6,
-            cfar="ca", guard=(2, 1), train=(4, 2), accuracy: float = SYNTHESIS_ACCURACY,
+            cfar="ca", guard=RADAR_GUARD, train=RADAR_TRAIN,
+            accuracy: float = SYNTHESIS_ACCURACY,
             refine: bool = True):
     """Radar image (zero-padded, for display) and CFAR detections from transmit and
     received symbols.
 
-    CFAR runs on the critically sampled image: there its cells are (nearly) independent,
-    as the threshold formula assumes. On a zero-padded image the noise is oversampled, the
-    training cells are fewer than they count and each noise peak is sampled near its
-    crest, which multiplies the false-alarm rate (about 4 per frame instead of 0.3 at
-    p_fa = 1e-6, 2x2 padding, paper frame). Range and velocity of each detection are then
+    CFAR runs on the critically sampled image. Its cells are not independent: the window
+    correlates neighbours (Hann: coefficient −2/3 at one bin, 1/6 at two, in each axis),
+    so the training cells are fewer independent samples than they count. The threshold
+    is designed for that correlation (the image's ``correlation``;
+    :func:`clradcom.radar.cfar.cfar_alpha`, docs/dsp.md §5), so ``p_fa`` is the rate of
+    threshold crossings per cell on noise (the α of independent cells gave 3-5x it).
+    A zero-padded image would also correlate its cells, and sample each noise peak near
+    its crest: it is kept for display. Range and velocity of each detection are then
     the maximum of the un-windowed periodogram of F = D_r/D near it (:func:`find_targets`:
     at the Cramér-Rao bound above the threshold SNR); power and SNR are the windowed
     image's.

@@ -32,14 +32,29 @@ WINDOW_ALIASES = {
 }
 
 
+class CellCorrelation(NamedTuple):
+    """Correlation coefficient of white noise between the cells of a range–Doppler map,
+    separable over its axes: the noise in cells (p, q) and (p', q') has E[X X'*]/σ² =
+    ``range[(p − p') mod N'] · doppler[(q − q') mod M']`` (docs/dsp.md §5). Both arrays are
+    complex, 1 at lag 0; the independent cells of an unpadded rectangular-window map have
+    0 at every other lag."""
+
+    range: np.ndarray
+    doppler: np.ndarray
+
+
 class RadarImage(NamedTuple):
     """Range–Doppler power map and its axes. ``power`` has shape (N', M'): axis 0 range
-    (bin p ↦ ``range_m[p]``), axis 1 velocity (fftshifted, ``velocity_mps``)."""
+    (bin p ↦ ``range_m[p]``), axis 1 velocity (fftshifted, ``velocity_mps``).
+    ``correlation``: how the windows and zero padding correlate the noise of its cells
+    (:func:`cell_correlation`; the CFAR threshold is computed for it); None for a map
+    whose cells are independent."""
 
     power: np.ndarray
     power_db: np.ndarray
     range_m: np.ndarray
     velocity_mps: np.ndarray
+    correlation: CellCorrelation | None = None
 
 
 def spectral_estimate(rx_symbols, tx_symbols, method: str = "divide") -> np.ndarray:
@@ -96,6 +111,30 @@ def get_window(window, length: int) -> np.ndarray:
     return sw.get_window(key, length, fftbins=True)
 
 
+def dft_correlation(taper, n_fft: int, sign: int) -> np.ndarray:
+    """Correlation coefficient ρ(k), k = 0..n_fft−1, between bins p and p − k of the
+    ``n_fft``-point transform Σ_n a_n G_n e^{sign·j2πnp/n_fft} of white noise G tapered by
+    ``a``: ρ(k) = Σ_n a_n² e^{sign·j2πnk/n_fft} / Σ_n a_n² (docs/dsp.md §5)."""
+    a2 = np.asarray(taper, dtype=float) ** 2
+    total = float(np.sum(a2))
+    if a2.ndim != 1 or a2.size > n_fft or not total > 0.0:
+        raise ArgumentError("must be a non-zero 1-D taper no longer than the transform",
+                            argument="taper", value=f"shape {a2.shape}, n_fft {n_fft}")
+    spectrum = np.fft.ifft(a2, n=n_fft) * n_fft if sign > 0 else np.fft.fft(a2, n=n_fft)
+    return spectrum / total
+
+
+def cell_correlation(window_range, window_doppler, n: int, m: int, zero_pad_range: int = 1,
+                     zero_pad_doppler: int = 1) -> CellCorrelation:
+    """The noise correlation of the cells of :func:`radar_image`'s map of an N × M
+    frame with these windows and zero padding: range by an IDFT (e^{+j}), Doppler by a
+    DFT (e^{−j}); the fftshift of the Doppler axis keeps lags."""
+    nz = n * _zero_pad("zero_pad_range", zero_pad_range)
+    mz = m * _zero_pad("zero_pad_doppler", zero_pad_doppler)
+    return CellCorrelation(dft_correlation(get_window(window_range, n), nz, +1),
+                           dft_correlation(get_window(window_doppler, m), mz, -1))
+
+
 def range_axis(waveform: Waveform, n_fft: int) -> np.ndarray:
     """Range of each IDFT bin: r_p = p·c/(2 N' Δf), p = 0..N'−1."""
     return np.arange(n_fft) * SPEED_OF_LIGHT / (2.0 * n_fft * waveform.subcarrier_spacing_hz)
@@ -137,4 +176,6 @@ def radar_image(spectral, waveform: Waveform, window_range="hann", window_dopple
     power = np.fft.fftshift(power, axes=1)
     with np.errstate(divide="ignore"):
         power_db = 10.0 * np.log10(power)
-    return RadarImage(power, power_db, range_axis(waveform, nz), velocity_axis(waveform, mz))
+    correlation = CellCorrelation(dft_correlation(wn, nz, +1), dft_correlation(wm, mz, -1))
+    return RadarImage(power, power_db, range_axis(waveform, nz), velocity_axis(waveform, mz),
+                      correlation)
