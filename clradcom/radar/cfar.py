@@ -48,9 +48,10 @@ DETECTION_DTYPE = np.dtype([
 #: guard and training half-sizes (range, Doppler bins) of the radar chain's CFAR
 #: (``pipeline.process``, ``cube.detect_cube``) on the critically sampled Hann image
 #: (docs/dsp.md §5: chosen so that, at its design P_fa, the detection probability is
-#: within 0.3 dB of the former (2, 1)/(4, 2) detector, which had 3-5x its P_fa)
-RADAR_GUARD = (2, 1)
-RADAR_TRAIN = (4, 4)
+#: within 0.3 dB of the former (2, 1)/(4, 2) detector, which had 3-5x its P_fa, and the
+#: street keeps its cars and buildings)
+RADAR_GUARD = (1, 1)
+RADAR_TRAIN = (5, 4)
 
 
 def _check_pfa(p_fa):
