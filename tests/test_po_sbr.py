@@ -26,6 +26,7 @@ import pytest
 import trimesh
 
 from clradcom.errors import SceneError
+from clradcom.evaluation.corners import quad
 from clradcom.mechanisms import specular as sp
 from clradcom.mechanisms.common import build_geometry
 from clradcom.mechanisms.optics import object_optics
@@ -47,21 +48,6 @@ F_C = 24e9
 LAM = C0 / F_C
 K0 = 2 * np.pi / LAM
 S2 = 1 / np.sqrt(2)
-
-
-def quad(p0, u, v, nu, nv, n_want):
-    """nu x nv squares (2 nu nv triangles) of the parallelogram p0 + [0,1]u + [0,1]v,
-    wound so their normal points along n_want."""
-    verts = [p0 + u * i / nu + v * j / nv for i in range(nu + 1) for j in range(nv + 1)]
-    faces = []
-    for i in range(nu):
-        for j in range(nv):
-            a = i * (nv + 1) + j
-            c = a + nv + 1
-            for t in ([a, c, c + 1], [a, c + 1, a + 1]):
-                n = np.cross(verts[t[1]] - verts[t[0]], verts[t[2]] - verts[t[0]])
-                faces.append(t if n @ n_want > 0 else [t[0], t[2], t[1]])
-    return np.array(verts), faces
 
 
 def tri_object(name, parts, **kw):

@@ -30,7 +30,7 @@ from clradcom.mechanisms.physical_optics import po_paths
 from clradcom.physics.em import C0
 from clradcom.scene.reader import scene_from_dict
 
-__all__ = ["CARRIER_HZ", "CORNERS", "RANGE_FACTOR", "CornerError", "closed_form_m2",
+__all__ = ["CARRIER_HZ", "CORNERS", "RANGE_FACTOR", "CornerError", "closed_form_m2", "quad",
            "corner_error", "corner_object", "corner_scene", "pitch_sweep"]
 
 CARRIER_HZ = 24e9
@@ -43,15 +43,16 @@ RANGE_FACTOR = 16.0
 PLATE_DIVISIONS = 2
 
 
-def _quad(p0, u, v, n: int, n_want) -> tuple[np.ndarray, list[list[int]]]:
-    """n x n squares (2 n^2 triangles) of the parallelogram p0 + [0,1]u + [0,1]v, wound
-    so that their normal points along n_want."""
-    verts = np.array([p0 + u * i / n + v * j / n for i in range(n + 1) for j in range(n + 1)])
+def quad(p0, u, v, nu: int, nv: int, n_want) -> tuple[np.ndarray, list[list[int]]]:
+    """nu x nv squares (2 nu nv triangles) of the parallelogram p0 + [0,1]u + [0,1]v,
+    wound so that their normal points along n_want."""
+    verts = np.array([p0 + u * i / nu + v * j / nv for i in range(nu + 1)
+                      for j in range(nv + 1)])
     faces = []
-    for i in range(n):
-        for j in range(n):
-            a = i * (n + 1) + j
-            c = a + n + 1
+    for i in range(nu):
+        for j in range(nv):
+            a = i * (nv + 1) + j
+            c = a + nv + 1
             for t in ([a, c, c + 1], [a, c + 1, a + 1]):
                 normal = np.cross(verts[t[1]] - verts[t[0]], verts[t[2]] - verts[t[0]])
                 faces.append(t if normal @ n_want > 0 else [t[0], t[2], t[1]])
@@ -73,13 +74,13 @@ def corner_object(kind: str, size_m: float, width_m: float | None = None) -> dic
         h = 1.0 / np.sqrt(2.0)
         z = np.array([0.0, 0.0, a])
         p0 = np.array([0.0, 0.0, -a / 2])
-        parts = [_quad(p0, b * np.array([h, h, 0.0]), z, n, np.array([h, -h, 0.0])),
-                 _quad(p0, b * np.array([h, -h, 0.0]), z, n, np.array([h, h, 0.0]))]
+        parts = [quad(p0, b * np.array([h, h, 0.0]), z, n, n, np.array([h, -h, 0.0])),
+                 quad(p0, b * np.array([h, -h, 0.0]), z, n, n, np.array([h, h, 0.0]))]
     else:
         X, Y, Z = np.eye(3)
         o = np.zeros(3)
-        parts = [_quad(o, a * Y, a * Z, n, X), _quad(o, a * X, a * Z, n, Y),
-                 _quad(o, a * X, a * Y, n, Z)]
+        parts = [quad(o, a * Y, a * Z, n, n, X), quad(o, a * X, a * Z, n, n, Y),
+                 quad(o, a * X, a * Y, n, n, Z)]
     verts, faces, off = [], [], 0
     for v, f in parts:
         verts.append(v)
