@@ -97,3 +97,31 @@ def test_a_linked_crs_is_refused(tmp_path):
     (tmp_path / "b.geojson").write_text(json.dumps(doc))
     with pytest.raises(SceneError, match=r"is not a named CRS"):
         load_scene(path)
+
+
+def test_a_footprint_of_many_corners_is_announced_before_it_is_built(tmp_path,
+                                                                      monkeypatch):
+    """A 1e6-corner footprint took minutes to load without a word (issue #28): from
+    LARGE_FOOTPRINT_CORNERS on, a warning names the feature, its corners and the
+    triangles to come before the extrusion starts."""
+    import warnings
+
+    from clradcom.errors import SceneWarning
+    from clradcom.scene import geojson
+    n = 2000   # the rule, at a size a test builds in a moment
+    monkeypatch.setattr(geojson, "LARGE_FOOTPRINT_CORNERS", n)
+    a = np.linspace(0.0, 2.0 * np.pi, n, endpoint=False)
+    ring = np.column_stack([20 * np.cos(a), 20 * np.sin(a)]).tolist()
+    path = _write(tmp_path, ring + ring[:1], None, extra='coordinates = "metres"')
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        scene = load_scene(path)
+    texts = [str(w.message) for w in caught if issubclass(w.category, SceneWarning)]
+    assert any(f"feature 0 of {tmp_path / 'b.geojson'} has {n + 1:,} corners" in t
+               for t in texts), texts
+    assert len(scene.triangles) > 2 * n
+    # a small footprint says nothing of the kind
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        load_scene(_write(tmp_path, _square(0, 0, 10), None, extra='coordinates = "metres"'))
+    assert not any("corners" in str(w.message) for w in caught)

@@ -56,6 +56,10 @@ DEFAULT_LEVEL_HEIGHT_M = 3.0
 #: Largest footprint coordinate or height (m) read: no projected coordinate on Earth is
 #: larger (Web Mercator's reach ~2e7 m), and trimesh's extrusion fails beyond ~1e10 m.
 MAX_FOOTPRINT_M = 1e8
+#: Corners of one footprint from which its loading is announced: extruding and
+#: triangulating it, and the trace over its ~4 triangles per corner, take minutes
+#: (1e5 corners: 9 s to load at load 7; 1e6: 381 s to load at load 9)
+LARGE_FOOTPRINT_CORNERS = 100_000
 #: WGS 84 ellipsoid: semi-major axis (m) and flattening.
 WGS84_A = 6378137.0
 WGS84_F = 1.0 / 298.257223563
@@ -190,6 +194,13 @@ def read_geojson_buildings(fields: FieldReader, tbl: dict, kp: str,
             poly = shapely.transform(poly, lambda p: np.column_stack(
                 lonlat_to_local(p[:, 0], p[:, 1], origin)))
         xy = shapely.get_coordinates(poly)
+        if len(xy) >= LARGE_FOOTPRINT_CORNERS:
+            warnings.warn(f"{fields.file}: {key}: {where} of {path} has {len(xy):,} corners: "
+                          f"its walls and roofs become about {4 * len(xy):,} triangles, "
+                          "which take minutes to build and trace (1e6 corners: some 6 "
+                          "minutes to load); simplify the footprint (e.g. shapely's "
+                          "simplify to a centimetre) if that detail is not needed",
+                          SceneWarning, stacklevel=3)
         if not np.all(np.isfinite(xy)):
             raise fields.err(key, rel, f"{where} of {path}: NaN or inf coordinates")
         if np.abs(xy).max() > MAX_FOOTPRINT_M:
