@@ -26,7 +26,7 @@ import pytest
 import trimesh
 
 from clradcom.errors import SceneError
-from clradcom.evaluation.corners import quad
+from clradcom.evaluation.corners import quad, triangles_object
 from clradcom.mechanisms import specular as sp
 from clradcom.mechanisms.common import build_geometry
 from clradcom.mechanisms.optics import object_optics
@@ -50,14 +50,7 @@ K0 = 2 * np.pi / LAM
 S2 = 1 / np.sqrt(2)
 
 
-def tri_object(name, parts, **kw):
-    verts, faces, off = [], [], 0
-    for v, f in parts:
-        verts.append(v)
-        faces += [[k + off for k in t] for t in f]
-        off += len(v)
-    return {"name": name, "material": "metal", "shape": "triangles",
-            "vertices": np.vstack(verts).tolist(), "faces": faces, **kw}
+tri_object = triangles_object
 
 
 def dihedral(a, b, n=2, **kw):

@@ -31,7 +31,7 @@ from clradcom.physics.em import C0
 from clradcom.scene.reader import scene_from_dict
 
 __all__ = ["CARRIER_HZ", "CORNERS", "RANGE_FACTOR", "CornerError", "closed_form_m2", "quad",
-           "corner_error", "corner_object", "corner_scene", "pitch_sweep"]
+           "corner_error", "corner_object", "corner_scene", "pitch_sweep", "triangles_object"]
 
 CARRIER_HZ = 24e9
 CORNERS = ("dihedral", "trihedral")
@@ -81,13 +81,19 @@ def corner_object(kind: str, size_m: float, width_m: float | None = None) -> dic
         o = np.zeros(3)
         parts = [quad(o, a * Y, a * Z, n, n, X), quad(o, a * X, a * Z, n, n, Y),
                  quad(o, a * X, a * Y, n, n, Z)]
+    return triangles_object(kind, parts)
+
+
+def triangles_object(name: str, parts, **keys) -> dict:
+    """A PEC ``[[objects]]`` entry of shape "triangles" made of ``parts``, (vertices,
+    faces) pairs as :func:`quad` gives them, their faces renumbered into one list."""
     verts, faces, off = [], [], 0
     for v, f in parts:
         verts.append(v)
         faces += [[k + off for k in t] for t in f]
         off += len(v)
-    return {"name": kind, "material": "metal", "shape": "triangles",
-            "vertices": np.vstack(verts).tolist(), "faces": faces}
+    return {"name": name, "material": "metal", "shape": "triangles",
+            "vertices": np.vstack(verts).tolist(), "faces": faces, **keys}
 
 
 def closed_form_m2(kind: str, size_m: float, wavelength_m: float,
