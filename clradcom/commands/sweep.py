@@ -65,20 +65,22 @@ def _preset(text: str) -> str:
     return text
 
 
-def _workers(text: str) -> int:
-    """--workers: an integer from 0 to the machine's cores."""
-    try:
-        return check_workers(non_negative_int(text))
-    except ArgumentError as exc:
-        raise argparse.ArgumentTypeError(f"{exc.reason}, got {text!r}") from None
+def _option(check):
+    """An argparse type from one of clradcom.distributed's checks: its refusal becomes
+    argparse's one line about the option."""
+    def parse(text: str):
+        try:
+            return check(text)
+        except ArgumentError as exc:
+            raise argparse.ArgumentTypeError(f"{exc.reason}, got {text!r}") from None
+    parse.__name__ = check.__name__
+    return parse
 
 
-def _scheduler(text: str) -> str:
-    """--scheduler: SCHEME://HOST:PORT (reachability is checked when the run connects)."""
-    try:
-        return check_scheduler_address(text)
-    except ArgumentError as exc:
-        raise argparse.ArgumentTypeError(f"{exc.reason}, got {text!r}") from None
+#: --workers: an integer from 0 to the machine's cores
+_workers = _option(lambda text: check_workers(non_negative_int(text)))
+#: --scheduler: SCHEME://HOST:PORT (reachability is checked when the run connects)
+_scheduler = _option(check_scheduler_address)
 
 
 def _device_list(text: str) -> list[str]:

@@ -60,17 +60,15 @@ def _warn_fresnel_zone(scene, pieces, owner, tx, rx, tx_pos, rx_pos) -> None:
     """One FresnelZoneWarning per link naming each object whose PO facets (after the
     near-zone split) lie inside their Fraunhofer distance of tx or rx, with the nearest
     such facet's distance and that facet's 2D^2/lambda."""
-    inside, far = fresnel_zone(pieces, [tx_pos, rx_pos], scene.wavelength_m)
-    if not inside.any():
-        return
-    c = pieces[inside].mean(axis=1)
-    dist = np.minimum(np.linalg.norm(c - tx_pos, axis=1), np.linalg.norm(c - rx_pos, axis=1))
+    inside, dist, far = fresnel_zone(pieces, [tx_pos, rx_pos], scene.wavelength_m)
     parts = []
     for o in np.unique(owner[inside]):
-        rows = np.flatnonzero(owner[inside] == o)
+        rows = np.flatnonzero(inside & (owner == o))
         k = rows[np.argmin(dist[rows])]
         parts.append(f"{scene.objects[o].name!r} ({len(rows)}, the nearest {dist[k]:.3g} m "
-                     f"away where its 2D^2/lambda is {far[inside][k]:.3g} m)")
+                     f"away where its 2D^2/lambda is {far[k]:.3g} m)")
+    if not parts:
+        return
     who = repr(tx.name) if tx.name == rx.name else f"{tx.name!r} or {rx.name!r}"
     warnings.warn(f"PO facets in the Fresnel zone of {who}, closer than their "
                   f"2D^2/lambda: {', '.join(parts)}; their facet integrals drop "

@@ -155,12 +155,19 @@ def triangle_po_integral(vertices, q):
     return out
 
 
-def _in_far_field(v, antennas, wavelength, fresnel):
-    """(F,) bool: facets (F,3,3) outside the near zone of every antenna position (A,3)
-    and, with ``fresnel``, in their far field."""
+def _size_and_range(v, antennas):
+    """(F,) longest edge D of facets (F,3,3) and (F,) distance R of their centroids from
+    the nearest antenna position (A,3)."""
     D = np.sqrt(np.max(np.sum((v - v[:, [1, 2, 0]]) ** 2, axis=-1), axis=1))
     c = v.mean(axis=1)
     R = np.min(np.linalg.norm(c[:, None, :] - antennas[None, :, :], axis=-1), axis=1)
+    return D, R
+
+
+def _in_far_field(v, antennas, wavelength, fresnel):
+    """(F,) bool: facets (F,3,3) outside the near zone of every antenna position (A,3)
+    and, with ``fresnel``, in their far field."""
+    D, R = _size_and_range(v, antennas)
     ok = R >= NEAR_SIZE_FACTOR * D
     if fresnel:
         ok &= R >= FAR_FIELD_FACTOR * D * D / wavelength
@@ -168,14 +175,13 @@ def _in_far_field(v, antennas, wavelength, fresnel):
 
 
 def fresnel_zone(vertices, antennas, wavelength):
-    """(F,) bool: facets (F,3,3) outside every antenna's near zone but closer to one than
-    their Fraunhofer distance :data:`FAR_FIELD_FACTOR` D^2/lambda, and (F,) that distance."""
+    """(inside, R, far) per facet (F,3,3): outside every antenna's near zone but closer to
+    one than its Fraunhofer distance ``far`` = :data:`FAR_FIELD_FACTOR` D^2/lambda, ``R``
+    its centroid's distance from the nearest antenna."""
     v = np.asarray(vertices, dtype=np.float64).reshape(-1, 3, 3)
-    ant = np.asarray(antennas, dtype=np.float64).reshape(-1, 3)
-    D = np.sqrt(np.max(np.sum((v - v[:, [1, 2, 0]]) ** 2, axis=-1), axis=1))
-    near_ok = _in_far_field(v, ant, float(wavelength), False)
-    far_ok = _in_far_field(v, ant, float(wavelength), True)
-    return near_ok & ~far_ok, FAR_FIELD_FACTOR * D * D / float(wavelength)
+    D, R = _size_and_range(v, np.asarray(antennas, dtype=np.float64).reshape(-1, 3))
+    far = FAR_FIELD_FACTOR * D * D / float(wavelength)
+    return (R >= NEAR_SIZE_FACTOR * D) & (R < far), R, far
 
 
 def _split4(v):
