@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import io
 import logging
 import math
 import os
@@ -205,12 +206,24 @@ class DevicePlugin(WorkerPlugin):
         worker_runtime()  # open it now: a device problem shows before any task runs
 
 
+def _own_reduction_pickle(value) -> bytes:
+    """``value`` pickled by its own ``__reduce_ex__``, past copyreg's table: Dask puts
+    tblib's reducer there for every exception class a worker has sent back once, and that
+    reducer takes the chained exceptions along (so a retry on the same worker would
+    meet the unpicklable record the first attempt left behind)."""
+    buffer = io.BytesIO()
+    pickler = pickle.Pickler(buffer, protocol=pickle.HIGHEST_PROTOCOL)
+    pickler.dispatch_table = {}
+    pickler.dump(value)
+    return buffer.getvalue()
+
+
 def _portable(exc: BaseException) -> BaseException:
     """``exc`` as it can travel from a worker: a copy without the exceptions chained to
     it (a pyopencl error record among them cannot be pickled, and Dask pickles the chain),
     or, where ``exc`` itself does not survive pickling, a RuntimeError of its text."""
     try:
-        copy = pickle.loads(pickle.dumps(exc))
+        copy = pickle.loads(_own_reduction_pickle(exc))
         if type(copy) is not type(exc) or str(copy) != str(exc):
             raise TypeError("changed in pickling")
     except Exception:  # noqa: BLE001 - whatever pickling refuses, the text travels

@@ -4,7 +4,9 @@ error naming it after the bound."""
 
 from __future__ import annotations
 
+import copyreg
 import os
+import pickle
 from pathlib import Path
 
 import pytest
@@ -157,6 +159,28 @@ def test_a_worker_fault_comes_back_as_one_picklable_line(client, tmp_path, capfd
     # nothing chained to it that a traceback would print, nothing pickling refused
     assert info.value.__cause__ is None and info.value.__suppress_context__
     assert "pickle" not in capfd.readouterr().err
+
+
+def test_a_fault_stays_portable_once_dask_has_sent_its_class_back(tmp_path):
+    # a worker's first failure makes Dask register tblib's chain-carrying reducer for the
+    # exception's class; the retry on that worker must still travel without the chain
+    tblib = pytest.importorskip("tblib.pickling_support")
+    try:
+        fail_like_a_kernel_build(str(tmp_path / "attempts"))
+    except RuntimeError as exc:
+        raised = exc
+    before = dict(copyreg.dispatch_table)
+    try:
+        tblib.install(raised)
+        with pytest.raises(TypeError, match="cannot pickle"):
+            pickle.dumps(raised)  # what a plain pickle of it now does
+        copy = cd._portable(raised)
+        assert type(copy) is type(raised) and str(copy) == str(raised)
+        assert copy.__cause__ is None and copy.__suppress_context__
+        assert type(pickle.loads(pickle.dumps(copy))) is type(raised)
+    finally:  # the table is the pickle module's own object: restored in place
+        copyreg.dispatch_table.clear()
+        copyreg.dispatch_table.update(before)
 
 
 def test_a_refusal_on_a_worker_reads_as_in_a_serial_run_and_is_not_retried(client, tmp_path):
