@@ -1,0 +1,334 @@
+"""Radio maps: one transmitter's path gain over a grid of cells, by shooting rays.
+
+Not one link per cell: rays leave the transmitter over its pattern's support, each ray
+tube carrying the solid angle dOmega of its lattice cell, and bounce specularly off the
+scene (closest hits on the device, the polarimetric Fresnel dyad of each face's material
+as the tracer applies it, :func:`clradcom.physics.em.material_reflection_dyad`). Every
+segment of every ray is then accumulated on the device into the cells of a measurement
+slab (:func:`clradcom.device.maps.accumulate_segments`): a horizontal layer of thickness
+``thickness_m`` centred on ``height_m``, clipped to a rectangle. The estimator
+(docs/maps.md) is the track-length form of the ray-density one Sionna RT's radio maps
+use: a tube of a ray with field vector E carries the power
+(lambda / 4 pi)^2 |p(E)|^2 dOmega / L^2 per unit cross-section at unfolded length L, its
+cross-section is dOmega L^2, so inside a cell of volume V it adds
+
+    g += (lambda / 4 pi)^2 |p(E)|^2 dOmega * (length of the segment inside the cell) / V
+
+to the cell's mean path gain, L cancelling; p(E) is the receiver's projection (its
+pattern and polarisation at the arrival direction, the bilinear form of
+:func:`clradcom.physics.em.path_gains`) or |E|^2 for a receiver that takes every
+polarisation with gain 1. For a thin slab this is Sionna's crossing weight
+1 / |cos theta| per crossing; unlike it, a ray that runs along the slab (a radar at the
+map's height) is counted. The sum is incoherent: the mean over the cell of the sum of
+|a_k|^2 over the paths, what :func:`clradcom.trace.trace_scene` gives to a receiver in
+the cell summed incoherently. Mechanisms: line of sight and specular reflections.
+
+The estimate converges where enough segments pass through a cell: at least
+:data:`MIN_SEGMENTS` (``RadioMap.converged``; docs/maps.md, tests/test_maps.py).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from clradcom.device.maps import Slab, accumulate_segments
+from clradcom.device.raycast import make_rays, spawn_origins
+from clradcom.device.runtime import Runtime
+from clradcom.errors import ArgumentError, ArgumentTypeError
+from clradcom.mechanisms.common import Geometry, build_geometry, check_number
+from clradcom.mechanisms.specular import fibonacci_cap, fibonacci_sphere
+from clradcom.memory import check_memory
+from clradcom.physics.em import C0, material_reflection_dyad
+from clradcom.scene.records import Radar, Scene
+
+__all__ = ["MIN_SEGMENTS", "MapGrid", "MapSettings", "RadioMap", "launch_lattice",
+           "map_memory_bytes", "radio_map"]
+
+#: The convergence rule: a cell's value is trusted where at least this many ray segments
+#: ran through it (within 1 dB of the per-link tracer there; docs/maps.md).
+MIN_SEGMENTS = 20
+
+#: Host bytes one ray of a batch holds at its peak: float64 origin and direction, the
+#: complex field vector, the 3 x 3 complex reflection dyad and its temporaries, the hit
+#: record and the float32 rows sent to the device (measured by tracemalloc: ~1.1 kB).
+BYTES_PER_RAY = 1200
+
+
+@dataclass(frozen=True)
+class MapSettings:
+    """How densely and how deep a radio map shoots."""
+
+    rays: int = 1_000_000  #: launched over the transmit pattern's support
+    max_reflections: int = 2
+    line_of_sight: bool = True
+    batch: int = 1 << 18  #: rays traced together (host memory: BYTES_PER_RAY each)
+
+    def __post_init__(self):
+        check_number("MapSettings", "rays", self.rays, low=1, integer=True)
+        check_number("MapSettings", "max_reflections", self.max_reflections, low=0,
+                     high=16, integer=True)
+        check_number("MapSettings", "batch", self.batch, low=1, integer=True)
+        if not isinstance(self.line_of_sight, bool):
+            raise ArgumentError("must be True or False", argument="MapSettings.line_of_sight",
+                                value=self.line_of_sight)
+
+
+@dataclass(frozen=True)
+class MapGrid:
+    """The measurement surface: cells of ``cell_m`` from (x_min, y_min) covering the
+    rectangle up to (x_max, y_max) (the last row and column may reach past it, by less
+    than a cell), in a horizontal layer ``thickness_m`` thick (None: ``cell_m``)
+    centred on ``height_m``."""
+
+    x_min: float
+    x_max: float
+    y_min: float
+    y_max: float
+    height_m: float
+    cell_m: float = 0.5
+    thickness_m: float | None = None
+
+    def __post_init__(self):
+        for name in ("x_min", "x_max", "y_min", "y_max", "height_m"):
+            check_number("MapGrid", name, getattr(self, name))
+        check_number("MapGrid", "cell_m", self.cell_m, low=0.0, low_open=True)
+        if self.thickness_m is not None:
+            check_number("MapGrid", "thickness_m", self.thickness_m, low=0.0, low_open=True)
+        if not (self.x_max > self.x_min and self.y_max > self.y_min):
+            raise ArgumentError("the rectangle must have x_max > x_min and y_max > y_min",
+                                argument="MapGrid", value=(self.x_min, self.x_max,
+                                                           self.y_min, self.y_max))
+
+    @property
+    def nx(self) -> int:
+        return max(1, math.ceil((self.x_max - self.x_min) / self.cell_m - 1e-9))
+
+    @property
+    def ny(self) -> int:
+        return max(1, math.ceil((self.y_max - self.y_min) / self.cell_m - 1e-9))
+
+    @property
+    def n_cells(self) -> int:
+        return self.nx * self.ny
+
+    @property
+    def thickness(self) -> float:
+        return self.cell_m if self.thickness_m is None else float(self.thickness_m)
+
+    @property
+    def x_centres(self) -> np.ndarray:
+        return self.x_min + self.cell_m * (np.arange(self.nx) + 0.5)
+
+    @property
+    def y_centres(self) -> np.ndarray:
+        return self.y_min + self.cell_m * (np.arange(self.ny) + 0.5)
+
+    def centres(self) -> np.ndarray:
+        """(ny, nx, 3) world centres of the cells."""
+        x, y = np.meshgrid(self.x_centres, self.y_centres)
+        return np.stack([x, y, np.full_like(x, self.height_m)], axis=-1)
+
+    def slab(self) -> Slab:
+        half = 0.5 * self.thickness
+        return Slab(x0=float(self.x_min), y0=float(self.y_min), cell_x=float(self.cell_m),
+                    cell_y=float(self.cell_m), nx=self.nx, ny=self.ny,
+                    z_lo=float(self.height_m) - half, z_hi=float(self.height_m) + half)
+
+    def extent(self) -> tuple[float, float, float, float]:
+        """(left, right, bottom, top) of the cells, for imshow."""
+        return (self.x_min, self.x_min + self.nx * self.cell_m,
+                self.y_min, self.y_min + self.ny * self.cell_m)
+
+
+@dataclass
+class RadioMap:
+    """A map's cells: ``gain`` (ny, nx) the mean path gain over each cell (linear, both
+    antennas' patterns inside), ``count`` (ny, nx) the ray segments through it."""
+
+    grid: MapGrid
+    gain: np.ndarray
+    count: np.ndarray
+    tx_name: str
+    rx_name: str | None  #: whose antenna receives; None: gain 1, every polarisation
+    rays: int  #: launched
+    tx_power_w: float = 1.0
+
+    @property
+    def converged(self) -> np.ndarray:
+        """(ny, nx) bool: cells that satisfy the convergence rule (:data:`MIN_SEGMENTS`)."""
+        return self.count >= MIN_SEGMENTS
+
+    def gain_db(self, floor_db: float = -300.0) -> np.ndarray:
+        with np.errstate(divide="ignore"):
+            return np.maximum(10.0 * np.log10(self.gain), floor_db)
+
+    @property
+    def received_power_w(self) -> np.ndarray:
+        return self.tx_power_w * self.gain
+
+
+def launch_lattice(n_rays: int, pattern) -> tuple[np.ndarray, float]:
+    """(local directions (R, 3), solid angle per ray sr): a Fibonacci lattice of about
+    ``n_rays`` directions where ``pattern`` (None: isotropic) radiates, every ray
+    standing for the same solid angle of the cap around boresight (+x) that holds the
+    pattern's support (as :func:`clradcom.mechanisms.specular.launch_directions` lays
+    it), the directions of zero gain dropped."""
+    if pattern is None:
+        return fibonacci_sphere(n_rays), 4.0 * np.pi / n_rays
+    probe = fibonacci_sphere(1 << 16)
+    inside = np.asarray(pattern.gain(probe)) > 0
+    if not inside.any():
+        raise ArgumentError("the transmit pattern has zero gain everywhere",
+                            argument="pattern", value=pattern.kind)
+    spacing = np.sqrt(4.0 * np.pi / len(probe))
+    half_angle = min(np.pi, float(np.arccos(probe[inside, 0].min())) + 2.0 * spacing)
+    in_cap = probe[:, 0] >= np.cos(half_angle)
+    share = float(inside[in_cap].mean())
+    n_cap = int(np.ceil(n_rays / share))
+    local = fibonacci_cap(n_cap, half_angle)
+    solid_angle = 2.0 * np.pi * (1.0 - np.cos(half_angle)) / n_cap
+    return local[np.asarray(pattern.gain(local)) > 0], solid_angle
+
+
+def map_memory_bytes(settings: MapSettings, grid: MapGrid) -> int:
+    """Host memory a map holds at its peak: a batch of rays (:data:`BYTES_PER_RAY` each),
+    the launch lattice (24 bytes a ray), and the grid's float64 sums, int64 counts and
+    float32/int32 device copies (24 bytes a cell)."""
+    return (min(settings.batch, settings.rays) * BYTES_PER_RAY + 24 * settings.rays
+            + 24 * grid.n_cells)
+
+
+def _rotate(v, m) -> np.ndarray:
+    """v @ m for (R, 3) rows and a 3 x 3 matrix, by columns: BLAS threads only slow such
+    thin products down (as clradcom.mechanisms.specular's lattice rotation notes)."""
+    return v[:, :1] * m[0] + v[:, 1:2] * m[1] + v[:, 2:] * m[2]
+
+
+def _basis(directions_world, orientation):
+    """theta-hat, phi-hat (R, 3) world of the antenna frame ``orientation`` at unit world
+    directions: those of :func:`clradcom.scene.antenna.theta_phi_unit_vectors` at the
+    local direction's angles (phi = 0 on the axis, as atan2(0, 0) gives), written with
+    cos phi = x / rho, sin phi = y / rho instead of the angles."""
+    d = _rotate(directions_world, orientation)
+    rho = np.hypot(d[:, 0], d[:, 1])
+    axis = rho == 0
+    safe = np.where(axis, 1.0, rho)
+    cos_p = np.where(axis, 1.0, d[:, 0] / safe)
+    sin_p = np.where(axis, 0.0, d[:, 1] / safe)
+    th = np.stack([d[:, 2] * cos_p, d[:, 2] * sin_p, -rho], axis=1)
+    ph = np.stack([-sin_p, cos_p, np.zeros_like(rho)], axis=1)
+    rot_t = np.ascontiguousarray(orientation.T)
+    return _rotate(th, rot_t), _rotate(ph, rot_t)
+
+
+def _received(field, directions, rx: Radar | None) -> np.ndarray:
+    """|p(E)|^2 (R,): the power the receiver takes from field vectors E (R, 3) arriving
+    along ``directions``: the bilinear projection onto its pattern's (C_theta, C_phi) at
+    -direction (em.path_gains), or |E|^2 without a receiver."""
+    if rx is None:
+        return np.sum(np.abs(field) ** 2, axis=1)
+    rot = np.asarray(rx.orientation, dtype=np.float64)
+    c = np.asarray(rx.pattern.field(_rotate(-directions, rot)), dtype=np.complex128)
+    th, ph = _basis(-directions, rot)
+    p = c[:, 0] * np.einsum("ij,ij->i", th, field) + c[:, 1] * np.einsum("ij,ij->i", ph,
+                                                                          field)
+    return np.abs(p) ** 2
+
+
+def _radar(scene: Scene, which, argument: str) -> Radar | None:
+    if which is None:
+        return None
+    if isinstance(which, Radar):
+        return which
+    if isinstance(which, str):
+        names = [r.name for r in scene.radars]
+        if which not in names:
+            raise ArgumentError(f"is no radar of scene {scene.name!r} (radars: "
+                                f"{', '.join(names)})", argument=argument, value=which)
+        return scene.radars[names.index(which)]
+    if isinstance(which, int) and not isinstance(which, bool) and \
+            0 <= which < len(scene.radars):
+        return scene.radars[which]
+    raise ArgumentTypeError("must be a radar's name, index or Radar", argument=argument,
+                            value=which)
+
+
+def radio_map(scene: Scene, tx, grid: MapGrid, rx=None, settings: MapSettings | None = None,
+              runtime: Runtime | None = None, geometry: Geometry | None = None,
+              steps: Callable[[int, int], None] | None = None,
+              budget_bytes: float | None = None) -> RadioMap:
+    """The mean path gain of every cell of ``grid`` from transmitter ``tx`` (a radar of
+    ``scene``: name, index or Radar) to a receiver ``rx`` placed in the cell with the
+    pattern, orientation and polarisation of that radar (None: gain 1 and every
+    polarisation, the power density times lambda^2 / 4 pi). ``steps(done, total)``
+    hears each batch of rays; the run is refused before it starts where its memory
+    (:func:`map_memory_bytes`) exceeds the budget."""
+    if not isinstance(scene, Scene):
+        raise ArgumentTypeError("must be a Scene (clradcom.scene.load_scene)",
+                                argument="scene", value=scene)
+    if not isinstance(grid, MapGrid):
+        raise ArgumentTypeError("must be a MapGrid", argument="grid", value=grid)
+    settings = MapSettings() if settings is None else settings
+    if not isinstance(settings, MapSettings):
+        raise ArgumentTypeError("must be a MapSettings", argument="settings", value=settings)
+    transmitter = _radar(scene, tx, "tx")
+    receiver = _radar(scene, rx, "rx")
+    need = map_memory_bytes(settings, grid)
+    check_memory(need, what=f"a radio map of {grid.n_cells} cells with {settings.rays} rays "
+                            f"in batches of {settings.batch}",
+                 argument="rays", value=settings.rays,
+                 advice="launch fewer rays, use smaller batches or fewer cells",
+                 budget_bytes=budget_bytes)
+    geom = geometry or build_geometry(scene, runtime)
+    rt = geom.runtime
+    slab = grid.slab()
+    lam = C0 / float(scene.carrier_hz)
+    local, solid_angle = launch_lattice(settings.rays, transmitter.pattern)
+    rot = np.asarray(transmitter.orientation, dtype=np.float64)
+    scale = (lam / (4.0 * np.pi)) ** 2 * solid_angle / slab.cell_volume
+    origin = np.asarray(transmitter.position, dtype=np.float64)
+    power = np.zeros((slab.ny, slab.nx))
+    count = np.zeros((slab.ny, slab.nx), dtype=np.int64)
+    normals = geom.caster.normals64() if geom.caster is not None else None
+    tri_material = np.asarray(scene.tri_material)
+    n_batches = -(-len(local) // settings.batch)
+    for b, start in enumerate(range(0, len(local), settings.batch)):
+        if steps is not None:
+            steps(b, n_batches)
+        loc = local[start:start + settings.batch]
+        dirs = _rotate(loc, rot.T)
+        c = np.asarray(transmitter.pattern.field(loc), dtype=np.complex128)
+        th, ph = _basis(dirs, rot)
+        field = c[:, :1] * th + c[:, 1:] * ph
+        org = np.broadcast_to(origin, dirs.shape).copy()
+        for order in range(settings.max_reflections + 1):
+            if geom.caster is not None and len(dirs):
+                hits = geom.caster.closest_hit(make_rays(org, dirs))
+                t = hits["t"].astype(np.float64)
+                prim = hits["prim"]
+            else:
+                t = np.full(len(dirs), np.inf)
+                prim = np.full(len(dirs), -1)
+            if order > 0 or settings.line_of_sight:
+                weights = scale * _received(field, dirs, receiver)
+                accumulate_segments(rt, slab, org, dirs, t, weights, power, count)
+            hit = prim >= 0
+            if order == settings.max_reflections or not hit.any():
+                break
+            org, dirs, field, t, prim = org[hit], dirs[hit], field[hit], t[hit], prim[hit]
+            n = normals[prim]
+            point = org + t[:, None] * dirs
+            dyad = material_reflection_dyad(scene, tri_material[prim], dirs, n)
+            field = np.einsum("rij,rj->ri", dyad, field)
+            dirs = dirs - 2.0 * np.einsum("ij,ij->i", dirs, n)[:, None] * n
+            dirs /= np.linalg.norm(dirs, axis=1)[:, None]
+            org = spawn_origins(point, n, dirs)
+    if steps is not None:
+        steps(n_batches, n_batches)
+    return RadioMap(grid=grid, gain=power, count=count, tx_name=transmitter.name,
+                    rx_name=None if receiver is None else receiver.name, rays=len(local),
+                    tx_power_w=float(transmitter.tx_power_w))
