@@ -355,3 +355,91 @@ def test_radcom_maps_refuse_what_they_cannot_compute(runtime):
         radar_snr_map(radcom_scene(), "A", grid, Waveform(), rcs_m2=-1.0, runtime=runtime)
     with pytest.raises(ArgumentError, match="no radar"):
         radar_snr_map(radcom_scene(), "Z", grid, Waveform(), runtime=runtime)
+
+
+# ---------------------------------------------------------------------------
+# the command (clradcom map)
+
+MAP_SCENE = """
+[scene]
+name = "lane"
+carrier_hz = 24e9
+
+[[objects]]
+name = "ground"
+material = "concrete_road"
+shape = "plane"
+size = [60.0, 30.0]
+position = [15.0, 0.0, 0.0]
+
+[[objects]]
+name = "wall"
+material = "concrete_building"
+shape = "box"
+extents = [20.0, 1.0, 4.0]
+position = [15.0, 8.0, 2.0]
+
+[[radars]]
+name = "A"
+position = [0.0, 0.0, 0.5]
+pattern = { type = "sector", azimuth_width_deg = 90.0, elevation_width_deg = 180.0 }
+polarization = "V"
+tx_power_w = 0.01
+noise_figure_db = 10.0
+
+[[radars]]
+name = "D"
+position = [25.0, 2.0, 0.5]
+orientation_deg = [0.0, 0.0, 180.0]
+pattern = { type = "sector", azimuth_width_deg = 90.0, elevation_width_deg = 180.0 }
+polarization = "V"
+tx_power_w = 0.01
+noise_figure_db = 10.0
+"""
+
+
+def test_map_command_writes_the_picture_and_the_georeferenced_grid(tmp_path, capsys):
+    """clradcom map --kind sinr: map.png, map.npz (layers, the cell centres and GDAL's
+    geotransform) and map.csv (a row per cell) whose SINR is the function's; a run over
+    the memory budget and a kind without its radar are refused in one line."""
+    from clradcom import cli
+    from clradcom.export import map_geotransform
+    from clradcom.radar.maps import sinr_map
+    from clradcom.radar.waveform import Waveform
+    from clradcom.scene.reader import load_scene
+
+    scene_path = tmp_path / "lane.toml"
+    scene_path.write_text(MAP_SCENE)
+    out = tmp_path / "out"
+    argv = ["map", str(scene_path), "--kind", "sinr", "--tx", "A", "--rx", "D",
+            "--area=0,30,-6,6", "--cell", "1", "--rays", "40000", "--out", str(out), "-q"]
+    assert cli.main(argv) == 0
+    assert "SINR (dB)" in capsys.readouterr().out
+    assert {p.name for p in out.iterdir()} == {"map.png", "map.npz", "map.csv"}
+    data = np.load(out / "map.npz")
+    grid = MapGrid(0, 30, -6, 6, 0.5, cell_m=1.0)
+    assert data["value_db"].shape == (12, 30)
+    assert np.array_equal(data["geotransform"], map_geotransform(grid))
+    assert np.allclose(data["x_centres"], np.arange(30) + 0.5)
+    assert str(data["meta.kind"]) == "sinr"
+    expected = sinr_map(load_scene(scene_path), "A", "D", None, grid, Waveform(),
+                        settings=MapSettings(rays=40000))
+    assert np.allclose(data["value_db"], expected.value_db, equal_nan=True, atol=1e-6)
+    assert np.allclose(data["ber"], expected.extra["ber"], atol=1e-9)
+    rows = (out / "map.csv").read_text().splitlines()
+    assert rows[0] == "x_m,y_m,z_m,value_db,converged,segments,ber"
+    assert len(rows) == 1 + 12 * 30
+    x, y, z, value = (float(v) for v in rows[1].split(",")[:4])
+    assert (x, y, z) == (0.5, -5.5, 0.5)
+    assert value == pytest.approx(data["value_db"][0, 0], abs=1e-4) or np.isnan(value)
+
+    assert cli.main([*argv[:-3], "--out", str(tmp_path / "big"), "--memory-budget", "1M"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--rays" in err[0] and "memory" in err[0]
+    assert not (tmp_path / "big").exists()
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["map", str(scene_path), "--kind", "inr"])
+    assert exc.value.code == 2
+    assert "--interferer" in capsys.readouterr().err
+    assert cli.main(["map", str(scene_path), "--tx", "Q", "--out", str(tmp_path / "q")]) == 2
+    assert "--tx = 'Q'" in capsys.readouterr().err
