@@ -3,7 +3,7 @@
 Not one link per cell: rays leave the transmitter over its pattern's support, each ray
 tube carrying the solid angle dOmega of its lattice cell, and bounce specularly off the
 scene (closest hits on the device, the polarimetric Fresnel dyad of each face's material
-as the tracer applies it, :func:`clradcom.physics.em.material_reflection_dyad`). Every
+as the tracer applies it: :func:`clradcom.physics.em.reflected_fields`). Every
 segment of every ray is then accumulated on the device into the cells of a measurement
 slab (:func:`clradcom.device.maps.accumulate_segments`): a horizontal layer of thickness
 ``thickness_m`` centred on ``height_m``, clipped to a rectangle. The estimator
@@ -42,7 +42,7 @@ from clradcom.errors import ArgumentError, ArgumentTypeError
 from clradcom.mechanisms.common import Geometry, build_geometry, check_number
 from clradcom.mechanisms.specular import fibonacci_cap, fibonacci_sphere
 from clradcom.memory import check_memory
-from clradcom.physics.em import C0, material_reflection_dyad
+from clradcom.physics.em import C0, reflected_fields
 from clradcom.scene.records import Radar, Scene
 
 __all__ = ["MIN_SEGMENTS", "MapGrid", "MapSettings", "RadioMap", "launch_lattice",
@@ -239,6 +239,29 @@ def _received(field, directions, rx: Radar | None) -> np.ndarray:
     return np.abs(p) ** 2
 
 
+def _reaches(slab: Slab, origins, directions, lengths, margin: float = 1e-3) -> np.ndarray:
+    """(R,) bool: segments that may pass through the slab's box (grown by ``margin`` m,
+    so the kernel's float32 clipping never sees one this skipped). Most segments do not
+    (rays into the sky, between walls above the layer): their receive projections are
+    not worth computing."""
+    t0 = np.zeros(len(origins))
+    t1 = np.minimum(lengths, 1e30)
+    lo = (slab.x0 - margin, slab.y0 - margin, slab.z_lo - margin)
+    hi = (slab.x0 + slab.nx * slab.cell_x + margin, slab.y0 + slab.ny * slab.cell_y + margin,
+          slab.z_hi + margin)
+    ok = np.ones(len(origins), dtype=bool)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for axis in range(3):
+            o, d = origins[:, axis], directions[:, axis]
+            flat = d == 0
+            ok &= ~flat | ((o >= lo[axis]) & (o <= hi[axis]))
+            a = (lo[axis] - o) / d
+            b = (hi[axis] - o) / d
+            t0 = np.where(flat, t0, np.maximum(t0, np.minimum(a, b)))
+            t1 = np.where(flat, t1, np.minimum(t1, np.maximum(a, b)))
+    return ok & (t0 <= t1)
+
+
 def _radar(scene: Scene, which, argument: str) -> Radar | None:
     if which is None:
         return None
@@ -314,16 +337,17 @@ def radio_map(scene: Scene, tx, grid: MapGrid, rx=None, settings: MapSettings | 
                 t = np.full(len(dirs), np.inf)
                 prim = np.full(len(dirs), -1)
             if order > 0 or settings.line_of_sight:
-                weights = scale * _received(field, dirs, receiver)
-                accumulate_segments(rt, slab, org, dirs, t, weights, power, count)
+                near = _reaches(slab, org, dirs, t)
+                weights = scale * _received(field[near], dirs[near], receiver)
+                accumulate_segments(rt, slab, org[near], dirs[near], t[near], weights,
+                                    power, count)
             hit = prim >= 0
             if order == settings.max_reflections or not hit.any():
                 break
             org, dirs, field, t, prim = org[hit], dirs[hit], field[hit], t[hit], prim[hit]
             n = normals[prim]
             point = org + t[:, None] * dirs
-            dyad = material_reflection_dyad(scene, tri_material[prim], dirs, n)
-            field = np.einsum("rij,rj->ri", dyad, field)
+            field = reflected_fields(scene, tri_material[prim], dirs, n, field)
             dirs = dirs - 2.0 * np.einsum("ij,ij->i", dirs, n)[:, None] * n
             dirs /= np.linalg.norm(dirs, axis=1)[:, None]
             org = spawn_origins(point, n, dirs)

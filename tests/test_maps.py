@@ -12,10 +12,16 @@ import numpy as np
 import pytest
 from test_paths import ETA_ROAD, LAM, ROAD, box, fresnel, plane, radar, scene_dict
 
+from clradcom import cli
 from clradcom.device.maps import Slab, accumulate_segments, accumulate_segments_host
 from clradcom.errors import ArgumentError, MemoryBudgetError
+from clradcom.export import map_geotransform
 from clradcom.maps import MIN_SEGMENTS, MapGrid, MapSettings, radio_map
-from clradcom.scene.reader import scene_from_dict
+from clradcom.radar.comms import awgn_error_rates
+from clradcom.radar.maps import inr_map, radar_snr_map, sinr_map
+from clradcom.radar.synthesis import thermal_noise_power
+from clradcom.radar.waveform import Waveform
+from clradcom.scene.reader import load_scene, scene_from_dict
 from clradcom.trace import DiffractionSettings, SpecularSettings, TraceSettings, trace_scene
 
 H = 1.0  # the antennas' and the map's height
@@ -247,10 +253,6 @@ def test_sinr_and_ber_maps_against_the_free_space_link_budget(runtime):
     g_A / (P_I g_I + kTBF) with Friis and both patterns, within 0.5 dB where both maps
     converged; the BER is the comms model's at that SINR, and without the interferer the
     SINR is the SNR."""
-    from clradcom.radar.comms import awgn_error_rates
-    from clradcom.radar.maps import sinr_map
-    from clradcom.radar.synthesis import thermal_noise_power
-    from clradcom.radar.waveform import Waveform
 
     scene = radcom_scene()
     waveform = Waveform()
@@ -277,9 +279,6 @@ def test_sinr_and_ber_maps_against_the_free_space_link_budget(runtime):
 def test_radar_snr_map_is_the_radar_equation_after_processing(runtime):
     """A 10 m^2 point target in each cell: P G^2 lambda^2 sigma / ((4 pi)^3 d^4) times the
     processing gain N M over kTBF (rect windows: 54.2 dB on the paper's frame)."""
-    from clradcom.radar.maps import radar_snr_map
-    from clradcom.radar.synthesis import thermal_noise_power
-    from clradcom.radar.waveform import Waveform
 
     scene = radcom_scene()
     waveform = Waveform()
@@ -307,9 +306,6 @@ def test_inr_map_is_the_traced_link_from_each_position_by_reciprocity(runtime):
     with D's antenna as receiver; at 40 sample cells, trace_scene from D placed at the
     cell centre (its own pattern and orientation) to A gives the same incoherent power
     (median <= 0.5 dB, 95th percentile <= 1.5 dB) over ground and a wall."""
-    from clradcom.radar.maps import inr_map
-    from clradcom.radar.synthesis import thermal_noise_power
-    from clradcom.radar.waveform import Waveform
 
     objects = [plane("ground", "road", (200.0, 200.0)),
                box("wall", "itu_concrete", (20.0, 1.0, 3.0), (10.0, 9.0, 1.5))]
@@ -341,8 +337,6 @@ def test_inr_map_is_the_traced_link_from_each_position_by_reciprocity(runtime):
 
 
 def test_radcom_maps_refuse_what_they_cannot_compute(runtime):
-    from clradcom.radar.maps import radar_snr_map, sinr_map
-    from clradcom.radar.waveform import Waveform
 
     scene = free_space_scene()  # radars without a noise figure
     grid = MapGrid(0, 4, 0, 4, H)
@@ -402,11 +396,6 @@ def test_map_command_writes_the_picture_and_the_georeferenced_grid(tmp_path, cap
     """clradcom map --kind sinr: map.png, map.npz (layers, the cell centres and GDAL's
     geotransform) and map.csv (a row per cell) whose SINR is the function's; a run over
     the memory budget and a kind without its radar are refused in one line."""
-    from clradcom import cli
-    from clradcom.export import map_geotransform
-    from clradcom.radar.maps import sinr_map
-    from clradcom.radar.waveform import Waveform
-    from clradcom.scene.reader import load_scene
 
     scene_path = tmp_path / "lane.toml"
     scene_path.write_text(MAP_SCENE)
