@@ -42,7 +42,8 @@ from clradcom.errors import ArgumentError, ArgumentTypeError
 from clradcom.mechanisms.common import Geometry, build_geometry, check_number
 from clradcom.mechanisms.specular import fibonacci_cap, fibonacci_sphere
 from clradcom.memory import check_memory
-from clradcom.physics.em import C0, reflected_fields
+from clradcom.physics.em import C0, fresnel_coefficients, reflected_fields
+from clradcom.physics.vectors import perpendicular
 from clradcom.scene.records import Radar, Scene
 
 __all__ = ["MIN_SEGMENTS", "MapGrid", "MapSettings", "RadioMap", "launch_lattice",
@@ -65,6 +66,16 @@ class MapSettings:
     rays: int = 1_000_000  #: launched over the transmit pattern's support
     max_reflections: int = 2
     line_of_sight: bool = True
+    #: diffuse (Lambertian) scattering off materials with a scattering coefficient S > 0
+    #: (the tracer's model, docs/scattering.md): every hit on such a face sends
+    #: ``diffuse_rays`` rays into the hemisphere, cosine-weighted, sharing S^2 Gamma^2 of
+    #: the tube's power; they reach the layer directly (no reflection after the tile)
+    scattering: bool = False
+    #: specular reflections a ray may have had before it scatters (as the tracer's
+    #: ScatteringSettings.max_reflections for the reflection before the tile)
+    scattering_reflections: int = 0
+    diffuse_rays: int = 4
+    seed: int = 0  #: of the diffuse rays' directions and nothing else
     batch: int = 1 << 18  #: rays traced together (host memory: BYTES_PER_RAY each)
 
     def __post_init__(self):
@@ -72,9 +83,15 @@ class MapSettings:
         check_number("MapSettings", "max_reflections", self.max_reflections, low=0,
                      high=16, integer=True)
         check_number("MapSettings", "batch", self.batch, low=1, integer=True)
-        if not isinstance(self.line_of_sight, bool):
-            raise ArgumentError("must be True or False", argument="MapSettings.line_of_sight",
-                                value=self.line_of_sight)
+        for name in ("line_of_sight", "scattering"):
+            if not isinstance(getattr(self, name), bool):
+                raise ArgumentError("must be True or False", argument=f"MapSettings.{name}",
+                                    value=getattr(self, name))
+        check_number("MapSettings", "scattering_reflections", self.scattering_reflections,
+                     low=0, high=16, integer=True)
+        check_number("MapSettings", "diffuse_rays", self.diffuse_rays, low=1, high=1024,
+                     integer=True)
+        check_number("MapSettings", "seed", self.seed, low=0, integer=True)
 
 
 @dataclass(frozen=True)
@@ -262,6 +279,78 @@ def _reaches(slab: Slab, origins, directions, lengths, margin: float = 1e-3) -> 
     return ok & (t0 <= t1)
 
 
+def _cosine_directions(normals, rng) -> np.ndarray:
+    """One unit direction per row, cosine-weighted over the hemisphere about ``normals``
+    (R, 3) unit (Malley's method: a uniform point of the unit disc lifted onto it)."""
+    r = np.sqrt(rng.random(len(normals)))
+    phi = 2.0 * np.pi * rng.random(len(normals))
+    a, b = r * np.cos(phi), r * np.sin(phi)
+    c = np.sqrt(np.maximum(1.0 - r * r, 0.0))
+    u = perpendicular(normals)
+    v = np.cross(normals, u)
+    return a[:, None] * u + b[:, None] * v + c[:, None] * normals
+
+
+def _te_tm(k, n):
+    """TE (k x n, normalised) and TM (te x k) unit vectors (R, 3) of directions k at a
+    surface of normal n (any perpendicular TE along the normal)."""
+    te = np.cross(k, n)
+    size = np.linalg.norm(te, axis=1)
+    along = size < 1e-9
+    te = np.where(along[:, None], perpendicular(n), te / np.where(along, 1.0, size)[:, None])
+    return te, np.cross(te, k)
+
+
+def _scatter(scene, geom, slab, org, dirs, field, t, prim, normals, receiver, scale,
+             settings, rng, power, count) -> None:
+    """Diffuse rays from the hits ``prim`` of rays (org, dirs, field) on faces whose
+    material scatters (S > 0), accumulated into the layer: the tracer's Lambertian tile
+    model (:mod:`clradcom.mechanisms.scattering`) sampled. A tube of power P (its
+    (lambda/4 pi)^2 |E|^2 dOmega) scatters S^2 Gamma^2 P into the hemisphere with the
+    density cos(theta_s)/pi, Gamma the power-weighted Fresnel magnitude of the arriving
+    polarisation; ``diffuse_rays`` directions drawn from that density carry equal shares.
+    The polarisation: the co-polar part R0 E (TE/TM of the incidence onto those of the
+    scattered direction, -I at normal incidence) with 1 - K of the power, the
+    cross-polar s x R0 E with K (the material's cross-polarisation share); the tracer's
+    random phases between them average out in the power."""
+    mat = np.asarray(scene.tri_material)[prim]
+    s_coef = scene.material_scattering[mat]
+    keep = s_coef > 0
+    if not keep.any():
+        return
+    org, dirs, field, t, prim, mat = (a[keep] for a in (org, dirs, field, t, prim, mat))
+    s_coef = s_coef[keep]
+    n = normals[prim]
+    n = np.where((np.einsum("ij,ij->i", dirs, n) > 0)[:, None], -n, n)  # the lit side
+    point = org + t[:, None] * dirs
+    cos_i = np.abs(np.einsum("ij,ij->i", dirs, n))
+    r_te, r_tm = fresnel_coefficients(scene.material_eps_r[mat], cos_i,
+                                      scene.material_pec[mat])
+    te_i, tm_i = _te_tm(dirs, n)
+    e_te = np.einsum("ij,ij->i", te_i, field)
+    e_tm = np.einsum("ij,ij->i", tm_i, field)
+    p_in = np.abs(e_te) ** 2 + np.abs(e_tm) ** 2
+    gamma2 = (np.abs(r_te * e_te) ** 2 + np.abs(r_tm * e_tm) ** 2) / np.where(
+        p_in > 0, p_in, 1.0)
+    share = scene.material_cross_pol_share[mat]
+    m = settings.diffuse_rays
+    for _ in range(m):
+        out = _cosine_directions(n, rng)
+        te_s, tm_s = _te_tm(out, n)
+        co = -e_te[:, None] * te_s + e_tm[:, None] * tm_s  # R0 E
+        cross = np.cross(out, co)
+        origins = spawn_origins(point, n, out)
+        lengths = geom.caster.closest_hit(make_rays(origins, out))["t"].astype(np.float64)
+        near = _reaches(slab, origins, out, lengths)
+        if not near.any():
+            continue
+        received = ((1.0 - share[near]) * _received(co[near], out[near], receiver)
+                    + share[near] * _received(cross[near], out[near], receiver))
+        weights = scale * (s_coef[near] ** 2 * gamma2[near] / m) * received
+        accumulate_segments(geom.runtime, slab, origins[near], out[near], lengths[near],
+                            weights, power, count)
+
+
 def _radar(scene: Scene, which, argument: str) -> Radar | None:
     if which is None:
         return None
@@ -319,6 +408,7 @@ def radio_map(scene: Scene, tx, grid: MapGrid, rx=None, settings: MapSettings | 
     normals = geom.caster.normals64() if geom.caster is not None else None
     tri_material = np.asarray(scene.tri_material)
     n_batches = -(-len(local) // settings.batch)
+    rng = np.random.default_rng(settings.seed)
     for b, start in enumerate(range(0, len(local), settings.batch)):
         if steps is not None:
             steps(b, n_batches)
@@ -342,6 +432,10 @@ def radio_map(scene: Scene, tx, grid: MapGrid, rx=None, settings: MapSettings | 
                 accumulate_segments(rt, slab, org[near], dirs[near], t[near], weights,
                                     power, count)
             hit = prim >= 0
+            if settings.scattering and order <= settings.scattering_reflections \
+                    and hit.any():
+                _scatter(scene, geom, slab, org[hit], dirs[hit], field[hit], t[hit],
+                         prim[hit], normals, receiver, scale, settings, rng, power, count)
             if order == settings.max_reflections or not hit.any():
                 break
             org, dirs, field, t, prim = org[hit], dirs[hit], field[hit], t[hit], prim[hit]

@@ -7,8 +7,8 @@
 
 Rays are shot from one radar and their segments accumulated into the cells of a
 horizontal layer (--height, --thickness) over a rectangle (--area, default the scene's
-footprint) on the OpenCL device (docs/maps.md); line of sight and up to --reflections
-specular reflections. The kinds:
+footprint) on the OpenCL device (docs/maps.md); line of sight, up to --reflections
+specular reflections and, with --scattering, diffuse scattering. The kinds:
 
   gain    received power of --tx's frame (dBW) with --rx's antenna in each cell (without
           --rx: gain 1, both polarisations)
@@ -98,6 +98,11 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
                     help="rays launched over the transmit pattern (default 2e6)")
     ap.add_argument("--reflections", type=int_in(0, 16), default=2,
                     help="most specular reflections per ray (default 2)")
+    ap.add_argument("--scattering", action="store_true",
+                    help="add diffuse scattering off materials with a scattering "
+                         "coefficient (the trees), --diffuse-rays per hit")
+    ap.add_argument("--diffuse-rays", type=int_in(1, 1024), default=4,
+                    help="with --scattering: diffuse rays per hit (default 4)")
     ap.add_argument("--rcs", type=positive_float, default=1.0,
                     help="radar: the point target's RCS in m² (default 1)")
     ap.add_argument("--window", default="rect", choices=("rect", "hann", "hamming",
@@ -166,7 +171,8 @@ def run(args) -> int:
     t0 = time.perf_counter()
     scene = load_scene(args.scene)
     grid = scene_grid(scene, args)
-    settings = MapSettings(rays=args.rays, max_reflections=args.reflections)
+    settings = MapSettings(rays=args.rays, max_reflections=args.reflections,
+                           scattering=args.scattering, diffuse_rays=args.diffuse_rays)
     budget = None if args.memory_budget is None else parse_bytes(args.memory_budget,
                                                                  "--memory-budget")
     need = map_memory_bytes(settings, grid)
@@ -179,7 +185,8 @@ def run(args) -> int:
     geometry = build_geometry(scene, runtime)
     print(f"{args.kind} map of {scene.name}: {grid.nx} x {grid.ny} cells of {grid.cell_m:g} m "
           f"at z = {grid.height_m:g} m ({grid.thickness:g} m thick), {args.rays} rays, "
-          f"{args.reflections} reflections; {frame}", flush=True)
+          f"{args.reflections} reflections{', scattering' if args.scattering else ''}; "
+          f"{frame}", flush=True)
     n_maps = 2 if args.kind == "sinr" and args.interferer is not None else 1
     with progress_bar(n_maps, f"{args.kind} map", quiet=args.quiet, unit="batch") as bar:
         def steps(done: int, total: int) -> None:
@@ -207,6 +214,7 @@ def run(args) -> int:
     meta = {"kind": out.kind, "quantity": out.quantity, "scene": scene.name,
             "tx": args.tx, "rx": args.rx, "interferer": args.interferer,
             "rays": args.rays, "reflections": args.reflections,
+            "scattering": args.scattering,
             "min_segments": MIN_SEGMENTS}
     sources = scene.input_files
     target = Path(args.out)
