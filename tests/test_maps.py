@@ -8,8 +8,11 @@ trace_scene to receivers at sample cell centres in a scene with a wall and a car
 
 from __future__ import annotations
 
+import base64
+
 import numpy as np
 import pytest
+from matplotlib import colormaps
 from test_paths import ETA_ROAD, LAM, ROAD, box, fresnel, plane, radar, scene_dict
 
 from clradcom import cli
@@ -29,6 +32,7 @@ from clradcom.trace import (
     TraceSettings,
     trace_scene,
 )
+from clradcom.views import page_payload
 
 H = 1.0  # the antennas' and the map's height
 
@@ -448,7 +452,8 @@ def test_map_command_writes_the_picture_and_the_georeferenced_grid(tmp_path, cap
             "--area=0,30,-6,6", "--cell", "1", "--rays", "40000", "--out", str(out), "-q"]
     assert cli.main(argv) == 0
     assert "SINR (dB)" in capsys.readouterr().out
-    assert {p.name for p in out.iterdir()} == {"map.png", "map.npz", "map.csv"}
+    assert {p.name for p in out.iterdir()} == {"map.png", "map.html", "map.npz", "map.csv"}
+    assert '"map_label":"SINR (dB)"' in (out / "map.html").read_text()
     data = np.load(out / "map.npz")
     grid = MapGrid(0, 30, -6, 6, 0.5, cell_m=1.0)
     assert data["value_db"].shape == (12, 30)
@@ -476,3 +481,24 @@ def test_map_command_writes_the_picture_and_the_georeferenced_grid(tmp_path, cap
     assert "--interferer" in capsys.readouterr().err
     assert cli.main(["map", str(scene_path), "--tx", "Q", "--out", str(tmp_path / "q")]) == 2
     assert "--tx = 'Q'" in capsys.readouterr().err
+
+
+def test_html_view_carries_the_map_as_coloured_cells():
+    """views.page_payload with a radio map: two triangles per cell that holds a value, at
+    the layer's height, coloured by viridis from the 1st percentile to the maximum."""
+    scene = free_space_scene()
+    grid = MapGrid(0, 3, 0, 2, H, cell_m=1.0)
+    values = np.array([[-80.0, -70.0, np.nan], [-60.0, -90.0, -65.0]])
+    data = page_payload(scene, radio_map=(grid, values, "gain (dB)"))
+    tri = np.frombuffer(base64.b64decode(data["map"]), "<f4").reshape(-1, 3, 3)
+    rgb = np.frombuffer(base64.b64decode(data["map_rgb"]), np.uint8).reshape(-1, 3)
+    assert len(tri) == 2 * 5 and np.all(tri[..., 2] == H)
+    lo, hi = data["map_range"]
+    assert hi == -60.0 and lo == pytest.approx(np.percentile(values[np.isfinite(values)], 1))
+    centroid = tri.mean(axis=1)
+    strongest = (centroid[:, 0] < 1) & (centroid[:, 1] > 1)  # the cell of -60 dB
+    assert strongest.sum() == 2
+    top = 255 * np.array(colormaps["viridis"](1.0)[:3])
+    assert np.all(np.abs(rgb[strongest] - top) <= 1)
+    assert np.all(np.abs(rgb[~strongest] - top).max(axis=1) > 10)
+    assert data["map_label"] == "gain (dB)"

@@ -20,7 +20,8 @@ specular reflections and, with --scattering, diffuse scattering. The kinds:
           own antenna, orientation and power (one map by reciprocity)
 
 Written into --out: map.png (the map over the scene's top view, dB colour bar, cells under
-the convergence rule faded), map.npz (every layer with the grid's georeference),
+the convergence rule faded), map.html (the scene in 3-D with the map as a coloured plane
+at its height; opens offline), map.npz (every layer with the grid's georeference),
 map.csv (one row per cell). The memory a run holds is estimated first and refused over
 the budget (--memory-budget, else CLRADCOM_MEMORY_BUDGET, else half the machine's).
 Errors are one line on stderr, exit code 2.
@@ -64,9 +65,10 @@ from clradcom.radar.maps import (
     sinr_map,
 )
 from clradcom.scene.reader import load_scene
+from clradcom.views import save_html
 
 #: the names this command writes into its output folder
-OUTPUTS = ("map.png", "map.npz", "map.csv")
+OUTPUTS = ("map.png", "map.html", "map.npz", "map.csv")
 
 
 def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
@@ -225,11 +227,13 @@ def run(args) -> int:
                        converged=out.converged, cmap=args.cmap,
                        title=f"{scene.name}: {out.quantity}, from {args.tx}",
                        path=stage / "map.png", inputs=sources)
+        save_html(stage / "map.html", scene, n_paths=0, inputs=sources,
+                  radio_map=(grid, out.value_db, out.quantity))
     finite = np.isfinite(out.value_db)
     share = float(out.converged.mean())
     print(f"{out.quantity}: {np.nanmin(out.value_db[finite]) if finite.any() else np.nan:.1f} "
           f"to {np.nanmax(out.value_db[finite]) if finite.any() else np.nan:.1f}; "
           f"{share:.0%} of the cells hold >= {MIN_SEGMENTS} ray segments (the convergence "
           f"rule; more --rays converge more)")
-    print(f"[{time.perf_counter() - t0:6.1f} s] wrote {target}/map.png, map.npz, map.csv")
+    print(f"[{time.perf_counter() - t0:6.1f} s] wrote {target}/map.png, map.html, map.npz, map.csv")
     return 0
