@@ -39,9 +39,12 @@ from clradcom.device.maps import Slab, accumulate_segments
 from clradcom.device.raycast import make_rays, spawn_origins
 from clradcom.device.runtime import Runtime
 from clradcom.errors import ArgumentError, ArgumentTypeError
+from clradcom.mechanisms import diffraction
 from clradcom.mechanisms.common import Geometry, build_geometry, check_number
+from clradcom.mechanisms.diffraction import DiffractionSettings
 from clradcom.mechanisms.specular import fibonacci_cap, fibonacci_sphere
 from clradcom.memory import check_memory
+from clradcom.physics import utd
 from clradcom.physics.em import C0, fresnel_coefficients, reflected_fields
 from clradcom.physics.vectors import perpendicular
 from clradcom.scene.records import Radar, Scene
@@ -75,6 +78,13 @@ class MapSettings:
     #: ScatteringSettings.max_reflections for the reflection before the tile)
     scattering_reflections: int = 0
     diffuse_rays: int = 4
+    #: first-order UTD edge diffraction from the transmitter (the tracer's wedges and
+    #: coefficients, docs/utd.md): every wedge the transmitter lights is sampled every
+    #: ``edge_step_m`` and each sample sends rays around its Keller cone every
+    #: ``cone_step_deg`` of the exterior angle
+    diffraction: bool = False
+    edge_step_m: float = 0.05
+    cone_step_deg: float = 1.0
     seed: int = 0  #: of the diffuse rays' directions and nothing else
     batch: int = 1 << 18  #: rays traced together (host memory: BYTES_PER_RAY each)
 
@@ -92,6 +102,12 @@ class MapSettings:
         check_number("MapSettings", "diffuse_rays", self.diffuse_rays, low=1, high=1024,
                      integer=True)
         check_number("MapSettings", "seed", self.seed, low=0, integer=True)
+        if not isinstance(self.diffraction, bool):
+            raise ArgumentError("must be True or False", argument="MapSettings.diffraction",
+                                value=self.diffraction)
+        check_number("MapSettings", "edge_step_m", self.edge_step_m, low=0.0, low_open=True)
+        check_number("MapSettings", "cone_step_deg", self.cone_step_deg, low=0.0,
+                     high=90.0, low_open=True)
 
 
 @dataclass(frozen=True)
@@ -351,6 +367,123 @@ def _scatter(scene, geom, slab, org, dirs, field, t, prim, normals, receiver, sc
                             weights, power, count)
 
 
+def _edge_samples(wedges, step: float):
+    """(wedge index, point, length) of every piece of ``step`` or less the wedges are cut
+    into, each piece's middle point."""
+    pieces = np.maximum(1, np.ceil(wedges.length / step).astype(np.int64))
+    w = np.repeat(np.arange(len(wedges)), pieces)
+    first = np.cumsum(pieces) - pieces
+    frac = (np.arange(len(w)) - first[w] + 0.5) / pieces[w]
+    points = wedges.start[w] + frac[:, None] * (wedges.end[w] - wedges.start[w])
+    return w, points, wedges.length[w] / pieces[w]
+
+
+def _diffract(scene, geom, slab, wedges, tx: Radar, receiver, scale, settings, power,
+              count) -> None:
+    """First-order UTD diffraction into the layer (:attr:`MapSettings.diffraction`).
+
+    Each edge piece Q of length dl that the transmitter sees (a cast from tx to a point 1 mm
+    off the edge toward it) and that lies outside its wedge sends rays on its Keller cone
+    (s . e = s' . e = cos beta0) every dphi of the exterior angle (0, n pi). A ray carries
+    the field D E_i(Q) (the tracer's dyad: :func:`clradcom.physics.utd.diffraction_dyad`
+    of :func:`~clradcom.physics.utd.diffraction_coefficients`, E_i = E_tx / s') and the
+    tube power |D E_i|^2 sin^2(beta0) dphi dl: the diffracted power density
+    |D E_i|^2 rho / (s (rho + s)) (rho = s', the spherical-incidence spreading of
+    :func:`~clradcom.physics.utd.spreading_factor`) times the tube's cross-section
+    s sin(beta0) dphi x dl sin(beta0) (rho + s) / rho, constant along the ray, so its
+    track length in a cell is weighed as a launched ray's is. The distance parameter L of
+    the transition functions is taken where the ray meets the layer (the middle of its
+    run inside the slab's box)."""
+    w, q, dl = _edge_samples(wedges, settings.edge_step_m)
+    tx_pos = np.asarray(tx.position, dtype=np.float64)
+    to_q = q - tx_pos
+    s_p = np.linalg.norm(to_q, axis=1)
+    k_in = to_q / s_p[:, None]
+    e = wedges.direction[w]
+    n0 = wedges.normal0[w]
+    t0 = np.cross(n0, e)
+    cos_b = np.einsum("ij,ij->i", k_in, e)
+    sin_b = np.sqrt(np.maximum(1.0 - cos_b**2, 0.0))
+    # the source side: phi' inside the wedge's exterior (0, n pi), not along the edge
+    phi_p = np.mod(np.arctan2(-np.einsum("ij,ij->i", k_in, n0),
+                              -np.einsum("ij,ij->i", k_in, t0)), 2.0 * np.pi)
+    n_w = wedges.n[w]
+    lit = (sin_b > 1e-3) & (phi_p > 1e-6) & (phi_p < n_w * np.pi - 1e-6)
+    c_tx = np.zeros((len(q), 2), dtype=np.complex128)
+    rot = np.asarray(tx.orientation, dtype=np.float64)
+    c_tx[lit] = tx.pattern.field(_rotate(k_in[lit], rot))
+    lit &= np.abs(c_tx).sum(axis=1) > 0
+    # sight: tx to a point 1 mm off the edge toward tx (off the wedge's own faces)
+    away = -k_in + cos_b[:, None] * e
+    away /= np.maximum(np.linalg.norm(away, axis=1), 1e-12)[:, None]
+    target = q + 1e-3 * away
+    idx = np.flatnonzero(lit)
+    if len(idx):
+        rays = make_rays(np.broadcast_to(tx_pos, (len(idx), 3)), target[idx] - tx_pos,
+                         tmin=0.0, tmax=1.0)
+        lit[idx[geom.caster.occluded(rays)]] = False
+    idx = np.flatnonzero(lit)
+    if not len(idx):
+        return
+    th, ph = _basis(k_in[idx], rot)
+    e_inc = (c_tx[idx, :1] * th + c_tx[idx, 1:] * ph) / s_p[idx, None]
+    k = 2.0 * np.pi / scene.wavelength_m
+    for start in range(0, len(idx), 2048):
+        part = idx[start:start + 2048]
+        ei = e_inc[start:start + 2048]
+        step = np.deg2rad(settings.cone_step_deg)
+        n_phi = np.maximum(1, np.ceil(n_w[part] * np.pi / step).astype(np.int64))
+        rows = np.repeat(np.arange(len(part)), n_phi)
+        first = np.cumsum(n_phi) - n_phi
+        dphi = n_w[part] * np.pi / n_phi
+        phi = (np.arange(len(rows)) - first[rows] + 0.5) * dphi[rows]
+        j = part[rows]
+        out = (cos_b[j, None] * e[j] + sin_b[j, None]
+               * (np.cos(phi)[:, None] * t0[j] + np.sin(phi)[:, None] * n0[j]))
+        out /= np.linalg.norm(out, axis=1)[:, None]
+        radial = out - cos_b[j, None] * e[j]
+        radial /= np.linalg.norm(radial, axis=1)[:, None]
+        origins = q[j] + 1e-3 * radial
+        lengths = geom.caster.closest_hit(make_rays(origins, out))["t"].astype(np.float64)
+        near = _reaches(slab, origins, out, lengths)
+        if not near.any():
+            continue
+        rows, j, out, origins, lengths, phi = (a[near] for a in (rows, j, out, origins,
+                                                                 lengths, phi))
+        # the distance parameter where the ray runs through the layer
+        s_mid = _layer_distance(slab, origins, out, lengths)
+        m0, m1 = wedges.material0[w[j]], wedges.material1[w[j]]
+        d_soft, d_hard = utd.diffraction_coefficients(
+            phi, phi_p[j], np.arccos(np.clip(cos_b[j], -1.0, 1.0)), n_w[j], k,
+            utd.distance_parameter(s_mid, s_p[j], np.arccos(np.clip(cos_b[j], -1, 1))),
+            eps_r_0=scene.material_eps_r[m0], eps_r_n=scene.material_eps_r[m1],
+            pec=scene.material_pec[m0] & scene.material_pec[m1])
+        basis = utd.edge_fixed_basis(k_in[j], out, e[j])
+        dyad = utd.diffraction_dyad(d_soft, d_hard, *basis)
+        field = np.einsum("rij,rj->ri", dyad, ei[rows])
+        weights = (scale * sin_b[j] ** 2 * dphi[rows] * dl[j]
+                   * _received(field, out, receiver))
+        accumulate_segments(geom.runtime, slab, origins, out, lengths, weights, power,
+                            count)
+
+
+def _layer_distance(slab: Slab, origins, directions, lengths) -> np.ndarray:
+    """The distance along each ray to the middle of its run inside the slab's box
+    (clipped as :func:`_reaches` clips), at least 1 mm."""
+    t0 = np.zeros(len(origins))
+    t1 = np.minimum(lengths, 1e30)
+    lo = (slab.x0, slab.y0, slab.z_lo)
+    hi = (slab.x0 + slab.nx * slab.cell_x, slab.y0 + slab.ny * slab.cell_y, slab.z_hi)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for axis in range(3):
+            o, d = origins[:, axis], directions[:, axis]
+            flat = d == 0
+            a, b = (lo[axis] - o) / d, (hi[axis] - o) / d
+            t0 = np.where(flat, t0, np.maximum(t0, np.minimum(a, b)))
+            t1 = np.where(flat, t1, np.minimum(t1, np.maximum(a, b)))
+    return np.maximum(0.5 * (t0 + np.maximum(t1, t0)), 1e-3)
+
+
 def _radar(scene: Scene, which, argument: str) -> Radar | None:
     if which is None:
         return None
@@ -445,6 +578,11 @@ def radio_map(scene: Scene, tx, grid: MapGrid, rx=None, settings: MapSettings | 
             dirs = dirs - 2.0 * np.einsum("ij,ij->i", dirs, n)[:, None] * n
             dirs /= np.linalg.norm(dirs, axis=1)[:, None]
             org = spawn_origins(point, n, dirs)
+    if settings.diffraction and geom.caster is not None:
+        wedges = diffraction.prepare(geom, DiffractionSettings(max_diffractions=1))
+        if wedges is not None and len(wedges):
+            _diffract(scene, geom, slab, wedges, transmitter, receiver, scale / solid_angle,
+                      settings, power, count)
     if steps is not None:
         steps(n_batches, n_batches)
     return RadioMap(grid=grid, gain=power, count=count, tx_name=transmitter.name,

@@ -8,7 +8,8 @@
 Rays are shot from one radar and their segments accumulated into the cells of a
 horizontal layer (--height, --thickness) over a rectangle (--area, default the scene's
 footprint) on the OpenCL device (docs/maps.md); line of sight, up to --reflections
-specular reflections and, with --scattering, diffuse scattering. The kinds:
+specular reflections and, with --scattering and --diffraction, diffuse scattering and
+first-order edge diffraction. The kinds:
 
   gain    received power of --tx's frame (dBW) with --rx's antenna in each cell (without
           --rx: gain 1, both polarisations)
@@ -105,6 +106,14 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
                          "coefficient (the trees), --diffuse-rays per hit")
     ap.add_argument("--diffuse-rays", type=int_in(1, 1024), default=4,
                     help="with --scattering: diffuse rays per hit (default 4)")
+    ap.add_argument("--diffraction", action="store_true",
+                    help="add first-order UTD edge diffraction from the transmitter "
+                         "(edges cut every --edge-step m, a ray every --cone-step degrees)")
+    ap.add_argument("--edge-step", type=positive_float, default=0.05,
+                    help="with --diffraction: edge piece length in m (default 0.05)")
+    ap.add_argument("--cone-step", type=positive_float, default=1.0,
+                    help="with --diffraction: Keller-cone ray spacing in degrees "
+                         "(default 1)")
     ap.add_argument("--rcs", type=positive_float, default=1.0,
                     help="radar: the point target's RCS in m² (default 1)")
     ap.add_argument("--window", default="rect", choices=("rect", "hann", "hamming",
@@ -174,7 +183,9 @@ def run(args) -> int:
     scene = load_scene(args.scene)
     grid = scene_grid(scene, args)
     settings = MapSettings(rays=args.rays, max_reflections=args.reflections,
-                           scattering=args.scattering, diffuse_rays=args.diffuse_rays)
+                           scattering=args.scattering, diffuse_rays=args.diffuse_rays,
+                           diffraction=args.diffraction, edge_step_m=args.edge_step,
+                           cone_step_deg=args.cone_step)
     budget = None if args.memory_budget is None else parse_bytes(args.memory_budget,
                                                                  "--memory-budget")
     need = map_memory_bytes(settings, grid)
@@ -187,7 +198,8 @@ def run(args) -> int:
     geometry = build_geometry(scene, runtime)
     print(f"{args.kind} map of {scene.name}: {grid.nx} x {grid.ny} cells of {grid.cell_m:g} m "
           f"at z = {grid.height_m:g} m ({grid.thickness:g} m thick), {args.rays} rays, "
-          f"{args.reflections} reflections{', scattering' if args.scattering else ''}; "
+          f"{args.reflections} reflections{', scattering' if args.scattering else ''}"
+          f"{', diffraction' if args.diffraction else ''}; "
           f"{frame}", flush=True)
     n_maps = 2 if args.kind == "sinr" and args.interferer is not None else 1
     with progress_bar(n_maps, f"{args.kind} map", quiet=args.quiet, unit="batch") as bar:
@@ -216,7 +228,7 @@ def run(args) -> int:
     meta = {"kind": out.kind, "quantity": out.quantity, "scene": scene.name,
             "tx": args.tx, "rx": args.rx, "interferer": args.interferer,
             "rays": args.rays, "reflections": args.reflections,
-            "scattering": args.scattering,
+            "scattering": args.scattering, "diffraction": args.diffraction,
             "min_segments": MIN_SEGMENTS}
     sources = scene.input_files
     target = Path(args.out)
