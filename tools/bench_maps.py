@@ -4,18 +4,20 @@
     python tools/bench_maps.py scenes/street/street.toml [--rays 2000000] [--samples 8]
 
 The map: radar A's frame received with D's antenna over x in [-40, 160] m,
-y in [-20, 20] m at D's height, 0.5 m cells (32,000 cells; --area, --cell), line of sight
-and --reflections specular reflections (docs/maps.md), timed warm (a first small map
-builds the kernels). The reference: trace_scene from A to a receiver with D's antenna
-at --samples cell centres picked among the converged cells, once with the map's
-physics (specular only) and once with the paper preset (every mechanism); the time per
+y in [-20, 20] m at D's height, 0.5 m cells (32,000 cells; --area, --cell), line of sight,
+--reflections specular reflections, diffuse scattering and first-order diffraction
+(--go-only: without these two; docs/maps.md), timed warm (a first small map builds the
+kernels). The reference: trace_scene from A to a receiver with D's antenna at --samples
+cell centres picked among the converged cells, once with the map's physics (specular,
+one diffraction and scattering without reflections beside them, no PO/SBR) and once with
+the paper preset (every mechanism, PO/SBR on the cars); the time per
 link is the median of the links after the first (which carries A's candidate search and
 SBR shot), and tracing every cell is extrapolated as first link + cells x median.
 Prints the map's time, both extrapolations and their ratios to the map, and the map's
-agreement with the specular-only traces (median and 95th percentile of |dB|) at the
+agreement with the traces of its own physics (median and 95th percentile of |dB|) at the
 cell centres and as the mean of 8 points inside each cell (what the map estimates), and
-with the paper preset's at the centres (which adds diffraction, scattering and PO/SBR
-that the map lacks).
+with the paper preset's at the centres (which adds PO/SBR and the reflections beside
+edges and tiles that the map lacks).
 """
 
 from __future__ import annotations
@@ -59,6 +61,17 @@ def per_link_seconds(scene, tx, receivers, settings, runtime):
     return float(per_link[0]), float(np.median(per_link[1:])), power
 
 
+def agreement(mapped, traced) -> str:
+    """Median and 95th percentile of |dB| where the trace has power, and how many cells
+    it has none at (a centre inside a building, in a tree: the map's cell is partly out)."""
+    none = traced <= 0
+    err = np.abs(10 * np.log10(mapped[~none] / traced[~none]))
+    text = (f"median {np.median(err):.2f} dB, 95th percentile {np.percentile(err, 95):.2f} dB"
+            if len(err) else "no cell to compare")
+    return text + (f" ({int(none.sum())} cells without traced power left out)"
+                   if none.any() else "")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("scene")
@@ -69,6 +82,10 @@ def main(argv=None) -> int:
     ap.add_argument("--area", default="-40,160,-20,20", help="X0,X1,Y0,Y1 (m)")
     ap.add_argument("--cell", type=float, default=0.5)
     ap.add_argument("--samples", type=int, default=8)
+    ap.add_argument("--go-only", action="store_true",
+                    help="line of sight and reflections only (no scattering, diffraction)")
+    ap.add_argument("--edge-step", type=float, default=0.2)
+    ap.add_argument("--cone-step", type=float, default=2.0)
     ap.add_argument("--device", default=None)
     args = ap.parse_args(argv)
     runtime = get_runtime(args.device)
@@ -77,10 +94,14 @@ def main(argv=None) -> int:
     rx = scene.radars[scene.radar_index(args.rx)]
     x0, x1, y0, y1 = (float(v) for v in args.area.split(","))
     grid = MapGrid(x0, x1, y0, y1, float(rx.position[2]), cell_m=args.cell)
-    settings = MapSettings(rays=args.rays, max_reflections=args.reflections)
+    full = not args.go_only
+    settings = MapSettings(rays=args.rays, max_reflections=args.reflections,
+                           scattering=full, diffraction=full, edge_step_m=args.edge_step,
+                           cone_step_deg=args.cone_step)
     print(f"{scene.name}: {len(scene.triangles)} triangles; {grid.nx} x {grid.ny} = "
           f"{grid.n_cells} cells of {grid.cell_m} m; {args.rays} rays, {args.reflections} "
-          f"reflections; {runtime.info.describe()}; load {os.getloadavg()[0]:.1f}")
+          f"reflections{'' if args.go_only else ', scattering, diffraction'}; "
+          f"{runtime.info.describe()}; load {os.getloadavg()[0]:.1f}")
     geometry = build_geometry(scene, runtime)
     radio_map(scene, tx, grid, rx=rx, settings=MapSettings(rays=1000), geometry=geometry)
     k0 = runtime.kernel_seconds
@@ -102,9 +123,9 @@ def main(argv=None) -> int:
     mapped = m.gain[pick[:, 0], pick[:, 1]]
     go = TraceSettings(specular=SpecularSettings(max_reflections=args.reflections,
                                                  rays=1_000_000),
-                       diffraction=DiffractionSettings(max_diffractions=0),
+                       diffraction=DiffractionSettings(max_diffractions=int(full)),
                        optics=OpticsSettings(mode="none"),
-                       scattering=ScatteringSettings(enabled=False))
+                       scattering=ScatteringSettings(enabled=full))
     # the map estimates the mean over each cell's volume: a GO field has lit/unlit edges
     # (small facets' reflected beams, shadows) that a point at the centre may fall beside,
     # so the reference is also the mean over 2 x 2 x 2 points inside the cell
@@ -113,22 +134,19 @@ def main(argv=None) -> int:
                                    indexing="ij"), -1).reshape(-1, 3)
     inside = [dataclasses.replace(r, name=f"{r.name}_{j}", position=r.position + o)
               for r in receivers for j, o in enumerate(offsets)]
-    for label, trace_settings in (("specular only (the map's physics)", go),
+    for label, trace_settings in (("the map's physics", go),
                                   ("paper preset (every mechanism)", TraceSettings.preset())):
         first, median, power = per_link_seconds(scene, tx, receivers, trace_settings,
                                                 runtime)
         every = first + grid.n_cells * median
-        err = np.abs(10 * np.log10(mapped / power))
         print(f"per-link, {label}: first link {first:.2f} s, then {median:.3f} s a link; "
               f"all {grid.n_cells} cells {every:.0f} s = {every / map_s:.0f}x the map")
-        print(f"  map vs trace at {len(pick)} cell centres: median {np.median(err):.2f} dB, "
-              f"95th percentile {np.percentile(err, 95):.2f} dB")
+        print(f"  map vs trace at {len(pick)} cell centres: {agreement(mapped, power)}")
         if trace_settings is go:
             _, _, inner = per_link_seconds(scene, tx, inside, go, runtime)
             mean = inner.reshape(len(pick), len(offsets)).mean(axis=1)
-            err = np.abs(10 * np.log10(mapped / mean))
-            print(f"  map vs the mean of {len(offsets)} traced points in each cell: median "
-                  f"{np.median(err):.2f} dB, 95th percentile {np.percentile(err, 95):.2f} dB")
+            print(f"  map vs the mean of {len(offsets)} traced points in each cell: "
+                  f"{agreement(mapped, mean)}")
     return 0
 
 
