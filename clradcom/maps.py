@@ -21,7 +21,10 @@ polarisation with gain 1. For a thin slab this is Sionna's crossing weight
 1 / |cos theta| per crossing; unlike it, a ray that runs along the slab (a radar at the
 map's height) is counted. The sum is incoherent: the mean over the cell of the sum of
 |a_k|^2 over the paths, what :func:`clradcom.trace.trace_scene` gives to a receiver in
-the cell summed incoherently. Mechanisms: line of sight and specular reflections.
+the cell summed incoherently. Mechanisms: line of sight and specular reflections; with
+``MapSettings(scattering=True)`` diffuse scattering (the tracer's Lambertian tiles,
+sampled by diffuse rays) and with ``MapSettings(diffraction=True)`` first-order UTD edge
+diffraction (Keller-cone rays from the lit edges).
 
 The estimate converges where enough segments pass through a cell: at least
 :data:`MIN_SEGMENTS` (``RadioMap.converged``; docs/maps.md, tests/test_maps.py).
@@ -49,16 +52,18 @@ from clradcom.physics.em import C0, fresnel_coefficients, reflected_fields
 from clradcom.physics.vectors import perpendicular
 from clradcom.scene.records import Radar, Scene
 
-__all__ = ["MIN_SEGMENTS", "MapGrid", "MapSettings", "RadioMap", "launch_lattice",
-           "map_memory_bytes", "radio_map"]
+__all__ = ["MIN_SEGMENTS", "MapGrid", "MapSettings", "RadioMap", "find_radar",
+           "launch_lattice", "map_memory_bytes", "radio_map"]
 
 #: The convergence rule: a cell's value is trusted where at least this many ray segments
 #: ran through it (within 1 dB of the per-link tracer there; docs/maps.md).
 MIN_SEGMENTS = 20
 
 #: Host bytes one ray of a batch holds at its peak: float64 origin and direction, the
-#: complex field vector, the 3 x 3 complex reflection dyad and its temporaries, the hit
-#: record and the float32 rows sent to the device (measured by tracemalloc: ~1.1 kB).
+#: complex field vector, the reflection's and the receive projection's temporaries, the
+#: hit record and the float32 rows sent to the device. Measured by tracemalloc on the
+#: street (batches of 2^16 rays, 3 reflections): 520 bytes a ray, 610 with diffraction
+#: (its Keller-cone rounds hold at most a batch of rays); twice that for a margin.
 BYTES_PER_RAY = 1200
 
 
@@ -429,10 +434,13 @@ def _diffract(scene, geom, slab, wedges, tx: Radar, receiver, scale, settings, p
     th, ph = _basis(k_in[idx], rot)
     e_inc = (c_tx[idx, :1] * th + c_tx[idx, 1:] * ph) / s_p[idx, None]
     k = 2.0 * np.pi / scene.wavelength_m
-    for start in range(0, len(idx), 2048):
-        part = idx[start:start + 2048]
-        ei = e_inc[start:start + 2048]
-        step = np.deg2rad(settings.cone_step_deg)
+    step = np.deg2rad(settings.cone_step_deg)
+    # pieces per round: at most a batch of rays (n <= 2: 2 pi / step rays a piece), so the
+    # memory bound of map_memory_bytes holds
+    chunk = max(1, settings.batch // int(np.ceil(2.0 * np.pi / step)))
+    for start in range(0, len(idx), chunk):
+        part = idx[start:start + chunk]
+        ei = e_inc[start:start + chunk]
         n_phi = np.maximum(1, np.ceil(n_w[part] * np.pi / step).astype(np.int64))
         rows = np.repeat(np.arange(len(part)), n_phi)
         first = np.cumsum(n_phi) - n_phi
@@ -485,7 +493,9 @@ def _layer_distance(slab: Slab, origins, directions, lengths) -> np.ndarray:
     return np.maximum(0.5 * (t0 + np.maximum(t1, t0)), 1e-3)
 
 
-def _radar(scene: Scene, which, argument: str) -> Radar | None:
+def find_radar(scene: Scene, which, argument: str) -> Radar | None:
+    """The radar ``which`` of ``scene`` (its name, index or the Radar itself; None stays
+    None), refused naming ``argument`` and the scene's radars."""
     if which is None:
         return None
     if isinstance(which, Radar):
@@ -521,8 +531,8 @@ def radio_map(scene: Scene, tx, grid: MapGrid, rx=None, settings: MapSettings | 
     settings = MapSettings() if settings is None else settings
     if not isinstance(settings, MapSettings):
         raise ArgumentTypeError("must be a MapSettings", argument="settings", value=settings)
-    transmitter = _radar(scene, tx, "tx")
-    receiver = _radar(scene, rx, "rx")
+    transmitter = find_radar(scene, tx, "tx")
+    receiver = find_radar(scene, rx, "rx")
     need = map_memory_bytes(settings, grid)
     check_memory(need, what=f"a radio map of {grid.n_cells} cells with {settings.rays} rays "
                             f"in batches of {settings.batch}",

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from clradcom.errors import ArgumentError
-from clradcom.maps import MapGrid, MapSettings, RadioMap, radio_map
+from clradcom.maps import MapGrid, MapSettings, RadioMap, find_radar, radio_map
 from clradcom.physics.em import C0
 from clradcom.radar.comms import COMMS_MODULATIONS, awgn_error_rates
 from clradcom.radar.processing import get_window
@@ -81,15 +81,10 @@ def _noise_w(radar: Radar, waveform: Waveform, key: str) -> float:
 
 
 def _radar_of(scene: Scene, which, key: str) -> Radar:
-    names = [r.name for r in scene.radars]
-    if isinstance(which, Radar):
-        return which
-    if isinstance(which, str) and which in names:
-        return scene.radars[names.index(which)]
-    if isinstance(which, int) and not isinstance(which, bool) and 0 <= which < len(names):
-        return scene.radars[which]
-    raise ArgumentError(f"is no radar of scene {scene.name!r} (radars: {', '.join(names)})",
-                        argument=key, value=which)
+    radar = find_radar(scene, which, key)
+    if radar is None:
+        raise ArgumentError("names no radar", argument=key, value=which)
+    return radar
 
 
 def enbw(window, length: int) -> float:
