@@ -1,7 +1,7 @@
 """Radio maps of a scene: where the link works, the radar sees, the other radar interferes.
 
     clradcom map scenes/street/street.toml --kind gain --tx A --out out/map
-    clradcom map scenes/street/street.toml --kind sinr --tx A --rx D --interferer D
+    clradcom map scenes/street/street.toml --kind sinr --tx A --rx D [--interferer C]
     clradcom map scenes/street/street.toml --kind radar --tx A --rcs 10
     clradcom map scenes/street/street.toml --kind inr --tx A --interferer D
 
@@ -139,6 +139,8 @@ def check_args(ap: argparse.ArgumentParser, args) -> None:
         ap.error("--kind sinr needs --rx (the radar that decodes the frame)")
     if args.kind == "inr" and args.interferer is None:
         ap.error("--kind inr needs --interferer (the radar that interferes)")
+    if args.interferer is not None and args.interferer == args.tx:
+        ap.error(f"argument --interferer: must be another radar than --tx {args.tx!r}")
     if args.area is not None and len(args.area) != 4:
         ap.error(f"argument --area: needs X0,X1,Y0,Y1 (4 numbers), got {len(args.area)}")
 
