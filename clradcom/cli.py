@@ -5,6 +5,8 @@
     clradcom interference scenes/street/street.toml two radars: interference, cancellation
     clradcom comms scenes/street/street.toml        the A->D data link: BER, SER, EVM
     clradcom cube scenes/street/street_mimo.toml    MIMO array: radar cube, point cloud
+    clradcom map scenes/street/street.toml --kind sinr --rx D
+                                                    radio maps: gain, SINR, radar, INR
     clradcom tradeoff scenes/street/street.toml     speed against accuracy sweep
     clradcom sweep scenes/street/street.toml --preset fast,paper --workers 2
                                                     traces of many settings on Dask
@@ -30,6 +32,7 @@ from clradcom.commands import comms as comms_cmd
 from clradcom.commands import cube as cube_cmd
 from clradcom.commands import drive as drive_cmd
 from clradcom.commands import interference as interference_cmd
+from clradcom.commands import map as map_cmd
 from clradcom.commands import microdoppler as microdoppler_cmd
 from clradcom.commands import radar as radar_cmd
 from clradcom.commands import rcs as rcs_cmd
@@ -113,6 +116,8 @@ SUBCOMMANDS = {
     "cube": ("a radar with an array: TDM-MIMO frame, radar cube, point cloud, truth in "
              "range, velocity and azimuth", cube_cmd.__doc__, cube_cmd.add_arguments, None,
              cube_cmd.run),
+    "map": ("radio maps: received power, link SINR and BER, radar SNR, INR per cell",
+            map_cmd.__doc__, map_cmd.add_arguments, map_cmd.check_args, map_cmd.run),
     "tradeoff": ("sweep the tracer's knobs: run time against accuracy, Pareto front",
                  tradeoff_cmd.__doc__, tradeoff_cmd.add_arguments, None, tradeoff_cmd.run),
     "sweep": ("trace one scene with many settings on Dask workers: a snapshot per setting",

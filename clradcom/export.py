@@ -22,11 +22,13 @@ from pathlib import Path
 import numpy as np
 
 from clradcom.errors import ArgumentError, ArgumentTypeError
-from clradcom.files import atomic_write
+from clradcom.files import atomic_write, write_csv
+from clradcom.maps import MapGrid
 from clradcom.paths import interaction_patterns
 from clradcom.snapshot import FORMAT_VERSION, Snapshot, write_npz
 
-__all__ = ["channel_frequency_response", "mat_variables", "save_mat", "save_sionna",
+__all__ = ["channel_frequency_response", "map_geotransform", "save_map_csv", "save_map_npz",
+           "mat_variables", "save_mat", "save_sionna",
            "sionna_arrays"]
 
 #: Paths summed per block in channel_frequency_response (bounds its temporary memory to
@@ -267,3 +269,56 @@ def save_mat(path: str | os.PathLike, snapshot: Snapshot, *, inputs=()) -> Path:
     and byte-identically for the same snapshot. Returns the path."""
     data = mat_bytes(snapshot)
     return atomic_write(path, lambda fh: fh.write(data), inputs=inputs)
+
+
+# ---------------------------------------------------------------------------------------
+# radio maps
+
+
+def map_geotransform(grid: MapGrid) -> np.ndarray:
+    """GDAL's six-number affine geotransform of a map's rows and columns (GeoTIFF's
+    georeference): x = g0 + col g1 + row g2, y = g3 + col g4 + row g5 at a cell's corner,
+    here in the scene's own metres (row 0 is y_min: a north-up raster reads it flipped)."""
+    return np.array([grid.x_min, grid.cell_m, 0.0, grid.y_min, 0.0, grid.cell_m])
+
+
+def _map_layers(layers: dict, grid: MapGrid) -> list[tuple[str, np.ndarray]]:
+    out = []
+    for name, values in layers.items():
+        arr = np.asarray(values)
+        if arr.shape != (grid.ny, grid.nx):
+            raise ArgumentError(f"must be a (ny, nx) = ({grid.ny}, {grid.nx}) array",
+                                argument=f"layers[{name!r}]", value=arr.shape)
+        out.append((name, arr))
+    return out
+
+
+def save_map_npz(path: str | os.PathLike, grid: MapGrid, layers: dict, *,
+                 metadata: dict | None = None, inputs=()) -> Path:
+    """A map's (ny, nx) ``layers`` (name -> array) with its georeference: ``x_centres``,
+    ``y_centres``, ``geotransform`` (:func:`map_geotransform`), ``height_m``,
+    ``thickness_m``, and ``metadata`` as ``meta.<key>`` strings; plain ``numpy.load``
+    reads it; written atomically, identical bytes for identical maps."""
+    entries = [("x_centres", grid.x_centres), ("y_centres", grid.y_centres),
+               ("geotransform", map_geotransform(grid)),
+               ("height_m", np.array(float(grid.height_m))),
+               ("thickness_m", np.array(float(grid.thickness)))]
+    entries += _map_layers(layers, grid)
+    entries += [(f"meta.{k}", np.array(str(v))) for k, v in sorted((metadata or {}).items())]
+    return atomic_write(path, lambda fh: write_npz(fh, entries), inputs=inputs)
+
+
+def save_map_csv(path: str | os.PathLike, grid: MapGrid, layers: dict, *,
+                 inputs=()) -> Path:
+    """One row per cell: x, y, z of its centre (m) and each layer's value (NaN written
+    as ``nan``), cells in row-major order from (x_min, y_min)."""
+    named = _map_layers(layers, grid)
+    centres = grid.centres().reshape(-1, 3)
+    columns = [np.asarray(a).reshape(-1) for _, a in named]
+    rows = []
+    for i, (x, y, z) in enumerate(centres):
+        rows.append([f"{x:.4f}", f"{y:.4f}", f"{z:.4f}",
+                     *(f"{c[i]:.6g}" if np.issubdtype(c.dtype, np.floating) else str(c[i])
+                       for c in columns)])
+    return write_csv(path, rows, ["x_m", "y_m", "z_m", *(n for n, _ in named)],
+                     inputs=inputs)

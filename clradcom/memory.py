@@ -8,7 +8,7 @@ import os
 from clradcom.errors import ArgumentError, MemoryBudgetError
 
 __all__ = ["ENV_MEMORY_BUDGET", "MEMORY_SHARE", "check_memory", "format_bytes",
-           "memory_budget_bytes"]
+           "memory_budget_bytes", "parse_bytes"]
 
 
 #: environment variable that sets the memory budget: bytes, or a number with a binary
@@ -35,6 +35,23 @@ def _physical_memory() -> int | None:
         return None
 
 
+def parse_bytes(text: str, argument: str) -> int:
+    """A number of bytes written as ``24G``, ``512M``, ``1.5GiB`` or plain bytes; anything
+    else is refused naming ``argument``."""
+    text = str(text).strip()
+    number, suffix = text.upper().rstrip("IB"), ""
+    if number[-1:] in _SUFFIXES:
+        number, suffix = number[:-1], number[-1]
+    try:
+        value = float(number) * _SUFFIXES[suffix]
+    except ValueError:
+        value = -1.0
+    if not 0 < value < float("inf"):
+        raise ArgumentError("must be a positive number of bytes, optionally with K, M, "
+                            "G or T (e.g. 24G)", argument=argument, value=text)
+    return int(value)
+
+
 def memory_budget_bytes(budget_bytes: float | None = None) -> tuple[int | None, str]:
     """(bytes one computation may plan to hold, where that number comes from).
 
@@ -50,17 +67,7 @@ def memory_budget_bytes(budget_bytes: float | None = None) -> tuple[int | None, 
         return int(budget_bytes), "the budget given"
     text = os.environ.get(ENV_MEMORY_BUDGET, "").strip()
     if text:
-        number, suffix = text.upper().rstrip("IB"), ""
-        if number[-1:] in _SUFFIXES:
-            number, suffix = number[:-1], number[-1]
-        try:
-            value = float(number) * _SUFFIXES[suffix]
-        except ValueError:
-            value = -1.0
-        if not 0 < value < float("inf"):
-            raise ArgumentError("must be a positive number of bytes, optionally with K, M, "
-                                "G or T (e.g. 24G)", argument=ENV_MEMORY_BUDGET, value=text)
-        return int(value), f"{ENV_MEMORY_BUDGET}={text}"
+        return parse_bytes(text, ENV_MEMORY_BUDGET), f"{ENV_MEMORY_BUDGET}={text}"
     physical = _physical_memory()
     if physical is None:  # pragma: no cover - not POSIX
         return None, "unknown"

@@ -9,7 +9,7 @@ from clradcom.errors import ArgumentError
 from clradcom.figures import new_figure
 from clradcom.files import save_figure
 
-__all__ = ["MATERIAL_PALETTE", "material_colors", "plot_top_view"]
+__all__ = ["MATERIAL_PALETTE", "material_colors", "plot_radio_map", "plot_top_view"]
 
 #: Colours (RGB, 0-1) of the scene's materials in their scene order, repeating after the
 #: last: muted, told apart from one another and from the paths' viridis colours.
@@ -85,6 +85,61 @@ def plot_top_view(scene, snapshot, link=None, n_paths: int = 20, path=None, *, i
     if handles:
         fig.legend(handles=handles, title="material", loc="outside lower center",
                    ncols=min(len(handles), 6), fontsize="small")
+    if path is not None:
+        save_figure(fig, path, inputs=inputs, dpi=150)
+    return fig
+
+
+def plot_radio_map(scene, grid, values_db, *, label: str, title: str = "",
+                   converged=None, cmap: str = "viridis", path=None, inputs=()):
+    """A radio map (``values_db`` (ny, nx) over ``grid``, a :class:`clradcom.maps.MapGrid`)
+    drawn over the scene's top view: the cells in a perceptually uniform colour map
+    (viridis, or cividis) with a colour bar in dB labelled ``label``; cells without a
+    value (NaN) left blank and those under the convergence rule (``converged`` False)
+    drawn faded; the objects that stand above the map's layer outlined in grey; the radars
+    marked and named. Returns the Figure; writes it to ``path`` when given
+    (:func:`clradcom.files.save_figure`)."""
+    from matplotlib.collections import PolyCollection
+
+    values = np.asarray(values_db, dtype=np.float64)
+    if values.shape != (grid.ny, grid.nx):
+        raise ArgumentError(f"must be a (ny, nx) = ({grid.ny}, {grid.nx}) array",
+                            argument="values_db", value=values.shape)
+    if cmap not in ("viridis", "cividis", "magma", "inferno", "plasma"):
+        raise ArgumentError("must be a perceptually uniform colour map (viridis, cividis, "
+                            "magma, inferno, plasma)", argument="cmap", value=cmap)
+    width = grid.nx * grid.cell_m
+    height = grid.ny * grid.cell_m
+    fig = new_figure(figsize=(min(14.0, 3.0 + 10.0 * max(width / height, 0.4)), 5),
+                     layout="constrained")
+    ax = fig.add_subplot()
+    finite = values[np.isfinite(values)]
+    shown = np.ma.masked_invalid(values)
+    vmin, vmax = (np.percentile(finite, 1), finite.max()) if finite.size else (0.0, 1.0)
+    image = ax.imshow(shown, origin="lower", extent=grid.extent(), cmap=cmap,
+                      vmin=vmin, vmax=vmax, interpolation="nearest")
+    if converged is not None:
+        faded = np.zeros((grid.ny, grid.nx, 4))
+        faded[..., :3] = 1.0
+        faded[..., 3] = np.where(np.asarray(converged, bool) | ~np.isfinite(values), 0.0, 0.6)
+        ax.imshow(faded, origin="lower", extent=grid.extent(), interpolation="nearest")
+    fig.colorbar(image, ax=ax, label=label, shrink=0.9)
+    tri = np.asarray(scene.triangles)
+    if len(tri):
+        above = tri[:, :, 2].max(axis=1) > grid.height_m - 0.5 * grid.thickness
+        ax.add_collection(PolyCollection(tri[above, :, :2], facecolors="none",
+                                         edgecolors=(0.3, 0.3, 0.3, 0.5), linewidths=0.3))
+    for r in scene.radars:
+        ax.plot(*r.position[:2], marker="^", color="red", markeredgecolor="white")
+        ax.annotate(r.name, r.position[:2], textcoords="offset points", xytext=(4, 4),
+                    color="red")
+    left, right, bottom, top = grid.extent()
+    ax.set_xlim(left, right)
+    ax.set_ylim(bottom, top)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_title(title or f"{scene.name}: {label}")
     if path is not None:
         save_figure(fig, path, inputs=inputs, dpi=150)
     return fig

@@ -23,7 +23,8 @@ from clradcom.files import atomic_write
 from clradcom.paths import interaction_patterns
 from clradcom.plots import material_colors
 
-__all__ = ["Y_UP", "glb_bytes", "html_page", "save_glb", "save_html", "view_data"]
+__all__ = ["Y_UP", "glb_bytes", "html_page", "map_quads", "save_glb", "save_html",
+           "view_data"]
 
 #: glTF node transform of every geometry: the scene's z-up to glTF's y-up.
 Y_UP = np.array([[1.0, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]])
@@ -162,17 +163,56 @@ def _hex(rgb) -> str:
     return "#" + "".join(f"{int(round(255 * float(c))):02x}" for c in rgb)
 
 
-def page_payload(scene, snapshot=None, link=None, n_paths: int = 50) -> dict:
+def map_quads(grid, values_db, cmap: str = "viridis"):
+    """(triangles (2C, 3, 3) float, rgb (2C, 3) in 0..1, (vmin, vmax)) of a radio map's
+    cells that hold a value: two triangles per cell at the layer's height, coloured by
+    ``cmap`` over the values' 1st percentile to maximum (as
+    :func:`clradcom.plots.plot_radio_map` scales them)."""
+    from matplotlib import colormaps
+
+    values = np.asarray(values_db, dtype=np.float64)
+    if values.shape != (grid.ny, grid.nx):
+        raise ArgumentError(f"must be a (ny, nx) = ({grid.ny}, {grid.nx}) array",
+                            argument="values_db", value=values.shape)
+    iy, ix = np.nonzero(np.isfinite(values))
+    if not len(iy):
+        return np.zeros((0, 3, 3)), np.zeros((0, 3)), (0.0, 0.0)
+    v = values[iy, ix]
+    lo, hi = float(np.percentile(v, 1)), float(v.max())
+    x0 = grid.x_min + grid.cell_m * ix
+    y0 = grid.y_min + grid.cell_m * iy
+    x1, y1 = x0 + grid.cell_m, y0 + grid.cell_m
+    z = np.full_like(x0, grid.height_m)
+    corners = [np.stack([a, b, z], axis=1) for a, b in ((x0, y0), (x1, y0), (x1, y1),
+                                                         (x0, y1))]
+    tri = np.concatenate([np.stack([corners[0], corners[1], corners[2]], axis=1),
+                          np.stack([corners[0], corners[2], corners[3]], axis=1)])
+    rgb = colormaps[cmap](np.clip((v - lo) / max(hi - lo, 1e-12), 0.0, 1.0))[:, :3]
+    return tri, np.concatenate([rgb, rgb]), (lo, hi)
+
+
+def page_payload(scene, snapshot=None, link=None, n_paths: int = 50,
+                 radio_map=None) -> dict:
     """The JSON the page embeds: little-endian float32 positions and uint8 colours as
     base64 (``tri``: T x 9 floats, ``tri_rgb``: T x 3 bytes, ``seg``: S x 6 floats,
-    ``seg_rgb``: S x 3 bytes, ``radar``: R x 3 floats), names and the legend."""
+    ``seg_rgb``: S x 3 bytes, ``radar``: R x 3 floats), names and the legend; with
+    ``radio_map`` = (grid, values_db, label) also the map's cells as unlit coloured
+    quads (``map``, ``map_rgb``, ``map_label``, ``map_range``: :func:`map_quads`)."""
     d = view_data(scene, snapshot, link, n_paths)
     segs = [np.stack([line[:-1], line[1:]], axis=1) for line in d["paths"]]
     seg = np.concatenate(segs).reshape(-1, 6) if segs else np.zeros((0, 6))
     seg_rgb = (np.concatenate([np.repeat(rgb[None], len(s), axis=0) for rgb, s in
                                zip(d["path_rgb"], segs, strict=True)])
                if segs else np.zeros((0, 3)))
+    extra = {"map": "", "map_rgb": "", "map_label": "", "map_range": []}
+    if radio_map is not None:
+        grid, values_db, label = radio_map
+        quads, rgb, (lo, hi) = map_quads(grid, values_db)
+        extra = {"map": _b64(quads.reshape(-1, 9), "<f4"),
+                 "map_rgb": _b64(np.round(rgb * 255), np.uint8), "map_label": str(label),
+                 "map_range": [lo, hi] if len(quads) else []}
     return {
+        **extra,
         "title": scene.name,
         "link": d["link"],
         "tri": _b64(d["triangles"].reshape(-1, 9), "<f4"),
@@ -211,10 +251,12 @@ function bytes(s){const b=atob(s),u=new Uint8Array(b.length);
   for(let i=0;i<b.length;i++)u[i]=b.charCodeAt(i);return u;}
 function f32(s){return new Float32Array(bytes(s).buffer);}
 const tri=f32(D.tri), triRgb=bytes(D.tri_rgb), seg=f32(D.seg), segRgb=bytes(D.seg_rgb),
-  radar=f32(D.radar);
+  radar=f32(D.radar), cells=f32(D.map), cellRgb=bytes(D.map_rgb);
 let lg=D.legend.map(m=>`<div><i style="background:${m[1]}"></i>${esc(m[0])}</div>`).join("");
 if(D.paths){lg+=`<div>${D.paths} strongest paths of ${esc(D.link)}, gain (dB)</div>`+
   `<div id="bar"></div><div>${D.db_range[0].toFixed(1)} .. ${D.db_range[1].toFixed(1)}</div>`;}
+if(D.map_range.length){lg+=`<div>radio map: ${esc(D.map_label)}</div><div id="bar"></div>`+
+  `<div>${D.map_range[0].toFixed(1)} .. ${D.map_range[1].toFixed(1)}</div>`;}
 lg+=D.radar_names.map(n=>`<div><i style="background:#e61e1e"></i>radar ${esc(n)}</div>`)
   .join("");
 document.getElementById("legend").innerHTML=lg;
@@ -222,7 +264,7 @@ function esc(t){return String(t).replace(/[&<>"]/g,c=>({"&":"&amp;","<":"&lt;","
   '"':"&quot;"}[c]));}
 // bounds of everything drawn
 let lo=[1e30,1e30,1e30], hi=[-1e30,-1e30,-1e30];
-for(const a of [tri,seg,radar])for(let i=0;i<a.length;i+=3)for(let k=0;k<3;k++){
+for(const a of [tri,seg,radar,cells])for(let i=0;i<a.length;i+=3)for(let k=0;k<3;k++){
   lo[k]=Math.min(lo[k],a[i+k]);hi[k]=Math.max(hi[k],a[i+k]);}
 if(lo[0]>hi[0]){lo=[-1,-1,-1];hi=[1,1,1];}
 let centre=[0,1,2].map(k=>(lo[k]+hi[k])/2);
@@ -242,6 +284,9 @@ for(let s=0;s<ns;s++)for(let j=0;j<2;j++)for(let k=0;k<3;k++){
 const nr=radar.length/3, rp=new Float32Array(nr*3), rc=new Float32Array(nr*3);
 for(let r=0;r<nr;r++)for(let k=0;k<3;k++){rp[3*r+k]=radar[3*r+k]-centre[k];
   rc[3*r+k]=[0.9,0.12,0.12][k];}
+const nm=cells.length/9, mp=new Float32Array(nm*9), mc=new Float32Array(nm*9);
+for(let t=0;t<nm;t++)for(let j=0;j<3;j++)for(let k=0;k<3;k++){
+  mp[9*t+3*j+k]=cells[9*t+3*j+k]-centre[k];mc[9*t+3*j+k]=cellRgb[3*t+k]/255;}
 const canvas=document.getElementById("view");
 const gl=canvas.getContext("webgl",{antialias:true});
 if(!gl){document.getElementById("legend").innerHTML+="<p>WebGL is not available.</p>";}
@@ -256,10 +301,11 @@ const prog=gl.createProgram();gl.attachShader(prog,shader(gl.VERTEX_SHADER,VS));
 gl.attachShader(prog,shader(gl.FRAGMENT_SHADER,FS));gl.linkProgram(prog);gl.useProgram(prog);
 function buffer(a){const b=gl.createBuffer();gl.bindBuffer(gl.ARRAY_BUFFER,b);
   gl.bufferData(gl.ARRAY_BUFFER,a,gl.STATIC_DRAW);return b;}
-const zero=new Float32Array(Math.max(ns*6,nr*3,3));
+const zero=new Float32Array(Math.max(ns*6,nr*3,nm*9,3));
 const parts=[[gl.TRIANGLES,buffer(tp),buffer(tn),buffer(tc),nt*3,1],
   [gl.LINES,buffer(sp),buffer(zero),buffer(sc),ns*2,0],
-  [gl.POINTS,buffer(rp),buffer(zero),buffer(rc),nr,0]];
+  [gl.POINTS,buffer(rp),buffer(zero),buffer(rc),nr,0],
+  [gl.TRIANGLES,buffer(mp),buffer(zero),buffer(mc),nm*3,0]];
 function attr(name,buf){const loc=gl.getAttribLocation(prog,name);
   gl.bindBuffer(gl.ARRAY_BUFFER,buf);gl.enableVertexAttribArray(loc);
   gl.vertexAttribPointer(loc,3,gl.FLOAT,false,0,0);}
@@ -303,17 +349,19 @@ draw();
 """
 
 
-def html_page(scene, snapshot=None, link=None, n_paths: int = 50) -> str:
+def html_page(scene, snapshot=None, link=None, n_paths: int = 50, radio_map=None) -> str:
     """A self-contained HTML page that draws the scene and paths with WebGL: the data
-    inline (:func:`page_payload` as JSON), the viewer inline, no external URL."""
-    payload = json.dumps(page_payload(scene, snapshot, link, n_paths), separators=(",", ":"))
+    inline (:func:`page_payload` as JSON), the viewer inline, no external URL; with
+    ``radio_map`` = (grid, values_db, label) the map as a coloured plane in the scene."""
+    payload = json.dumps(page_payload(scene, snapshot, link, n_paths, radio_map),
+                         separators=(",", ":"))
     payload = payload.replace("</", "<\\/")  # never close the script element early
     title = html.escape(f"{scene.name}: scene and paths")
     return _PAGE.replace("@TITLE@", title).replace("@DATA@", payload)
 
 
 def save_html(path: str | os.PathLike, scene, snapshot=None, link=None, n_paths: int = 50,
-              *, inputs=()) -> Path:
+              *, radio_map=None, inputs=()) -> Path:
     """Write :func:`html_page` to ``path`` (UTF-8) atomically. Returns the path."""
-    data = html_page(scene, snapshot, link, n_paths).encode("utf-8")
+    data = html_page(scene, snapshot, link, n_paths, radio_map).encode("utf-8")
     return atomic_write(path, lambda fh: fh.write(data), inputs=inputs)

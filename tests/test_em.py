@@ -7,6 +7,7 @@ roughness, §4 Doppler, §6 canonical cases); formulas in docs/physics.md.
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -19,15 +20,18 @@ from clradcom.physics.em import (
     delay_s,
     doppler_hz,
     fresnel_coefficients,
+    material_reflection_dyad,
     path_directions,
     path_gains,
     path_transfer,
     polarimetric_matrix,
+    reflected_fields,
     reflection_dyad,
     roughness_factor,
 )
 from clradcom.scene.antenna import IsotropicPattern, SectorPattern, euler_deg_to_matrix
 from clradcom.scene.antenna import polarization_jones as jones
+from clradcom.scene.reader import load_scene
 from clradcom.scene.records import Radar
 
 F_C = 24e9
@@ -666,3 +670,20 @@ def test_doppler_padding_and_shapes():
     assert L[0] == 10.0 and np.all(np.isfinite(T))
     with pytest.raises(ValueError, match="NaN"):
         doppler_hz(pts_nan, vel, LAM)
+
+
+def test_reflected_fields_apply_the_material_dyad_without_forming_it():
+    """em.reflected_fields (radio maps' bounce) equals material_reflection_dyad @ E for
+    every material of the street, random incidences and normal incidence alike."""
+    scene = load_scene(Path(__file__).resolve().parent.parent / "scenes/street/street.toml")
+    rng = np.random.default_rng(0)
+    k = rng.normal(size=(500, 3))
+    k /= np.linalg.norm(k, axis=1)[:, None]
+    n = rng.normal(size=(500, 3))
+    n /= np.linalg.norm(n, axis=1)[:, None]
+    n[:5] = -k[:5]
+    mat = rng.integers(0, len(scene.materials), 500)
+    field = rng.normal(size=(500, 3)) + 1j * rng.normal(size=(500, 3))
+    expected = np.einsum("rij,rj->ri", material_reflection_dyad(scene, mat, k, n), field)
+    assert np.allclose(reflected_fields(scene, mat, k, n, field), expected, rtol=0,
+                       atol=1e-14)

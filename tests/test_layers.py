@@ -9,7 +9,8 @@ Layers, low to high (a module may import its own layer and those below):
     scene                  records, reader, materials, antennas, procedural models
     device                 OpenCL runtime, ray caster, visibility
     physics                Fresnel/roughness dyads, UTD, PO integrals
-    mechanisms             specular, diffraction, physical optics/SBR, scattering
+    mechanisms, maps       specular, diffraction, physical optics/SBR, scattering;
+                           radio maps by shooting rays into cells
     snapshot, export       the file; .mat and Sionna-style exports
     trace, presets, series the orchestrator, its named settings, path series over time
     distributed            many traces (a sweep, a drive) as tasks on Dask workers
@@ -33,7 +34,7 @@ LAYERS = [
     {"clradcom.scene"},
     {"clradcom.device"},
     {"clradcom.physics"},
-    {"clradcom.mechanisms"},
+    {"clradcom.mechanisms", "clradcom.maps"},
     {"clradcom.snapshot", "clradcom.export"},
     {"clradcom.trace", "clradcom.presets", "clradcom.series"},
     {"clradcom.distributed"},

@@ -55,6 +55,7 @@ __all__ = [
     "boithias",
     "roughness_factor",
     "reflection_dyad",
+    "reflected_fields",
     "path_segments",
     "path_directions",
     "path_transfer",
@@ -234,6 +235,38 @@ def material_reflection_dyad(scene, material, k_in, normal):
                            scene.material_roughness_model[mat])
     rho = rho * np.sqrt(1.0 - scene.material_scattering[mat] ** 2)
     return reflection_dyad(k_in, n, rho * r_te, rho * r_tm)
+
+
+def reflected_fields(scene, material, k_in, normal, field):
+    """The field vectors (P, 3) complex after one specular reflection off faces of scene
+    materials ``material`` (P,): :func:`material_reflection_dyad` applied to ``field``
+    (P, 3) without forming the dyads,
+    r_perp rho (e_perp . E) e_perp + r_par rho (e_par,i . E) e_par,r (eq. P3), for many
+    rays at once (radio maps). ``k_in`` and ``normal`` unit (P, 3)."""
+    mat = np.asarray(material)
+    k = np.asarray(k_in, dtype=np.float64)
+    n = np.asarray(normal, dtype=np.float64)
+    kn = np.einsum("ij,ij->i", k, n)
+    cos_t = np.abs(kn)
+    r_te, r_tm = fresnel_coefficients(scene.material_eps_r[mat], cos_t,
+                                      scene.material_pec[mat])
+    rho = roughness_factor(scene.material_roughness_m[mat], cos_t,
+                           2.0 * np.pi / scene.wavelength_m,
+                           scene.material_roughness_model[mat])
+    rho = rho * np.sqrt(1.0 - scene.material_scattering[mat] ** 2)
+    n = np.where(kn[:, None] > 0, -n, n)  # face the incoming ray
+    k_r = k + 2.0 * cos_t[:, None] * n
+    x = cross(k, n)
+    sx = np.linalg.norm(x, axis=-1)
+    normal_inc = sx < _NORMAL_INCIDENCE_TOL
+    e_perp = np.where(normal_inc[:, None], perpendicular(n),
+                      x / np.where(normal_inc, 1.0, sx)[:, None])
+    e_par_i = cross(e_perp, k)
+    e_par_r = cross(e_perp, k_r)
+    E = np.asarray(field, dtype=np.complex128)
+    along_perp = (rho * r_te) * np.einsum("ij,ij->i", e_perp, E)
+    along_par = (rho * r_tm) * np.einsum("ij,ij->i", e_par_i, E)
+    return along_perp[:, None] * e_perp + along_par[:, None] * e_par_r
 
 
 # ---------------------------------------------------------------------------

@@ -1,0 +1,601 @@
+"""Radio maps: one transmitter's path gain over a grid of cells, by shooting rays.
+
+Not one link per cell: rays leave the transmitter over its pattern's support, each ray
+tube carrying the solid angle dOmega of its lattice cell, and bounce specularly off the
+scene (closest hits on the device, the polarimetric Fresnel dyad of each face's material
+as the tracer applies it: :func:`clradcom.physics.em.reflected_fields`). Every
+segment of every ray is then accumulated on the device into the cells of a measurement
+slab (:func:`clradcom.device.maps.accumulate_segments`): a horizontal layer of thickness
+``thickness_m`` centred on ``height_m``, clipped to a rectangle. The estimator
+(docs/maps.md) is the track-length form of the ray-density one Sionna RT's radio maps
+use: a tube of a ray with field vector E carries the power
+(lambda / 4 pi)^2 |p(E)|^2 dOmega / L^2 per unit cross-section at unfolded length L, its
+cross-section is dOmega L^2, so inside a cell of volume V it adds
+
+    g += (lambda / 4 pi)^2 |p(E)|^2 dOmega * (length of the segment inside the cell) / V
+
+to the cell's mean path gain, L cancelling; p(E) is the receiver's projection (its
+pattern and polarisation at the arrival direction, the bilinear form of
+:func:`clradcom.physics.em.path_gains`) or |E|^2 for a receiver that takes every
+polarisation with gain 1. For a thin slab this is Sionna's crossing weight
+1 / |cos theta| per crossing; unlike it, a ray that runs along the slab (a radar at the
+map's height) is counted. The sum is incoherent: the mean over the cell of the sum of
+|a_k|^2 over the paths, what :func:`clradcom.trace.trace_scene` gives to a receiver in
+the cell summed incoherently. Mechanisms: line of sight and specular reflections; with
+``MapSettings(scattering=True)`` diffuse scattering (the tracer's Lambertian tiles,
+sampled by diffuse rays) and with ``MapSettings(diffraction=True)`` first-order UTD edge
+diffraction (Keller-cone rays from the lit edges).
+
+The estimate converges where enough segments pass through a cell: at least
+:data:`MIN_SEGMENTS` (``RadioMap.converged``; docs/maps.md, tests/test_maps.py).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from clradcom.device.maps import Slab, accumulate_segments
+from clradcom.device.raycast import make_rays, spawn_origins
+from clradcom.device.runtime import Runtime
+from clradcom.errors import ArgumentError, ArgumentTypeError
+from clradcom.mechanisms import diffraction
+from clradcom.mechanisms.common import Geometry, build_geometry, check_number
+from clradcom.mechanisms.diffraction import DiffractionSettings
+from clradcom.mechanisms.specular import fibonacci_cap, fibonacci_sphere
+from clradcom.memory import check_memory
+from clradcom.physics import utd
+from clradcom.physics.em import C0, fresnel_coefficients, reflected_fields
+from clradcom.physics.vectors import perpendicular
+from clradcom.scene.records import Radar, Scene
+
+__all__ = ["MIN_SEGMENTS", "MapGrid", "MapSettings", "RadioMap", "find_radar",
+           "launch_lattice", "map_memory_bytes", "radio_map"]
+
+#: The convergence rule: a cell's value is trusted where at least this many ray segments
+#: ran through it (within 1 dB of the per-link tracer there; docs/maps.md).
+MIN_SEGMENTS = 20
+
+#: Host bytes one ray of a batch holds at its peak: float64 origin and direction, the
+#: complex field vector, the reflection's and the receive projection's temporaries, the
+#: hit record and the float32 rows sent to the device. Measured by tracemalloc on the
+#: street (batches of 2^16 rays, 3 reflections): 520 bytes a ray, 610 with diffraction
+#: (its Keller-cone rounds hold at most a batch of rays); twice that for a margin.
+BYTES_PER_RAY = 1200
+
+
+@dataclass(frozen=True)
+class MapSettings:
+    """How densely and how deep a radio map shoots."""
+
+    rays: int = 1_000_000  #: launched over the transmit pattern's support
+    max_reflections: int = 2
+    line_of_sight: bool = True
+    #: diffuse (Lambertian) scattering off materials with a scattering coefficient S > 0
+    #: (the tracer's model, docs/scattering.md): every hit on such a face sends
+    #: ``diffuse_rays`` rays into the hemisphere, cosine-weighted, sharing S^2 Gamma^2 of
+    #: the tube's power; they reach the layer directly (no reflection after the tile)
+    scattering: bool = False
+    #: specular reflections a ray may have had before it scatters (as the tracer's
+    #: ScatteringSettings.max_reflections for the reflection before the tile)
+    scattering_reflections: int = 0
+    diffuse_rays: int = 4
+    #: first-order UTD edge diffraction from the transmitter (the tracer's wedges and
+    #: coefficients, docs/utd.md): every wedge the transmitter lights is sampled every
+    #: ``edge_step_m`` and each sample sends rays around its Keller cone every
+    #: ``cone_step_deg`` of the exterior angle
+    diffraction: bool = False
+    edge_step_m: float = 0.05
+    cone_step_deg: float = 1.0
+    seed: int = 0  #: of the diffuse rays' directions and nothing else
+    batch: int = 1 << 18  #: rays traced together (host memory: BYTES_PER_RAY each)
+
+    def __post_init__(self):
+        check_number("MapSettings", "rays", self.rays, low=1, integer=True)
+        check_number("MapSettings", "max_reflections", self.max_reflections, low=0,
+                     high=16, integer=True)
+        check_number("MapSettings", "batch", self.batch, low=1, integer=True)
+        for name in ("line_of_sight", "scattering"):
+            if not isinstance(getattr(self, name), bool):
+                raise ArgumentError("must be True or False", argument=f"MapSettings.{name}",
+                                    value=getattr(self, name))
+        check_number("MapSettings", "scattering_reflections", self.scattering_reflections,
+                     low=0, high=16, integer=True)
+        check_number("MapSettings", "diffuse_rays", self.diffuse_rays, low=1, high=1024,
+                     integer=True)
+        check_number("MapSettings", "seed", self.seed, low=0, integer=True)
+        if not isinstance(self.diffraction, bool):
+            raise ArgumentError("must be True or False", argument="MapSettings.diffraction",
+                                value=self.diffraction)
+        check_number("MapSettings", "edge_step_m", self.edge_step_m, low=0.0, low_open=True)
+        check_number("MapSettings", "cone_step_deg", self.cone_step_deg, low=0.0,
+                     high=90.0, low_open=True)
+
+
+@dataclass(frozen=True)
+class MapGrid:
+    """The measurement surface: cells of ``cell_m`` from (x_min, y_min) covering the
+    rectangle up to (x_max, y_max) (the last row and column may reach past it, by less
+    than a cell), in a horizontal layer ``thickness_m`` thick (None: ``cell_m``)
+    centred on ``height_m``."""
+
+    x_min: float
+    x_max: float
+    y_min: float
+    y_max: float
+    height_m: float
+    cell_m: float = 0.5
+    thickness_m: float | None = None
+
+    def __post_init__(self):
+        for name in ("x_min", "x_max", "y_min", "y_max", "height_m"):
+            check_number("MapGrid", name, getattr(self, name))
+        check_number("MapGrid", "cell_m", self.cell_m, low=0.0, low_open=True)
+        if self.thickness_m is not None:
+            check_number("MapGrid", "thickness_m", self.thickness_m, low=0.0, low_open=True)
+        if not (self.x_max > self.x_min and self.y_max > self.y_min):
+            raise ArgumentError("the rectangle must have x_max > x_min and y_max > y_min",
+                                argument="MapGrid", value=(self.x_min, self.x_max,
+                                                           self.y_min, self.y_max))
+
+    @property
+    def nx(self) -> int:
+        return max(1, math.ceil((self.x_max - self.x_min) / self.cell_m - 1e-9))
+
+    @property
+    def ny(self) -> int:
+        return max(1, math.ceil((self.y_max - self.y_min) / self.cell_m - 1e-9))
+
+    @property
+    def n_cells(self) -> int:
+        return self.nx * self.ny
+
+    @property
+    def thickness(self) -> float:
+        return self.cell_m if self.thickness_m is None else float(self.thickness_m)
+
+    @property
+    def x_centres(self) -> np.ndarray:
+        return self.x_min + self.cell_m * (np.arange(self.nx) + 0.5)
+
+    @property
+    def y_centres(self) -> np.ndarray:
+        return self.y_min + self.cell_m * (np.arange(self.ny) + 0.5)
+
+    def centres(self) -> np.ndarray:
+        """(ny, nx, 3) world centres of the cells."""
+        x, y = np.meshgrid(self.x_centres, self.y_centres)
+        return np.stack([x, y, np.full_like(x, self.height_m)], axis=-1)
+
+    def slab(self) -> Slab:
+        half = 0.5 * self.thickness
+        return Slab(x0=float(self.x_min), y0=float(self.y_min), cell_x=float(self.cell_m),
+                    cell_y=float(self.cell_m), nx=self.nx, ny=self.ny,
+                    z_lo=float(self.height_m) - half, z_hi=float(self.height_m) + half)
+
+    def extent(self) -> tuple[float, float, float, float]:
+        """(left, right, bottom, top) of the cells, for imshow."""
+        return (self.x_min, self.x_min + self.nx * self.cell_m,
+                self.y_min, self.y_min + self.ny * self.cell_m)
+
+
+@dataclass
+class RadioMap:
+    """A map's cells: ``gain`` (ny, nx) the mean path gain over each cell (linear, both
+    antennas' patterns inside), ``count`` (ny, nx) the ray segments through it."""
+
+    grid: MapGrid
+    gain: np.ndarray
+    count: np.ndarray
+    tx_name: str
+    rx_name: str | None  #: whose antenna receives; None: gain 1, every polarisation
+    rays: int  #: launched
+    tx_power_w: float = 1.0
+
+    @property
+    def converged(self) -> np.ndarray:
+        """(ny, nx) bool: cells that satisfy the convergence rule (:data:`MIN_SEGMENTS`)."""
+        return self.count >= MIN_SEGMENTS
+
+    def gain_db(self, floor_db: float = -300.0) -> np.ndarray:
+        with np.errstate(divide="ignore"):
+            return np.maximum(10.0 * np.log10(self.gain), floor_db)
+
+    @property
+    def received_power_w(self) -> np.ndarray:
+        return self.tx_power_w * self.gain
+
+
+def launch_lattice(n_rays: int, pattern) -> tuple[np.ndarray, float]:
+    """(local directions (R, 3), solid angle per ray sr): a Fibonacci lattice of about
+    ``n_rays`` directions where ``pattern`` (None: isotropic) radiates, every ray
+    standing for the same solid angle of the cap around boresight (+x) that holds the
+    pattern's support (as :func:`clradcom.mechanisms.specular.launch_directions` lays
+    it), the directions of zero gain dropped."""
+    if pattern is None:
+        return fibonacci_sphere(n_rays), 4.0 * np.pi / n_rays
+    probe = fibonacci_sphere(1 << 16)
+    inside = np.asarray(pattern.gain(probe)) > 0
+    if not inside.any():
+        raise ArgumentError("the transmit pattern has zero gain everywhere",
+                            argument="pattern", value=pattern.kind)
+    spacing = np.sqrt(4.0 * np.pi / len(probe))
+    half_angle = min(np.pi, float(np.arccos(probe[inside, 0].min())) + 2.0 * spacing)
+    in_cap = probe[:, 0] >= np.cos(half_angle)
+    share = float(inside[in_cap].mean())
+    n_cap = int(np.ceil(n_rays / share))
+    local = fibonacci_cap(n_cap, half_angle)
+    solid_angle = 2.0 * np.pi * (1.0 - np.cos(half_angle)) / n_cap
+    return local[np.asarray(pattern.gain(local)) > 0], solid_angle
+
+
+def map_memory_bytes(settings: MapSettings, grid: MapGrid) -> int:
+    """Host memory a map holds at its peak: a batch of rays (:data:`BYTES_PER_RAY` each),
+    the launch lattice (24 bytes a ray), and the grid's float64 sums, int64 counts and
+    float32/int32 device copies (24 bytes a cell)."""
+    return (min(settings.batch, settings.rays) * BYTES_PER_RAY + 24 * settings.rays
+            + 24 * grid.n_cells)
+
+
+def _rotate(v, m) -> np.ndarray:
+    """v @ m for (R, 3) rows and a 3 x 3 matrix, by einsum: BLAS's threaded matmul of
+    such thin products stalls when the cores are busy (262,144 rows: 1.6 ms at best, a
+    median of 260 to 610 ms on the shared 2-core machine, against einsum's 34 to 73 ms)."""
+    return np.einsum("ij,jk->ik", v, m)
+
+
+def _basis(directions_world, orientation):
+    """theta-hat, phi-hat (R, 3) world of the antenna frame ``orientation`` at unit world
+    directions: those of :func:`clradcom.scene.antenna.theta_phi_unit_vectors` at the
+    local direction's angles (phi = 0 on the axis, as atan2(0, 0) gives), written with
+    cos phi = x / rho, sin phi = y / rho instead of the angles."""
+    d = _rotate(directions_world, orientation)
+    rho = np.hypot(d[:, 0], d[:, 1])
+    axis = rho == 0
+    safe = np.where(axis, 1.0, rho)
+    cos_p = np.where(axis, 1.0, d[:, 0] / safe)
+    sin_p = np.where(axis, 0.0, d[:, 1] / safe)
+    th = np.stack([d[:, 2] * cos_p, d[:, 2] * sin_p, -rho], axis=1)
+    ph = np.stack([-sin_p, cos_p, np.zeros_like(rho)], axis=1)
+    rot_t = np.ascontiguousarray(orientation.T)
+    return _rotate(th, rot_t), _rotate(ph, rot_t)
+
+
+def _received(field, directions, rx: Radar | None) -> np.ndarray:
+    """|p(E)|^2 (R,): the power the receiver takes from field vectors E (R, 3) arriving
+    along ``directions``: the bilinear projection onto its pattern's (C_theta, C_phi) at
+    -direction (em.path_gains), or |E|^2 without a receiver."""
+    if rx is None:
+        return np.sum(np.abs(field) ** 2, axis=1)
+    rot = np.asarray(rx.orientation, dtype=np.float64)
+    c = np.asarray(rx.pattern.field(_rotate(-directions, rot)), dtype=np.complex128)
+    th, ph = _basis(-directions, rot)
+    p = c[:, 0] * np.einsum("ij,ij->i", th, field) + c[:, 1] * np.einsum("ij,ij->i", ph,
+                                                                          field)
+    return np.abs(p) ** 2
+
+
+def _reaches(slab: Slab, origins, directions, lengths, margin: float = 1e-3) -> np.ndarray:
+    """(R,) bool: segments that may pass through the slab's box (grown by ``margin`` m,
+    so the kernel's float32 clipping never sees one this skipped). Most segments do not
+    (rays into the sky, between walls above the layer): their receive projections are
+    not worth computing."""
+    t0 = np.zeros(len(origins))
+    t1 = np.minimum(lengths, 1e30)
+    lo = (slab.x0 - margin, slab.y0 - margin, slab.z_lo - margin)
+    hi = (slab.x0 + slab.nx * slab.cell_x + margin, slab.y0 + slab.ny * slab.cell_y + margin,
+          slab.z_hi + margin)
+    ok = np.ones(len(origins), dtype=bool)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for axis in range(3):
+            o, d = origins[:, axis], directions[:, axis]
+            flat = d == 0
+            ok &= ~flat | ((o >= lo[axis]) & (o <= hi[axis]))
+            a = (lo[axis] - o) / d
+            b = (hi[axis] - o) / d
+            t0 = np.where(flat, t0, np.maximum(t0, np.minimum(a, b)))
+            t1 = np.where(flat, t1, np.minimum(t1, np.maximum(a, b)))
+    return ok & (t0 <= t1)
+
+
+def _cosine_directions(normals, rng) -> np.ndarray:
+    """One unit direction per row, cosine-weighted over the hemisphere about ``normals``
+    (R, 3) unit (Malley's method: a uniform point of the unit disc lifted onto it)."""
+    r = np.sqrt(rng.random(len(normals)))
+    phi = 2.0 * np.pi * rng.random(len(normals))
+    a, b = r * np.cos(phi), r * np.sin(phi)
+    c = np.sqrt(np.maximum(1.0 - r * r, 0.0))
+    u = perpendicular(normals)
+    v = np.cross(normals, u)
+    return a[:, None] * u + b[:, None] * v + c[:, None] * normals
+
+
+def _te_tm(k, n):
+    """TE (k x n, normalised) and TM (te x k) unit vectors (R, 3) of directions k at a
+    surface of normal n (any perpendicular TE along the normal)."""
+    te = np.cross(k, n)
+    size = np.linalg.norm(te, axis=1)
+    along = size < 1e-9
+    te = np.where(along[:, None], perpendicular(n), te / np.where(along, 1.0, size)[:, None])
+    return te, np.cross(te, k)
+
+
+def _scatter(scene, geom, slab, org, dirs, field, t, prim, normals, receiver, scale,
+             settings, rng, power, count) -> None:
+    """Diffuse rays from the hits ``prim`` of rays (org, dirs, field) on faces whose
+    material scatters (S > 0), accumulated into the layer: the tracer's Lambertian tile
+    model (:mod:`clradcom.mechanisms.scattering`) sampled. A tube of power P (its
+    (lambda/4 pi)^2 |E|^2 dOmega) scatters S^2 Gamma^2 P into the hemisphere with the
+    density cos(theta_s)/pi, Gamma the power-weighted Fresnel magnitude of the arriving
+    polarisation; ``diffuse_rays`` directions drawn from that density carry equal shares.
+    The polarisation: the co-polar part R0 E (TE/TM of the incidence onto those of the
+    scattered direction, -I at normal incidence) with 1 - K of the power, the
+    cross-polar s x R0 E with K (the material's cross-polarisation share); the tracer's
+    random phases between them average out in the power."""
+    mat = np.asarray(scene.tri_material)[prim]
+    s_coef = scene.material_scattering[mat]
+    keep = s_coef > 0
+    if not keep.any():
+        return
+    org, dirs, field, t, prim, mat = (a[keep] for a in (org, dirs, field, t, prim, mat))
+    s_coef = s_coef[keep]
+    n = normals[prim]
+    n = np.where((np.einsum("ij,ij->i", dirs, n) > 0)[:, None], -n, n)  # the lit side
+    point = org + t[:, None] * dirs
+    cos_i = np.abs(np.einsum("ij,ij->i", dirs, n))
+    r_te, r_tm = fresnel_coefficients(scene.material_eps_r[mat], cos_i,
+                                      scene.material_pec[mat])
+    te_i, tm_i = _te_tm(dirs, n)
+    e_te = np.einsum("ij,ij->i", te_i, field)
+    e_tm = np.einsum("ij,ij->i", tm_i, field)
+    p_in = np.abs(e_te) ** 2 + np.abs(e_tm) ** 2
+    gamma2 = (np.abs(r_te * e_te) ** 2 + np.abs(r_tm * e_tm) ** 2) / np.where(
+        p_in > 0, p_in, 1.0)
+    share = scene.material_cross_pol_share[mat]
+    m = settings.diffuse_rays
+    for _ in range(m):
+        out = _cosine_directions(n, rng)
+        te_s, tm_s = _te_tm(out, n)
+        co = -e_te[:, None] * te_s + e_tm[:, None] * tm_s  # R0 E
+        cross = np.cross(out, co)
+        origins = spawn_origins(point, n, out)
+        lengths = geom.caster.closest_hit(make_rays(origins, out))["t"].astype(np.float64)
+        near = _reaches(slab, origins, out, lengths)
+        if not near.any():
+            continue
+        received = ((1.0 - share[near]) * _received(co[near], out[near], receiver)
+                    + share[near] * _received(cross[near], out[near], receiver))
+        weights = scale * (s_coef[near] ** 2 * gamma2[near] / m) * received
+        accumulate_segments(geom.runtime, slab, origins[near], out[near], lengths[near],
+                            weights, power, count)
+
+
+def _edge_samples(wedges, step: float):
+    """(wedge index, point, length) of every piece of ``step`` or less the wedges are cut
+    into, each piece's middle point."""
+    pieces = np.maximum(1, np.ceil(wedges.length / step).astype(np.int64))
+    w = np.repeat(np.arange(len(wedges)), pieces)
+    first = np.cumsum(pieces) - pieces
+    frac = (np.arange(len(w)) - first[w] + 0.5) / pieces[w]
+    points = wedges.start[w] + frac[:, None] * (wedges.end[w] - wedges.start[w])
+    return w, points, wedges.length[w] / pieces[w]
+
+
+def _diffract(scene, geom, slab, wedges, tx: Radar, receiver, scale, settings, power,
+              count) -> None:
+    """First-order UTD diffraction into the layer (:attr:`MapSettings.diffraction`).
+
+    Each edge piece Q of length dl that the transmitter sees (a cast from tx to a point 1 mm
+    off the edge toward it) and that lies outside its wedge sends rays on its Keller cone
+    (s . e = s' . e = cos beta0) every dphi of the exterior angle (0, n pi). A ray carries
+    the field D E_i(Q) (the tracer's dyad: :func:`clradcom.physics.utd.diffraction_dyad`
+    of :func:`~clradcom.physics.utd.diffraction_coefficients`, E_i = E_tx / s') and the
+    tube power |D E_i|^2 sin^2(beta0) dphi dl: the diffracted power density
+    |D E_i|^2 rho / (s (rho + s)) (rho = s', the spherical-incidence spreading of
+    :func:`~clradcom.physics.utd.spreading_factor`) times the tube's cross-section
+    s sin(beta0) dphi x dl sin(beta0) (rho + s) / rho, constant along the ray, so its
+    track length in a cell is weighed as a launched ray's is. The distance parameter L of
+    the transition functions is taken where the ray meets the layer (the middle of its
+    run inside the slab's box)."""
+    w, q, dl = _edge_samples(wedges, settings.edge_step_m)
+    tx_pos = np.asarray(tx.position, dtype=np.float64)
+    to_q = q - tx_pos
+    s_p = np.linalg.norm(to_q, axis=1)
+    k_in = to_q / s_p[:, None]
+    e = wedges.direction[w]
+    n0 = wedges.normal0[w]
+    t0 = np.cross(n0, e)
+    cos_b = np.einsum("ij,ij->i", k_in, e)
+    sin_b = np.sqrt(np.maximum(1.0 - cos_b**2, 0.0))
+    # the source side: phi' inside the wedge's exterior (0, n pi), not along the edge
+    phi_p = np.mod(np.arctan2(-np.einsum("ij,ij->i", k_in, n0),
+                              -np.einsum("ij,ij->i", k_in, t0)), 2.0 * np.pi)
+    n_w = wedges.n[w]
+    lit = (sin_b > 1e-3) & (phi_p > 1e-6) & (phi_p < n_w * np.pi - 1e-6)
+    c_tx = np.zeros((len(q), 2), dtype=np.complex128)
+    rot = np.asarray(tx.orientation, dtype=np.float64)
+    c_tx[lit] = tx.pattern.field(_rotate(k_in[lit], rot))
+    lit &= np.abs(c_tx).sum(axis=1) > 0
+    # sight: tx to a point 1 mm off the edge toward tx (off the wedge's own faces)
+    away = -k_in + cos_b[:, None] * e
+    away /= np.maximum(np.linalg.norm(away, axis=1), 1e-12)[:, None]
+    target = q + 1e-3 * away
+    idx = np.flatnonzero(lit)
+    if len(idx):
+        rays = make_rays(np.broadcast_to(tx_pos, (len(idx), 3)), target[idx] - tx_pos,
+                         tmin=0.0, tmax=1.0)
+        lit[idx[geom.caster.occluded(rays)]] = False
+    idx = np.flatnonzero(lit)
+    if not len(idx):
+        return
+    th, ph = _basis(k_in[idx], rot)
+    e_inc = (c_tx[idx, :1] * th + c_tx[idx, 1:] * ph) / s_p[idx, None]
+    k = 2.0 * np.pi / scene.wavelength_m
+    step = np.deg2rad(settings.cone_step_deg)
+    # pieces per round: at most a batch of rays (n <= 2: 2 pi / step rays a piece), so the
+    # memory bound of map_memory_bytes holds
+    chunk = max(1, settings.batch // int(np.ceil(2.0 * np.pi / step)))
+    for start in range(0, len(idx), chunk):
+        part = idx[start:start + chunk]
+        ei = e_inc[start:start + chunk]
+        n_phi = np.maximum(1, np.ceil(n_w[part] * np.pi / step).astype(np.int64))
+        rows = np.repeat(np.arange(len(part)), n_phi)
+        first = np.cumsum(n_phi) - n_phi
+        dphi = n_w[part] * np.pi / n_phi
+        phi = (np.arange(len(rows)) - first[rows] + 0.5) * dphi[rows]
+        j = part[rows]
+        out = (cos_b[j, None] * e[j] + sin_b[j, None]
+               * (np.cos(phi)[:, None] * t0[j] + np.sin(phi)[:, None] * n0[j]))
+        out /= np.linalg.norm(out, axis=1)[:, None]
+        radial = out - cos_b[j, None] * e[j]
+        radial /= np.linalg.norm(radial, axis=1)[:, None]
+        origins = q[j] + 1e-3 * radial
+        lengths = geom.caster.closest_hit(make_rays(origins, out))["t"].astype(np.float64)
+        near = _reaches(slab, origins, out, lengths)
+        if not near.any():
+            continue
+        rows, j, out, origins, lengths, phi = (a[near] for a in (rows, j, out, origins,
+                                                                 lengths, phi))
+        # the distance parameter where the ray runs through the layer
+        s_mid = _layer_distance(slab, origins, out, lengths)
+        m0, m1 = wedges.material0[w[j]], wedges.material1[w[j]]
+        d_soft, d_hard = utd.diffraction_coefficients(
+            phi, phi_p[j], np.arccos(np.clip(cos_b[j], -1.0, 1.0)), n_w[j], k,
+            utd.distance_parameter(s_mid, s_p[j], np.arccos(np.clip(cos_b[j], -1, 1))),
+            eps_r_0=scene.material_eps_r[m0], eps_r_n=scene.material_eps_r[m1],
+            pec=scene.material_pec[m0] & scene.material_pec[m1])
+        basis = utd.edge_fixed_basis(k_in[j], out, e[j])
+        dyad = utd.diffraction_dyad(d_soft, d_hard, *basis)
+        field = np.einsum("rij,rj->ri", dyad, ei[rows])
+        weights = (scale * sin_b[j] ** 2 * dphi[rows] * dl[j]
+                   * _received(field, out, receiver))
+        accumulate_segments(geom.runtime, slab, origins, out, lengths, weights, power,
+                            count)
+
+
+def _layer_distance(slab: Slab, origins, directions, lengths) -> np.ndarray:
+    """The distance along each ray to the middle of its run inside the slab's box
+    (clipped as :func:`_reaches` clips), at least 1 mm."""
+    t0 = np.zeros(len(origins))
+    t1 = np.minimum(lengths, 1e30)
+    lo = (slab.x0, slab.y0, slab.z_lo)
+    hi = (slab.x0 + slab.nx * slab.cell_x, slab.y0 + slab.ny * slab.cell_y, slab.z_hi)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for axis in range(3):
+            o, d = origins[:, axis], directions[:, axis]
+            flat = d == 0
+            a, b = (lo[axis] - o) / d, (hi[axis] - o) / d
+            t0 = np.where(flat, t0, np.maximum(t0, np.minimum(a, b)))
+            t1 = np.where(flat, t1, np.minimum(t1, np.maximum(a, b)))
+    return np.maximum(0.5 * (t0 + np.maximum(t1, t0)), 1e-3)
+
+
+def find_radar(scene: Scene, which, argument: str) -> Radar | None:
+    """The radar ``which`` of ``scene`` (its name, index or the Radar itself; None stays
+    None), refused naming ``argument`` and the scene's radars."""
+    if which is None:
+        return None
+    if isinstance(which, Radar):
+        return which
+    if isinstance(which, str):
+        names = [r.name for r in scene.radars]
+        if which not in names:
+            raise ArgumentError(f"is no radar of scene {scene.name!r} (radars: "
+                                f"{', '.join(names)})", argument=argument, value=which)
+        return scene.radars[names.index(which)]
+    if isinstance(which, int) and not isinstance(which, bool) and \
+            0 <= which < len(scene.radars):
+        return scene.radars[which]
+    raise ArgumentTypeError("must be a radar's name, index or Radar", argument=argument,
+                            value=which)
+
+
+def radio_map(scene: Scene, tx, grid: MapGrid, rx=None, settings: MapSettings | None = None,
+              runtime: Runtime | None = None, geometry: Geometry | None = None,
+              steps: Callable[[int, int], None] | None = None,
+              budget_bytes: float | None = None) -> RadioMap:
+    """The mean path gain of every cell of ``grid`` from transmitter ``tx`` (a radar of
+    ``scene``: name, index or Radar) to a receiver ``rx`` placed in the cell with the
+    pattern, orientation and polarisation of that radar (None: gain 1 and every
+    polarisation, the power density times lambda^2 / 4 pi). ``steps(done, total)``
+    hears each batch of rays; the run is refused before it starts where its memory
+    (:func:`map_memory_bytes`) exceeds the budget."""
+    if not isinstance(scene, Scene):
+        raise ArgumentTypeError("must be a Scene (clradcom.scene.load_scene)",
+                                argument="scene", value=scene)
+    if not isinstance(grid, MapGrid):
+        raise ArgumentTypeError("must be a MapGrid", argument="grid", value=grid)
+    settings = MapSettings() if settings is None else settings
+    if not isinstance(settings, MapSettings):
+        raise ArgumentTypeError("must be a MapSettings", argument="settings", value=settings)
+    transmitter = find_radar(scene, tx, "tx")
+    receiver = find_radar(scene, rx, "rx")
+    need = map_memory_bytes(settings, grid)
+    check_memory(need, what=f"a radio map of {grid.n_cells} cells with {settings.rays} rays "
+                            f"in batches of {settings.batch}",
+                 argument="rays", value=settings.rays,
+                 advice="launch fewer rays, use smaller batches or fewer cells",
+                 budget_bytes=budget_bytes)
+    geom = geometry or build_geometry(scene, runtime)
+    rt = geom.runtime
+    slab = grid.slab()
+    lam = C0 / float(scene.carrier_hz)
+    local, solid_angle = launch_lattice(settings.rays, transmitter.pattern)
+    rot = np.asarray(transmitter.orientation, dtype=np.float64)
+    scale = (lam / (4.0 * np.pi)) ** 2 * solid_angle / slab.cell_volume
+    origin = np.asarray(transmitter.position, dtype=np.float64)
+    power = np.zeros((slab.ny, slab.nx))
+    count = np.zeros((slab.ny, slab.nx), dtype=np.int64)
+    normals = geom.caster.normals64() if geom.caster is not None else None
+    tri_material = np.asarray(scene.tri_material)
+    n_batches = -(-len(local) // settings.batch)
+    rng = np.random.default_rng(settings.seed)
+    for b, start in enumerate(range(0, len(local), settings.batch)):
+        if steps is not None:
+            steps(b, n_batches)
+        loc = local[start:start + settings.batch]
+        dirs = _rotate(loc, rot.T)
+        c = np.asarray(transmitter.pattern.field(loc), dtype=np.complex128)
+        th, ph = _basis(dirs, rot)
+        field = c[:, :1] * th + c[:, 1:] * ph
+        org = np.broadcast_to(origin, dirs.shape).copy()
+        for order in range(settings.max_reflections + 1):
+            if geom.caster is not None and len(dirs):
+                hits = geom.caster.closest_hit(make_rays(org, dirs))
+                t = hits["t"].astype(np.float64)
+                prim = hits["prim"]
+            else:
+                t = np.full(len(dirs), np.inf)
+                prim = np.full(len(dirs), -1)
+            if order > 0 or settings.line_of_sight:
+                near = _reaches(slab, org, dirs, t)
+                weights = scale * _received(field[near], dirs[near], receiver)
+                accumulate_segments(rt, slab, org[near], dirs[near], t[near], weights,
+                                    power, count)
+            hit = prim >= 0
+            if settings.scattering and order <= settings.scattering_reflections \
+                    and hit.any():
+                _scatter(scene, geom, slab, org[hit], dirs[hit], field[hit], t[hit],
+                         prim[hit], normals, receiver, scale, settings, rng, power, count)
+            if order == settings.max_reflections or not hit.any():
+                break
+            org, dirs, field, t, prim = org[hit], dirs[hit], field[hit], t[hit], prim[hit]
+            n = normals[prim]
+            point = org + t[:, None] * dirs
+            field = reflected_fields(scene, tri_material[prim], dirs, n, field)
+            dirs = dirs - 2.0 * np.einsum("ij,ij->i", dirs, n)[:, None] * n
+            dirs /= np.linalg.norm(dirs, axis=1)[:, None]
+            org = spawn_origins(point, n, dirs)
+    if settings.diffraction and geom.caster is not None:
+        wedges = diffraction.prepare(geom, DiffractionSettings(max_diffractions=1))
+        if wedges is not None and len(wedges):
+            _diffract(scene, geom, slab, wedges, transmitter, receiver, scale / solid_angle,
+                      settings, power, count)
+    if steps is not None:
+        steps(n_batches, n_batches)
+    return RadioMap(grid=grid, gain=power, count=count, tx_name=transmitter.name,
+                    rx_name=None if receiver is None else receiver.name, rays=len(local),
+                    tx_power_w=float(transmitter.tx_power_w))

@@ -1,0 +1,95 @@
+/* Radio maps: a batch of ray segments accumulated into the cells of a measurement slab
+ * (clradcom/device/maps.py, docs/maps.md).
+ *
+ * One work item per segment. The segment (origin, unit direction, length) is clipped to
+ * the slab z_lo <= z <= z_hi over the rectangle [0, nx cx] x [0, ny cy] (coordinates
+ * relative to the grid's corner, so float32 keeps them to ~1e-5 m over a street), then
+ * walked cell by cell (Amanatides-Woo in x and y); each cell it passes through gets
+ * weight x (length of the segment inside that cell's box): the track-length estimator of
+ * the mean power density over the cell's volume. Its thin-slab limit is the crossing
+ * estimator Sionna RT's radio maps use (weight / |cos theta| per crossing), and unlike it
+ * a ray that runs along the slab counts.
+ *
+ * Only 32-bit atomics (core since OpenCL 1.1): float sums by compare-and-swap on their
+ * bits, so devices without 64-bit atomics run it. The order of the additions within a
+ * cell is the device's: sums agree between runs to float32 rounding (~1e-7 relative). */
+
+#ifndef MAX_STEPS_PAD
+#define MAX_STEPS_PAD 2
+#endif
+
+inline void add_float(volatile __global float *where, const float value)
+{
+    union { unsigned int u; float f; } before, after;
+    do {
+        before.f = *where;
+        after.f = before.f + value;
+    } while (atomic_cmpxchg((volatile __global unsigned int *)where, before.u, after.u)
+             != before.u);
+}
+
+/* The parameter range [*t0, *t1] of o + t d inside lo <= x <= hi; false when empty. */
+inline bool clip_axis(const float o, const float d, const float lo, const float hi,
+                      float *t0, float *t1)
+{
+    if (d == 0.0f)
+        return o >= lo && o <= hi;
+    float a = (lo - o) / d, b = (hi - o) / d;
+    *t0 = fmax(*t0, fmin(a, b));
+    *t1 = fmin(*t1, fmax(a, b));
+    return *t0 < *t1;
+}
+
+__kernel void accumulate_segments(__global const float4 *origin,    /* xyz, w unused */
+                                  __global const float4 *direction, /* unit xyz, w length */
+                                  __global const float *weight,     /* per metre in a cell */
+                                  const float z_lo, const float z_hi,
+                                  const float cell_x, const float cell_y,
+                                  const int nx, const int ny, const int n,
+                                  __global float *power,            /* (ny, nx) */
+                                  __global int *count)              /* (ny, nx) */
+{
+    int gid = get_global_id(0);
+    if (gid >= n) return;
+    float w = weight[gid];
+    if (!(w > 0.0f)) return;
+    float4 o = origin[gid], d = direction[gid];
+    float t0 = 0.0f, t1 = d.w;
+    if (!clip_axis(o.z, d.z, z_lo, z_hi, &t0, &t1)) return;
+    if (!clip_axis(o.x, d.x, 0.0f, cell_x * nx, &t0, &t1)) return;
+    if (!clip_axis(o.y, d.y, 0.0f, cell_y * ny, &t0, &t1)) return;
+    if (!(t0 < t1)) return;
+
+    /* the cell at the segment's middle point of its first step decides where it starts:
+     * the entry point itself may lie on a boundary */
+    float tm = t0 + 0.5f * fmin(t1 - t0, 1e-3f * fmin(cell_x, cell_y));
+    int ix = clamp((int)floor((o.x + tm * d.x) / cell_x), 0, nx - 1);
+    int iy = clamp((int)floor((o.y + tm * d.y) / cell_y), 0, ny - 1);
+    int step_x = d.x > 0.0f ? 1 : -1, step_y = d.y > 0.0f ? 1 : -1;
+    float next_x = d.x != 0.0f
+        ? ((ix + (step_x > 0 ? 1 : 0)) * cell_x - o.x) / d.x : INFINITY;
+    float next_y = d.y != 0.0f
+        ? ((iy + (step_y > 0 ? 1 : 0)) * cell_y - o.y) / d.y : INFINITY;
+    float delta_x = d.x != 0.0f ? cell_x / fabs(d.x) : INFINITY;
+    float delta_y = d.y != 0.0f ? cell_y / fabs(d.y) : INFINITY;
+    float t = t0;
+    for (int s = 0; s < nx + ny + MAX_STEPS_PAD; ++s) {
+        float t_exit = fmin(fmin(next_x, next_y), t1);
+        float inside = t_exit - t;
+        if (inside > 0.0f) {
+            int cell = iy * nx + ix;
+            add_float(power + cell, w * inside);
+            atomic_inc(count + cell);
+        }
+        if (t_exit >= t1) break;
+        t = t_exit;
+        if (next_x <= next_y) {
+            ix += step_x;
+            next_x += delta_x;
+        } else {
+            iy += step_y;
+            next_y += delta_y;
+        }
+        if (ix < 0 || ix >= nx || iy < 0 || iy >= ny) break;
+    }
+}

@@ -1,0 +1,154 @@
+#!/usr/bin/env python3
+"""A radio map of the street against tracing its cells one link at a time, same run.
+
+    python tools/bench_maps.py scenes/street/street.toml [--rays 2000000] [--samples 8]
+
+The map: radar A's frame received with D's antenna over x in [-40, 160] m,
+y in [-20, 20] m at D's height, 0.5 m cells (32,000 cells; --area, --cell), line of sight,
+--reflections specular reflections, diffuse scattering and first-order diffraction
+(--go-only: without these two; docs/maps.md), timed warm (a first small map builds the
+kernels). The reference: trace_scene from A to a receiver with D's antenna at --samples
+cell centres picked among the converged cells, once with the map's physics (specular,
+one diffraction and scattering without reflections beside them, no PO/SBR) and once with
+the paper preset (every mechanism, PO/SBR on the cars); the time per
+link is the median of the links after the first (which carries A's candidate search and
+SBR shot), and tracing every cell is extrapolated as first link + cells x median.
+Prints the map's time, both extrapolations and their ratios to the map, and the map's
+agreement with the traces of its own physics (median and 95th percentile of |dB|) at the
+cell centres and as the mean of 8 points inside each cell (what the map estimates), and
+with the paper preset's at the centres (which adds PO/SBR and the reflections beside
+edges and tiles that the map lacks).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import time
+
+import numpy as np
+
+from clradcom.device.runtime import get_runtime
+from clradcom.maps import MapGrid, MapSettings, radio_map
+from clradcom.mechanisms.common import build_geometry
+from clradcom.scene import load_scene
+from clradcom.trace import (
+    DiffractionSettings,
+    OpticsSettings,
+    ScatteringSettings,
+    SpecularSettings,
+    TraceSettings,
+    trace_scene,
+)
+
+
+def per_link_seconds(scene, tx, receivers, settings, runtime):
+    """(seconds of the first link, median seconds of the others, incoherent power per
+    receiver) of trace_scene from ``tx`` to each of ``receivers`` (Radar records)."""
+    sample = dataclasses.replace(scene, radars=[tx, *receivers])
+    marks: dict[int, float] = {}
+
+    def steps(done, total, label):
+        marks.setdefault(done, time.perf_counter())
+
+    t0 = time.perf_counter()
+    snap = trace_scene(sample, settings, runtime=runtime, steps=steps,
+                       links=[(0, i + 1) for i in range(len(receivers))])
+    ends = [marks[i] for i in sorted(marks)]
+    per_link = np.diff([t0, *ends[1:]])
+    power = np.array([np.sum(np.abs(link.paths.gain) ** 2) for link in snap.links])
+    return float(per_link[0]), float(np.median(per_link[1:])), power
+
+
+def agreement(mapped, traced) -> str:
+    """Median and 95th percentile of |dB| where the trace has power, and how many cells
+    it has none at (a centre inside a building, in a tree: the map's cell is partly out)."""
+    none = traced <= 0
+    err = np.abs(10 * np.log10(mapped[~none] / traced[~none]))
+    text = (f"median {np.median(err):.2f} dB, 95th percentile {np.percentile(err, 95):.2f} dB"
+            if len(err) else "no cell to compare")
+    return text + (f" ({int(none.sum())} cells without traced power left out)"
+                   if none.any() else "")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("scene")
+    ap.add_argument("--tx", default="A")
+    ap.add_argument("--rx", default="D")
+    ap.add_argument("--rays", type=int, default=2_000_000)
+    ap.add_argument("--reflections", type=int, default=5)
+    ap.add_argument("--area", default="-40,160,-20,20", help="X0,X1,Y0,Y1 (m)")
+    ap.add_argument("--cell", type=float, default=0.5)
+    ap.add_argument("--samples", type=int, default=8)
+    ap.add_argument("--go-only", action="store_true",
+                    help="line of sight and reflections only (no scattering, diffraction)")
+    ap.add_argument("--edge-step", type=float, default=0.2)
+    ap.add_argument("--cone-step", type=float, default=2.0)
+    ap.add_argument("--device", default=None)
+    args = ap.parse_args(argv)
+    runtime = get_runtime(args.device)
+    scene = load_scene(args.scene)
+    tx = scene.radars[scene.radar_index(args.tx)]
+    rx = scene.radars[scene.radar_index(args.rx)]
+    x0, x1, y0, y1 = (float(v) for v in args.area.split(","))
+    grid = MapGrid(x0, x1, y0, y1, float(rx.position[2]), cell_m=args.cell)
+    full = not args.go_only
+    settings = MapSettings(rays=args.rays, max_reflections=args.reflections,
+                           scattering=full, diffraction=full, edge_step_m=args.edge_step,
+                           cone_step_deg=args.cone_step)
+    print(f"{scene.name}: {len(scene.triangles)} triangles; {grid.nx} x {grid.ny} = "
+          f"{grid.n_cells} cells of {grid.cell_m} m; {args.rays} rays, {args.reflections} "
+          f"reflections{'' if args.go_only else ', scattering, diffraction'}; "
+          f"{runtime.info.describe()}; load {os.getloadavg()[0]:.1f}")
+    geometry = build_geometry(scene, runtime)
+    radio_map(scene, tx, grid, rx=rx, settings=MapSettings(rays=1000), geometry=geometry)
+    k0 = runtime.kernel_seconds
+    t0 = time.perf_counter()
+    m = radio_map(scene, tx, grid, rx=rx, settings=settings, geometry=geometry)
+    map_s = time.perf_counter() - t0
+    print(f"map: {map_s:.2f} s ({runtime.kernel_seconds - k0:.2f} s in kernels), "
+          f"{m.converged.mean():.0%} of the cells converged, {(m.count > 0).mean():.0%} "
+          "reached")
+
+    rng = np.random.default_rng(0)
+    cells = np.argwhere(m.converged & (m.gain > 0))
+    pick = cells[rng.choice(len(cells), min(args.samples, len(cells)), replace=False)]
+    centres = grid.centres()
+    receivers = [dataclasses.replace(rx, name=f"cell{i}", position=centres[iy, ix].copy(),
+                                     rides_on=-1, role="rx", velocity=np.zeros(3),
+                                     motion=None)
+                 for i, (iy, ix) in enumerate(pick)]
+    mapped = m.gain[pick[:, 0], pick[:, 1]]
+    go = TraceSettings(specular=SpecularSettings(max_reflections=args.reflections,
+                                                 rays=1_000_000),
+                       diffraction=DiffractionSettings(max_diffractions=int(full)),
+                       optics=OpticsSettings(mode="none"),
+                       scattering=ScatteringSettings(enabled=full))
+    # the map estimates the mean over each cell's volume: a GO field has lit/unlit edges
+    # (small facets' reflected beams, shadows) that a point at the centre may fall beside,
+    # so the reference is also the mean over 2 x 2 x 2 points inside the cell
+    f = np.array([-0.25, 0.25])
+    offsets = np.stack(np.meshgrid(f * grid.cell_m, f * grid.cell_m, f * grid.thickness,
+                                   indexing="ij"), -1).reshape(-1, 3)
+    inside = [dataclasses.replace(r, name=f"{r.name}_{j}", position=r.position + o)
+              for r in receivers for j, o in enumerate(offsets)]
+    for label, trace_settings in (("the map's physics", go),
+                                  ("paper preset (every mechanism)", TraceSettings.preset())):
+        first, median, power = per_link_seconds(scene, tx, receivers, trace_settings,
+                                                runtime)
+        every = first + grid.n_cells * median
+        print(f"per-link, {label}: first link {first:.2f} s, then {median:.3f} s a link; "
+              f"all {grid.n_cells} cells {every:.0f} s = {every / map_s:.0f}x the map")
+        print(f"  map vs trace at {len(pick)} cell centres: {agreement(mapped, power)}")
+        if trace_settings is go:
+            _, _, inner = per_link_seconds(scene, tx, inside, go, runtime)
+            mean = inner.reshape(len(pick), len(offsets)).mean(axis=1)
+            print(f"  map vs the mean of {len(offsets)} traced points in each cell: "
+                  f"{agreement(mapped, mean)}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
