@@ -85,7 +85,7 @@ def plot_top_view(scene, snapshot, link=None, n_paths: int = 20, path=None, *, i
     ax.set_ylabel("y (m)")
     ax.set_title(f"{scene.name}: top view, {n_drawn} strongest paths of {link.tx_name}->"
                  f"{link.rx_name}" if n_drawn else f"{scene.name}: top view (no paths: "
-                 + ("no snapshot given)" if link is None else f"link {link.tx_name}->"
+                 + ("no snapshot or link given)" if link is None else f"link {link.tx_name}->"
                     f"{link.rx_name} has none)"))
     if handles:
         fig.legend(handles=handles, title="material", loc="outside lower center",
