@@ -328,6 +328,11 @@ class Tracker:
         self.tracks |= self.initiator.initiate(fresh, stamp)
         rows = [(t, True) for t in self.tracks] + [(t, False)
                                                    for t in self.initiator.holding_tracks]
+        # new tracks numbered in the order of the detections that started them (the sets
+        # Stone Soup keeps have no order that would repeat from run to run)
+        for t, _ in sorted((tc for tc in rows if tc[0].id not in self._ids),
+                           key=lambda tc: _first_detection(tc[0])):
+            self._id(t)
         out = np.zeros(len(rows), TRACK_DTYPE)
         for k, (t, confirmed) in enumerate(sorted(rows, key=lambda tc: self._id(tc[0]))):
             st = t.state
@@ -339,6 +344,14 @@ class Tracker:
                       math.sqrt(P[0, 0]), math.sqrt(P[1, 1]),
                       st.hypothesis.measurement.metadata["index"] if hit else -1)
         return out
+
+
+def _first_detection(track) -> tuple[float, int]:
+    """(time, index in its frame) of the detection that started a track."""
+    first = track.states[0]
+    hyp = getattr(first, "hypothesis", None)
+    index = hyp.measurement.metadata.get("index", -1) if hyp else -1
+    return first.timestamp.timestamp(), int(index)
 
 
 def track_detections(times_s, detections, settings: TrackerSettings | None = None, *,
