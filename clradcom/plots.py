@@ -62,11 +62,13 @@ def plot_top_view(scene, snapshot, link=None, n_paths: int = 20, path=None, *, i
                      label=scene.materials[m].name) for m in used]
     if link is None and len(snapshot.links):
         link = snapshot.links[0]
+    n_drawn = 0
     if link is not None and link.paths.n_paths:
         p = link.paths
         strongest = np.argsort(-np.abs(p.gain), kind="stable")[:n_paths]
         db = 20.0 * np.log10(np.abs(p.gain[strongest]))
         segs = [p.points[i, :p.n_interactions[i] + 2, :2] for i in strongest]
+        n_drawn = len(segs)
         lc = LineCollection(segs, array=db, cmap="viridis", linewidths=1.2)
         ax.add_collection(lc)
         fig.colorbar(lc, ax=ax, label=f"path gain (dB), {link.tx_name}->{link.rx_name}")
@@ -81,7 +83,10 @@ def plot_top_view(scene, snapshot, link=None, n_paths: int = 20, path=None, *, i
     ax.set_aspect("equal")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
-    ax.set_title(f"{scene.name}: top view, {n_paths} strongest paths")
+    ax.set_title(f"{scene.name}: top view, {n_drawn} strongest paths of {link.tx_name}->"
+                 f"{link.rx_name}" if n_drawn else f"{scene.name}: top view (no paths: "
+                 + ("no snapshot or link given)" if link is None else f"link {link.tx_name}->"
+                    f"{link.rx_name} has none)"))
     if handles:
         fig.legend(handles=handles, title="material", loc="outside lower center",
                    ncols=min(len(handles), 6), fontsize="small")

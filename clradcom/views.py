@@ -4,8 +4,12 @@ fetched from the network: it opens offline).
 
 Both colour the scene by material (:func:`clradcom.plots.material_colors`, the colours of
 the top view) and the paths by gain (viridis, strongest ``n_paths`` of one link), and mark
-the radars. The scene is z-up (docs/architecture.md); glTF is y-up, so the GLB's nodes
-carry the rotation x -> x, y -> -z, z -> y and its meshes keep the scene's coordinates.
+the radars; the HTML page can colour the paths by mechanism instead (its legend names
+them) and opens on a camera fitted to the paths (:func:`default_camera`: from above, at
+an angle, along their longer horizontal axis, so buildings beside a street do not hide
+them). :class:`View` shows the page inline in Jupyter. The scene is z-up
+(docs/architecture.md); glTF is y-up, so the GLB's nodes carry the rotation x -> x,
+y -> -z, z -> y and its meshes keep the scene's coordinates.
 """
 
 from __future__ import annotations
@@ -23,7 +27,8 @@ from clradcom.files import atomic_write
 from clradcom.paths import interaction_patterns
 from clradcom.plots import material_colors
 
-__all__ = ["Y_UP", "glb_bytes", "html_page", "map_quads", "save_glb", "save_html",
+__all__ = ["CAMERA_FOV_RAD", "MECHANISMS", "View", "Y_UP", "default_camera", "glb_bytes",
+           "html_page", "map_quads", "path_mechanisms", "save_glb", "save_html", "view",
            "view_data"]
 
 #: glTF node transform of every geometry: the scene's z-up to glTF's y-up.
@@ -31,6 +36,60 @@ Y_UP = np.array([[1.0, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]])
 
 #: Radius of the sphere that marks a radar in the GLB (m).
 RADAR_MARKER_M = 0.3
+
+#: a path's mechanism (the first that it holds, in this order) and its colour
+#: (Okabe & Ito's colour-blind-safe palette)
+MECHANISMS = (("scattering", (0.80, 0.47, 0.65)), ("diffraction", (0.0, 0.62, 0.45)),
+              ("physical optics / SBR", (0.90, 0.62, 0.0)), ("reflection", (0.0, 0.45, 0.70)),
+              ("line of sight", (0.35, 0.35, 0.35)))
+_MECHANISM_LETTERS = {"scattering": "S", "diffraction": "D", "physical optics / SBR": "PB",
+                      "reflection": "R"}
+
+#: full vertical opening of the HTML page's camera (rad; its JavaScript uses the same)
+CAMERA_FOV_RAD = 0.8
+#: the default camera looks down at the paths at this elevation (rad, 55 deg)
+CAMERA_ELEVATION_RAD = 0.96
+
+
+def path_mechanisms(patterns) -> list[str]:
+    """Each path's mechanism (:data:`MECHANISMS`) from its interaction pattern
+    (:func:`clradcom.paths.interaction_patterns`): scattering over diffraction over PO/SBR
+    over reflection; "line of sight" for none."""
+    out = []
+    for pattern in patterns:
+        name = next((m for m, _ in MECHANISMS[:-1]
+                     if any(c in pattern for c in _MECHANISM_LETTERS[m])), MECHANISMS[-1][0])
+        out.append(name)
+    return out
+
+
+def default_camera(path_points, radar_positions, scene_points) -> dict:
+    """The HTML view's opening camera: it looks at the centre of the paths' bounding box
+    (the radars' where there are no paths, the scene's where there are no radars either)
+    from ``CAMERA_ELEVATION_RAD`` above the horizon, from the side of its longer
+    horizontal axis where the radars are, far enough that the box's bounding sphere fills
+    the vertical opening ``CAMERA_FOV_RAD`` with a 10 % margin. Returns ``target``,
+    ``eye`` (3,), ``yaw``, ``pitch`` (rad; eye = target + dist (cos p cos y, cos p sin y,
+    sin p)) and ``dist`` (m)."""
+    for pts in (path_points, radar_positions, scene_points):
+        pts = np.asarray(pts, dtype=np.float64).reshape(-1, 3)
+        if len(pts):
+            break
+    else:
+        pts = np.zeros((1, 3))
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    target = (lo + hi) / 2.0
+    radius = max(0.5 * float(np.linalg.norm(hi - lo)), 1.0)
+    dist = 1.1 * radius / np.sin(CAMERA_FOV_RAD / 2.0)
+    axis = 0 if hi[0] - lo[0] >= hi[1] - lo[1] else 1
+    radars = np.asarray(radar_positions, dtype=np.float64).reshape(-1, 3)
+    side = -1.0 if not len(radars) or radars[:, axis].mean() <= target[axis] else 1.0
+    yaw = float(np.arctan2(0.0, side)) if axis == 0 else float(np.arctan2(side, 0.0))
+    pitch = CAMERA_ELEVATION_RAD
+    eye = target + dist * np.array([np.cos(pitch) * np.cos(yaw),
+                                    np.cos(pitch) * np.sin(yaw), np.sin(pitch)])
+    return {"target": target, "eye": eye, "yaw": yaw, "pitch": float(pitch),
+            "dist": float(dist)}
 
 
 def _check_n_paths(n_paths) -> int:
@@ -60,8 +119,8 @@ def view_data(scene, snapshot=None, link=None, n_paths: int = 50) -> dict:
     ``triangle_rgb`` (T, 3) in 0..1; per material ``materials`` (names) and
     ``material_rgb``; the link's strongest ``n_paths`` paths as ``paths`` (list of (n, 3)
     polylines), ``path_db`` (gain in dB), ``path_rgb`` (viridis over the dB span),
-    ``path_labels``; ``radars`` (names) and ``radar_positions`` (R, 3); ``link``
-    ("TX->RX" or "")."""
+    ``path_labels``, ``path_mechanism`` (:func:`path_mechanisms`) and ``path_kind_rgb``;
+    ``radars`` (names) and ``radar_positions`` (R, 3); ``link`` ("TX->RX" or "")."""
     from matplotlib import colormaps  # plotting is optional for the rest of the package
 
     n_paths = _check_n_paths(n_paths)
@@ -78,7 +137,8 @@ def view_data(scene, snapshot=None, link=None, n_paths: int = 50) -> dict:
         "radar_positions": np.array([r.position for r in scene.radars],
                                     dtype=np.float64).reshape(-1, 3),
         "paths": [], "path_db": np.zeros(0), "path_rgb": np.zeros((0, 3)),
-        "path_labels": [], "link": "",
+        "path_labels": [], "path_mechanism": [], "path_kind_rgb": np.zeros((0, 3)),
+        "link": "",
     }
     if link is not None and link.paths.n_paths and n_paths:
         p = link.paths
@@ -89,7 +149,11 @@ def view_data(scene, snapshot=None, link=None, n_paths: int = 50) -> dict:
         span = max(float(db.max() - db.min()), 1e-9)
         rgb = colormaps["viridis"]((db - db.min()) / span)[:, :3]
         patterns = interaction_patterns(p)
+        kinds = path_mechanisms([patterns[i] for i in order])
+        colour = dict(MECHANISMS)
         out.update(
+            path_mechanism=kinds,
+            path_kind_rgb=np.array([colour[k] for k in kinds], dtype=np.float64),
             paths=[p.points[i, :p.n_interactions[i] + 2].copy() for i in order],
             path_db=db, path_rgb=rgb, link=link.label,
             path_labels=[f"path {int(i)} {patterns[i] or 'LoS'} {d:.1f} dB"
@@ -201,9 +265,13 @@ def page_payload(scene, snapshot=None, link=None, n_paths: int = 50,
     d = view_data(scene, snapshot, link, n_paths)
     segs = [np.stack([line[:-1], line[1:]], axis=1) for line in d["paths"]]
     seg = np.concatenate(segs).reshape(-1, 6) if segs else np.zeros((0, 6))
-    seg_rgb = (np.concatenate([np.repeat(rgb[None], len(s), axis=0) for rgb, s in
-                               zip(d["path_rgb"], segs, strict=True)])
-               if segs else np.zeros((0, 3)))
+    seg_rgb, seg_kind_rgb = ((np.concatenate([np.repeat(rgb[None], len(s), axis=0)
+                                              for rgb, s in zip(d[key], segs, strict=True)])
+                              if segs else np.zeros((0, 3)))
+                             for key in ("path_rgb", "path_kind_rgb"))
+    cam = default_camera(np.concatenate(d["paths"]) if d["paths"] else np.zeros((0, 3)),
+                         d["radar_positions"], d["triangles"].reshape(-1, 3))
+    present = set(d["path_mechanism"])
     extra = {"map": "", "map_rgb": "", "map_label": "", "map_range": []}
     if radio_map is not None:
         grid, values_db, label = radio_map
@@ -219,6 +287,10 @@ def page_payload(scene, snapshot=None, link=None, n_paths: int = 50,
         "tri_rgb": _b64(np.round(d["triangle_rgb"] * 255), np.uint8),
         "seg": _b64(seg, "<f4"),
         "seg_rgb": _b64(np.round(seg_rgb * 255), np.uint8),
+        "seg_kind_rgb": _b64(np.round(seg_kind_rgb * 255), np.uint8),
+        "mechanisms": [[name, _hex(rgb)] for name, rgb in MECHANISMS if name in present],
+        "camera": {"target": [float(x) for x in cam["target"]], "yaw": cam["yaw"],
+                   "pitch": cam["pitch"], "dist": cam["dist"]},
         "radar": _b64(d["radar_positions"], "<f4"),
         "radar_names": d["radars"],
         "legend": [[name, _hex(rgb)] for name, rgb, used in zip(
@@ -251,15 +323,26 @@ function bytes(s){const b=atob(s),u=new Uint8Array(b.length);
   for(let i=0;i<b.length;i++)u[i]=b.charCodeAt(i);return u;}
 function f32(s){return new Float32Array(bytes(s).buffer);}
 const tri=f32(D.tri), triRgb=bytes(D.tri_rgb), seg=f32(D.seg), segRgb=bytes(D.seg_rgb),
-  radar=f32(D.radar), cells=f32(D.map), cellRgb=bytes(D.map_rgb);
-let lg=D.legend.map(m=>`<div><i style="background:${m[1]}"></i>${esc(m[0])}</div>`).join("");
-if(D.paths){lg+=`<div>${D.paths} strongest paths of ${esc(D.link)}, gain (dB)</div>`+
-  `<div id="bar"></div><div>${D.db_range[0].toFixed(1)} .. ${D.db_range[1].toFixed(1)}</div>`;}
-if(D.map_range.length){lg+=`<div>radio map: ${esc(D.map_label)}</div><div id="bar"></div>`+
-  `<div>${D.map_range[0].toFixed(1)} .. ${D.map_range[1].toFixed(1)}</div>`;}
-lg+=D.radar_names.map(n=>`<div><i style="background:#e61e1e"></i>radar ${esc(n)}</div>`)
-  .join("");
-document.getElementById("legend").innerHTML=lg;
+  segKindRgb=bytes(D.seg_kind_rgb), radar=f32(D.radar), cells=f32(D.map),
+  cellRgb=bytes(D.map_rgb);
+let byKind=false;
+function legend(){
+  let lg=D.legend.map(m=>`<div><i style="background:${m[1]}"></i>${esc(m[0])}</div>`)
+    .join("");
+  if(D.paths){lg+=`<div>${D.paths} strongest paths of ${esc(D.link)}, coloured by `+
+    `<a href="#" id="mode">${byKind?"mechanism":"gain (dB)"}</a> (click to change)</div>`;
+    lg+=byKind?D.mechanisms.map(m=>`<div><i style="background:${m[1]}"></i>${esc(m[0])}`+
+      `</div>`).join(""):`<div id="bar"></div><div>${D.db_range[0].toFixed(1)} .. `+
+      `${D.db_range[1].toFixed(1)} dB</div>`;}
+  else{lg+="<div>no paths drawn (no snapshot, or a link without paths)</div>";}
+  if(D.map_range.length){lg+=`<div>radio map: ${esc(D.map_label)}</div><div id="bar"></div>`+
+    `<div>${D.map_range[0].toFixed(1)} .. ${D.map_range[1].toFixed(1)}</div>`;}
+  lg+=D.radar_names.map(n=>`<div><i style="background:#e61e1e"></i>radar ${esc(n)}</div>`)
+    .join("");
+  document.getElementById("legend").innerHTML=lg;
+  const a=document.getElementById("mode");
+  if(a)a.onclick=e=>{e.preventDefault();byKind=!byKind;colourPaths();legend();draw();};}
+legend();
 function esc(t){return String(t).replace(/[&<>"]/g,c=>({"&":"&amp;","<":"&lt;",">":"&gt;",
   '"':"&quot;"}[c]));}
 // bounds of everything drawn
@@ -279,8 +362,15 @@ for(let t=0;t<nt;t++){const p=tri.subarray(9*t,9*t+9);
   for(let j=0;j<3;j++)for(let k=0;k<3;k++){tp[9*t+3*j+k]=p[3*j+k]-centre[k];
     tn[9*t+3*j+k]=n[k];tc[9*t+3*j+k]=triRgb[3*t+k]/255;}}
 const ns=seg.length/6, sp=new Float32Array(ns*6), sc=new Float32Array(ns*6);
-for(let s=0;s<ns;s++)for(let j=0;j<2;j++)for(let k=0;k<3;k++){
-  sp[6*s+3*j+k]=seg[6*s+3*j+k]-centre[k];sc[6*s+3*j+k]=segRgb[3*s+k]/255;}
+for(let s=0;s<ns;s++)for(let j=0;j<2;j++)for(let k=0;k<3;k++)
+  sp[6*s+3*j+k]=seg[6*s+3*j+k]-centre[k];
+let segColours=null;
+function colourPaths(){const rgb=byKind?segKindRgb:segRgb;
+  for(let s=0;s<ns;s++)for(let j=0;j<2;j++)for(let k=0;k<3;k++)
+    sc[6*s+3*j+k]=rgb[3*s+k]/255;
+  if(segColours&&gl){gl.bindBuffer(gl.ARRAY_BUFFER,segColours);
+    gl.bufferData(gl.ARRAY_BUFFER,sc,gl.STATIC_DRAW);}}
+colourPaths();
 const nr=radar.length/3, rp=new Float32Array(nr*3), rc=new Float32Array(nr*3);
 for(let r=0;r<nr;r++)for(let k=0;k<3;k++){rp[3*r+k]=radar[3*r+k]-centre[k];
   rc[3*r+k]=[0.9,0.12,0.12][k];}
@@ -302,15 +392,18 @@ gl.attachShader(prog,shader(gl.FRAGMENT_SHADER,FS));gl.linkProgram(prog);gl.useP
 function buffer(a){const b=gl.createBuffer();gl.bindBuffer(gl.ARRAY_BUFFER,b);
   gl.bufferData(gl.ARRAY_BUFFER,a,gl.STATIC_DRAW);return b;}
 const zero=new Float32Array(Math.max(ns*6,nr*3,nm*9,3));
+segColours=buffer(sc);
 const parts=[[gl.TRIANGLES,buffer(tp),buffer(tn),buffer(tc),nt*3,1],
-  [gl.LINES,buffer(sp),buffer(zero),buffer(sc),ns*2,0],
+  [gl.LINES,buffer(sp),buffer(zero),segColours,ns*2,0],
   [gl.POINTS,buffer(rp),buffer(zero),buffer(rc),nr,0],
   [gl.TRIANGLES,buffer(mp),buffer(zero),buffer(mc),nm*3,0]];
 function attr(name,buf){const loc=gl.getAttribLocation(prog,name);
   gl.bindBuffer(gl.ARRAY_BUFFER,buf);gl.enableVertexAttribArray(loc);
   gl.vertexAttribPointer(loc,3,gl.FLOAT,false,0,0);}
-// camera: orbit about the centre, z up
-let yaw=-0.6, pitch=0.6, dist=1.2*size, pan=[0,0,0];
+// camera: orbit about a point, z up; it opens on the one fitted to the paths
+// (clradcom.views.default_camera)
+let yaw=D.camera.yaw, pitch=D.camera.pitch, dist=D.camera.dist,
+  pan=[0,1,2].map(k=>D.camera.target[k]-centre[k]);
 function mul(a,b){const o=new Float32Array(16);for(let i=0;i<4;i++)for(let j=0;j<4;j++){
   let s=0;for(let k=0;k<4;k++)s+=a[k*4+j]*b[i*4+k];o[i*4+j]=s;}return o;}
 function view(){const e=[dist*Math.cos(pitch)*Math.cos(yaw)+pan[0],
@@ -321,7 +414,7 @@ function view(){const e=[dist*Math.cos(pitch)*Math.cos(yaw)+pan[0],
   const d=k=>-(k[0]*e[0]+k[1]*e[1]+k[2]*e[2]);
   return new Float32Array([s[0],u[0],-f[0],0,s[1],u[1],-f[1],0,s[2],u[2],-f[2],0,
     d(s),d(u),-d(f),1]);}
-function persp(aspect){const near=size*1e-3, far=size*20, t=1/Math.tan(0.4);
+function persp(aspect){const near=size*1e-3, far=size*20, t=1/Math.tan(@HALF_FOV@);
   return new Float32Array([t/aspect,0,0,0,0,t,0,0,0,0,(far+near)/(near-far),-1,
     0,0,2*far*near/(near-far),0]);}
 function draw(){if(!gl)return;const w=canvas.clientWidth*devicePixelRatio,
@@ -357,7 +450,8 @@ def html_page(scene, snapshot=None, link=None, n_paths: int = 50, radio_map=None
                          separators=(",", ":"))
     payload = payload.replace("</", "<\\/")  # never close the script element early
     title = html.escape(f"{scene.name}: scene and paths")
-    return _PAGE.replace("@TITLE@", title).replace("@DATA@", payload)
+    return (_PAGE.replace("@TITLE@", title).replace("@HALF_FOV@", repr(CAMERA_FOV_RAD / 2))
+            .replace("@DATA@", payload))
 
 
 def save_html(path: str | os.PathLike, scene, snapshot=None, link=None, n_paths: int = 50,
@@ -365,3 +459,39 @@ def save_html(path: str | os.PathLike, scene, snapshot=None, link=None, n_paths:
     """Write :func:`html_page` to ``path`` (UTF-8) atomically. Returns the path."""
     data = html_page(scene, snapshot, link, n_paths, radio_map).encode("utf-8")
     return atomic_write(path, lambda fh: fh.write(data), inputs=inputs)
+
+
+class View:
+    """A scene (and a snapshot's paths) for Jupyter: displayed inline as the
+    interactive HTML page (:func:`html_page`) in an ``<iframe srcdoc>``, offline (the
+    page carries its data and viewer; nothing is fetched). :meth:`save` writes the page."""
+
+    def __init__(self, scene, snapshot=None, link=None, n_paths: int = 50, *,
+                 height_px: int = 480):
+        _check_n_paths(n_paths)
+        if isinstance(height_px, bool) or not isinstance(height_px, int) or height_px < 50:
+            raise ArgumentError("must be an integer >= 50 (pixels)", argument="height_px",
+                                value=height_px)
+        self.scene, self.snapshot, self.link, self.n_paths = scene, snapshot, link, n_paths
+        self.height_px = height_px
+
+    def __repr__(self) -> str:
+        return (f"View(scene {self.scene.name!r}, "
+                f"{'no snapshot' if self.snapshot is None else 'with a snapshot'}, "
+                f"{self.n_paths} paths)")
+
+    def html(self) -> str:
+        return html_page(self.scene, self.snapshot, self.link, self.n_paths)
+
+    def _repr_html_(self) -> str:
+        return (f'<iframe srcdoc="{html.escape(self.html(), quote=True)}" '
+                f'style="width:100%;height:{self.height_px}px;border:0"></iframe>')
+
+    def save(self, path: str | os.PathLike) -> Path:
+        return save_html(path, self.scene, self.snapshot, self.link, self.n_paths)
+
+
+def view(scene, snapshot=None, link=None, n_paths: int = 50) -> View:
+    """:class:`View` of ``scene`` and a snapshot's paths: in Jupyter, ``view(scene, snap)``
+    as the last line of a cell draws it inline."""
+    return View(scene, snapshot, link, n_paths)

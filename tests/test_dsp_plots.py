@@ -43,3 +43,9 @@ def test_default_and_custom_limits_and_markers():
     assert fig.axes[0].get_xlim() == (10.0, 40.0) and fig.axes[0].get_ylim() == (-5.0, 50.0)
     with pytest.raises(ValueError, match="range_lim_m"):
         plot_radar_image(img, range_lim_m=(50, 10))
+
+
+def test_radar_images_use_a_perceptually_uniform_colour_map():
+    img, det = _scene()
+    for fig in (plot_radar_image(img, det),):
+        assert [im.get_cmap().name for im in fig.axes[0].images] == ["viridis"]

@@ -345,9 +345,15 @@ def test_a_frame_too_large_is_refused_before_tracing(tradeoff_tool, tmp_path, mo
     assert tradeoff_tool.main([str(PLATE), "--out", str(tmp_path / "o"),
                                "--symbols", "100000000"]) == 2
     err = capsys.readouterr().err
+    # the default sweep synthesises fast only; --full's exact synthesis needs more
+    assert err.startswith("tradeoff.py: --symbols = 100000000: the 1024 x 100000000 radar "
+                          "frame (fast synthesis) would need about")
+    assert "choose fewer --subcarriers or --symbols" in err
+    assert tradeoff_tool.main([str(PLATE), "--out", str(tmp_path / "o"), "--full",
+                               "--symbols", "100000000"]) == 2
+    err = capsys.readouterr().err
     assert err.startswith("tradeoff.py: --symbols = 100000000: the 1024 x 100000000 radar "
                           "frame (exact synthesis) would need about")
-    assert "choose fewer --subcarriers or --symbols" in err
     wf = Waveform(n_symbols=100_000_000)
     with pytest.raises(MemoryBudgetError, match="N x M = 1024 x 100000000"):
         radar_frame(los_paths([1e-3], [1e-7], [0.0]), wf)

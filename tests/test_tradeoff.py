@@ -14,6 +14,7 @@ import csv
 import io
 import math
 import re
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -21,6 +22,7 @@ import pytest
 from tool_helpers import CLOSING_PLATE_SCENE
 from tool_helpers import load_tool as load_named_tool
 
+from clradcom.commands import tradeoff as tradeoff_command
 from clradcom.evaluation import accuracy as acc
 from clradcom.evaluation import tradeoff as tr
 from clradcom.paths import InteractionType
@@ -350,11 +352,14 @@ def test_tradeoff_tool_writes_a_consistent_sweep(sweep):
     share = acc.pareto_front(f["seconds"], [1 - float(r["count_share"]) for r in rows],
                              tolerances=tol[2:3])
     assert list(share) == [r["pareto_completeness"] == "True" for r in rows]
-    assert "channel_nmse_db <= -20:" in text
+    assert "channel_nmse_db <= -20, min_targets_found >= 1:" in text
     # only the reference's paths meet -200 dB: its own setting, or the same without the
     # diffraction (or its pruning) that the PO plate no longer gets; the fastest of those
     # equals is named
-    assert re.search(r"channel_nmse_db <= -200: 2e\+03 r1 d[01] pec fast(\+prune)? \(", text)
+    assert re.search(r"channel_nmse_db <= -200, min_targets_found >= 1: 2e\+03 r1 d[01] pec "
+                     r"fast(\+prune)? \(", text)
+    # the sweep's time was estimated from the reference before it began
+    assert re.search(r"= 12 settings; estimated \d+ s \(from the reference's", text)
     assert "range_error_m <= 0, velocity_error_mps <= 0, min_targets_found >= 1: no setting" \
         in text
     assert "pruned below the floor" in text
@@ -373,7 +378,7 @@ def test_tradeoff_tool_redraws_from_its_csv(sweep, tmp_path, capsys):
     assert [r["pareto_all"] for r in first] == [r["pareto_all"] for r in second]
     assert [r["channel_nmse_db"] for r in first] == [r["channel_nmse_db"] for r in second]
     assert (again / "tradeoff.png").stat().st_size > 10_000
-    assert "channel_nmse_db <= -20:" in capsys.readouterr().out
+    assert "channel_nmse_db <= -20, min_targets_found >= 1:" in capsys.readouterr().out
     bad = tmp_path / "bad.csv"
     bad.write_text("a,b\n1,2\n")
     assert tool.main([str(out.parent / "plate.toml"), "--out", str(again), "--from-csv",
@@ -397,3 +402,107 @@ def test_tradeoff_tool_refuses_bad_arguments_by_name(tmp_path, capsys):
     assert tool.main([str(bad), "--out", str(tmp_path / "o")]) == 2
     assert "unobtainium" in capsys.readouterr().err
     assert not (tmp_path / "o" / "tradeoff.csv").exists()
+
+
+def test_default_grid_is_small_and_full_is_behind_an_option():
+    tool = tradeoff_command
+    args = tool.parse_args(["s.toml"])
+    tool.apply_grid(args)
+    points = tr.sweep_points(args.rays, args.reflections, args.diffractions, args.optics,
+                             args.scattering)
+    # a grid of minutes: 32 traces, two fast back ends, a fast reference
+    assert len(points) == 32 and len(args.synthesis) == 2
+    assert args.reference_synthesis == "fast"
+    full = tool.parse_args(["s.toml", "--full", "--rays", "1000"])
+    tool.apply_grid(full)
+    assert full.rays == [1000]  # a knob given wins over --full's
+    assert full.reflections == [0, 1, 2, 5] and full.reference_synthesis == "exact"
+    assert len(full.synthesis) == 4
+
+
+def test_sweep_time_estimate_scales_the_reference_by_rays():
+    points = [{"rays": 1000}, {"rays": 4000}, {"rays": 8000}]
+    # traces: 10 s x (1/8 + 1/2 + 1); each of 2 back ends 0.5 s per trace
+    assert tr.estimate_sweep_seconds(points, 2, 8000, 10.0, 0.5) == pytest.approx(
+        10.0 * (1 / 8 + 1 / 2 + 1) + 3 * 2 * 0.5)
+
+
+def test_a_sweep_over_its_budget_is_refused_before_it_starts(tmp_path, capsys):
+    scene = tmp_path / "plate.toml"
+    scene.write_text(SCENE)
+    tool = load_tool()
+    rc = tool.main([str(scene), "--out", str(tmp_path / "o"), "--rays", "2000",
+                    "--reflections", "1", "--diffractions", "0", "--optics", "pec",
+                    "--scattering", "0", "--subcarriers", "64", "--symbols", "16",
+                    "--budget-s", "1e-6"])
+    assert rc == 2
+    err = capsys.readouterr().err
+    assert "--budget-s" in err and "estimated" in err
+    assert not (tmp_path / "o" / "tradeoff.csv").exists()
+
+
+TWO_CARS = """
+[scene]
+name = "two_cars"
+carrier_hz = 24e9
+
+[[objects]]
+name = "road"
+material = "concrete_road"
+shape = "plane"
+size = [120.0, 16.0]
+position = [20.0, 0.0, 0.0]
+
+[[objects]]
+name = "carB"
+material = "metal"
+mesh = "{car}"
+position = [30.0, 1.75, 0.0]
+rotation_deg = [0.0, 0.0, 180.0]
+velocity = [-13.3, 0.0, 0.0]
+
+[[objects]]
+name = "carC"
+material = "metal"
+mesh = "{car}"
+position = [20.0, -1.75, 0.0]
+velocity = [27.0, 0.0, 0.0]
+
+[[radars]]
+name = "radarA"
+position = [1.95, -1.75, 0.5]
+velocity = [12.9, 0.0, 0.0]
+pattern = {{ type = "sector", azimuth_width_deg = 90.0, elevation_width_deg = 180.0 }}
+tx_power_w = 0.01
+noise_figure_db = 10.0
+"""
+
+
+def test_nmse_target_picks_a_setting_that_detects_the_cars(tmp_path):
+    # a radar 0.5 m over the road: the road right under it is the channel. GO with one
+    # reflection traces that return alone (NMSE -45 dB against the reference) and finds no
+    # car; the choice for NMSE <= -30 dB must find the cars the reference finds: both
+    car = (Path(__file__).resolve().parent.parent / "scenes" / "street" / "meshes"
+           / "car.ply").as_posix()
+    scene = tmp_path / "two_cars.toml"
+    scene.write_text(TWO_CARS.format(car=car))
+    out = tmp_path / "o"
+    text = io.StringIO()
+    with contextlib.redirect_stdout(text):
+        rc = load_tool().main([str(scene), "--out", str(out), "--rays", "2000",
+                               "--reflections", "1", "--diffractions", "0", "--optics",
+                               "none,pec", "--scattering", "0", "--synthesis", "fast",
+                               "--subcarriers", "1024", "--symbols", "128",
+                               "--target-nmse-db=-30"])
+    assert rc == 0, text.getvalue()
+    with open(out / "tradeoff.csv") as fh:
+        rows = {r["physical_optics"]: r for r in csv.DictReader(fh)}
+    need = int(rows["pec"]["reference_found"])
+    assert need == int(rows["pec"]["targets"]) == 2  # the reference finds both cars
+    # the GO setting meets the NMSE alone, and is the cheaper one, but finds nothing
+    go, po = rows["none"], rows["pec"]
+    assert float(go["channel_nmse_db"]) <= -30 and int(go["targets_found"]) == 0
+    chosen = re.search(r"channel_nmse_db <= -30, min_targets_found >= (\d+): (\S+ r\d d\d "
+                       r"(\w+))", text.getvalue())
+    assert chosen and int(chosen.group(1)) == need and chosen.group(3) == "pec"
+    assert int(po["targets_found"]) == 2  # the chosen setting finds every car

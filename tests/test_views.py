@@ -2,6 +2,7 @@
 page (data inline, no network), and figures that Jupyter shows inline."""
 
 import base64
+import html
 import io
 import json
 import re
@@ -14,10 +15,23 @@ import pytest
 import trimesh
 
 from clradcom.errors import ArgumentError
+from clradcom.paths import interaction_patterns
 from clradcom.plots import material_colors, plot_top_view
 from clradcom.scene import load_scene
-from clradcom.snapshot import load_snapshot
-from clradcom.views import Y_UP, glb_bytes, html_page, page_payload, save_glb, save_html
+from clradcom.snapshot import Snapshot, load_snapshot
+from clradcom.views import (
+    CAMERA_FOV_RAD,
+    MECHANISMS,
+    Y_UP,
+    default_camera,
+    glb_bytes,
+    html_page,
+    page_payload,
+    path_mechanisms,
+    save_glb,
+    save_html,
+    view,
+)
 
 DATA = Path(__file__).parent / "data"
 
@@ -170,3 +184,105 @@ def test_views_refuse_bad_arguments(scene, snap):
     with pytest.raises(ArgumentError, match="link.*no link 'B' -> 'B'"):
         glb_bytes(scene, snap, link="B->B")
     assert page_payload(scene, None)["paths"] == 0  # the scene alone
+
+
+def _box(lo, hi):
+    """The 12 triangles of an axis-aligned box."""
+    x0, y0, z0 = lo
+    x1, y1, z1 = hi
+    c = np.array([[x0, y0, z0], [x1, y0, z0], [x1, y1, z0], [x0, y1, z0],
+                  [x0, y0, z1], [x1, y0, z1], [x1, y1, z1], [x0, y1, z1]])
+    faces = [(0, 1, 2), (0, 2, 3), (4, 5, 6), (4, 6, 7), (0, 1, 5), (0, 5, 4),
+             (1, 2, 6), (1, 6, 5), (2, 3, 7), (2, 7, 6), (3, 0, 4), (3, 4, 7)]
+    return c[np.array(faces)]
+
+
+def _blocked(eye, points, triangles):
+    """Whether the segment from eye to each point crosses a triangle (Moller-Trumbore)."""
+    out = []
+    a, b, c = triangles[:, 0], triangles[:, 1], triangles[:, 2]
+    e1, e2 = b - a, c - a
+    for p in points:
+        d = p - eye
+        h = np.cross(d, e2)
+        det = np.einsum("ij,ij->i", e1, h)
+        ok = np.abs(det) > 1e-12
+        f = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+        s = eye - a
+        u = f * np.einsum("ij,ij->i", s, h)
+        q = np.cross(s, e1)
+        v = f * (q @ d)
+        t = f * np.einsum("ij,ij->i", e2, q)
+        out.append(bool(np.any(ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 1e-6)
+                               & (t < 1 - 1e-6))))
+    return np.array(out)
+
+
+def test_default_camera_sees_the_paths_in_a_street_canyon():
+    # a street along x between two 18 m buildings, a radar on the right lane and paths to
+    # cars 10-40 m ahead (and back): the camera looks from above along the street
+    buildings = np.concatenate([_box((-10, 8, 0), (60, 20, 18)),
+                                _box((-10, -20, 0), (60, -8, 18))])
+    radar = np.array([[0.0, -1.75, 0.5]])
+    ends = np.array([[10, 1.75, 0.8], [20, -1.75, 0.8], [30, 1.75, 0.8], [40, -1.75, 0.8]])
+    path_points = np.concatenate([np.linspace(radar[0], e, 6) for e in ends])
+    cam = default_camera(path_points, radar, buildings.reshape(-1, 3))
+    lo, hi = path_points.min(axis=0), path_points.max(axis=0)
+    eye, target = cam["eye"], cam["target"]
+    np.testing.assert_allclose(target, (lo + hi) / 2)
+    assert eye[2] > 18.0  # above the roofs
+    assert eye[0] < lo[0]  # behind the radar, looking along the street
+    # every corner of the paths' box lies inside the view's opening
+    look = (target - eye) / np.linalg.norm(target - eye)
+    for corner in np.array(np.meshgrid(*zip(lo, hi, strict=True))).T.reshape(-1, 3):
+        to = (corner - eye) / np.linalg.norm(corner - eye)
+        assert np.arccos(np.clip(to @ look, -1, 1)) < CAMERA_FOV_RAD / 2
+    # no path point is hidden behind a building
+    assert not _blocked(eye, path_points, buildings).any()
+    # the page's camera of before (yaw -0.6, pitch 0.6 about the centre of everything)
+    # had half of them behind the buildings
+    everything = np.concatenate([buildings.reshape(-1, 3), path_points])
+    centre = (everything.min(axis=0) + everything.max(axis=0)) / 2
+    size = (everything.max(axis=0) - everything.min(axis=0)).max()
+    old = centre + 1.2 * size * np.array([np.cos(0.6) * np.cos(-0.6),
+                                          np.cos(0.6) * np.sin(-0.6), np.sin(0.6)])
+    assert _blocked(old, path_points, buildings).mean() > 0.3
+
+
+def test_paths_coloured_by_mechanism_with_a_legend(scene, snap):
+    assert path_mechanisms(["", "R", "RR", "P", "B", "RD", "SR", "DS"]) == [
+        "line of sight", "reflection", "reflection", "physical optics / SBR",
+        "physical optics / SBR", "diffraction", "scattering", "scattering"]
+    data = page_payload(scene, snap, n_paths=50)
+    p = snap.links[0].paths
+    order = np.argsort(-np.abs(p.gain), kind="stable")[:50]
+    kinds = path_mechanisms([interaction_patterns(p)[i] for i in order])
+    colour = dict(MECHANISMS)
+    want = np.concatenate([np.repeat([colour[k]], p.n_interactions[i] + 1, axis=0)
+                           for k, i in zip(kinds, order, strict=True)])
+    np.testing.assert_array_equal(decode(data, "seg_kind_rgb", np.uint8, 3),
+                                  np.round(want * 255).astype(np.uint8))
+    assert [name for name, _ in data["mechanisms"]] == [
+        m for m, _ in MECHANISMS if m in set(kinds)]
+    assert len(data["mechanisms"]) >= 3  # the all-mechanisms scene has several
+    cam = data["camera"]
+    assert cam["dist"] > 0 and 0 < cam["pitch"] < np.pi / 2
+
+
+def test_top_view_title_says_what_it_draws(scene, snap):
+    fig = plot_top_view(scene, snap, n_paths=5)
+    assert fig.axes[0].get_title() == "all_mechanisms: top view, 5 strongest paths of A->A"
+    empty = Snapshot(scene_name=scene.name, carrier_hz=float(scene.carrier_hz),
+                     scene_hash=scene.content_hash(), links=(), metadata={})
+    title = plot_top_view(scene, empty).axes[0].get_title()
+    assert "strongest" not in title and "no snapshot" in title
+
+
+def test_view_shows_inline_in_jupyter_offline(scene, snap, tmp_path):
+    v = view(scene, snap, n_paths=5)
+    frame = v._repr_html_()
+    assert frame.startswith("<iframe srcdoc=") and "http" not in frame
+    assert html.unescape(frame.split('srcdoc="', 1)[1].split('" style=', 1)[0]) == \
+        html_page(scene, snap, n_paths=5)
+    assert "all_mechanisms" in repr(v) and len(repr(v)) < 100
+    assert v.save(tmp_path / "v.html").read_text("utf-8") == html_page(scene, snap, n_paths=5)

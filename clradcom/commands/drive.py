@@ -28,8 +28,10 @@ name>/):
 
 With --radar NAME only that radar's own echoes are traced, and each step is also a radar
 frame (docs/tracking.md): range-Doppler image and CFAR detections (with an array: the
-TDM-MIMO cube and azimuth), a constant-velocity Kalman tracker over the frames, and the
-moving objects' truth at every instant:
+TDM-MIMO cube and azimuth), a Stone Soup tracker (constant-velocity Kalman filter, GNN
+association, M-of-N initiation) over the detections of moving objects (the stationary
+world, at the closing speeds the radar's own motion gives it, and the radar's mounting
+left out), and the moving objects' truth at every instant:
 
   <radar>_detections.csv  time_s, frame, radar, range, velocity, [azimuth], power, SNR
   <radar>_tracks.csv      every live track per frame (range, velocity, confirmed)
@@ -37,10 +39,13 @@ moving objects' truth at every instant:
   <radar>_tracks.png      tracks against the true ranges and velocities over time
   <radar>_video.gif       the range-Doppler image per frame, detections, truth, tracks
                           (--no-video: none; --mp4: also <radar>_video.mp4, needs ffmpeg)
-  <radar>_frames.csv      per frame: paths, detections, seconds tracing and processing
+  <radar>_frames.csv      per frame: paths, detections (all, moving), confirmed tracks,
+                          visible objects, OSPA and GOSPA (cells), seconds tracing and
+                          processing
 
 and prints per object whether its track stayed within one range and one velocity cell of
-its truth in every frame where it is visible, and the time per frame.
+its truth in every frame where it is visible, the OSPA and GOSPA distances per frame, and
+the time per frame.
 
 Errors are one line on stderr, exit code 2.
 """
@@ -168,10 +173,13 @@ def _radar_outputs(stage: Path, scene, res, times, n_paths, trace_s, args) -> No
     write_table(stage / f"{name}_track_truth.csv", score_rows(res.scores), SCORE_DTYPE.names)
     save_figure(tracks_figure(res, f"Radar {name}, scene {scene.name}: tracks against "
                                    "truth"), stage / f"{name}_tracks.png", dpi=120)
+    m = res.metrics
     write_table(stage / f"{name}_frames.csv",
                 [(str(k), f"{times[k]:.6f}", str(n_paths[k]), str(len(res.detections[k])),
-                  f"{trace_s[k]:.3f}", f"{res.radar_s[k]:.3f}") for k in range(len(times))],
-                FRAME_COLUMNS)
+                  str(int(res.moving[k].sum())), str(m["confirmed_tracks"][k]),
+                  str(m["visible_objects"][k]), f"{m['ospa_cells'][k]:.4f}",
+                  f"{m['gospa_cells'][k]:.4f}", f"{trace_s[k]:.3f}", f"{res.radar_s[k]:.3f}")
+                 for k in range(len(times))], FRAME_COLUMNS)
     if res.frames:
         save_gif(stage / f"{name}_video.gif", res.frames, args.fps)
         if args.mp4:
@@ -179,9 +187,19 @@ def _radar_outputs(stage: Path, scene, res, times, n_paths, trace_s, args) -> No
 
 
 def _print_summary(res, trace_s) -> None:
+    confirmed = set(res.tracks["track"][res.tracks["confirmed"]].tolist())
     print(f"  radar {res.radar}: cells {res.range_cell_m:.3f} m, "
-          f"{res.velocity_cell_mps:.3f} m/s; {len(set(res.tracks['track'].tolist()))} "
-          "tracks started")
+          f"{res.velocity_cell_mps:.3f} m/s; {sum(len(d) for d in res.detections)} "
+          f"detections, {sum(int(m.sum()) for m in res.moving)} of moving objects tracked; "
+          f"{len(set(res.tracks['track'].tolist()))} tracks started, {len(confirmed)} "
+          "confirmed")
+    m = res.metrics
+    print("  per frame: confirmed tracks / visible objects, OSPA and GOSPA (cells, cut-off "
+          "3, p = 2): " + ", ".join(f"{c}/{v} {o:.2f} {g:.2f}" for c, v, o, g in zip(
+              m["confirmed_tracks"], m["visible_objects"], m["ospa_cells"], m["gospa_cells"],
+              strict=True)))
+    print(f"  mean OSPA {np.mean(m['ospa_cells']):.2f} cells, mean GOSPA "
+          f"{np.mean(m['gospa_cells']):.2f} cells over {len(m)} frames")
     print(f"    {'object':<10} {'visible':>8} {'within':>7} {'max cells (R, v)':>17}  tracks")
     for s in score_summary(res.scores):
         cells = ("" if not s["tracks"] else

@@ -5,15 +5,16 @@
 
 For one radar's own echoes (the monostatic link) it traces every combination of
 
-  --rays           rays per transmitter             (default 10000,100000,1000000)
-  --reflections    most specular reflections        (default 0,1,2,5)
+  --rays           rays per transmitter             (default 10000,100000)
+  --reflections    most specular reflections        (default 1,3)
   --diffractions   most UTD edge diffractions       (default 0,1)
-  --optics         metal objects: GO or PO          (default none,pec)
+  --optics         metal objects: GO, PO or SBR-PO  (default pec,sbr)
   --scattering     diffuse tiles off/on             (default 0,1)
   --vary F=a,b     any other TraceSettings field, e.g. scattering.tile_size_m (nested
                    names, or the flat ones of docs/tradeoff.md: scattering_tile_size_m)
 
-and synthesises every trace with each of these back ends (--synthesis):
+and synthesises every trace with each of these back ends (--synthesis, default
+fast,fast+prune):
 
   fast       frequency-domain model (no ICI/ISI), NUFFT tolerance 1e-10
   fast-lp    the same at NUFFT tolerance 1e-5 (the precision knob the synthesis offers;
@@ -22,9 +23,18 @@ and synthesises every trace with each of these back ends (--synthesis):
   each with "+prune": paths below the radar's noise floor dropped first (unless the weak
              paths of their range-Doppler cell add up above it)
 
-timing each (time.perf_counter: trace + pruning + synthesis + radar processing), and
+The defaults are a small grid that takes minutes on a street; --full sweeps the large one
+(rays 10000,100000,1000000; reflections 0,1,2,5; diffractions 0,1; optics none,pec,sbr;
+scattering 0,1; synthesis fast,fast+prune,fast-lp+prune,exact+prune; exact reference
+synthesis: hours on a street), each knob still set by its option when given. Once the
+reference is measured the sweep's time is estimated and printed; a sweep whose estimate
+exceeds --budget-s (default 300 s) is refused before it starts, and one that runs over
+it on the way stops there loudly, with the settings measured so far.
+
+It times each (time.perf_counter: trace + pruning + synthesis + radar processing), and
 measures against a converged reference (the largest value of every knob, more rays,
-exact synthesis, nothing pruned; its own convergence is checked against half its rays):
+--reference-synthesis (default fast; exact with --full), nothing pruned; its own
+convergence is checked against half its rays):
 
   channel_nmse_db     NMSE of the frame's channel F = D_r/D against the reference's, dB
   image_error_db      that error's largest radar-image cell against the thermal noise in
@@ -44,7 +54,10 @@ what was pruned. docs/tradeoff.md has the definitions and the street's front.
 Writes to --out (default out/<scene>/tradeoff/): tradeoff.csv (one row per setting, the
 Pareto flags included), tradeoff.png (run time against each accuracy measure, the Pareto
 front marked), and prints a table and the cheapest setting for each accuracy target
-(--target-nmse-db, --target-enr-db, --target-range-m/--target-velocity-mps).
+(--target-nmse-db, --target-enr-db, --target-range-m/--target-velocity-mps). Every
+target also asks for the moving objects the reference detects: the channel of a vehicle
+radar is its own mounting and the road under it, which any setting traces, so an NMSE
+target alone picks a setting that finds no car.
 The sweep, the measures, the fronts, the CSV and the chart are clradcom.evaluation.tradeoff.
 
 The output folder is built beside the old one and swapped in when the run is done (an
@@ -76,6 +89,7 @@ from clradcom.commands.options import (
     non_negative_float,
     non_negative_int,
     output_folder,
+    positive_float,
     positive_int,
     run_tool,
     run_waveform,
@@ -85,7 +99,12 @@ from clradcom.device.runtime import get_runtime
 from clradcom.errors import ArgumentError, SceneError
 from clradcom.evaluation import budget
 from clradcom.evaluation import tradeoff as tr
-from clradcom.evaluation.tradeoff import BACKENDS, DEFAULT_SYNTHESIS, SETTING_COLUMNS
+from clradcom.evaluation.tradeoff import (
+    BACKENDS,
+    DEFAULT_SYNTHESIS,
+    FULL_SYNTHESIS,
+    SETTING_COLUMNS,
+)
 from clradcom.files import staged_folder
 from clradcom.mechanisms.scattering import scattering_triangle_bounds
 from clradcom.radar.pipeline import check_frame_memory
@@ -96,6 +115,16 @@ from clradcom.trace import TraceSettings, check_launch_memory
 #: the names this tool writes into its output folder (clradcom.files.staged_folder)
 OUTPUTS = ("tradeoff.csv", "tradeoff.png")
 OPTICS = ("none", "pec", "sbr")
+#: the knobs of the default sweep and of --full (an option given on the command line wins)
+DEFAULT_GRID = {"rays": [10_000, 100_000], "reflections": [1, 3], "diffractions": [0, 1],
+                "optics": ["pec", "sbr"], "scattering": [False, True],
+                "synthesis": DEFAULT_SYNTHESIS, "reference_synthesis": "fast"}
+FULL_GRID = {"rays": [10_000, 100_000, 1_000_000], "reflections": [0, 1, 2, 5],
+             "diffractions": [0, 1], "optics": ["none", "pec", "sbr"],
+             "scattering": [False, True], "synthesis": FULL_SYNTHESIS,
+             "reference_synthesis": "exact"}
+#: default --budget-s: the longest sweep (estimated) run without asking
+DEFAULT_BUDGET_S = 300.0
 
 
 # ----------------------------------------------------------------------------------------
@@ -160,24 +189,31 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
                     help="output folder (default out/<scene>/tradeoff; with --from-csv "
                          "out/<scene>/tradeoff-from-csv)")
     ap.add_argument("--device", default=None, help="OpenCL device (see tools/trace.py)")
-    ap.add_argument("--rays", type=list_of(positive_int, "ray count"),
-                    default=[10_000, 100_000, 1_000_000])
+    ap.add_argument("--full", action="store_true",
+                    help="the large grid (hours on a street; module docstring) for every "
+                         "knob not given")
+    ap.add_argument("--budget-s", type=positive_float, default=DEFAULT_BUDGET_S,
+                    help="refuse a sweep estimated longer than this (seconds), and stop one "
+                         "that runs over it (default %(default)s)")
+    ap.add_argument("--rays", type=list_of(positive_int, "ray count"), default=None,
+                    help="default 10000,100000 (--full: 10000,100000,1000000)")
     ap.add_argument("--reflections", type=list_of(int_in(0, 16), "reflection order"),
-                    default=[0, 1, 2, 5])
+                    default=None, help="default 1,3 (--full: 0,1,2,5)")
     ap.add_argument("--diffractions", type=list_of(int_in(0, 3), "diffraction order"),
-                    default=[0, 1])
-    ap.add_argument("--optics", type=list_of(_optics, "optics mode"),
-                    default=["none", "pec", "sbr"],
-                    help="physical_optics values; the last is the reference's")
-    ap.add_argument("--scattering", type=list_of(_bool, "scattering flag"),
-                    default=[False, True])
+                    default=None, help="default 0,1")
+    ap.add_argument("--optics", type=list_of(_optics, "optics mode"), default=None,
+                    help="physical_optics values; the last is the reference's (default "
+                         "pec,sbr; --full: none,pec,sbr)")
+    ap.add_argument("--scattering", type=list_of(_bool, "scattering flag"), default=None,
+                    help="default 0,1")
     ap.add_argument("--vary", type=_vary, action="append", default=[],
                     help="FIELD=v1,v2: sweep another TraceSettings field too (last value "
                          "is the reference's)")
-    ap.add_argument("--synthesis", type=_synthesis, default=_synthesis(DEFAULT_SYNTHESIS),
-                    help=f"back ends per trace (default {DEFAULT_SYNTHESIS})")
-    ap.add_argument("--reference-synthesis", choices=sorted(BACKENDS), default="exact",
-                    help="synthesis of the reference (default exact)")
+    ap.add_argument("--synthesis", type=_synthesis, default=None,
+                    help=f"back ends per trace (default {DEFAULT_SYNTHESIS}; --full: "
+                         f"{FULL_SYNTHESIS})")
+    ap.add_argument("--reference-synthesis", choices=sorted(BACKENDS), default=None,
+                    help="synthesis of the reference (default fast; --full: exact)")
     ap.add_argument("--reference-margin-db", type=finite_float, default=None,
                     help="drop the reference's paths this far below the noise floor before "
                          "its synthesis (default: keep all; e.g. -20 keeps the exact "
@@ -236,7 +272,17 @@ def frame_option(args, wf) -> tuple[str, object]:
     return "frame", f"{wf.n_subcarriers} x {wf.n_symbols}"
 
 
+def apply_grid(args) -> None:
+    """Fill the knobs not given from the default grid, or --full's."""
+    grid = FULL_GRID if args.full else DEFAULT_GRID
+    for key, value in grid.items():
+        if getattr(args, key) is None:
+            setattr(args, key, _synthesis(value) if key == "synthesis" else
+                    (list(value) if isinstance(value, list) else value))
+
+
 def run(args) -> int:
+    apply_grid(args)
     scene = load_scene(args.scene)
     names = [r.name for r in scene.radars]
     if args.radar is None:
@@ -391,7 +437,16 @@ def sweep(args, scene, radar_idx, radar, wf, nf_db, floor, runtime, stage, out,
     points = tr.sweep_points(*knobs, order_cap, trace_thr,
                              None if args.no_trace_prune else floor.power)
     n_runs = len(points) * len(args.synthesis)
-    print(f"sweep: {len(points)} traces x {len(args.synthesis)} back ends = {n_runs} settings")
+    estimate = tr.estimate_sweep_seconds(points, len(args.synthesis), ref_point["rays"],
+                                         ref_trace_s,
+                                         ref_rec["synth_s"] + ref_rec["process_s"])
+    print(f"sweep: {len(points)} traces x {len(args.synthesis)} back ends = {n_runs} settings; "
+          f"estimated {estimate:.0f} s (from the reference's {ref_seconds:.1f} s), budget "
+          f"{args.budget_s:g} s (--budget-s)", flush=True)
+    if estimate > args.budget_s:
+        raise ArgumentError(f"is below the sweep's estimated {estimate:.0f} s ({len(points)} "
+                            "traces): raise it, or sweep fewer values (the defaults without "
+                            "--full take minutes)", argument="--budget-s", value=args.budget_s)
     records, t_start, skipped_exact = [], time.perf_counter(), 0
     bar = progress_bar(len(points), "sweep", quiet=getattr(args, "quiet", False),
                        unit="trace")
@@ -408,8 +463,15 @@ def sweep(args, scene, radar_idx, radar, wf, nf_db, floor, runtime, stage, out,
         # the rows so far, beside the folder: an interrupted sweep loses nothing
         tr.write_tradeoff_csv(records, extra, partial)
         latest = tr.setting_label(records[-1]).rsplit(" ", 1)[0] if records else str(step.point)
-        bar.write(f"  [{time.perf_counter() - t_start:6.1f} s] {step.index + 1}/{len(points)} "
+        elapsed = time.perf_counter() - t_start
+        bar.write(f"  [{elapsed:6.1f} s] {step.index + 1}/{len(points)} "
                   f"{latest}: {step.n_paths} paths, trace {step.trace_s:.2f} s")
+        projected = elapsed / (step.index + 1) * len(points)
+        if projected > args.budget_s and step.index + 1 < len(points):
+            bar.write(f"  STOPPED after {step.index + 1} of {len(points)} traces: at this pace "
+                      f"the sweep takes {projected:.0f} s, over --budget-s {args.budget_s:g}; "
+                      "the choices below are among the settings measured so far")
+            break
     bar.close()
     if skipped_exact:
         print(f"  exact synthesis skipped for {skipped_exact} traces of more than "

@@ -112,7 +112,7 @@ def plot_radar_image(image: RadarImage, detections=None, range_lim_m=(0.0, 100.0
     FigureCanvasAgg(fig)
     ax = fig.add_subplot()
     im = ax.imshow(
-        (crop - top).T, origin="lower", aspect="auto", cmap="jet",
+        (crop - top).T, origin="lower", aspect="auto", cmap="viridis",
         vmin=-dynamic_range_db, vmax=0.0,
         extent=(r[ri[0]] - dr / 2, r[ri[-1]] + dr / 2, v[vi[0]] - dv / 2, v[vi[-1]] + dv / 2),
         interpolation="nearest",
@@ -204,7 +204,7 @@ def plot_interference_images(images: dict, detections: dict, floor_clean: float,
     ext = (r[ri[0]], r[ri[-1]], v[vi[0]], v[vi[-1]])
     for ax, key in zip(axes, keys, strict=True):
         crop = images[key].power_db[np.ix_(ri, vi)] - top
-        im = ax.imshow(crop.T, origin="lower", aspect="auto", cmap="jet", vmin=-dyn_db,
+        im = ax.imshow(crop.T, origin="lower", aspect="auto", cmap="viridis", vmin=-dyn_db,
                        vmax=0.0, extent=ext, interpolation="nearest")
         det = detections[key]
         if len(det):

@@ -33,14 +33,21 @@ from clradcom.radar.pipeline import radar_chain
 from clradcom.radar.plots import image_title, mounting_return_range_m, plot_radar_image
 from clradcom.radar.report import display_range_db, moving_objects
 from clradcom.radar.synthesis import thermal_noise_power
-from clradcom.radar.tracking import Tracker, TrackerSettings, score_tracks
+from clradcom.radar.tracking import (
+    Tracker,
+    TrackerSettings,
+    moving_detections,
+    score_tracks,
+    stationary_speed_band,
+    track_metrics,
+)
 from clradcom.radar.truth import detection_truth
 from clradcom.radar.waveform import Waveform
 from clradcom.scene.motion import scene_at
 
 __all__ = ["DETECTION_TABLE_COLUMNS", "DriveRadar", "FRAME_COLUMNS", "MIN_SNR_DB",
-           "detection_table_rows", "drive_radar", "echo_snr_db", "ffmpeg_available",
-           "frame_truth", "radar_step", "save_gif", "save_mp4", "score_rows",
+           "beam_directions", "detection_table_rows", "drive_radar", "echo_snr_db",
+           "ffmpeg_available", "frame_truth", "radar_step", "save_gif", "save_mp4", "score_rows",
            "track_rows", "tracks_figure"]
 
 #: an object is visible in a frame when its echoes' SNR after the range–Doppler
@@ -54,8 +61,17 @@ MIN_SNR_DB = 25.0
 #: header of the detection table (``azimuth_deg`` only for a radar with an array)
 DETECTION_TABLE_COLUMNS = ("time_s", "frame", "radar", "range_m", "velocity_m_s",
                            "azimuth_deg", "power_db", "snr_db")
-#: header of the per-frame table: its time, paths, detections and seconds spent
-FRAME_COLUMNS = ("frame", "time_s", "paths", "detections", "trace_s", "radar_s")
+#: header of the per-frame table: its time, paths, detections (all, and those of moving
+#: objects that the tracker takes), confirmed tracks against visible objects, the OSPA
+#: and GOSPA distances in cells (:func:`clradcom.radar.tracking.track_metrics`) and the
+#: seconds spent
+FRAME_COLUMNS = ("frame", "time_s", "paths", "detections", "moving_detections",
+                 "confirmed_tracks", "visible_objects", "ospa_cells", "gospa_cells",
+                 "trace_s", "radar_s")
+
+#: sampling step (deg) of the directions over which the beam's stationary closing speeds
+#: are found: 12.9 m/s · (1 − cos 0.5°) = 0.5 mm/s, nothing against a velocity cell
+_BEAM_STEP_DEG = 0.5
 
 
 def radar_step(paths, radar, waveform: Waveform, *, seed: int = 0, method: str = "fast",
@@ -114,6 +130,42 @@ def frame_truth(scene, radar, targets, paths, waveform: Waveform, time_s: float,
         t.update(time_s=float(time_s), echo_snr_db=snr, in_beam=bool(in_beam),
                  visible=bool(in_beam and snr >= min_snr_db))
     return rows
+
+
+def beam_directions(radar, step_deg: float = _BEAM_STEP_DEG) -> np.ndarray:
+    """Unit directions (n, 3, the radar's frame) inside its −3 dB beam (the criterion of
+    :func:`frame_truth`'s ``in_beam``), sampled every ``step_deg`` in azimuth and
+    elevation over the front half-space."""
+    ang = np.radians(np.arange(-90.0, 90.0 + step_deg / 2, step_deg))
+    az, el = np.meshgrid(ang, ang, indexing="ij")
+    d = np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)],
+                 axis=-1).reshape(-1, 3)
+    peak = 10.0 ** (radar.pattern.peak_gain_dbi() / 10.0)
+    return d[np.asarray(radar.pattern.gain(d)) >= 0.5 * peak]
+
+
+def _moving(det, radar, beam, scene_box, mount_m, velocity_cell_mps,
+            azimuth_std_deg: float | None) -> np.ndarray:
+    """Mask of the detections of moving objects: beyond the mounting return, and outside
+    the closing speeds the stationary world can have (widened by one velocity cell) in
+    the beam's directions where a scatterer at the detection's range lies inside the
+    scene's bounding box ``scene_box`` ((2, 3): lowest and highest corner; e.g. nothing
+    stationary far above the road), with an array also within three azimuth σ of the
+    detection's azimuth (``azimuth_std_deg``; None: the detections carry no azimuth)."""
+    rot = np.asarray(radar.orientation, dtype=float)
+    world = beam @ rot.T
+    points = (np.asarray(radar.position, dtype=float)[None, None, :]
+              + np.asarray(det["range_m"], dtype=float)[:, None, None] * world[None, :, :])
+    allowed = ((points >= scene_box[0] - 1e-6) & (points <= scene_box[1] + 1e-6)).all(axis=2)
+    if azimuth_std_deg is not None:
+        az_dir = np.arcsin(np.clip(beam[:, 1] / np.maximum(np.hypot(beam[:, 0], beam[:, 1]),
+                                                           1e-300), -1.0, 1.0))
+        tol = 3.0 * math.radians(azimuth_std_deg)
+        allowed &= np.abs(az_dir[None, :] - np.asarray(det["azimuth_rad"])[:, None]) <= tol
+    lo, hi = stationary_speed_band(rot.T @ np.asarray(radar.velocity, dtype=float), beam,
+                                   allowed)
+    return moving_detections(det, lo, hi, speed_margin_mps=velocity_cell_mps,
+                             min_range_m=0.0 if mount_m is None else mount_m)
 
 
 def detection_table_rows(frame: int, time_s: float, radar_name: str, detections, *,
@@ -217,7 +269,8 @@ class DriveRadar:
     """What :func:`drive_radar` returns: per frame its time, detections, truth rows and
     seconds of radar processing; all frames' tracks (:data:`~clradcom.radar.tracking.
     TRACK_DTYPE`) and their scores against truth; the video frames (RGB arrays) and the
-    cell sizes of the scores."""
+    cell sizes of the scores; per frame the mask of detections of moving objects (those
+    tracked) and the OSPA/GOSPA row (:data:`~clradcom.radar.tracking.METRIC_DTYPE`)."""
 
     radar: str
     times_s: np.ndarray
@@ -230,6 +283,8 @@ class DriveRadar:
     velocity_cell_mps: float
     azimuth: bool
     frames: list = field(default_factory=list)
+    moving: list = field(default_factory=list)
+    metrics: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
 def drive_radar(scene, radar_index: int, times_s, paths_per_step, waveform: Waveform, *,
@@ -241,7 +296,10 @@ def drive_radar(scene, radar_index: int, times_s, paths_per_step, waveform: Wave
     ``paths_per_step[k]`` are radar ``radar_index``'s own echoes at ``times_s[k]`` (the
     monostatic link of a snapshot traced at that instant). ``each(k, detections)`` hears
     every frame. Range and velocity limits of the video default to the scene's reach
-    (at most 100 m) and ± the fastest truth plus 5 m/s."""
+    (at most 100 m) and ± the fastest truth plus 5 m/s. The tracker takes the detections
+    of moving objects only (:func:`_moving`: not the radar's mounting, not the
+    stationary world at the closing speeds the radar's own motion gives it in its
+    beam)."""
     times = np.asarray(times_s, dtype=float).reshape(-1)
     if len(times) != len(paths_per_step):
         raise ArgumentError(f"must be one set of paths per time ({len(times)} times)",
@@ -249,7 +307,12 @@ def drive_radar(scene, radar_index: int, times_s, paths_per_step, waveform: Wave
     radar = scene.radars[radar_index]
     targets = moving_objects(scene, radar)
     array = radar.tx_array is not None or radar.rx_array is not None
-    trk = Tracker(tracker, use_azimuth=array)
+    trk = None
+    settings = tracker if tracker is not None else TrackerSettings()
+    beam = beam_directions(radar)
+    tri = np.asarray(scene.triangles, dtype=float).reshape(-1, 3)
+    scene_box = np.array([tri.min(axis=0), tri.max(axis=0)]) if len(tri) else np.array(
+        [[-np.inf] * 3, [np.inf] * 3])
     out = DriveRadar(radar.name, times, [], [], np.zeros(0), np.zeros(0), [], 0.0, 0.0, array)
     track_rows = []
     for k, (t, paths) in enumerate(zip(times, paths_per_step, strict=True)):
@@ -260,13 +323,13 @@ def drive_radar(scene, radar_index: int, times_s, paths_per_step, waveform: Wave
                                 noise_figure_db=noise_figure_db)
         truth = frame_truth(scene_t, scene_t.radars[radar_index], targets, paths, waveform,
                             t, noise_figure_db=noise_figure_db, min_snr_db=min_snr_db)
-        rows = trk.step(t, det)
-        track_rows.append(rows)
         if k == 0:
             out.range_cell_m = float(waveform.range_resolution if not array else
                                      image.range_m[1] - image.range_m[0])
             out.velocity_cell_mps = float(waveform.velocity_resolution if not array else
                                           image.velocity_mps[1] - image.velocity_mps[0])
+            trk = Tracker(settings, use_azimuth=array, range_cell_m=out.range_cell_m,
+                          velocity_cell_mps=out.velocity_cell_mps)
             if range_lim_m is None:
                 reach = float(np.abs(scene.triangles[..., :2]).max()) if len(
                     scene.triangles) else 100.0
@@ -275,14 +338,22 @@ def drive_radar(scene, radar_index: int, times_s, paths_per_step, waveform: Wave
                 v = max([abs(r["v_rel_m_s"]) for r in truth] +
                         [float(np.linalg.norm(radar.velocity))])
                 velocity_lim_mps = (-(v + 5.0), v + 5.0)
+        mount_m = mounting_return_range_m(paths, waveform.range_resolution)
+        moving = _moving(det, scene_t.radars[radar_index], beam, scene_box, mount_m,
+                         out.velocity_cell_mps, settings.azimuth_std_deg if array else None)
+        rows = trk.step(t, det[moving])
+        # the track table names detections by their index in the frame's whole table
+        hit = rows["detection"] >= 0
+        rows["detection"][hit] = np.flatnonzero(moving)[rows["detection"][hit]]
+        track_rows.append(rows)
+        out.moving.append(moving)
         if video:
             title = (f"{image_title(radar.name, scene.name)}\n"
                      f"t = {t:.3f} s (frame {k + 1}/{len(times)})")
             out.frames.append(_video_frame(image, det, truth, rows, title=title,
                                            range_lim_m=range_lim_m,
                                            velocity_lim_mps=velocity_lim_mps,
-                                           mount_range_m=mounting_return_range_m(
-                                               paths, waveform.range_resolution)))
+                                           mount_range_m=mount_m))
         out.detections.append(det)
         out.truth.append(truth)
         out.radar_s.append(time.perf_counter() - t0)
@@ -290,6 +361,8 @@ def drive_radar(scene, radar_index: int, times_s, paths_per_step, waveform: Wave
             each(k, det)
     out.tracks = np.concatenate(track_rows)
     out.scores = score_tracks(out.tracks, out.truth, out.range_cell_m, out.velocity_cell_mps)
+    out.metrics = track_metrics(out.tracks, out.truth, out.range_cell_m,
+                                out.velocity_cell_mps)
     return out
 
 
