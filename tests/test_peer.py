@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from clradcom.errors import ArgumentError
-from clradcom.evaluation.peer import match_paths, sequences_of
+from clradcom.evaluation.peer import distinct_paths, match_paths, sequences_of
 from clradcom.scene.export_xml import PEC_CONDUCTIVITY_S_M, write_xml_scene
 from clradcom.scene.materials import conductivity_to_eps_imag
 from clradcom.scene.reader import load_scene
@@ -56,6 +56,14 @@ def test_match_tolerance_and_bad_input():
         match_paths([WALL, WALL], [1e-8], [], [])
     with pytest.raises(ArgumentError, match="delays_b"):
         match_paths([WALL], [1e-8], [WALL], [np.nan])
+
+
+def test_distinct_paths_keeps_the_first_of_each_repeat():
+    seqs = [WALL, WALL, ROAD_WALL, WALL, WALL]
+    tau = [1e-8, 1e-8 + 0.3e-12, 1e-8, 1e-8 + 5e-12, 1e-8 - 0.2e-12]
+    assert distinct_paths(seqs, tau).tolist() == [0, 2, 3]
+    with pytest.raises(ArgumentError, match="sequences"):
+        distinct_paths(seqs, tau[:2])
 
 
 def test_sequences_of_snapshot_arrays():

@@ -14,20 +14,24 @@ the same number of rays launched from the transmitter over the whole sphere. The
 (default the paper's street) is written as a Mitsuba XML scene
 (:func:`clradcom.scene.export_xml.write_xml_scene`, 1 m thick slabs so that Sionna's
 layered reflection is the half-space clradcom computes) and loaded by Sionna with
-``merge_shapes=False`` so its object ids are clradcom's objects.
+``merge_shapes=False`` so its object ids are clradcom's objects. Sionna keeps a path per
+triangle sequence, so a reflection off a face split into coplanar triangles can come
+back once per triangle: each tracer's repeats (same sequence, |delta tau| < 1 ps) are
+counted and left out before matching.
 
-One warm-up trace of each (kernel builds, Dr.Jit's JIT), then for every ray count the two
-take turns --repeats times in this process; Sionna's time includes turning its lazy
+One warm-up trace of each (kernel builds, Dr.Jit's JIT), then for every ray count the
+two take turns --repeats times in this process; Sionna's time includes turning its lazy
 results into numpy arrays (tau, a, interactions, objects), clradcom's the whole
-``trace_scene`` (geometry build included: what a user's trace pays) and, with a geometry
-kept from the previous trace of the same scene (:func:`clradcom.mechanisms.common.
-build_geometry` once, passed as ``geometry=``), the ray work alone. Printed per ray
-count: median times, clradcom / Sionna, paths found, and the path sets matched one to
-one (:func:`clradcom.evaluation.peer.match_paths`: the same interaction and object
-sequence, |delta tau| < 1 ps), with the matched gains compared (Sionna's ``a`` has no
-carrier phase; clradcom's gain has, so exp(+j 2 pi f_c tau) is taken out of it first).
-Last, the union of every path either found at any ray count, and what each run missed of
-it. Errors in the options are one line on stderr, exit code 2; no Sionna RT is exit code 2
+``trace_scene``, once as a first trace (faces, BVH, device tables and wedges built:
+:func:`clradcom.mechanisms.common.forget_geometries` first) and once as the next trace
+of the same scene, which reuses them (:func:`clradcom.mechanisms.common.kept_geometry`).
+Printed per ray count: median times, clradcom / Sionna, paths found, and the path sets
+matched one to one (:func:`clradcom.evaluation.peer.match_paths`: the same interaction
+and object sequence, |delta tau| < 1 ps), with the matched gains compared (Sionna's
+``a`` has no carrier phase; clradcom's gain has, so exp(+j 2 pi f_c tau) is taken out of
+it first). Last, the union of every path either found at any ray count, and what each
+run missed of it.
+Errors in the options are one line on stderr, exit code 2; no Sionna RT is exit code 2
 with the command that installs it.
 """
 
@@ -47,8 +51,8 @@ import numpy as np
 
 from clradcom.cli import positive_int, run_tool
 from clradcom.device.runtime import get_runtime
-from clradcom.evaluation.peer import match_paths, sequences_of
-from clradcom.mechanisms.common import build_geometry
+from clradcom.evaluation.peer import distinct_paths, match_paths, sequences_of
+from clradcom.mechanisms.common import forget_geometries
 from clradcom.paths import InteractionType
 from clradcom.scene.antenna import IsotropicPattern
 from clradcom.scene.export_xml import write_xml_scene
@@ -166,16 +170,26 @@ def sionna_trace(sc, solver, names: dict, rays: int, max_reflections: int) -> di
                         names[int(objs[j, p])])
                        for j in range(max_reflections) if kinds[j, p] != 0)
                  for p in range(len(tau))]
-    return {"sequences": sequences, "delay_s": tau.astype(np.float64), "gain": gain}
+    return distinct({"sequences": sequences, "delay_s": tau.astype(np.float64),
+                     "gain": gain})
 
 
-def clradcom_trace(scene, settings, runtime, link, geometry=None) -> dict:
-    snap = trace_scene(scene, settings, runtime=runtime, links=[link], geometry=geometry)
+def distinct(found: dict) -> dict:
+    """``found`` without its repeats (:func:`clradcom.evaluation.peer.distinct_paths`),
+    with their number under "repeats"."""
+    keep = distinct_paths(found["sequences"], found["delay_s"])
+    return {"sequences": [found["sequences"][i] for i in keep],
+            "delay_s": found["delay_s"][keep], "gain": found["gain"][keep],
+            "repeats": len(found["delay_s"]) - len(keep)}
+
+
+def clradcom_trace(scene, settings, runtime, link) -> dict:
+    snap = trace_scene(scene, settings, runtime=runtime, links=[link])
     p = snap.links[0].paths
     sequences = sequences_of(p.interaction, p.n_interactions, p.object_id,
                              snap.object_names)
-    return {"sequences": sequences, "delay_s": np.asarray(p.delay_s),
-            "gain": np.asarray(p.gain)}
+    return distinct({"sequences": sequences, "delay_s": np.asarray(p.delay_s),
+                     "gain": np.asarray(p.gain)})
 
 
 def timed(fn, *args, **kw):
@@ -208,15 +222,16 @@ def run(args) -> int:
     warm = min(args.rays)
     clradcom_trace(scene, settings.replace(specular__rays=warm), runtime, link)
     sionna_trace(sc, solver, names, warm, args.max_reflections)
-    geometry = build_geometry(scene, runtime)  # kept: the next traces' fixed part
     rows, found = [], {}
     for rays in args.rays:
         st = settings.replace(specular__rays=rays)
         times: dict[str, list[float]] = {"clradcom": [], "cached": [], "sionna": []}
         for _ in range(args.repeats):
+            forget_geometries()  # a first trace: faces, BVH, face tables, wedges built
             dt, ours = timed(clradcom_trace, scene, st, runtime, link)
             times["clradcom"].append(dt)
-            dt, ours_cached = timed(clradcom_trace, scene, st, runtime, link, geometry)
+            # the next trace of the same geometry (clradcom.mechanisms.common.kept_geometry)
+            dt, ours_cached = timed(clradcom_trace, scene, st, runtime, link)
             times["cached"].append(dt)
             dt, theirs = timed(sionna_trace, sc, solver, names, rays, args.max_reflections)
             times["sionna"].append(dt)
@@ -234,7 +249,8 @@ def run(args) -> int:
         print(f"\n{rays:.0e} rays: clradcom {med['clradcom']:.3f} s (geometry kept: "
               f"{med['cached']:.3f} s), Sionna {med['sionna']:.3f} s; clradcom / Sionna "
               f"{med['clradcom'] / med['sionna']:.2f} ({med['cached'] / med['sionna']:.2f} "
-              f"kept); paths {len(ours['delay_s'])} / {len(theirs['delay_s'])}, matched "
+              f"kept); distinct paths {len(ours['delay_s'])} / {len(theirs['delay_s'])} (repeats "
+              f"left out {ours['repeats']} / {theirs['repeats']}), matched "
               f"{len(m.pairs)}, max |dtau| "
               f"{np.abs(m.delay_error_s).max(initial=0) * 1e12:.3g} ps, |gain| clradcom "
               f"/ Sionna median {np.median(db) if len(db) else float('nan'):+.2f} dB "
@@ -246,7 +262,7 @@ def run(args) -> int:
                 print(f"    {who}: {describe(res['sequences'][i])}  "
                       f"tau {res['delay_s'][i] * 1e9:.4f} ns")
     print("\n| rays | clradcom | clradcom, geometry kept | Sionna | clradcom / Sionna "
-          "| kept / Sionna | paths clradcom / Sionna | matched |")
+          "| kept / Sionna | distinct paths clradcom / Sionna | matched |")
     print("|---|---|---|---|---|---|---|---|")
     for rays, med, n_ours, n_theirs, m in rows:
         print(f"| {rays:.0e} | {med['clradcom']:.3f} s | {med['cached']:.3f} s | "

@@ -23,7 +23,7 @@ from scipy.optimize import linear_sum_assignment
 
 from clradcom.errors import ArgumentError
 
-__all__ = ["PathMatch", "match_paths", "sequences_of"]
+__all__ = ["PathMatch", "distinct_paths", "match_paths", "sequences_of"]
 
 #: delays closer than this are one path when their sequences agree (s)
 DELAY_TOLERANCE_S = 1e-12
@@ -89,3 +89,22 @@ def match_paths(sequences_a, delays_a, sequences_b, delays_b, *,
         only_a=np.setdiff1d(np.arange(len(delays_a)), pairs_arr[:, 0]),
         only_b=np.setdiff1d(np.arange(len(delays_b)), pairs_arr[:, 1]),
         delay_error_s=delays_b[pairs_arr[:, 1]] - delays_a[pairs_arr[:, 0]])
+
+
+def distinct_paths(sequences, delays, *, tolerance_s: float = DELAY_TOLERANCE_S) -> np.ndarray:
+    """Ascending indices of one path of each group of repeats in one tracer's set: a path
+    is a repeat of an earlier one with the same sequence and a delay within the tolerance
+    (a tracer that keeps paths per triangle, as Sionna RT does, finds a reflection off a
+    face split into coplanar triangles once per triangle the rays hit near it)."""
+    delays = np.asarray(delays, dtype=np.float64).reshape(-1)
+    if len(sequences) != len(delays):
+        raise ArgumentError(f"{len(sequences)} sequences but {len(delays)} delays",
+                            argument="sequences", value=len(sequences))
+    kept: dict[tuple, list[float]] = {}
+    out = []
+    for i, (s, t) in enumerate(zip(sequences, delays, strict=True)):
+        seen = kept.setdefault(tuple(s), [])
+        if not any(abs(t - u) < tolerance_s for u in seen):
+            seen.append(t)
+            out.append(i)
+    return np.array(out, dtype=np.int64)
