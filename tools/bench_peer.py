@@ -24,7 +24,9 @@ two take turns --repeats times in this process; Sionna's time includes turning i
 results into numpy arrays (tau, a, interactions, objects), clradcom's the whole
 ``trace_scene``, once as a first trace (faces, BVH, device tables and wedges built:
 :func:`clradcom.mechanisms.common.forget_geometries` first) and once as the next trace
-of the same scene, which reuses them (:func:`clradcom.mechanisms.common.kept_geometry`).
+of the same scene, which reuses them (:func:`clradcom.mechanisms.common.kept_geometry`),
+and a third time with --expand rounds of candidate expansion
+(:func:`clradcom.mechanisms.specular.expanded_paths`).
 Printed per ray count: median times, clradcom / Sionna, paths found, and the path sets
 matched one to one (:func:`clradcom.evaluation.peer.match_paths`: the same interaction
 and object sequence, |delta tau| < 1 ps), with the matched gains compared (Sionna's
@@ -113,6 +115,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="rays per trace, comma-separated (default 1e5,1e6,1e7)")
     ap.add_argument("--max-reflections", type=positive_int, default=5,
                     help="most specular reflections per path (default 5)")
+    ap.add_argument("--expand", type=positive_int, default=4, metavar="ROUNDS",
+                    help="rounds of candidate expansion of the third clradcom trace "
+                         "(SpecularSettings.expand_rounds; default 4)")
     ap.add_argument("--repeats", type=positive_int, default=1,
                     help="timed traces per tracer and ray count; medians (default 1)")
     ap.add_argument("--device", default=None, help="clradcom's OpenCL device (default: "
@@ -225,7 +230,9 @@ def run(args) -> int:
     rows, found = [], {}
     for rays in args.rays:
         st = settings.replace(specular__rays=rays)
-        times: dict[str, list[float]] = {"clradcom": [], "cached": [], "sionna": []}
+        times: dict[str, list[float]] = {"clradcom": [], "cached": [], "expanded": [],
+                                         "sionna": []}
+        st_expand = st.replace(specular__expand_rounds=args.expand)
         for _ in range(args.repeats):
             forget_geometries()  # a first trace: faces, BVH, face tables, wedges built
             dt, ours = timed(clradcom_trace, scene, st, runtime, link)
@@ -233,15 +240,19 @@ def run(args) -> int:
             # the next trace of the same geometry (clradcom.mechanisms.common.kept_geometry)
             dt, ours_cached = timed(clradcom_trace, scene, st, runtime, link)
             times["cached"].append(dt)
+            dt, ours_expanded = timed(clradcom_trace, scene, st_expand, runtime, link)
+            times["expanded"].append(dt)
             dt, theirs = timed(sionna_trace, sc, solver, names, rays, args.max_reflections)
             times["sionna"].append(dt)
         if not np.array_equal(ours["delay_s"], ours_cached["delay_s"]):
             print(f"  ! {rays} rays: the cached geometry gave other paths", file=sys.stderr)
         m = match_paths(ours["sequences"], ours["delay_s"], theirs["sequences"],
                         theirs["delay_s"])
-        found[rays] = (ours, theirs)
+        found[rays] = {"clradcom": ours, "clradcom + expansion": ours_expanded,
+                       "Sionna": theirs}
         med = {k: float(np.median(v)) for k, v in times.items()}
-        rows.append((rays, med, len(ours["delay_s"]), len(theirs["delay_s"]), m))
+        rows.append((rays, med, len(ours["delay_s"]), len(ours_expanded["delay_s"]),
+                     len(theirs["delay_s"]), m))
         ours_a = ours["gain"][m.pairs[:, 0]] * np.exp(
             2j * np.pi * scene.carrier_hz * ours["delay_s"][m.pairs[:, 0]])
         theirs_a = theirs["gain"][m.pairs[:, 1]]
@@ -254,33 +265,34 @@ def run(args) -> int:
               f"{len(m.pairs)}, max |dtau| "
               f"{np.abs(m.delay_error_s).max(initial=0) * 1e12:.3g} ps, |gain| clradcom "
               f"/ Sionna median {np.median(db) if len(db) else float('nan'):+.2f} dB "
-              f"(max |.| {np.abs(db).max(initial=0):.2f} dB); load "
-              f"{os.getloadavg()[0]:.2f}")
+              f"(max |.| {np.abs(db).max(initial=0):.2f} dB); with {args.expand} rounds of "
+              f"expansion {med['expanded']:.3f} s, {len(ours_expanded['delay_s'])} paths; "
+              f"load {os.getloadavg()[0]:.2f}")
         for who, idx, res in (("clradcom only", m.only_a, ours), ("Sionna only", m.only_b,
                                                                   theirs)):
             for i in idx:
                 print(f"    {who}: {describe(res['sequences'][i])}  "
                       f"tau {res['delay_s'][i] * 1e9:.4f} ns")
-    print("\n| rays | clradcom | clradcom, geometry kept | Sionna | clradcom / Sionna "
-          "| kept / Sionna | distinct paths clradcom / Sionna | matched |")
-    print("|---|---|---|---|---|---|---|---|")
-    for rays, med, n_ours, n_theirs, m in rows:
+    print("\n| rays | clradcom, first trace | next trace (geometry kept) | with expansion "
+          "| Sionna | first / Sionna | next / Sionna | distinct paths clradcom / with "
+          "expansion / Sionna | matched |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for rays, med, n_ours, n_expanded, n_theirs, m in rows:
         print(f"| {rays:.0e} | {med['clradcom']:.3f} s | {med['cached']:.3f} s | "
-              f"{med['sionna']:.3f} s | {med['clradcom'] / med['sionna']:.2f} | "
-              f"{med['cached'] / med['sionna']:.2f} | {n_ours} / {n_theirs} | "
-              f"{len(m.pairs)} |")
+              f"{med['expanded']:.3f} s | {med['sionna']:.3f} s | "
+              f"{med['clradcom'] / med['sionna']:.2f} | {med['cached'] / med['sionna']:.2f}"
+              f" | {n_ours} / {n_expanded} / {n_theirs} | {len(m.pairs)} |")
     union_report(found)
     return 0
 
 
 def union_report(found: dict) -> None:
     """Every distinct path found by either tracer at any ray count, and what each missed."""
-    seqs, delays, owner = [], [], []
-    for rays, pair in found.items():
-        for who, res in zip(("clradcom", "Sionna"), pair, strict=True):
+    seqs, delays = [], []
+    for runs in found.values():
+        for res in runs.values():
             seqs += res["sequences"]
             delays += list(res["delay_s"])
-            owner += [(who, rays)] * len(res["delay_s"])
     delays = np.asarray(delays)
     # the union: greedily keep a path unless one already kept matches it
     kept_seq, kept_tau = [], []
@@ -289,8 +301,8 @@ def union_report(found: dict) -> None:
             kept_seq.append(s)
             kept_tau.append(t)
     print(f"\nunion of all runs: {len(kept_seq)} distinct paths")
-    for rays, pair in found.items():
-        for who, res in zip(("clradcom", "Sionna"), pair, strict=True):
+    for rays, runs in found.items():
+        for who, res in runs.items():
             m = match_paths(kept_seq, kept_tau, res["sequences"], res["delay_s"])
             missed = [describe(kept_seq[i]) for i in m.only_a]
             print(f"  {who} at {rays:.0e} rays misses {len(missed)}"
