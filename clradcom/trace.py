@@ -282,7 +282,10 @@ def _trace_scene(scene, settings, runtime, links, progress, times, steps, geomet
         say(f"paths {link_name}")
         step(done, len(links), f"{link_name}: specular")
         with clock("specular"):
-            paths = specular.link_paths(geom, tx_candidates, tx, rx, spec)
+            link_candidates = tx_candidates
+            if spec.from_receiver and r_idx != t_idx:
+                link_candidates = specular.both_ways(tx_candidates, candidates_of(r_idx))
+            paths = specular.link_paths(geom, link_candidates, tx, rx, spec)
         go_paths = paths  # the GO decisions the UTD terms follow at their boundaries
         if use_optics:
             step(done, len(links), f"{link_name}: physical optics")

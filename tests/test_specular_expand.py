@@ -19,10 +19,11 @@ import numpy as np
 import pytest
 
 from clradcom.errors import ArgumentError
-from clradcom.evaluation.peer import match_paths, sequences_of
+from clradcom.evaluation.peer import distinct_paths, match_paths, sequences_of
 from clradcom.mechanisms.specular import (
     SpecularSettings,
     _rows_not_in,
+    both_ways,
     expansion_candidates,
 )
 from clradcom.physics.em import C0
@@ -63,11 +64,22 @@ def test_rows_not_in():
     assert _rows_not_in(rows, None).tolist() == rows.tolist()
 
 
+def test_both_ways_reverses_the_receivers_sequences():
+    tx = {1: np.array([[3], [5]], np.int32), 2: np.array([[3, 5]], np.int32)}
+    rx = {1: np.array([[5], [8]], np.int32), 2: np.array([[5, 3], [9, 8]], np.int32),
+          3: np.array([[1, 2, 4]], np.int32)}
+    got = both_ways(tx, rx)
+    assert {k: v.tolist() for k, v in got.items()} == {
+        1: [[3], [5], [8]], 2: [[3, 5], [8, 9]], 3: [[4, 2, 1]]}
+
+
 def test_expand_rounds_is_checked():
     with pytest.raises(ArgumentError, match="expand_rounds"):
         SpecularSettings(expand_rounds=-1)
     with pytest.raises(ArgumentError, match="expand_rounds"):
         SpecularSettings(expand_rounds=1.5)
+    with pytest.raises(ArgumentError, match="from_receiver"):
+        SpecularSettings(from_receiver=1)
 
 
 @pytest.fixture(scope="module")
@@ -77,16 +89,31 @@ def street_iso():
         r, pattern=IsotropicPattern()) for r in scene.radars])
 
 
-def go(rays, expand=None):
+def go(rays, expand=None, from_receiver=None):
     return TraceSettings.preset("go", specular__rays=rays, specular__max_reflections=5,
                                 diffraction__max_diffractions=0,
-                                specular__expand_rounds=expand)
+                                specular__expand_rounds=expand,
+                                specular__from_receiver=from_receiver)
 
 
 def link_of(scene, settings, runtime):
     snap = trace_scene(scene, settings, runtime=runtime, links=[(0, 1)])
     p = snap.links[0].paths
     return p, sequences_of(p.interaction, p.n_interactions, p.object_id, snap.object_names)
+
+
+def check_real(paths, sequences, indices, triangles):
+    """Paths ``indices`` obey the law of reflection on their triangles, tau = L / c."""
+    for i in indices:
+        k = int(paths.n_interactions[i])
+        pts = paths.points[i, :k + 2]
+        # the image method mirrors in the face's plane (merge_coplanar's area-weighted
+        # plane of triangles coplanar within 1e-5 rad and 1e-5 m), not the triangle's;
+        # 10 um and 10 urad are far below a wavelength (12.5 mm)
+        assert reflection_law_residual(pts, triangles[paths.face_id[i, :k]]) < 1e-5, \
+            sequences[i]
+        length = np.linalg.norm(np.diff(pts, axis=0), axis=1).sum()
+        assert paths.delay_s[i] == pytest.approx(length / C0, rel=1e-12)
 
 
 def reflection_law_residual(points, triangles):
@@ -123,22 +150,23 @@ def test_expansion_finds_what_the_launch_missed_and_each_added_path_is_real(stre
     assert expanded_seq[:n] == launch_seq
     assert len(expanded.delay_s) >= n + 3
     # no path twice
-    assert len(match_paths(expanded_seq, expanded.delay_s, expanded_seq,
-                           expanded.delay_s).pairs) == len(expanded.delay_s)
+    assert len(distinct_paths(expanded_seq, expanded.delay_s)) == len(expanded.delay_s)
 
-    for i in range(n, len(expanded.delay_s)):
-        k = int(expanded.n_interactions[i])
-        pts = expanded.points[i, :k + 2]
-        tris = street_iso.triangles[expanded.face_id[i, :k]]
-        # the image method mirrors in the face's plane (merge_coplanar's area-weighted
-        # plane of triangles coplanar within 1e-5 rad and 1e-5 m), not the triangle's;
-        # 10 um and 10 urad are far below a wavelength (12.5 mm)
-        assert reflection_law_residual(pts, tris) < 1e-5, expanded_seq[i]
-        length = np.linalg.norm(np.diff(pts, axis=0), axis=1).sum()
-        assert expanded.delay_s[i] == pytest.approx(length / C0, rel=1e-12)
+    check_real(expanded, expanded_seq, range(n, len(expanded.delay_s)), street_iso.triangles)
 
     # more than the dense launch finds in places: it confirms a path 1e6 rays miss
     vs_dense = match_paths(dense_seq, dense.delay_s, expanded_seq, expanded.delay_s)
     assert len(vs_dense.only_b) >= 1
     assert len(vs_dense.pairs) > len(match_paths(dense_seq, dense.delay_s, launch_seq,
                                                  launch.delay_s).pairs)
+
+
+def test_the_receivers_launch_adds_the_paths_next_to_it(street_iso, runtime):
+    one_way, one_seq = link_of(street_iso, go(30_000, expand=4), runtime)
+    two_ways, two_seq = link_of(street_iso, go(30_000, expand=4, from_receiver=True),
+                                runtime)
+    m = match_paths(one_seq, one_way.delay_s, two_seq, two_ways.delay_s)
+    assert len(m.only_a) == 0  # nothing lost
+    assert len(m.only_b) >= 5
+    assert len(distinct_paths(two_seq, two_ways.delay_s)) == len(two_ways.delay_s)
+    check_real(two_ways, two_seq, m.only_b, street_iso.triangles)

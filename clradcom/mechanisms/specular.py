@@ -306,11 +306,19 @@ class SpecularSettings:
     #: out; it stops early when a round confirms nothing new. None (or 0): the launch's
     #: candidates only
     expand_rounds: int | None = None
+    #: a bistatic link also takes the receiver's own launch (its rays' face sequences,
+    #: reversed) as candidates: the faces next to the receiver, which few of the
+    #: transmitter's rays reach, come from its rays. None (or False): the transmitter's
+    from_receiver: bool | None = None
 
     def __post_init__(self):
         check_number("SpecularSettings", "max_reflections", self.max_reflections, low=0,
                      high=16, integer=True)
         check_number("SpecularSettings", "rays", self.rays, low=1, integer=True)
+        if self.from_receiver is not None and not isinstance(self.from_receiver, bool):
+            raise ArgumentError("must be True, False or None",
+                                argument="SpecularSettings.from_receiver",
+                                value=self.from_receiver)
         if self.expand_rounds is not None:
             check_number("SpecularSettings", "expand_rounds", self.expand_rounds, low=0,
                          high=16, integer=True)
@@ -437,6 +445,20 @@ def specular_paths(geom: Geometry, tx_pos, rx_pos, candidates, line_of_sight=Tru
                                         n_interactions=n_int)
     points, n_int, faces, triangles = points[keep], n_int[keep], faces[keep], triangles[keep]
     return PathGeometry(points=points, n_interactions=n_int, faces=faces, triangles=triangles)
+
+
+def both_ways(tx_candidates: Candidates, rx_candidates: Candidates) -> Candidates:
+    """The candidates of a link from both ends: the transmitter's and the receiver's
+    reversed (a path tx -> f1 ... fk -> rx is the path rx -> fk ... f1 -> tx), distinct
+    rows per order, sorted."""
+    out: Candidates = {}
+    for k in sorted(set(tx_candidates) | set(rx_candidates)):
+        blocks = [np.asarray(c[k], dtype=np.int32).reshape(-1, k)
+                  for c in (tx_candidates, rx_candidates) if k in c]
+        if k in rx_candidates:
+            blocks[-1] = blocks[-1][:, ::-1]
+        out[k] = np.unique(np.concatenate(blocks), axis=0)
+    return out
 
 
 def path_sequences(pg: PathGeometry) -> list[np.ndarray]:
