@@ -6,7 +6,7 @@ nested :class:`TraceSettings`, the per-transmitter caches and the link loop:
 
 1. :func:`~clradcom.mechanisms.common.kept_geometry` - planar faces, BVH, ray caster,
    built once per geometry and kept for the next traces of the same triangles in this
-   thread; wedges for diffraction (once per trace).
+   thread; wedges for diffraction (kept with it, per wedge setting).
 2. per transmitter: specular candidates (its rays' face sequences, OpenCL) and the
    SBR tubes of physical optics.
 3. per link, in this order: line of sight and specular reflections; physical optics
