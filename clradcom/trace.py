@@ -4,8 +4,9 @@ Each mechanism (:mod:`clradcom.mechanisms`) has its own settings and the same sh
 ``prepare`` once per transmitter then ``link_paths`` per link; this module holds the
 nested :class:`TraceSettings`, the per-transmitter caches and the link loop:
 
-1. :func:`~clradcom.mechanisms.common.build_geometry` - planar faces, BVH, ray caster
-   (once per scene); wedges for diffraction (once per scene).
+1. :func:`~clradcom.mechanisms.common.kept_geometry` - planar faces, BVH, ray caster,
+   built once per geometry and kept for the next traces of the same triangles in this
+   thread; wedges for diffraction (kept with it, per wedge setting).
 2. per transmitter: specular candidates (its rays' face sequences, OpenCL) and the
    SBR tubes of physical optics.
 3. per link, in this order: line of sight and specular reflections; physical optics
@@ -30,7 +31,7 @@ from clradcom.device.engines import EngineLog, engine_log
 from clradcom.device.runtime import Runtime
 from clradcom.errors import ArgumentError, ArgumentTypeError
 from clradcom.mechanisms import diffraction, optics, scattering, specular
-from clradcom.mechanisms.common import ENGINES, Geometry, build_geometry
+from clradcom.mechanisms.common import ENGINES, Geometry, kept_geometry
 from clradcom.mechanisms.diffraction import DiffractionSettings
 from clradcom.mechanisms.optics import OpticsSettings
 from clradcom.mechanisms.scattering import ScatteringSettings
@@ -255,7 +256,7 @@ def _trace_scene(scene, settings, runtime, links, progress, times, steps, geomet
                             f"engine ({settings.engine!r})", argument="geometry",
                             value=geometry.engine)
     with clock("geometry"):
-        geom = geometry or build_geometry(scene, runtime, engine=settings.engine)
+        geom = geometry or kept_geometry(scene, runtime, engine=settings.engine)
     use_optics = optics.active(scene, opt)
     with clock("wedges"):
         wedges = diffraction.prepare(geom, diff, optics.po_object_ids(scene, opt)
@@ -281,7 +282,10 @@ def _trace_scene(scene, settings, runtime, links, progress, times, steps, geomet
         say(f"paths {link_name}")
         step(done, len(links), f"{link_name}: specular")
         with clock("specular"):
-            paths = specular.link_paths(geom, tx_candidates, tx, rx, spec)
+            link_candidates = tx_candidates
+            if spec.from_receiver and r_idx != t_idx:
+                link_candidates = specular.both_ways(tx_candidates, candidates_of(r_idx))
+            paths = specular.link_paths(geom, link_candidates, tx, rx, spec)
         go_paths = paths  # the GO decisions the UTD terms follow at their boundaries
         if use_optics:
             step(done, len(links), f"{link_name}: physical optics")

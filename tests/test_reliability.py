@@ -36,7 +36,7 @@ def test_links_outside_the_scene_are_refused_before_tracing(links, runtime, monk
     def never(*args, **kwargs):  # pragma: no cover - reached only if the check is missing
         raise AssertionError("traced before the links were checked")
 
-    monkeypatch.setattr(trace_module, "build_geometry", never)
+    monkeypatch.setattr(trace_module, "kept_geometry", never)
     with pytest.raises(ArgumentError, match="links"):
         trace_scene(scene, TraceSettings(specular=SpecularSettings(rays=100)),
                     runtime=runtime, links=links)

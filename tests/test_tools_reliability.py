@@ -321,7 +321,7 @@ def test_an_out_that_is_a_file_is_refused_by_name(tool, tmp_path, capsys):
 def test_too_many_rays_are_refused_before_tracing_with_the_estimate(trace_tool, tradeoff_tool,
                                                                    tmp_path, monkeypatch,
                                                                    capsys):
-    monkeypatch.setattr(trace_module, "build_geometry", never)
+    monkeypatch.setattr(trace_module, "kept_geometry", never)
     assert trace_tool.main([str(PLATE), "--out", str(tmp_path / "a"),
                             "--rays", "10000000000"]) == 2
     err = capsys.readouterr().err

@@ -114,10 +114,15 @@ def test_metadata_names_every_setting_by_mechanism():
                                ("diffraction", DiffractionSettings),
                                ("optics", OpticsSettings), ("scattering", ScatteringSettings))
                 for f in dataclasses.fields(cls)}
-    # None means "follow another setting" and is left out
+    # None means "follow another setting" (or, for expand_rounds and from_receiver, "off": a
+    # snapshot traced without it keeps its bytes) and is left out
     assert set(meta) == (expected - {"settings.optics.max_bounces",
-                                     "settings.optics.sbr_spacing_wavelengths"}
+                                     "settings.optics.sbr_spacing_wavelengths",
+                                     "settings.specular.expand_rounds",
+                                     "settings.specular.from_receiver"}
                          ) | {"settings.engine"}
+    assert BASE.replace(specular__expand_rounds=3).metadata()[
+        "settings.specular.expand_rounds"] == 3
     assert meta["settings.engine"] == "device"
     assert meta["settings.specular.rays"] == 10_000
     assert meta["settings.diffraction.max_reflections"] == 1

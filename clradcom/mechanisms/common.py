@@ -15,8 +15,10 @@ Every mechanism module (:mod:`~clradcom.mechanisms.specular`,
 
 from __future__ import annotations
 
+import hashlib
+import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -32,7 +34,8 @@ from clradcom.geometry.faces import (
 from clradcom.scene.motion import scene_at
 from clradcom.scene.records import Radar, Scene
 
-__all__ = ["ENGINES", "Geometry", "GeometryCache", "build_geometry", "check_number",
+__all__ = ["ENGINES", "KEPT_GEOMETRIES", "Geometry", "GeometryCache", "build_geometry",
+           "check_number", "forget_geometries", "geometry_key", "kept_geometry",
            "moving_objects", "seen_by_antennas"]
 
 #: How the interactions are resolved: "device" in OpenCL kernels (the default), "host" in
@@ -49,6 +52,10 @@ class Geometry:
     caster: RayCaster | None  # None for a scene without triangles (free space)
     runtime: Runtime
     engine: str = "device"  # one of ENGINES
+    #: what a mechanism derives from this geometry alone and keeps for the next trace of
+    #: it (the wedges, under a key of everything else they depend on); shared by the
+    #: traces of a :func:`kept_geometry`
+    memo: dict = field(default_factory=dict)
 
 
 def build_geometry(scene: Scene, runtime: Runtime | None = None,
@@ -61,6 +68,74 @@ def build_geometry(scene: Scene, runtime: Runtime | None = None,
     # a BVH needs triangles; a free-space scene has only line-of-sight paths
     caster = RayCaster(scene.triangles, runtime=runtime) if len(scene.triangles) else None
     return Geometry(scene=scene, faces=faces, caster=caster, runtime=runtime, engine=engine)
+
+
+#: how many geometries :func:`kept_geometry` keeps per thread (the latest used)
+KEPT_GEOMETRIES = 2
+
+# per thread: [(geometry_key, runtime, faces, caster, memo)], most recently used last. Per
+# thread because two traces running at once in two threads would otherwise share one
+# caster's reused ray buffers.
+_KEPT = threading.local()
+
+
+def geometry_key(scene: Scene) -> bytes:
+    """A digest of what :func:`build_geometry` builds from: the triangles (their float64
+    bytes), each triangle's object and material. Two scenes with equal keys get the same
+    faces and BVH, bit for bit."""
+    h = hashlib.blake2b(digest_size=20)
+    for array, dtype in ((scene.triangles, np.float64), (scene.tri_object, np.int32),
+                         (scene.tri_material, np.int32)):
+        a = np.ascontiguousarray(array, dtype=dtype)
+        h.update(repr(a.shape).encode())
+        h.update(a.tobytes())
+    return h.digest()
+
+
+def kept_geometry(scene: Scene, runtime: Runtime | None = None,
+                  engine: str = "device") -> Geometry:
+    """:func:`build_geometry` of ``scene``, its planar faces and ray caster (BVH, device
+    buffers, the visibility kernels' face tables that hang on the caster, the wedges in
+    ``Geometry.memo``) reused when one
+    of the last :data:`KEPT_GEOMETRIES` calls in this thread had the same geometry
+    (:func:`geometry_key`: triangles, objects, materials, bit for bit) on the same
+    runtime. What :func:`clradcom.trace.trace_scene` uses, so that tracing one scene
+    again (more rays, other links, other settings) pays only the ray work. A scene whose
+    triangles changed gets a new key and a new build; the kept caster holds its own
+    read-only copy of the triangles, so changing a scene's arrays in place never
+    changes a kept geometry. :func:`forget_geometries` lets them go."""
+    if engine not in ENGINES:
+        raise ArgumentError(f"must be one of {', '.join(ENGINES)}", argument="engine",
+                            value=engine)
+    runtime = runtime or get_runtime()
+    if not len(scene.triangles):
+        return build_geometry(scene, runtime, engine=engine)
+    key = geometry_key(scene)
+    kept = getattr(_KEPT, "entries", None)
+    if kept is None:
+        kept = _KEPT.entries = []
+    for i, (k, rt, faces, caster, memo) in enumerate(kept):
+        if k == key and rt is runtime:
+            kept.append(kept.pop(i))
+            return Geometry(scene=scene, faces=faces, caster=caster, runtime=runtime,
+                            engine=engine, memo=memo)
+    triangles = np.array(scene.triangles, dtype=np.float64)
+    triangles.flags.writeable = False
+    faces = merge_coplanar(triangles, scene.tri_object, scene.tri_material)
+    for array in vars(faces).values():
+        array.flags.writeable = False  # shared by every trace of this geometry
+    caster = RayCaster(triangles, runtime=runtime)
+    memo: dict = {}
+    kept.append((key, runtime, faces, caster, memo))
+    del kept[:-KEPT_GEOMETRIES]
+    return Geometry(scene=scene, faces=faces, caster=caster, runtime=runtime, engine=engine,
+                    memo=memo)
+
+
+def forget_geometries() -> None:
+    """Drop the geometries :func:`kept_geometry` keeps in this thread (their device
+    buffers are freed with them)."""
+    _KEPT.entries = []
 
 
 def moving_objects(scene: Scene) -> list[int]:

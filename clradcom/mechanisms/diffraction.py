@@ -1234,6 +1234,21 @@ def prepare(geom: Geometry, settings: DiffractionSettings,
     if not settings.max_diffractions or not len(geom.scene.triangles):
         return None
     scene = geom.scene
+    # the geometry's triangles, objects and materials are the memo's (kept_geometry);
+    # the rest the wedges depend on is the key
+    key = ("wedges", float(settings.wedge_angle_deg), bool(settings.po_object_edges),
+           tuple(sorted(int(i) for i in po_objects)), scene.tri_two_sided.tobytes())
+    if key not in geom.memo:
+        wedges = _scene_wedges(scene, settings, po_objects)
+        for value in vars(wedges).values():
+            if isinstance(value, np.ndarray):
+                value.flags.writeable = False  # shared by the next traces
+        geom.memo[key] = wedges
+    return geom.memo[key]
+
+
+def _scene_wedges(scene, settings: DiffractionSettings, po_objects) -> Wedges:
+    """:func:`prepare`'s wedges, computed."""
     wedges = extract_wedges(scene.triangles, scene.tri_object, scene.tri_material,
                             settings.wedge_angle_deg, two_sided=scene.tri_two_sided)
     if len(po_objects) and not settings.po_object_edges:

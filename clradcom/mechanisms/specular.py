@@ -300,11 +300,28 @@ class SpecularSettings:
     max_reflections: int = 5
     rays: int = 1_000_000  # launched per transmitter over its pattern's support
     line_of_sight: bool = True
+    #: rounds of candidate expansion after the launch (:func:`expanded_paths`): each
+    #: round tries, per link, every confirmed path with one more reflection off a face
+    #: some confirmed path reflects off, inserted anywhere, and with one reflection left
+    #: out; it stops early when a round confirms nothing new. None (or 0): the launch's
+    #: candidates only
+    expand_rounds: int | None = None
+    #: a bistatic link also takes the receiver's own launch (its rays' face sequences,
+    #: reversed) as candidates: the faces next to the receiver, which few of the
+    #: transmitter's rays reach, come from its rays. None (or False): the transmitter's
+    from_receiver: bool | None = None
 
     def __post_init__(self):
         check_number("SpecularSettings", "max_reflections", self.max_reflections, low=0,
                      high=16, integer=True)
         check_number("SpecularSettings", "rays", self.rays, low=1, integer=True)
+        if self.from_receiver is not None and not isinstance(self.from_receiver, bool):
+            raise ArgumentError("must be True, False or None",
+                                argument="SpecularSettings.from_receiver",
+                                value=self.from_receiver)
+        if self.expand_rounds is not None:
+            check_number("SpecularSettings", "expand_rounds", self.expand_rounds, low=0,
+                         high=16, integer=True)
         if not isinstance(self.line_of_sight, bool):
             raise ArgumentError("must be True or False", argument="SpecularSettings.line_of_sight",
                                 value=self.line_of_sight)
@@ -366,6 +383,9 @@ def link_paths(geom: Geometry, candidates: Candidates, tx: Radar, rx: Radar,
     """Line of sight and specular reflections of one link, with their fields; an antenna
     lying on a face adds that face's reflection merged with the line of sight."""
     pg = specular_paths(geom, tx.position, rx.position, candidates, settings.line_of_sight)
+    if settings.expand_rounds:
+        pg = expanded_paths(geom, tx.position, rx.position, candidates, pg,
+                            settings.max_reflections, settings.expand_rounds)
     paths = path_fields(geom, pg, tx, rx)
     if settings.line_of_sight and np.any(pg.n_interactions == 0):
         paths = concat_paths([paths, surface_contact_paths(geom, tx, rx)])
@@ -425,6 +445,115 @@ def specular_paths(geom: Geometry, tx_pos, rx_pos, candidates, line_of_sight=Tru
                                         n_interactions=n_int)
     points, n_int, faces, triangles = points[keep], n_int[keep], faces[keep], triangles[keep]
     return PathGeometry(points=points, n_interactions=n_int, faces=faces, triangles=triangles)
+
+
+def both_ways(tx_candidates: Candidates, rx_candidates: Candidates) -> Candidates:
+    """The candidates of a link from both ends: the transmitter's and the receiver's
+    reversed (a path tx -> f1 ... fk -> rx is the path rx -> fk ... f1 -> tx), distinct
+    rows per order, sorted."""
+    out: Candidates = {}
+    for k in sorted(set(tx_candidates) | set(rx_candidates)):
+        blocks = [np.asarray(c[k], dtype=np.int32).reshape(-1, k)
+                  for c in (tx_candidates, rx_candidates) if k in c]
+        if k in rx_candidates:
+            blocks[-1] = blocks[-1][:, ::-1]
+        out[k] = np.unique(np.concatenate(blocks), axis=0)
+    return out
+
+
+def path_sequences(pg: PathGeometry) -> list[np.ndarray]:
+    """The face sequence of every reflected path of ``pg`` (line of sight left out)."""
+    return [pg.faces[i, :n] for i, n in enumerate(pg.n_interactions) if n > 0]
+
+
+def expansion_candidates(sequences, pool, max_order: int) -> dict[int, np.ndarray]:
+    """Face sequences one step from ``sequences``: each with one face of ``pool``
+    inserted at any place (up to ``max_order`` faces), and each with one face left out;
+    never the same face twice in a row (a reflection cannot follow itself). Distinct
+    rows per order, sorted."""
+    pool = np.asarray(pool, dtype=np.int32)
+    rows: dict[int, list[np.ndarray]] = {}
+    for q in sequences:
+        q = np.asarray(q, dtype=np.int32)
+        n = len(q)
+        if n < max_order and len(pool):
+            for at in range(n + 1):
+                block = np.empty((len(pool), n + 1), dtype=np.int32)
+                block[:, :at], block[:, at], block[:, at + 1:] = q[:at], pool, q[at:]
+                rows.setdefault(n + 1, []).append(block)
+        if n > 1:
+            rows.setdefault(n - 1, []).append(
+                np.stack([np.delete(q, at) for at in range(n)]))
+    out = {}
+    for k, blocks in sorted(rows.items()):
+        block = np.unique(np.concatenate(blocks), axis=0)
+        block = block[np.all(block[:, 1:] != block[:, :-1], axis=1)]
+        if len(block):
+            out[k] = block
+    return out
+
+
+def _rows_not_in(rows: np.ndarray, known: np.ndarray | None) -> np.ndarray:
+    """The rows of ``rows`` (distinct) that ``known`` does not hold."""
+    if known is None or not len(known) or not len(rows):
+        return rows
+    both = np.concatenate([np.asarray(known, dtype=np.int32), rows])
+    _, inverse = np.unique(both, axis=0, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    seen = np.zeros(int(inverse.max()) + 1, dtype=bool)
+    seen[inverse[:len(known)]] = True
+    return rows[~seen[inverse[len(known):]]]
+
+
+def concat_path_geometry(parts: list[PathGeometry]) -> PathGeometry:
+    """The paths of ``parts`` in order, padded to the widest."""
+    k_max = max(p.faces.shape[1] for p in parts)
+
+    def pad(a, width, fill):
+        out = np.full((len(a), width, *a.shape[2:]), fill, dtype=a.dtype)
+        out[:, :a.shape[1]] = a
+        return out
+
+    return PathGeometry(
+        points=np.concatenate([pad(p.points, k_max + 2, np.nan) for p in parts]),
+        n_interactions=np.concatenate([p.n_interactions for p in parts]),
+        faces=np.concatenate([pad(p.faces, k_max, -1) for p in parts]),
+        triangles=np.concatenate([pad(p.triangles, k_max, -1) for p in parts]))
+
+
+def expanded_paths(geom: Geometry, tx_pos, rx_pos, candidates, found: PathGeometry,
+                   max_order: int, rounds: int) -> PathGeometry:
+    """``found`` (the launch's confirmed paths of one link) with the paths that candidate
+    expansion adds (docs/performance.md, "Complete path sets from fewer rays").
+
+    A ray launch misses a path whose ray tube is narrower than the lattice spacing. Such
+    a path is usually one reflection away from a path it did find (another bounce off
+    the road or a facade on the way, or one less), so each round proposes, per link,
+    every confirmed path with a face that a confirmed path reflects off inserted at any
+    place, and with one face left out (:func:`expansion_candidates`), minus every
+    sequence tried before. They go through the same exact image method and visibility
+    confirmation as the launch's candidates (:func:`specular_paths`), so every path
+    added is as real as the launch's; face sequences are unique, so none is found twice.
+    Stops after ``rounds`` rounds or one that confirms nothing new."""
+    tried = {k: np.asarray(v, dtype=np.int32) for k, v in candidates.items()}
+    parts = [found]
+    sequences = path_sequences(found)
+    for _ in range(rounds):
+        pool = np.unique(np.concatenate(sequences)) if sequences else np.zeros(0, np.int32)
+        proposed = {}
+        for k, rows in expansion_candidates(sequences, pool, max_order).items():
+            rows = _rows_not_in(rows, tried.get(k))
+            if len(rows):
+                proposed[k] = rows
+                tried[k] = rows if k not in tried else np.concatenate([tried[k], rows])
+        if not proposed:
+            break
+        more = specular_paths(geom, tx_pos, rx_pos, proposed, line_of_sight=False)
+        if not more.n_paths:
+            break
+        parts.append(more)
+        sequences += path_sequences(more)
+    return concat_path_geometry(parts) if len(parts) > 1 else found
 
 
 def surface_contact_paths(geom: Geometry, tx: Radar, rx: Radar) -> Paths:
