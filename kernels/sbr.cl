@@ -461,9 +461,8 @@ __kernel void sbr_bounce(__global const Bvh8Node *nodes,
                          __global const SbrTube *queue,
                          const int n_tubes,
                          __global SbrTube *next_queue,
-                         __global volatile int *n_next,
                          __global SbrFootprint *footprints,
-                         __global volatile int *n_footprints)
+                         __global volatile int *counts)     /* next tubes, footprints */
 {
     int gid = get_global_id(0);
     /* past the count: a copy of the last */
@@ -487,7 +486,7 @@ __kernel void sbr_bounce(__global const Bvh8Node *nodes,
     pvec org = spawn(p, n, d_out);
     if (gid >= n_tubes) return;
     if (bounce >= first_bounce && tri_record[tri]) {
-        __global SbrFootprint *fp = footprints + atomic_inc(n_footprints);
+        __global SbrFootprint *fp = footprints + atomic_inc(counts + 1);
         pv_store(fp->point, p);
         fp->length = ps_out(L);
         fp->tube = t->tube;
@@ -495,7 +494,7 @@ __kernel void sbr_bounce(__global const Bvh8Node *nodes,
             fp->tri[k] = (k == bounce - 1) ? tri : t->tri[k];
     }
     if (bounce == max_bounces) return;
-    __global SbrTube *o = next_queue + atomic_inc(n_next);
+    __global SbrTube *o = next_queue + atomic_inc(counts);
     pv_store(o->pos, p);
     pv_store(o->org, org);
     o->length = ps_out(L);

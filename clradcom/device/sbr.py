@@ -278,8 +278,9 @@ class _Wavefront:
                                     1 << 14, MAX_START_RECORDS))
         self.records = empty(self.capacity * dtype.itemsize)
         # the counters: tubes queued, the next bounce's tubes, footprints, groups, records
-        self.n_queued, self.n_next, self.n_footprints, self.n_groups, self.n_records = (
-            empty(4) for _ in range(5))
+        self.n_queued, self.n_groups, self.n_records = (empty(4) for _ in range(3))
+        # a bounce's two counts (next tubes, footprints) in one buffer: one read for both
+        self.bounce_counts = empty(8)
 
     def _zero(self, *bufs):
         for b in bufs:
@@ -290,11 +291,13 @@ class _Wavefront:
         self.cl.enqueue_copy(self.rt.queue, out, buf, is_blocking=True)
         return int(out[0])
 
-    def _run(self, kernel, global_size, local_size, *args, name):
-        """A kernel that does not walk the BVH, timed as the caster's are."""
+    def _run(self, kernel, global_size, local_size, *args, name, wait=True):
+        """A kernel that does not walk the BVH, timed as the caster's are; ``wait=False``
+        leaves it in the in-order queue for the next launch (its time then counts in the
+        next waited block)."""
         rt = self.rt
         with rt.kernel_clock():
-            rt.launch(kernel, global_size, local_size, *args, name=name, wait=True)
+            rt.launch(kernel, global_size, local_size, *args, name=name, wait=wait)
 
     def _run_bvh(self, kernel_name, global_size, *args):
         self.caster.run_kernel("sbr.cl", kernel_name, global_size, *args,
@@ -326,20 +329,22 @@ class _Wavefront:
             return self._read(self.n_queued)
 
     def _bounce(self, m: int, n_live: int, first_bounce: int, max_bounces: int):
+        counts = np.zeros(2, np.int32)
         with self.rt.guard("SBR bounce"):
-            self._zero(self.n_next, self.n_footprints)
+            self.cl.enqueue_copy(self.rt.queue, self.bounce_counts, counts)
         self._run_bvh("sbr_bounce", n_live, *self.bounce_args, np.int32(m),
                       np.int32(first_bounce), np.int32(max_bounces), self.queues[0],
-                      np.int32(n_live), self.queues[1], self.n_next, self.footprints,
-                      self.n_footprints)
+                      np.int32(n_live), self.queues[1], self.footprints, self.bounce_counts)
         with self.rt.guard("SBR bounce counts"):
-            return self._read(self.n_next), self._read(self.n_footprints)
+            self.cl.enqueue_copy(self.rt.queue, counts, self.bounce_counts, is_blocking=True)
+        return int(counts[0]), int(counts[1])
 
     def _illuminate(self, m: int, n_fp: int, first: int):
         with self.rt.guard("SBR illumination"):
             self._run(self.illuminate_kernel, n_fp, self.illuminate_local,
                       *self.illuminate_args, np.int64(first), np.int32(m), self.footprints,
-                      np.int32(n_fp), self.lit, name="sbr_illuminate (sbr.cl)")
+                      np.int32(n_fp), self.lit, name="sbr_illuminate (sbr.cl)",
+                      wait=False)  # sbr_radiate, next in the queue, waits for it
 
     def _radiate(self, m: int, n_fp: int, n_blocks: int) -> int:
         slots = n_blocks * self.n_rx
