@@ -445,10 +445,40 @@ __kernel void sbr_launch(__global const real *win_f,
     for (int k = 0; k < SBR_TUBE_TRIS; ++k) t->tri[k] = -1;
 }
 
-/* Bounce m of every queued tube, one work item each: the closest hit, the exact point
- * on the hit triangle's plane and the unfolded length; a footprint where m >=
+/* A tube's next hit from pos (its ray starting at org) along d, with the unfolded
+ * length L so far: the hit triangle, the exact point on its plane, the length there,
+ * the mirrored direction and the next ray's origin. False where the tube ends: it
+ * misses, grazes or hits the plane it just left (a corner's edge). */
+inline bool tube_next_hit(__global const Bvh8Node *nodes, __global const float4 *tri4,
+                          __global const int *slot_prim, __global const pelem *tri_v,
+                          __global const pelem *tri_n, real3 d, pvec pos, pvec org,
+                          pscal L, int *tri_hit, pvec *p_hit, pscal *L_hit, real3 *d_out,
+                          pvec *org_out)
+{
+    PreparedRay pr = prepare_ray(pv_float3(org), to_float3(d));
+    float tmax = INFINITY, hu = 0.0f, hv = 0.0f;
+    int slot = bvh_closest(nodes, tri4, slot_prim, &pr, 0.0f, &tmax, &hu, &hv, -1);
+    if (slot < 0) return false;
+    int tri = slot_prim[slot];
+    pvec n_p = pv_load(tri_n + 3 * tri);
+    real3 n = pv_real(n_p);
+    real dn = dot(d, n);
+    if (!(fabs(dn) > 1e-9)) return false;   /* grazing: no footprint */
+    pscal tt = plane_t(pv_load(tri_v + 9 * tri), pos, n_p, n, d, dn);
+    if (!(ps_real(tt) > 0.0)) return false;
+    pvec p = pv_along(pos, tt, d);
+    *tri_hit = tri;
+    *p_hit = p;
+    *L_hit = ps_add(L, pv_len(pv_sub(p, pos)));
+    *d_out = d - 2.0 * dn * n;
+    *org_out = spawn(p, n, *d_out);
+    return true;
+}
+
+/* Bounce m of every queued tube, one work item each: its next hit; a footprint where m >=
  * first_bounce on a recorded triangle; unless m is the last bounce, the tube mirrored
- * into the next queue. A tube that misses, grazes or hits the plane it just left ends. */
+ * into the next queue. The wavefront's bounce: tubes that end leave the queue, so the
+ * work items of a SIMD vector or warp stay busy. */
 __kernel void sbr_bounce(__global const Bvh8Node *nodes,
                          __global const float4 *tri4,
                          __global const int *slot_prim,
@@ -461,33 +491,22 @@ __kernel void sbr_bounce(__global const Bvh8Node *nodes,
                          __global const SbrTube *queue,
                          const int n_tubes,
                          __global SbrTube *next_queue,
-                         __global volatile int *n_next,
                          __global SbrFootprint *footprints,
-                         __global volatile int *n_footprints)
+                         __global volatile int *counts)     /* next tubes, footprints */
 {
     int gid = get_global_id(0);
     /* past the count: a copy of the last */
     __global const SbrTube *t = queue + min(gid, n_tubes - 1);
-    real3 d = load3(t->dir);
-    pvec pos = pv_load(t->pos);
-    PreparedRay pr = prepare_ray(pv_float3(pv_load(t->org)), to_float3(d));
-    float tmax = INFINITY, hu = 0.0f, hv = 0.0f;
-    int slot = bvh_closest(nodes, tri4, slot_prim, &pr, 0.0f, &tmax, &hu, &hv, -1);
-    if (slot < 0) return;
-    int tri = slot_prim[slot];
-    pvec n_p = pv_load(tri_n + 3 * tri);
-    real3 n = pv_real(n_p);
-    real dn = dot(d, n);
-    if (!(fabs(dn) > 1e-9)) return;   /* grazing: no footprint */
-    pscal tt = plane_t(pv_load(tri_v + 9 * tri), pos, n_p, n, d, dn);
-    if (!(ps_real(tt) > 0.0)) return;   /* on the plane it just left (a corner's edge) */
-    pvec p = pv_along(pos, tt, d);
-    pscal L = ps_add(ps_load(t->length), pv_len(pv_sub(p, pos)));
-    real3 d_out = d - 2.0 * dn * n;
-    pvec org = spawn(p, n, d_out);
+    real3 d = load3(t->dir), d_out;
+    pvec p, org;
+    pscal L;
+    int tri;
+    if (!tube_next_hit(nodes, tri4, slot_prim, tri_v, tri_n, d, pv_load(t->pos),
+                       pv_load(t->org), ps_load(t->length), &tri, &p, &L, &d_out, &org))
+        return;
     if (gid >= n_tubes) return;
     if (bounce >= first_bounce && tri_record[tri]) {
-        __global SbrFootprint *fp = footprints + atomic_inc(n_footprints);
+        __global SbrFootprint *fp = footprints + atomic_inc(counts + 1);
         pv_store(fp->point, p);
         fp->length = ps_out(L);
         fp->tube = t->tube;
@@ -495,13 +514,61 @@ __kernel void sbr_bounce(__global const Bvh8Node *nodes,
             fp->tri[k] = (k == bounce - 1) ? tri : t->tri[k];
     }
     if (bounce == max_bounces) return;
-    __global SbrTube *o = next_queue + atomic_inc(n_next);
+    __global SbrTube *o = next_queue + atomic_inc(counts);
     pv_store(o->pos, p);
     pv_store(o->org, org);
     o->length = ps_out(L);
     store3(o->dir, d_out);
     o->tube = t->tube;
     for (int k = 0; k < SBR_TUBE_TRIS; ++k) o->tri[k] = (k == bounce - 1) ? tri : t->tri[k];
+}
+
+/* Every bounce of every launched tube in one work item each (sbr_bounce's steps in a
+ * loop, the tube kept in private memory): bounce m's footprints into region m - 1 of
+ * `footprints` (`region` footprints each), counted in counts[m - 1]. For devices that
+ * run a work item as scalar code (PoCL's CPU device), where a tube that ends early costs
+ * nothing and the queue between bounces only costs launches and memory traffic. */
+__kernel void sbr_bounces(__global const Bvh8Node *nodes,
+                          __global const float4 *tri4,
+                          __global const int *slot_prim,
+                          __global const pelem *tri_v,       /* T*9 */
+                          __global const pelem *tri_n,       /* T*3, unit */
+                          __global const uchar *tri_record,
+                          const int first_bounce,
+                          const int max_bounces,
+                          __global const SbrTube *queue,
+                          const int n_tubes,
+                          __global SbrFootprint *footprints,
+                          const int region,
+                          __global volatile int *counts)     /* per bounce: footprints */
+{
+    int gid = get_global_id(0);
+    __global const SbrTube *t = queue + min(gid, n_tubes - 1);
+    real3 d = load3(t->dir);
+    pvec pos = pv_load(t->pos), org = pv_load(t->org);
+    pscal L = ps_load(t->length);
+    int tube = t->tube;
+    int tris[SBR_TUBE_TRIS];
+    for (int k = 0; k < SBR_TUBE_TRIS; ++k) tris[k] = -1;
+    for (int m = 1; m <= max_bounces; ++m) {
+        int tri;
+        pvec p;
+        real3 d_out;
+        if (!tube_next_hit(nodes, tri4, slot_prim, tri_v, tri_n, d, pos, org, L, &tri, &p,
+                           &L, &d_out, &org))
+            break;
+        tris[m - 1] = tri;
+        if (gid < n_tubes && m >= first_bounce && tri_record[tri]) {
+            __global SbrFootprint *fp =
+                footprints + (size_t)(m - 1) * region + atomic_inc(counts + m - 1);
+            pv_store(fp->point, p);
+            fp->length = ps_out(L);
+            fp->tube = tube;
+            for (int k = 0; k < SBR_TUBE_TRIS; ++k) fp->tri[k] = tris[k];
+        }
+        pos = p;
+        d = d_out;
+    }
 }
 
 /* One work item per footprint of bounce m: the tube's cross-section and the fields of

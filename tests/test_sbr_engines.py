@@ -268,6 +268,34 @@ def test_batches_and_runs_give_the_same_records(runtime):
     assert whole.tobytes() == run(4096).tobytes() == run(device_sbr.BATCH_TUBES).tobytes()
 
 
+def test_bounces_in_one_launch_give_the_wavefront_records(runtime, monkeypatch):
+    """sbr_bounces (all bounces of a tube in one work item, for scalar CPU devices) and
+    the wavefront (one launch per bounce, the live tubes compacted between) give the same
+    records, bit for bit, whichever the device would take by itself; each mode is the one
+    that runs (checked by the kernels launched)."""
+    run, _ = trihedral_runs(runtime)
+    names = []
+    orig = type(runtime).launch
+
+    def launch(self, kernel, *args, name=None, **kw):
+        names.append(name)
+        return orig(self, kernel, *args, name=name, **kw)
+
+    monkeypatch.setattr(type(runtime), "launch", launch)
+    records = {}
+    for mode in ((runtime.info.vendor,), ()):
+        monkeypatch.setattr(device_sbr, "PERSISTENT_BOUNCE_VENDORS", mode)
+        names.clear()
+        persistent = device_sbr.persistent_bounces(runtime)
+        records[persistent] = run(4096)
+        assert ("sbr_bounces (sbr.cl)" in names) == persistent
+        assert ("sbr_bounce (sbr.cl)" in names) == (not persistent)
+    if runtime.info.device_type == "CPU":
+        assert set(records) == {True, False}
+        assert len(records[True]) > 0
+        assert records[True].tobytes() == records[False].tobytes()
+
+
 def test_records_beyond_the_buffer_reduce_the_bounce_again(runtime, monkeypatch):
     run, whole = trihedral_runs(runtime)
     names = []

@@ -16,6 +16,8 @@ and batch size gives the same records in the same order.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from clradcom.device.precision import join_pairs, split_pairs
@@ -258,15 +260,35 @@ class _Wavefront:
                               f"or another device")
         _, tube_bytes, footprint_bytes, lit_bytes, contribution_bytes = (
             int(x) for x in _struct_sizes(rt, options, program_defines))
-        # per tube: two queues, a footprint and its illumination, per receiver a
-        # contribution and its footprint
-        per_tube = (2 * tube_bytes + footprint_bytes + lit_bytes
-                    + n_rx * (contribution_bytes + 4))
+        max_bounces = int(defines["SBR_MAX_BOUNCES"])
+        self.persistent = persistent_bounces(rt)
+        # per tube: two queues and a footprint (persistent: one queue and a footprint per
+        # bounce), its illumination, per receiver a contribution and its footprint
+        per_tube = ((tube_bytes + max_bounces * footprint_bytes) if self.persistent
+                    else (2 * tube_bytes + footprint_bytes))
+        per_tube += lit_bytes + n_rx * (contribution_bytes + 4)
         self.blocks_per_batch = _batch_tubes(rt, per_tube, batch_tubes, n_rx) // cells
         n = min(self.blocks_per_batch, n_blocks) * cells
         empty = rt.empty
-        self.queues = [empty(n * tube_bytes), empty(n * tube_bytes)]
-        self.footprints = empty(n * footprint_bytes)
+        if self.persistent:
+            self.bounces_kernel = rt.kernel("sbr.cl", "sbr_bounces", options, program_defines)
+            # bounce m's footprints in region m - 1, each region starting on the device's
+            # sub-buffer alignment
+            align = max(1, int(rt.device.mem_base_addr_align) // 8)
+            step = align // math.gcd(align, footprint_bytes)
+            self.region = -(-n // step) * step
+            region_bytes = self.region * footprint_bytes
+            self.footprint_area = empty(max_bounces * region_bytes)
+            self.footprint_regions = [
+                self.footprint_area.get_sub_region(m * region_bytes, region_bytes)
+                for m in range(max_bounces)]
+            self.queues = [empty(n * tube_bytes)]
+            self.bounce_counts = empty(4 * max_bounces)
+        else:
+            self.queues = [empty(n * tube_bytes), empty(n * tube_bytes)]
+            self.footprints = empty(n * footprint_bytes)
+            # a bounce's two counts (next tubes, footprints) in one buffer: one read
+            self.bounce_counts = empty(8)
         self.lit = empty(n * lit_bytes)
         self.contributions = empty(n * n_rx * contribution_bytes)
         self.contribution_footprint = empty(n * n_rx * 4)
@@ -277,9 +299,8 @@ class _Wavefront:
         self.capacity = int(np.clip(RECORDS_PER_BLOCK_RX * max(1, n_rx) * (n // cells),
                                     1 << 14, MAX_START_RECORDS))
         self.records = empty(self.capacity * dtype.itemsize)
-        # the counters: tubes queued, the next bounce's tubes, footprints, groups, records
-        self.n_queued, self.n_next, self.n_footprints, self.n_groups, self.n_records = (
-            empty(4) for _ in range(5))
+        # the counters: tubes queued, groups, records
+        self.n_queued, self.n_groups, self.n_records = (empty(4) for _ in range(3))
 
     def _zero(self, *bufs):
         for b in bufs:
@@ -290,11 +311,13 @@ class _Wavefront:
         self.cl.enqueue_copy(self.rt.queue, out, buf, is_blocking=True)
         return int(out[0])
 
-    def _run(self, kernel, global_size, local_size, *args, name):
-        """A kernel that does not walk the BVH, timed as the caster's are."""
+    def _run(self, kernel, global_size, local_size, *args, name, wait=True):
+        """A kernel that does not walk the BVH, timed as the caster's are; ``wait=False``
+        leaves it in the in-order queue for the next launch (its time then counts in the
+        next waited block)."""
         rt = self.rt
         with rt.kernel_clock():
-            rt.launch(kernel, global_size, local_size, *args, name=name, wait=True)
+            rt.launch(kernel, global_size, local_size, *args, name=name, wait=wait)
 
     def _run_bvh(self, kernel_name, global_size, *args):
         self.caster.run_kernel("sbr.cl", kernel_name, global_size, *args,
@@ -304,18 +327,30 @@ class _Wavefront:
         """The records of blocks first .. first + n_blocks - 1 (a list of arrays)."""
         out = []
         n_live = self._launch(first, n_blocks)
+        if self.persistent:
+            n_fps = self._bounces(n_live, first_bounce, max_bounces) if n_live else []
+            for m, n_fp in enumerate(n_fps, start=1):
+                if n_fp:
+                    out += self._radiate_bounce(m, n_fp, first, n_blocks,
+                                                self.footprint_regions[m - 1])
+            return out
         for m in range(1, max_bounces + 1):
             if n_live == 0:
                 break
             n_next, n_fp = self._bounce(m, n_live, first_bounce, max_bounces)
             if n_fp:
-                self._illuminate(m, n_fp, first)
-                n_groups = self._radiate(m, n_fp, n_blocks)
-                if n_groups:
-                    out.append(self._reduce(m, n_groups, first))
+                out += self._radiate_bounce(m, n_fp, first, n_blocks, self.footprints)
             self.queues.reverse()
             n_live = n_next
         return out
+
+    def _radiate_bounce(self, m: int, n_fp: int, first: int, n_blocks: int,
+                        footprints) -> list:
+        """Bounce m's records from its n_fp ``footprints``: illumination, radiation
+        toward every receiver, reduction."""
+        self._illuminate(m, n_fp, first, footprints)
+        n_groups = self._radiate(m, n_fp, n_blocks, footprints)
+        return [self._reduce(m, n_groups, first, footprints)] if n_groups else []
 
     def _launch(self, first: int, n_blocks: int) -> int:
         with self.rt.guard("SBR tube launch"):
@@ -326,40 +361,55 @@ class _Wavefront:
             return self._read(self.n_queued)
 
     def _bounce(self, m: int, n_live: int, first_bounce: int, max_bounces: int):
+        counts = np.zeros(2, np.int32)
         with self.rt.guard("SBR bounce"):
-            self._zero(self.n_next, self.n_footprints)
+            self.cl.enqueue_copy(self.rt.queue, self.bounce_counts, counts)
         self._run_bvh("sbr_bounce", n_live, *self.bounce_args, np.int32(m),
                       np.int32(first_bounce), np.int32(max_bounces), self.queues[0],
-                      np.int32(n_live), self.queues[1], self.n_next, self.footprints,
-                      self.n_footprints)
+                      np.int32(n_live), self.queues[1], self.footprints, self.bounce_counts)
         with self.rt.guard("SBR bounce counts"):
-            return self._read(self.n_next), self._read(self.n_footprints)
+            self.cl.enqueue_copy(self.rt.queue, counts, self.bounce_counts, is_blocking=True)
+        return int(counts[0]), int(counts[1])
 
-    def _illuminate(self, m: int, n_fp: int, first: int):
+    def _bounces(self, n_live: int, first_bounce: int, max_bounces: int) -> list[int]:
+        """Every bounce of the n_live launched tubes in one launch (sbr_bounces): the
+        footprints per bounce, in :attr:`footprint_regions`."""
+        counts = np.zeros(max_bounces, np.int32)
+        with self.rt.guard("SBR bounces"):
+            self.cl.enqueue_copy(self.rt.queue, self.bounce_counts, counts)
+        self._run_bvh("sbr_bounces", n_live, *self.bounce_args, np.int32(first_bounce),
+                      np.int32(max_bounces), self.queues[0], np.int32(n_live),
+                      self.footprint_area, np.int32(self.region), self.bounce_counts)
+        with self.rt.guard("SBR bounce counts"):
+            self.cl.enqueue_copy(self.rt.queue, counts, self.bounce_counts, is_blocking=True)
+        return [int(c) for c in counts]
+
+    def _illuminate(self, m: int, n_fp: int, first: int, footprints):
         with self.rt.guard("SBR illumination"):
             self._run(self.illuminate_kernel, n_fp, self.illuminate_local,
-                      *self.illuminate_args, np.int64(first), np.int32(m), self.footprints,
-                      np.int32(n_fp), self.lit, name="sbr_illuminate (sbr.cl)")
+                      *self.illuminate_args, np.int64(first), np.int32(m), footprints,
+                      np.int32(n_fp), self.lit, name="sbr_illuminate (sbr.cl)",
+                      wait=False)  # sbr_radiate, next in the queue, waits for it
 
-    def _radiate(self, m: int, n_fp: int, n_blocks: int) -> int:
+    def _radiate(self, m: int, n_fp: int, n_blocks: int, footprints) -> int:
         slots = n_blocks * self.n_rx
         self.rt.fill(self.contribution_footprint, np.int32(-1), slots * self.cells * 4)
         self.rt.fill(self.group_tubes, np.int32(0), slots * 4)
         self._zero(self.n_groups)
         self._run_bvh("sbr_radiate", n_fp * self.n_rx, *self.radiate_args, np.int32(m),
-                      self.footprints, self.lit, np.int32(n_fp), self.contributions,
+                      footprints, self.lit, np.int32(n_fp), self.contributions,
                       self.contribution_footprint, self.group_tubes, self.live_groups,
                       self.n_groups)
         with self.rt.guard("SBR group count"):
             return self._read(self.n_groups)
 
-    def _reduce(self, m: int, n_groups: int, first: int) -> np.ndarray:
+    def _reduce(self, m: int, n_groups: int, first: int, footprints) -> np.ndarray:
         rt = self.rt
         while True:
             with rt.guard("SBR reduction"):
                 self._zero(self.n_records)
                 self._run(self.reduce_kernel, n_groups * self.cells, self.reduce_local,
-                          self.tri_face, self.footprints, self.contributions,
+                          self.tri_face, footprints, self.contributions,
                           self.contribution_footprint, self.live_groups, np.int32(m),
                           np.int32(self.n_rx), np.int64(first), self.records,
                           self.n_records, np.int32(self.capacity), name="sbr_reduce (sbr.cl)")
@@ -374,6 +424,18 @@ class _Wavefront:
             with rt.guard("SBR records"):
                 self.cl.enqueue_copy(rt.queue, rec, self.records, is_blocking=True)
         return rec
+
+
+#: Implementations whose CPU device runs a work item as scalar code: there the SBR tubes
+#: go through all their bounces in one launch (sbr_bounces), not one launch per bounce
+PERSISTENT_BOUNCE_VENDORS = ("pocl",)
+
+
+def persistent_bounces(rt) -> bool:
+    """Whether ``rt``'s SBR tubes bounce in one launch (a scalar CPU device) rather than
+    as a wavefront, one launch per bounce with the live tubes compacted between (SIMD
+    and SIMT devices, where tubes that end early would idle their lanes)."""
+    return rt.info.device_type == "CPU" and rt.info.vendor in PERSISTENT_BOUNCE_VENDORS
 
 
 def shoot_and_radiate(caster: RayCaster, scene, tri_face, windows, tx_frame, receivers,
