@@ -35,6 +35,7 @@ the object's velocity.
 
 from __future__ import annotations
 
+import copy
 import os
 import re
 import tomllib
@@ -53,7 +54,7 @@ from clradcom.scene.read_materials import read_materials
 from clradcom.scene.read_objects import read_objects
 from clradcom.scene.read_radars import read_radars
 from clradcom.scene.read_waveform import read_waveform
-from clradcom.scene.records import Radar, Scene, SceneObject
+from clradcom.scene.records import Radar, Scene, SceneDocument, SceneObject
 
 __all__ = ["load_scene", "scene_from_dict", "SHAPES", "MESH_SUFFIXES"]
 
@@ -92,13 +93,16 @@ def load_scene(path) -> Scene:
     return scene_from_dict(data, file=path, base_dir=path.parent)
 
 
-def scene_from_dict(data: dict, *, file="<dict>", base_dir=".") -> Scene:
-    """Build a :class:`Scene` from an already parsed TOML document (a dict)."""
+def scene_from_dict(data: dict, *, file="<dict>", base_dir=".", mesh_cache=None) -> Scene:
+    """Build a :class:`Scene` from an already parsed TOML document (a dict); the scene
+    keeps a copy of it (``scene.document``) for the edits of :mod:`clradcom.scene.edit`.
+    ``mesh_cache`` (resolved path -> (vertices, faces)) holds mesh files already read."""
     file = _path_argument(file, "file")
     base_dir = _path_argument(base_dir, "base_dir")
     fields = FieldReader(file)
     if not isinstance(data, dict):
         raise fields.err(None, data, "scene document must be a table")
+    mesh_cache = {} if mesh_cache is None else mesh_cache
     fields.check_keys(data, TOP_KEYS, "")
     name, description, carrier = _read_scene_table(fields, data)
     time_axis = read_time_axis(fields, data)
@@ -111,7 +115,8 @@ def scene_from_dict(data: dict, *, file="<dict>", base_dir=".") -> Scene:
         rel = fields.get_str(data["scene"], "import", "scene")
         placed = read_xml_scene(fields, rel, "scene.import", materials, carrier, base_dir)
     objects, triangles = read_objects(fields, fields.array_of_tables(data, "objects"),
-                                      materials, carrier, base_dir, placed, span)
+                                      materials, carrier, base_dir, placed, span,
+                                      mesh_cache)
     radars = read_radars(fields, fields.array_of_tables(data, "radars"), objects, base_dir,
                          C0 / carrier, span)
     _warn_out_of_range(fields, carrier, objects, triangles, radars)
@@ -122,6 +127,10 @@ def scene_from_dict(data: dict, *, file="<dict>", base_dir=".") -> Scene:
     if time_axis is not None:
         scene.time_s, scene.time_axis = time_axis.start_s, time_axis
     scene.waveform = waveform
+    # copied once read (a value nested too deeply for copy was refused by then); the
+    # caller may change its dict afterwards
+    scene.__dict__["_document"] = SceneDocument(copy.deepcopy(data), base_dir, file,
+                                                mesh_cache)
     return scene
 
 
