@@ -49,7 +49,13 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 from clradcom.device.runtime import Runtime, get_runtime
-from clradcom.errors import ArgumentError, ArgumentTypeError, SceneError, SnapshotError
+from clradcom.errors import (
+    ArgumentError,
+    ArgumentTypeError,
+    SceneError,
+    SnapshotError,
+    TaskError,
+)
 from clradcom.scene.records import Scene
 from clradcom.series import check_times, trace_steps
 from clradcom.snapshot import Snapshot
@@ -124,14 +130,6 @@ def check_scheduler_address(address, *, argument: str = "scheduler") -> str:
                             f"with SCHEME one of {', '.join(SCHEDULER_SCHEMES)}, e.g. "
                             "tcp://127.0.0.1:8786", argument=argument, value=address)
     return address
-
-
-class TaskError(RuntimeError):
-    """A task of a distributed run failed past its retry bound (``key`` names it)."""
-
-    def __init__(self, message: str, *, key: str):
-        self.key = key
-        super().__init__(message)
 
 
 @dataclass(frozen=True)

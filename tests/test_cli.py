@@ -3,7 +3,11 @@ subcommands calling the same code as tools/, progress bars, warnings shown once 
 
 from __future__ import annotations
 
+import ast
 import io
+import re
+import subprocess
+import sys
 import warnings
 
 import pytest
@@ -104,6 +108,37 @@ def test_help_lists_every_subcommand_and_each_explains_itself(capsys):
         text = capsys.readouterr().out
         assert f"usage: clradcom {name}" in text
         assert len(text.splitlines()) > 5, name
+
+
+def test_help_texts_show_no_sphinx_roles(capsys):
+    """Docstrings become help texts: :mod:`x` and :func:`~a.b` read as `x` and `b`."""
+    for argv in (["--help"], ["trace", "--help"], ["radar", "--help"], ["sweep", "--help"]):
+        with pytest.raises(SystemExit):
+            cli.main(argv)
+        text = capsys.readouterr().out
+        assert not re.search(r":[a-z]+:`", text), (argv, text)
+        assert "``" not in text
+    assert (cli.plain_text("see :mod:`clradcom.commands` and :func:`~clradcom.x.run_tool`"
+                           " with ``--out``")
+            == "see `clradcom.commands` and `run_tool` with `--out`")
+
+
+def test_the_command_imports_a_subcommand_only_when_chosen():
+    """`import clradcom.cli` (and so `clradcom --help`) loads none of the heavy modules;
+    choosing a command loads its own (tools/bench_cli_import.py times it)."""
+    heavy = ("trimesh", "scipy", "matplotlib", "dask", "distributed", "pyopencl",
+             "finufft", "clradcom.trace", "clradcom.scene", "clradcom.radar")
+    probe = ("import sys, clradcom.cli as c; p = c.build_parser(); {}; "
+             "print(sorted(m for m in {!r} if m in sys.modules))")
+    for parse, expected in (("None", []),
+                            ("p.parse_args(['devices'])", []),
+                            ("p.parse_args(['rcs', '--out', 'o'])",
+                             ["clradcom.radar", "clradcom.scene", "clradcom.trace",
+                              "matplotlib", "scipy", "trimesh"])):
+        out = subprocess.run([sys.executable, "-c", probe.format(parse, heavy)],
+                             capture_output=True, text=True, check=True).stdout
+        loaded = ast.literal_eval(out.strip())
+        assert (set(expected) <= set(loaded)) if expected else loaded == [], (parse, loaded)
 
 
 def test_bad_option_names_the_subcommand_option_and_value(capsys):

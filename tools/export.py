@@ -22,7 +22,6 @@ from pathlib import Path
 import numpy as np
 
 from clradcom.cli import (
-    check_snapshot_scene,
     finite_float,
     list_of,
     output_folder,
@@ -30,6 +29,7 @@ from clradcom.cli import (
     positive_int,
     run_tool,
 )
+from clradcom.commands.options import check_snapshot_scene
 from clradcom.errors import ArgumentError
 from clradcom.export import save_mat, save_sionna
 from clradcom.plots import plot_top_view
