@@ -8,14 +8,16 @@ import io
 import re
 import subprocess
 import sys
+import time
 import warnings
+from pathlib import Path
 
 import pytest
 from tool_helpers import CLOSING_PLATE_SCENE, load_tool
 
 import clradcom.trace as trace_module
 from clradcom import cli
-from clradcom.commands.console import WarningLog, progress_bar, trace_steps
+from clradcom.commands.console import WarningLog, progress_bar, stage_steps, trace_steps
 from clradcom.errors import ArgumentError, NearFieldWarning, SceneWarning
 from clradcom.presets import DEFAULT_PRESET, PRESETS
 from clradcom.scene import scene_from_dict
@@ -139,6 +141,37 @@ def test_the_command_imports_a_subcommand_only_when_chosen():
                              capture_output=True, text=True, check=True).stdout
         loaded = ast.literal_eval(out.strip())
         assert (set(expected) <= set(loaded)) if expected else loaded == [], (parse, loaded)
+
+
+def test_every_scene_a_help_text_names_exists(capsys):
+    """`clradcom drive --help` named scenes/canonical/drive_by.toml, which never existed."""
+    root = Path(__file__).resolve().parents[1]
+    named = set()
+    for argv in [["--help"]] + [[name, "--help"] for name in cli.SUBCOMMANDS]:
+        with pytest.raises(SystemExit):
+            cli.main(argv)
+        named |= set(re.findall(r"scenes/[\w/.-]+\.toml", capsys.readouterr().out))
+    assert "scenes/street/street_drive.toml" in named
+    assert [p for p in sorted(named) if not (root / p).is_file()] == []
+
+
+def test_stage_steps_move_the_bar_one_stage_per_message():
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    err, out = Terminal(), io.StringIO()
+    with progress_bar(3, "run", stream=err, unit="stage") as bar:
+        say = stage_steps(bar, time.perf_counter(), stream=out)
+        positions = []
+        for message in ("first", "second", "third"):
+            say(message)
+            positions.append((bar.n, bar.desc))
+    assert positions == [(0, "first"), (1, "second"), (2, "third")]
+    lines = out.getvalue().splitlines()
+    assert [line.split("] ", 1)[1] for line in lines] == ["first ...", "second ...",
+                                                         "third ..."]
+    assert "third" in err.getvalue()
 
 
 def test_bad_option_names_the_subcommand_option_and_value(capsys):

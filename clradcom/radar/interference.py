@@ -67,6 +67,12 @@ _SYMMETRY = {"bpsk": 2, "qpsk": 4, "8psk": 8, "16psk": 16, "16qam": 4, "64qam": 
 # ----------------------------------------------------------------------------------------
 # capture layout and signals
 # ----------------------------------------------------------------------------------------
+#: the stages of :func:`two_radar_run`, in order: its ``progress`` hears one line per
+#: stage as it starts (the command's bar counts them)
+INTERFERENCE_STAGES = ("A's frame", "A's echoes on the capture", "D's signal at A",
+                       "D estimated", "D cancelled", "images", "detections", "error figures")
+
+
 def capture_length(waveform: Waveform) -> int:
     """Samples of a capture: one guard symbol, A's M symbols, one guard symbol."""
     return (waveform.n_symbols + 2) * waveform.samples_per_symbol
@@ -663,7 +669,7 @@ def run_interference(own_signal, own_symbols, d_stream, gains, delays_s, doppler
                      phase_rad: float = 0.0, power_ratio: float = 1.0,
                      noise_variance: float = 0.0, rng=None, window="hann",
                      zero_pad=(2, 2), own_frame=None, frame_noise=None, own_paths=None,
-                     **estimate_kw) -> InterferenceResult:
+                     progress=None, **estimate_kw) -> InterferenceResult:
     """A's radar image without D, with D, after genie and after realistic cancellation.
 
     ``own_signal`` is A's echo on the capture (``own_echo_signal``), ``own_symbols`` A's
@@ -679,8 +685,10 @@ def run_interference(own_signal, own_symbols, d_stream, gains, delays_s, doppler
     inverse DFTs), the cyclic prefixes and guard symbols get their own, so the receiver
     that estimates D sees the noise that the images hold. With ``own_paths`` (A's own
     echoes) every case also goes through the radar chain's detection
-    (:func:`clradcom.radar.pipeline.frame_result`): ``results``.
+    (:func:`clradcom.radar.pipeline.frame_result`): ``results``. ``progress`` (optional)
+    hears a line as each of the last six :data:`INTERFERENCE_STAGES` starts.
     """
+    say = progress or (lambda msg: None)
     y_own = _own_frame(own_signal, waveform)
     d_a = check_symbols(own_symbols, waveform, "own_symbols")
     nv = _finite("noise_variance", noise_variance)
@@ -694,23 +702,29 @@ def run_interference(own_signal, own_symbols, d_stream, gains, delays_s, doppler
         ell, n_cp = waveform.samples_per_symbol, waveform.n_cp
         windows = noise[frame_slice(waveform)].reshape(waveform.n_symbols, ell)
         windows[:, n_cp:] = np.fft.ifft(w, axis=0, norm="ortho").T  # their DFT is w
+    say(f"D's signal at A through {np.size(gains)} D->A paths (time domain)")
     y_int = interference_signal(d_stream, gains, delays_s, dopplers_hz, waveform,
                                 timing_offset_s, cfo_hz, phase_rad, power_ratio)
     clean = y_own + noise
     rx = clean + y_int
+    say("D estimated: its channel and data from A's capture")
     est = estimate_interferer(rx, d_a, waveform, **estimate_kw)
+    say("D cancelled: rebuilt and subtracted from the capture")
     y_hat = reconstruct_interferer(est, waveform, rx.size)
     base = frame_symbols(clean, waveform) if own_frame is None else \
         check_symbols(own_frame, waveform, "own_frame")
     # genie: the true data and channel removed, the bound
     frames = {"clean": base, "interfered": base + frame_symbols(y_int, waveform),
               "genie": base, "realistic": base + frame_symbols(y_int - y_hat, waveform)}
+    say("images without D, with D, genie and realistic cancellation")
     images = {}
     for key, fr_k in frames.items():
         f = spectral_estimate(fr_k, d_a, "divide")
         images[key] = radar_image(f, waveform, window, window, zero_pad[0], zero_pad[1])
+    say("detections of the four images")
     results = None if own_paths is None else \
         {k: frame_result(d_a, fr_k, own_paths, waveform) for k, fr_k in frames.items()}
+    say("error figures of D's estimate")
     floors = {k: image_floor(im) for k, im in images.items()}
     fr = frame_slice(waveform)
     p_i = float(np.mean(np.abs(y_int[fr]) ** 2))
@@ -770,7 +784,7 @@ def two_radar_run(own_paths, interferer_paths, waveform: Waveform, *, tx_power_w
     capture's noise come from (``seed``, 13). For D's estimator A's echoes are on the
     time-domain capture (``own_echo_signal`` with ``own_synthesis``; "fast": the strong
     echoes exact, there the cyclic prefixes are no copies). ``progress`` (optional) is
-    called with a line before each of the two long stages.
+    called with a line as each of the :data:`INTERFERENCE_STAGES` starts, in order.
     """
     for name, val in (("tx_power_w", tx_power_w), ("interferer_tx_power_w",
                                                    interferer_tx_power_w),
@@ -781,21 +795,20 @@ def two_radar_run(own_paths, interferer_paths, waveform: Waveform, *, tx_power_w
                          f"D {interferer_tx_power_w!r} W")
     say = progress or (lambda msg: None)
     noise_var = thermal_noise_power(waveform.bandwidth, noise_figure_db) / tx_power_w
-    say(f"synthesising {len(own_paths.gain)} own paths ({own_synthesis})")
+    say(f"A's frame: {len(own_paths.gain)} own paths ({own_synthesis} synthesis)")
     d_a, dr_own, w = radar_frame_parts(own_paths, waveform, seed=seed, method=own_synthesis,
                                        tx_power_w=tx_power_w, noise_figure_db=noise_figure_db)
     rng = np.random.default_rng((seed, 13))
     d_d = random_symbols(replace(waveform, n_symbols=stream_symbols(waveform)), rng)
+    say(f"A's echoes on the capture for D's estimator ({own_synthesis})")
     y_own = own_echo_signal(d_a, own_paths.gain, own_paths.delay_s, own_paths.doppler_hz,
                             waveform, method=own_synthesis)
-    say(f"{len(interferer_paths.gain)} interferer paths (time domain), estimation, "
-        "cancellation")
     return run_interference(
         y_own, d_a, d_d, interferer_paths.gain, interferer_paths.delay_s,
         interferer_paths.doppler_hz, waveform, timing_offset_s=timing_offset_s, cfo_hz=cfo_hz,
         phase_rad=phase_rad, power_ratio=interferer_tx_power_w / tx_power_w,
         noise_variance=noise_var, rng=rng, own_frame=dr_own + w, frame_noise=w,
-        own_paths=own_paths)
+        own_paths=own_paths, progress=progress)
 
 
 def _stream_from_capture(d_stream, est, waveform):
