@@ -220,7 +220,6 @@ def run(args) -> int:
             trace_s.append(seconds)
             paths = sum(len(lk.paths.gain) for lk in snap.links)
             n_paths.append(paths)
-            steps_bar.update(1)
             write_line(f"  step {k + 1}/{len(times)}: t = {t:.6g} s, {paths} paths "
                        f"({seconds:.2f} s)")
             if args.snapshots:
@@ -233,7 +232,7 @@ def run(args) -> int:
             snaps, _ = run_drive(scene, settings, times, workers=args.workers,
                                  scheduler=args.scheduler, devices=devices,
                                  retries=args.retries, links=links, chunk=args.chunk,
-                                 each=each)
+                                 each=each, traced=lambda: steps_bar.update(1))
         write_line(f"  following {sum(n_paths)} paths from step to step into tracks ...")
         series = series_from_snapshots(snaps)
         del snaps
