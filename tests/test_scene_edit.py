@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import tomli_w
+from test_scene_import import F_C, SQUARE, feature, geojson_scene, write_scene
 
 from clradcom.errors import SceneError
 from clradcom.scene import (
@@ -223,3 +224,31 @@ def test_the_scene_api_example_runs_as_written(tmp_path, monkeypatch):
     shift = nearest_car_delay(ns["snapshot2"]) - nearest_car_delay(ns["snapshot"])
     assert abs(shift * 299_792_458.0 / 2 - 6.0) < 0.5
     assert (tmp_path / "out" / "meshes" / "car0.ply").is_file()
+
+
+def test_load_scene_reads_xml_and_geojson_as_the_toml_that_imports_them(tmp_path):
+    """A Mitsuba/Sionna XML scene or a GeoJSON file, given a carrier, are the objects of
+    the TOML file that imports them; radars added in code make the very same scene."""
+    toml = write_scene(tmp_path)
+    from_toml = load_scene(toml)
+    xml = load_scene(tmp_path / "canyon.xml", carrier_hz=F_C)
+    assert [o.name for o in xml.objects] == [o.name for o in from_toml.objects]
+    assert xml.radars == [] and xml.name == "canyon"
+    xml = add_radar(xml, "tx", role="tx", position=[0.0, -2.0, 1.5])
+    xml = add_radar(xml, "rx", role="rx", position=[0.0, 3.0, 1.5])
+    assert xml.content_hash() == from_toml.content_hash()
+    # and saved, the CLI reads it back as the same scene
+    assert load_scene(save_scene(xml, tmp_path / "out" / "canyon.toml")).content_hash() \
+        == from_toml.content_hash()
+    with pytest.raises(SceneError, match=r"carrier_hz=\.\.\.\).*import = 'canyon.xml'"):
+        load_scene(tmp_path / "canyon.xml")
+    with pytest.raises(SceneError, match="carrier_hz: only for an XML or GeoJSON file"):
+        load_scene(toml, carrier_hz=F_C)
+
+    city = load_scene(geojson_scene(tmp_path, [feature("house", [SQUARE], height=9)]))
+    geo = load_scene(tmp_path / "buildings.geojson", carrier_hz=F_C,
+                     material="itu_concrete", coordinates="metres")
+    assert [o.name for o in geo.objects] == ["buildings/house"]
+    np.testing.assert_array_equal(geo.triangles, city.triangles)
+    with pytest.raises(SceneError, match=r"objects\[0\]\.material"):
+        load_scene(tmp_path / "buildings.geojson", carrier_hz=F_C, coordinates="metres")

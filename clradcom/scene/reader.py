@@ -62,18 +62,33 @@ TOP_KEYS = ("scene", "materials", "objects", "radars", "time", "waveform")
 SCENE_KEYS = ("name", "carrier_hz", "description", "import")
 
 
-def load_scene(path) -> Scene:
-    """Read and validate a TOML scene file; mesh and pattern paths are relative
-    to the scene file's folder.  Raises :class:`SceneError` on any bad input
-    (:class:`~clradcom.errors.ArgumentTypeError` when ``path`` is not a path)."""
+#: what :func:`load_scene` reads besides TOML: Mitsuba / Sionna RT XML and GeoJSON
+XML_SUFFIXES = (".xml",)
+GEOJSON_SUFFIXES = (".geojson", ".json")
+
+
+def load_scene(path, *, carrier_hz: float | None = None, **geojson_keys) -> Scene:
+    """Read and validate a scene file; mesh and pattern paths are relative to the scene
+    file's folder.  Raises :class:`SceneError` on any bad input
+    (:class:`~clradcom.errors.ArgumentTypeError` when ``path`` is not a path).
+
+    A TOML scene file says everything itself. A Mitsuba 3 / Sionna RT XML scene or a
+    GeoJSON file of building footprints holds no carrier and no radars: with
+    ``carrier_hz`` it is read as the TOML file that imports it would be (``[scene] import
+    = "<file>"``, or one ``[[objects]]`` entry with ``geojson = "<file>"`` and
+    ``geojson_keys``, e.g. ``material="itu_concrete"``, ``coordinates="metres"``), the
+    same objects; radars are added in Python (:func:`clradcom.scene.edit.add_radar`)."""
     path = _path_argument(path, "path")
     if not is_file(path):
         raise SceneError("scene file not found", file=path)
-    if path.suffix.lower() == ".xml":
-        raise SceneError("an XML (Mitsuba / Sionna RT) scene holds no carrier frequency "
-                         "and no radars: load a TOML scene file that imports it, "
-                         f"[scene] import = '{path.name}' with carrier_hz and [[radars]] "
-                         "(docs/scene-format.md)", file=path)
+    suffix = path.suffix.lower()
+    if suffix in XML_SUFFIXES + GEOJSON_SUFFIXES:
+        return _load_import(path, carrier_hz, geojson_keys)
+    if carrier_hz is not None or geojson_keys:
+        given = ["carrier_hz"] * (carrier_hz is not None) + sorted(geojson_keys)
+        raise SceneError(f"{', '.join(given)}: only for an XML or GeoJSON file; a TOML "
+                         "scene file gives its own ([scene] carrier_hz, [[objects]])",
+                         file=path)
     try:
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
@@ -90,6 +105,30 @@ def load_scene(path) -> Scene:
                          "hundreds of levels deep)", file=path) from None
     except ValueError as exc:  # e.g. an integer of more than 4300 digits
         raise SceneError(f"TOML value refused: {exc}", file=path) from None
+    return scene_from_dict(data, file=path, base_dir=path.parent)
+
+
+def _load_import(path: Path, carrier_hz, geojson_keys: dict) -> Scene:
+    """An XML or GeoJSON file read through the document that imports it."""
+    xml = path.suffix.lower() in XML_SUFFIXES
+    what = ("an XML (Mitsuba / Sionna RT) scene" if xml
+            else "a GeoJSON file of building footprints")
+    if carrier_hz is None:
+        how = (f"[scene] import = '{path.name}'" if xml
+               else f"an [[objects]] entry with geojson = '{path.name}'")
+        raise SceneError(f"{what} holds no carrier frequency and no radars: give "
+                         f"load_scene(..., carrier_hz=...) and add radars in Python, or "
+                         f"load a TOML scene file with carrier_hz, {how} and [[radars]] "
+                         "(docs/scene-format.md, docs/scene-api.md)", file=path)
+    if xml and geojson_keys:
+        raise SceneError(f"{', '.join(sorted(geojson_keys))}: only for a GeoJSON file",
+                         file=path)
+    table = {"name": path.stem, "carrier_hz": carrier_hz}
+    if xml:
+        data = {"scene": {**table, "import": path.name}}
+    else:
+        data = {"scene": table,
+                "objects": [{"name": path.stem, "geojson": path.name, **geojson_keys}]}
     return scene_from_dict(data, file=path, base_dir=path.parent)
 
 
