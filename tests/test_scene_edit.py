@@ -5,6 +5,8 @@ hash follows, save_scene round trips, and a short repr."""
 from __future__ import annotations
 
 import re
+import subprocess
+import sys
 import tomllib
 from pathlib import Path
 
@@ -252,3 +254,13 @@ def test_load_scene_reads_xml_and_geojson_as_the_toml_that_imports_them(tmp_path
     np.testing.assert_array_equal(geo.triangles, city.triangles)
     with pytest.raises(SceneError, match=r"objects\[0\]\.material"):
         load_scene(tmp_path / "buildings.geojson", carrier_hz=F_C, coordinates="metres")
+
+
+def test_the_scene_api_loads_no_mesh_library_until_a_mesh_file_is_read():
+    """clradcom.scene (and so the tracer) imports without trimesh: save_scene's PLY
+    writer is numpy (clradcom.scene.meshfiles), trimesh comes with the first mesh file."""
+    probe = ("import sys, clradcom.scene, clradcom.trace; "
+             "print(sorted(m for m in ('trimesh', 'shapely') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                         check=True).stdout
+    assert out.strip() == "[]"

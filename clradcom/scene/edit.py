@@ -36,9 +36,9 @@ import tomli_w
 
 from clradcom.errors import ArgumentTypeError, SceneError
 from clradcom.files import atomic_write
+from clradcom.scene.meshfiles import ply_bytes
 from clradcom.scene.reader import scene_from_dict
 from clradcom.scene.records import Scene, SceneDocument
-from clradcom.scene.street import ply_bytes
 
 __all__ = ["add_material", "add_object", "add_radar", "move", "new_scene", "remove",
            "save_scene", "set_waveform"]
