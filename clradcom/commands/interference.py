@@ -221,7 +221,8 @@ def run(args) -> int:
                     noise_figure_db=nf, timing_offset_s=args.timing_offset_us * 1e-6,
                     cfo_hz=args.cfo_hz, phase_rad=math.radians(args.phase_deg),
                     seed=args.seed, own_synthesis=args.own_synthesis,
-                    progress=stage_steps(bar, t0))
+                    progress=stage_steps(bar, t0),
+                    detail=lambda text: bar.set_postfix_str(text, refresh=True))
         except ValueError as exc:  # e.g. --cfo-hz with the D->A Doppler beyond the limit
             if args.scene is None:
                 if isinstance(exc, ArgumentError):
