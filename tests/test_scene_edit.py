@@ -126,6 +126,14 @@ def test_an_edit_leaves_the_scene_it_was_given_and_the_hash_comes_back():
     assert move(scene, "car", velocity=[-5.0, 0.0, 0.0]).content_hash() == before
 
 
+def test_a_keyword_given_as_none_is_the_files_default():
+    scene = built_in_code()
+    plain = add_radar(scene, "B", position=[1.0, 0.0, 0.6])
+    nones = add_radar(scene, "B", position=[1.0, 0.0, 0.6], noise_figure_db=None,
+                      pattern=None, velocity=None)
+    assert plain.content_hash() == nones.content_hash()
+
+
 def test_a_radar_riding_on_a_car_moves_with_it():
     scene = add_radar(built_in_code(), "B", position=[2.0, 0.0, 0.8], rides_on="car",
                       orientation_deg=[0, 0, 180])

@@ -258,10 +258,11 @@ def _mesh_keys(mesh) -> dict:
 
 def _plain(value):
     """``value`` as the scene file would hold it: tuples and numpy arrays as lists,
-    numpy scalars as Python numbers; a mesh's vertex and face arrays stay arrays."""
+    numpy scalars as Python numbers, a key whose value is None left out (TOML has no
+    null: the file's default applies); a mesh's vertex and face arrays stay arrays."""
     if isinstance(value, dict):
         return {k: (v if k in ("vertices", "faces") and isinstance(v, np.ndarray)
-                    else _plain(v)) for k, v in value.items()}
+                    else _plain(v)) for k, v in value.items() if v is not None}
     if isinstance(value, np.ndarray):
         return value.tolist()
     if isinstance(value, tuple | list):
