@@ -254,6 +254,9 @@ def test_load_scene_reads_xml_and_geojson_as_the_toml_that_imports_them(tmp_path
         load_scene(tmp_path / "canyon.xml")
     with pytest.raises(SceneError, match="carrier_hz: only for an XML or GeoJSON file"):
         load_scene(toml, carrier_hz=F_C)
+    # an imported shape is edited in its file: moving it here is refused, naming that
+    with pytest.raises(SceneError, match=r"object 'wall' comes whole from .*wall\.ply"):
+        move(xml, "wall", position=[0.0, 0.0, 0.0])
 
     city = load_scene(geojson_scene(tmp_path, [feature("house", [SQUARE], height=9)]))
     geo = load_scene(tmp_path / "buildings.geojson", carrier_hz=F_C,
