@@ -19,29 +19,20 @@
 
 Each subcommand is the code of :mod:`clradcom.commands` (the scripts in tools/ are thin
 wrappers around the same functions). The option types and the error boundary every
-command shares live in :mod:`clradcom.commands.options` and are re-exported here.
+command shares live in :mod:`clradcom.commands.arguments` and are re-exported here;
+a command's module is imported only when it is chosen.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib
+import re
 import sys
 
 from clradcom import __version__
-from clradcom.commands import comms as comms_cmd
-from clradcom.commands import cube as cube_cmd
-from clradcom.commands import drive as drive_cmd
-from clradcom.commands import interference as interference_cmd
-from clradcom.commands import map as map_cmd
-from clradcom.commands import microdoppler as microdoppler_cmd
-from clradcom.commands import radar as radar_cmd
-from clradcom.commands import rcs as rcs_cmd
-from clradcom.commands import sweep as sweep_cmd
-from clradcom.commands import trace as trace_cmd
-from clradcom.commands import tradeoff as tradeoff_cmd
-from clradcom.commands.options import (
+from clradcom.commands.arguments import (
     TOOL_ERRORS,
-    check_snapshot_scene,
     finite_float,
     float_in,
     int_in,
@@ -62,12 +53,10 @@ from clradcom.device.runtime import (
     choose_device,
     list_devices,
 )
-from clradcom.presets import DEFAULT_PRESET, PRESETS
-from clradcom.trace import TraceSettings
 
-__all__ = ["TOOL_ERRORS", "check_snapshot_scene", "finite_float", "float_in", "int_in",
-           "list_of", "main", "noise_figure_db", "non_negative_float", "non_negative_int",
-           "output_folder", "positive_float", "positive_int", "run_tool", "seed"]
+__all__ = ["TOOL_ERRORS", "finite_float", "float_in", "int_in", "list_of", "main",
+           "noise_figure_db", "non_negative_float", "non_negative_int", "output_folder",
+           "positive_float", "positive_int", "run_tool", "seed"]
 
 
 def _cmd_devices(args) -> int:
@@ -87,71 +76,105 @@ def _cmd_devices(args) -> int:
     return 0
 
 
-def _cmd_presets(args) -> int:
-    names = [args.name] if args.name else list(PRESETS)
-    for name in names:
-        preset = PRESETS[name]
-        mark = " (default)" if name == DEFAULT_PRESET else ""
-        print(f"{name}{mark}: {preset.summary}")
-        if args.name or args.verbose:
-            for key, value in TraceSettings.preset(name).metadata().items():
-                print(f"    {key.removeprefix('settings.')} = {value}")
-    if not args.name:
-        print(f"\n`clradcom trace SCENE --preset NAME` traces with one; in Python "
-              f"TraceSettings.preset(NAME), and trace_scene(scene) uses {DEFAULT_PRESET}.")
-    return 0
-
-
-#: name -> (one-line help, module docstring, add_arguments, check_args or None, run)
+#: name -> (one-line help, its module in clradcom.commands, and that module's
+#: add_arguments, check_args (or None) and run functions, by name)
 SUBCOMMANDS = {
     "trace": ("trace a scene, write the snapshot, the radar images and detection tables",
-              trace_cmd.__doc__, trace_cmd.add_arguments, None, trace_cmd.run),
+              "trace", "add_arguments", None, "run"),
     "radar": ("run the radar stage again on a snapshot (another seed, synthesis, noise)",
-              radar_cmd.__doc__, radar_cmd.add_radar_arguments, None, radar_cmd.run_radar),
+              "radar", "add_radar_arguments", None, "run_radar"),
     "interference": ("two radars on one scene: the interference and its cancellation",
-                     interference_cmd.__doc__, interference_cmd.add_arguments,
-                     interference_cmd.check_args, interference_cmd.run),
+                     "interference", "add_arguments", "check_args", "run"),
     "comms": ("the data link: A's frame decoded by D, BER/SER/EVM against SNR and theory",
-              comms_cmd.__doc__, comms_cmd.add_arguments, comms_cmd.check_args, comms_cmd.run),
+              "comms", "add_arguments", "check_args", "run"),
     "cube": ("a radar with an array: TDM-MIMO frame, radar cube, point cloud, truth in "
-             "range, velocity and azimuth", cube_cmd.__doc__, cube_cmd.add_arguments, None,
-             cube_cmd.run),
+             "range, velocity and azimuth", "cube", "add_arguments", None, "run"),
     "map": ("radio maps: received power, link SINR and BER, radar SNR, INR per cell",
-            map_cmd.__doc__, map_cmd.add_arguments, map_cmd.check_args, map_cmd.run),
+            "map", "add_arguments", "check_args", "run"),
     "tradeoff": ("sweep the tracer's knobs: run time against accuracy, Pareto front",
-                 tradeoff_cmd.__doc__, tradeoff_cmd.add_arguments, None, tradeoff_cmd.run),
+                 "tradeoff", "add_arguments", None, "run"),
     "sweep": ("trace one scene with many settings on Dask workers: a snapshot per setting",
-              sweep_cmd.__doc__, sweep_cmd.add_arguments, None, sweep_cmd.run),
+              "sweep", "add_arguments", None, "run"),
     "rcs": ("the car model's radar cross-section against aspect, GO against PO + SBR",
-            rcs_cmd.__doc__, rcs_cmd.add_arguments, rcs_cmd.check_args, rcs_cmd.run),
+            "rcs", "add_arguments", "check_args", "run"),
     "drive": ("trace a moving scene at every instant of its [time] table, paths followed",
-              drive_cmd.__doc__, drive_cmd.add_arguments, None, drive_cmd.run),
+              "drive", "add_arguments", None, "run"),
     "microdoppler": ("the Doppler spread of wheels over the frames of a moving scene: "
-                     "spectrogram against the expected interval", microdoppler_cmd.__doc__,
-                     microdoppler_cmd.add_arguments, None, microdoppler_cmd.run),
+                     "spectrogram against the expected interval", "microdoppler",
+                     "add_arguments", None, "run"),
     "view": ("draw a scene from above, with a snapshot's strongest paths",
-             radar_cmd.__doc__, radar_cmd.add_view_arguments, None, radar_cmd.run_view),
+             "radar", "add_view_arguments", None, "run_view"),
+    "presets": ("list the tracer's named physics (--preset)",
+                "presets", "add_arguments", None, "run"),
 }
+
+
+def command_module(name: str):
+    """The module of subcommand ``name`` (:data:`SUBCOMMANDS`), imported when the command
+    is chosen, not before: ``clradcom --help`` and a light command load neither the
+    tracer nor the radar, Dask or matplotlib (tools/bench_cli_import.py measures it).
+    Every such module is in clradcom.commands, the layer of this one."""
+    return importlib.import_module(f"clradcom.commands.{SUBCOMMANDS[name][1]}")
+
+
+#: a Sphinx role in a docstring: :mod:`clradcom.x`, :func:`~clradcom.x.f`
+_ROLE = re.compile(r":[a-z]+:`(~?)([^`]+)`")
+
+
+def plain_text(doc: str | None) -> str | None:
+    """A docstring as a terminal shows it: a Sphinx role becomes its name in backquotes
+    (``:func:`~clradcom.x.f``` the last part, ``f``, as Sphinx shows it), and double
+    backquotes single ones."""
+    if doc is None:
+        return None
+    text = _ROLE.sub(lambda m: "`" + (m.group(2).rsplit(".", 1)[-1] if m.group(1)
+                                      else m.group(2)) + "`", doc)
+    return text.replace("``", "`")
+
+
+class _CommandParser(argparse.ArgumentParser):
+    """A subcommand's parser that takes its options from the command's module when it
+    is first used (parsed or asked for help), so that building the whole ``clradcom``
+    parser imports none of them."""
+
+    def __init__(self, *args, command: str | None = None, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._command = command
+
+    def _load(self) -> None:
+        if self._command is None:
+            return
+        name, self._command = self._command, None
+        _help, _module, add, check, run = SUBCOMMANDS[name]
+        module = command_module(name)
+        self.description = plain_text(module.__doc__)
+        getattr(module, add)(self)
+        self.set_defaults(run=getattr(module, run),
+                          check=getattr(module, check) if check else None, parser=self)
+
+    def parse_known_args(self, args=None, namespace=None):
+        self._load()
+        return super().parse_known_args(args, namespace)
+
+    def format_help(self) -> str:
+        self._load()
+        return super().format_help()
+
+    def format_usage(self) -> str:
+        self._load()
+        return super().format_usage()
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="clradcom", description=__doc__,
+        prog="clradcom", description=plain_text(__doc__),
         formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--version", action="version", version=f"clradcom {__version__}")
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for name, (help_line, doc, add, check, run) in SUBCOMMANDS.items():
-        p = sub.add_parser(name, help=help_line, description=doc,
-                           formatter_class=argparse.RawDescriptionHelpFormatter)
-        add(p)
-        p.set_defaults(run=run, check=check, parser=p)
-    p_pre = sub.add_parser("presets", help="list the tracer's named physics (--preset)",
-                           description="The named tracer presets (clradcom.presets).")
-    p_pre.add_argument("name", nargs="?", choices=tuple(PRESETS),
-                       help="show every setting of this preset")
-    p_pre.add_argument("-v", "--verbose", action="store_true",
-                       help="every setting of every preset")
-    p_pre.set_defaults(run=_cmd_presets, check=None, parser=p_pre)
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND",
+                                parser_class=_CommandParser)
+    for name, (help_line, *_where) in SUBCOMMANDS.items():
+        sub.add_parser(name, help=help_line, command=name,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
     p_dev = sub.add_parser(
         "devices", help="list the OpenCL devices and the one chosen",
         description="The OpenCL devices clradcom sees, and the one a run uses: --device "

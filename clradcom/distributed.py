@@ -49,7 +49,13 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 from clradcom.device.runtime import Runtime, get_runtime
-from clradcom.errors import ArgumentError, ArgumentTypeError, SceneError, SnapshotError
+from clradcom.errors import (
+    ArgumentError,
+    ArgumentTypeError,
+    SceneError,
+    SnapshotError,
+    TaskError,
+)
 from clradcom.scene.records import Scene
 from clradcom.series import check_times, trace_steps
 from clradcom.snapshot import Snapshot
@@ -124,14 +130,6 @@ def check_scheduler_address(address, *, argument: str = "scheduler") -> str:
                             f"with SCHEME one of {', '.join(SCHEDULER_SCHEMES)}, e.g. "
                             "tcp://127.0.0.1:8786", argument=argument, value=address)
     return address
-
-
-class TaskError(RuntimeError):
-    """A task of a distributed run failed past its retry bound (``key`` names it)."""
-
-    def __init__(self, message: str, *, key: str):
-        self.key = key
-        super().__init__(message)
 
 
 @dataclass(frozen=True)
@@ -293,12 +291,35 @@ def trace_tasks(scene: Scene, settings: Sequence[TraceSettings], keys=None,
             for k, s in zip(keys, settings, strict=True)]
 
 
+#: ``steps_topic`` -> callable of the drives running serially in this process: what a
+#: Dask worker sends as an event, a serial run hands on here
+_serial_step_hooks: dict[str, Callable[[], None]] = {}
+
+
+def _step_traced(topic: str | None) -> None:
+    """Tell the client a step of a drive is traced: an event on ``topic`` from a Dask
+    worker (the client's :func:`run_drive` subscribed to it), or the hook of a serial run
+    in this process. Nothing without a topic."""
+    if topic is None:
+        return
+    try:
+        worker = distributed.get_worker()
+    except ValueError:  # not on a worker: a serial run here
+        hook = _serial_step_hooks.get(topic)
+        if hook is not None:
+            hook()
+        return
+    worker.log_event(topic, 1)
+
+
 def trace_steps_task(scene: Scene, settings: TraceSettings, times,
-                     links=None) -> tuple[list[Snapshot], list[float]]:
+                     links=None, steps_topic: str | None = None
+                     ) -> tuple[list[Snapshot], list[float]]:
     """Consecutive steps of a drive on this process's device, through one
     :class:`~clradcom.mechanisms.common.GeometryCache` (:func:`clradcom.series.
     trace_steps`): the snapshots and each step's seconds (the first with the cache's
-    build)."""
+    build). With ``steps_topic`` each step traced is announced at once (an event of that
+    topic; :func:`run_drive`'s ``traced``), not only when the whole chunk returns."""
     seconds: list[float] = []
     clock = [time.perf_counter()]
 
@@ -306,6 +327,7 @@ def trace_steps_task(scene: Scene, settings: TraceSettings, times,
         now = time.perf_counter()
         seconds.append(now - clock[0])
         clock[0] = now
+        _step_traced(steps_topic)
 
     snaps = trace_steps(scene, settings, times, runtime=worker_runtime(), links=links,
                         each=each)
@@ -320,7 +342,7 @@ def steps_per_task(n_steps: int, workers: int) -> int:
 
 
 def drive_tasks(scene: Scene, settings: TraceSettings, times=None, *, chunk: int = 1,
-                links=None) -> list[Task]:
+                links=None, steps_topic: str | None = None) -> list[Task]:
     """A drive as tasks: ``times`` (default the scene's ``[time]`` table) cut into runs of
     ``chunk`` consecutive steps, one :func:`trace_steps_task` each, keyed
     ``steps-FIRST-LAST`` (step numbers)."""
@@ -332,6 +354,8 @@ def drive_tasks(scene: Scene, settings: TraceSettings, times=None, *, chunk: int
         raise ArgumentError("must be a positive integer", argument="chunk", value=chunk)
     t = check_times(scene, times)
     kwargs = {} if links is None else {"links": links}
+    if steps_topic is not None:
+        kwargs["steps_topic"] = steps_topic
     return [Task(f"steps-{a:05d}-{min(a + chunk, t.size) - 1:05d}", trace_steps_task,
                  (scene, settings, t[a:a + chunk]), kwargs)
             for a in range(0, t.size, chunk)]
@@ -476,18 +500,23 @@ def run_drive(scene: Scene, settings: TraceSettings, times=None, *, workers: int
               devices: Sequence[str] | None = None, retries: int = 2, links=None,
               chunk: int | None = None,
               each: Callable[[int, float, Snapshot, float], None] | None = None,
+              traced: Callable[[], None] | None = None,
               ) -> tuple[list[Snapshot], list[float]]:
     """A drive (``scene`` at every instant of ``times``) traced as :func:`drive_tasks` on
     Dask (where: as :func:`run_tasks`; ``workers=0`` serially here): every step's
     snapshot, in step order, and its seconds on its worker. ``chunk``: steps per task
     (default :func:`steps_per_task` over the workers there are). ``each(step, t,
     snapshot, seconds)`` hears the steps in step order as soon as every earlier one is
-    in. The snapshots equal :func:`clradcom.series.trace_steps`'s bit for bit (the
+    in. ``traced()`` hears every step as its worker finishes it, in no order and while
+    its chunk still runs (a progress bar's tick: a chunk's snapshots come back whole). The
+    snapshots equal :func:`clradcom.series.trace_steps`'s bit for bit (the
     GeometryCache's refit does not depend on where a chunk starts, docs/series.md)."""
     t = check_times(scene, times)
-    with connect(workers, scheduler=scheduler, client=client, retries=retries) as own:
+    topic = None if traced is None else f"clradcom-steps-{uuid.uuid4().hex}"
+    with connect(workers, scheduler=scheduler, client=client, retries=retries) as own, \
+            _step_events(own, topic, traced, t.size):
         size = steps_per_task(t.size, worker_count(own)) if chunk is None else chunk
-        tasks = drive_tasks(scene, settings, t, chunk=size, links=links)
+        tasks = drive_tasks(scene, settings, t, chunk=size, links=links, steps_topic=topic)
         held: dict[int, TaskResult] = {}
         snaps: list[Snapshot] = []
         seconds: list[float] = []
@@ -506,6 +535,44 @@ def run_drive(scene: Scene, settings: TraceSettings, times=None, *, workers: int
         run_tasks(tasks, workers=0, client=own, devices=devices, retries=retries,
                   on_result=arrived, keep=False)
     return snaps, seconds
+
+
+#: how long a drive whose chunks are all back waits for step events still on their way
+#: from the scheduler (they travel apart from the results)
+STEP_EVENTS_GRACE_S = 5.0
+
+
+@contextlib.contextmanager
+def _step_events(client, topic: str | None, traced: Callable[[], None] | None,
+                 expected: int):
+    """While a drive runs, its workers' step events (``topic``) reach ``traced``: through
+    the client's subscription, or in this process for a serial run (``client`` None).
+    On a normal exit the ``expected`` events have all been heard (or
+    :data:`STEP_EVENTS_GRACE_S` has passed)."""
+    if topic is None:
+        yield
+        return
+    if client is None:
+        _serial_step_hooks[topic] = traced
+        try:
+            yield
+        finally:
+            del _serial_step_hooks[topic]
+        return
+    heard = [0]
+
+    def hear(event) -> None:
+        heard[0] += 1
+        traced()
+
+    client.subscribe_topic(topic, hear)
+    try:
+        yield
+        deadline = time.monotonic() + STEP_EVENTS_GRACE_S
+        while heard[0] < expected and time.monotonic() < deadline:
+            time.sleep(0.01)
+    finally:
+        client.unsubscribe_topic(topic)
 
 
 def _raise_refusal(task: Task, value) -> None:

@@ -15,7 +15,7 @@ __all__ = ["SceneError", "SceneWarning", "ValidityRangeWarning", "NOVALUE", "Phy
            "CyclicPrefixWarning", "TileSizeWarning", "FresnelZoneWarning",
            "AliasingWarning", "NearFieldWarning", "SurfaceContactWarning",
            "BoundaryWarning", "CausticWarning", "SnapshotError", "ArgumentError",
-           "ArgumentTypeError", "MemoryBudgetError"]
+           "ArgumentTypeError", "MemoryBudgetError", "TaskError"]
 
 
 class _NoValue:
@@ -257,3 +257,13 @@ class MemoryBudgetError(ArgumentError):
 
 def _rebuild_argument(cls, reason, argument, value):  # pragma: no cover - pickling helper
     return cls(reason, argument=argument, value=value)
+
+
+class TaskError(RuntimeError):
+    """A task of a distributed run (:mod:`clradcom.distributed`) failed past its retry
+    bound (``key`` names it). Defined here so that the commands' error boundary knows it
+    without loading Dask."""
+
+    def __init__(self, message: str, *, key: str):
+        self.key = key
+        super().__init__(message)

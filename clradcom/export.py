@@ -102,7 +102,8 @@ def _radar_axes(snapshot: Snapshot):
 
 
 def sionna_arrays(snapshot: Snapshot, frequencies_hz=None, *,
-                  carrier_phase: bool = True) -> dict[str, np.ndarray]:
+                  carrier_phase: bool = True,
+                  normalize_delays: bool = False) -> dict[str, np.ndarray]:
     """Every link's paths laid out like Sionna RT's ``Paths`` (single antennas).
 
     Returns a dict of arrays: ``a`` complex128 and ``tau``, ``doppler_hz``, ``theta_t``,
@@ -112,20 +113,25 @@ def sionna_arrays(snapshot: Snapshot, frequencies_hz=None, *,
     (padding slots hold a = 0, tau = -1, Doppler and angles 0, as Sionna pads);
     ``tx_names``, ``rx_names``, ``tx_index``, ``rx_index`` (the radars along the axes);
     ``carrier_hz``, ``time_s``; and with ``frequencies_hz`` (1-D, Hz) also
-    ``frequencies_hz`` and ``h_freq`` complex128 ``[num_rx, num_tx, num_frequencies]``,
-    H(f) = sum over the valid paths of a exp(-j 2 pi f tau)
-    (:func:`channel_frequency_response`).
+    ``frequencies_hz``, ``normalize_delays`` and ``h_freq`` complex128 ``[num_rx,
+    num_tx, num_frequencies]``: the channel at the radio frequencies f_c + f for
+    baseband offsets f, H(f) = sum over the valid paths of g exp(-j 2 pi f tau) with
+    clradcom's gains g (carrier phase inside; :func:`channel_frequency_response`), which
+    is Sionna RT's ``Paths.cfr(f, normalize_delays=False)``.
 
     ``carrier_phase=True`` (default) exports clradcom's gain as ``a``: the carrier phase
-    -2 pi f_c tau is inside, so ``h_freq`` at baseband offsets f is the channel at
-    f_c + f. ``carrier_phase=False`` exports a * exp(+j 2 pi f_c tau), the convention of
-    Sionna RT's own ``a`` (DESIGN notes); ``h_freq`` then needs the radio frequencies
-    f_c + f to mean the same channel.
+    -2 pi f_c tau is inside. ``carrier_phase=False`` exports a = g exp(+j 2 pi f_c tau),
+    Sionna RT's passband ``Paths.a`` (its ``cir()`` puts the carrier phase back); it
+    changes ``a`` only, never ``h_freq``. ``normalize_delays=True`` gives ``h_freq`` as
+    Sionna's ``cfr()`` with its default ``normalize_delays=True``: every link's delays less
+    its first path's, in the carrier phase too, which turns the link's H by
+    exp(+j 2 pi (f_c + f) tau_min) (docs/snapshot-format.md, "Sionna's cfr()").
     """
     snapshot = _check_snapshot(snapshot)
-    if not isinstance(carrier_phase, bool | np.bool_):
-        raise ArgumentTypeError("must be True or False", argument="carrier_phase",
-                                value=carrier_phase)
+    for name, flag in (("carrier_phase", carrier_phase),
+                       ("normalize_delays", normalize_delays)):
+        if not isinstance(flag, bool | np.bool_):
+            raise ArgumentTypeError("must be True or False", argument=name, value=flag)
     f = None if frequencies_hz is None else _check_frequencies(frequencies_hz)
     tx, rx = _radar_axes(snapshot)
     t_pos = {name: i for i, (_, name) in enumerate(tx)}
@@ -159,14 +165,27 @@ def sionna_arrays(snapshot: Snapshot, frequencies_hz=None, *,
     out["time_s"] = np.array(snapshot.time_s)
     if f is not None:
         h = np.zeros((len(rx), len(tx), f.size), np.complex128)
-        for r in range(len(rx)):
-            for t in range(len(tx)):
-                ok = out["valid"][r, t]
-                h[r, t] = channel_frequency_response(out["a"][r, t, ok],
-                                                     out["tau"][r, t, ok], f)
+        for lk in snapshot.links:
+            h[r_pos[lk.rx_name], t_pos[lk.tx_name]] = _link_cfr(
+                lk.paths, f, snapshot.carrier_hz, bool(normalize_delays))
         out["frequencies_hz"] = f.copy()
+        out["normalize_delays"] = np.array(bool(normalize_delays))
         out["h_freq"] = h
     return out
+
+
+def _link_cfr(paths, frequencies_hz, carrier_hz: float, normalize_delays: bool):
+    """One link's channel at f_c + f from its gains (carrier phase inside); with
+    ``normalize_delays`` Sionna's default: tau -> tau - tau_min in the carrier phase and
+    in the baseband one, i.e. the gains turned by exp(+j 2 pi f_c tau_min) and the delays
+    less tau_min."""
+    gain, tau = paths.gain, paths.delay_s
+    if normalize_delays and tau.size:
+        tau_min = float(tau.min())
+        gain = gain * np.exp(2j * np.pi * _reduced_cycles(carrier_hz,
+                                                          np.array([tau_min]))[0])
+        tau = tau - tau_min
+    return channel_frequency_response(gain, tau, frequencies_hz)
 
 
 def _check_phase_cycles(frequencies_hz: np.ndarray, delays_s: np.ndarray) -> None:
@@ -193,11 +212,13 @@ def _reduced_cycles(frequency_hz: float, delays_s: np.ndarray) -> np.ndarray:
 
 
 def save_sionna(path: str | os.PathLike, snapshot: Snapshot, frequencies_hz=None, *,
-                carrier_phase: bool = True, inputs=()) -> Path:
+                carrier_phase: bool = True, normalize_delays: bool = False,
+                inputs=()) -> Path:
     """Write :func:`sionna_arrays` to ``path`` as an uncompressed ``.npz`` (plain
     ``numpy.load`` reads it), atomically and byte-identically for the same input (keys
     in sorted order). Returns the path."""
-    arrays = sionna_arrays(snapshot, frequencies_hz, carrier_phase=carrier_phase)
+    arrays = sionna_arrays(snapshot, frequencies_hz, carrier_phase=carrier_phase,
+                           normalize_delays=normalize_delays)
     entries = sorted(arrays.items())
     return atomic_write(path, lambda fh: write_npz(fh, entries), inputs=inputs)
 

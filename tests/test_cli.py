@@ -3,15 +3,21 @@ subcommands calling the same code as tools/, progress bars, warnings shown once 
 
 from __future__ import annotations
 
+import ast
 import io
+import re
+import subprocess
+import sys
+import time
 import warnings
+from pathlib import Path
 
 import pytest
 from tool_helpers import CLOSING_PLATE_SCENE, load_tool
 
 import clradcom.trace as trace_module
 from clradcom import cli
-from clradcom.commands.console import WarningLog, progress_bar, trace_steps
+from clradcom.commands.console import WarningLog, progress_bar, stage_steps, trace_steps
 from clradcom.errors import ArgumentError, NearFieldWarning, SceneWarning
 from clradcom.presets import DEFAULT_PRESET, PRESETS
 from clradcom.scene import scene_from_dict
@@ -104,6 +110,68 @@ def test_help_lists_every_subcommand_and_each_explains_itself(capsys):
         text = capsys.readouterr().out
         assert f"usage: clradcom {name}" in text
         assert len(text.splitlines()) > 5, name
+
+
+def test_help_texts_show_no_sphinx_roles(capsys):
+    """Docstrings become help texts: :mod:`x` and :func:`~a.b` read as `x` and `b`."""
+    for argv in (["--help"], ["trace", "--help"], ["radar", "--help"], ["sweep", "--help"]):
+        with pytest.raises(SystemExit):
+            cli.main(argv)
+        text = capsys.readouterr().out
+        assert not re.search(r":[a-z]+:`", text), (argv, text)
+        assert "``" not in text
+    assert (cli.plain_text("see :mod:`clradcom.commands` and :func:`~clradcom.x.run_tool`"
+                           " with ``--out``")
+            == "see `clradcom.commands` and `run_tool` with `--out`")
+
+
+def test_the_command_imports_a_subcommand_only_when_chosen():
+    """`import clradcom.cli` (and so `clradcom --help`) loads none of the heavy modules;
+    choosing a command loads its own (tools/bench_cli_import.py times it)."""
+    heavy = ("trimesh", "scipy", "matplotlib", "dask", "distributed", "pyopencl",
+             "finufft", "clradcom.trace", "clradcom.scene", "clradcom.radar")
+    probe = ("import sys, clradcom.cli as c; p = c.build_parser(); {}; "
+             "print(sorted(m for m in {!r} if m in sys.modules))")
+    for parse, expected in (("None", []),
+                            ("p.parse_args(['devices'])", []),
+                            ("p.parse_args(['rcs', '--out', 'o'])",
+                             ["clradcom.radar", "clradcom.scene", "clradcom.trace",
+                              "matplotlib", "scipy", "trimesh"])):
+        out = subprocess.run([sys.executable, "-c", probe.format(parse, heavy)],
+                             capture_output=True, text=True, check=True).stdout
+        loaded = ast.literal_eval(out.strip())
+        assert (set(expected) <= set(loaded)) if expected else loaded == [], (parse, loaded)
+
+
+def test_every_scene_a_help_text_names_exists(capsys):
+    """`clradcom drive --help` named scenes/canonical/drive_by.toml, which never existed."""
+    root = Path(__file__).resolve().parents[1]
+    named = set()
+    for argv in [["--help"]] + [[name, "--help"] for name in cli.SUBCOMMANDS]:
+        with pytest.raises(SystemExit):
+            cli.main(argv)
+        named |= set(re.findall(r"scenes/[\w/.-]+\.toml", capsys.readouterr().out))
+    assert "scenes/street/street_drive.toml" in named
+    assert [p for p in sorted(named) if not (root / p).is_file()] == []
+
+
+def test_stage_steps_move_the_bar_one_stage_per_message():
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    err, out = Terminal(), io.StringIO()
+    with progress_bar(3, "run", stream=err, unit="stage") as bar:
+        say = stage_steps(bar, time.perf_counter(), stream=out)
+        positions = []
+        for message in ("first", "second", "third"):
+            say(message)
+            positions.append((bar.n, bar.desc))
+    assert positions == [(0, "first"), (1, "second"), (2, "third")]
+    lines = out.getvalue().splitlines()
+    assert [line.split("] ", 1)[1] for line in lines] == ["first ...", "second ...",
+                                                         "third ..."]
+    assert "third" in err.getvalue()
 
 
 def test_bad_option_names_the_subcommand_option_and_value(capsys):

@@ -85,6 +85,24 @@ def test_two_workers_give_the_serial_drive_bit_for_bit(scene, serial, cluster, t
         assert got_file.read_bytes() == want.read_bytes(), chunk
 
 
+@pytest.mark.parametrize("on_dask", [False, True])
+def test_every_step_is_heard_as_it_is_traced_not_when_its_chunk_returns(scene, cluster,
+                                                                        on_dask):
+    """One chunk of all the steps: `each` hears them only once the chunk is back, while
+    `traced` heard each step as its worker finished it (a progress bar that moves)."""
+    _, client = cluster
+    events: list = []
+    cd.run_drive(scene, SETTINGS, client=client if on_dask else None, workers=0,
+                 chunk=STEPS, traced=lambda: events.append("traced"),
+                 each=lambda k, t, s, sec: events.append(k))
+    # a client's topic events arrive on its own thread, apart from the results: run_drive
+    # returns once all of them are in
+    assert events.count("traced") == STEPS
+    assert [e for e in events if e != "traced"] == list(range(STEPS))
+    if not on_dask:
+        assert events == ["traced"] * STEPS + list(range(STEPS))
+
+
 def test_chunks_are_shared_out_over_both_workers(scene, serial, cluster):
     _, client = cluster
     tasks = cd.drive_tasks(scene, SETTINGS, chunk=1)

@@ -93,3 +93,17 @@ def test_readme_names_every_doc():
     docs = {f.name for f in ROOT.glob("docs/*.md")}
     assert docs <= set(re.findall(r"`([a-z0-9_-]+\.md)`", row))
     assert "`reference/`" in row
+
+
+def test_quickstart_states_the_street_time_that_was_measured():
+    """The quickstart said the street "takes a few minutes"; it takes seconds. Its numbers
+    are the ones docs/performance.md measured for the main job."""
+    quick = (ROOT / "docs" / "quickstart.md").read_text()
+    perf = (ROOT / "docs" / "performance.md").read_text()
+    assert "minutes" not in quick
+    stated = re.search(r"traces\s+in ([\d.]+ s) on PoCL and runs whole in about ([\d.]+ s)",
+                       quick)
+    assert stated, "the quickstart states the street's time"
+    measured = re.search(r"now traces in ([\d.]+ s) \(kernel\s+builds included\) and runs "
+                         r"whole in about ([\d.]+ s)", perf)
+    assert measured and stated.groups() == measured.groups()

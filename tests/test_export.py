@@ -66,15 +66,54 @@ def test_cfr_equals_a_scalar_sum_over_the_paths(snap):
         assert abs(out["h_freq"][r, t, j] - want) < 1e-12 * np.sum(np.abs(link.paths.gain))
 
 
-def test_carrier_phase_off_gives_sionnas_a_and_the_same_channel_at_radio_frequency(snap):
+def test_carrier_phase_off_gives_sionnas_a_and_leaves_the_channel(snap):
+    """--no-carrier-phase exports Sionna RT's passband a (a = g e^{+j2pi f_c tau}); the
+    CFR stays the channel at f_c + f, bit for bit: before, h_freq was summed from that a
+    and so left every path's carrier phase out (Sionna's cir() puts it back), a different
+    channel (docs/snapshot-format.md, "Sionna's cfr()")."""
     fc = snap.carrier_hz
     offsets = np.array([0.0, 1e6, -2.5e6])
     ours = sionna_arrays(snap, offsets)
-    theirs = sionna_arrays(snap, fc + offsets, carrier_phase=False)
+    theirs = sionna_arrays(snap, offsets, carrier_phase=False)
     ok = ours["valid"]
     want = ours["a"][ok] * np.exp(2j * np.pi * fc * ours["tau"][ok])
     np.testing.assert_allclose(theirs["a"][ok], want, rtol=1e-9)
-    np.testing.assert_allclose(theirs["h_freq"], ours["h_freq"], rtol=1e-8, atol=1e-14)
+    np.testing.assert_array_equal(theirs["h_freq"], ours["h_freq"])
+
+
+def sionna_cfr(a_passband, tau, carrier_hz, f, normalize_delays):
+    """Sionna RT's Paths.cir() and cfr() as their documentation writes them, path by path
+    with cmath: a_b = a e^{-j2pi f_c tau'}, H(f) = sum a_b e^{-j2pi f tau'}, tau' = tau less
+    the link's first delay when normalize_delays (its default)."""
+    shift = min(tau) if normalize_delays else 0.0
+    out = []
+    for fj in f:
+        total = 0j
+        for a, t in zip(a_passband, tau, strict=True):
+            t = float(t) - shift
+            total += complex(a) * cmath.exp(-2j * math.pi * carrier_hz * t) \
+                * cmath.exp(-2j * math.pi * float(fj) * t)
+        out.append(total)
+    return np.array(out)
+
+
+@pytest.mark.parametrize("normalize_delays", [False, True])
+def test_h_freq_is_sionnas_cfr_with_and_without_its_delay_normalisation(snap,
+                                                                        normalize_delays):
+    f = np.array([-4.6e7, -1e6, 0.0, 90.909e3, 4.6e7])
+    out = sionna_arrays(snap, f, carrier_phase=False, normalize_delays=normalize_delays)
+    assert bool(out["normalize_delays"]) is normalize_delays
+    for link in snap:
+        r = list(out["rx_names"]).index(link.rx_name)
+        t = list(out["tx_names"]).index(link.tx_name)
+        ok = out["valid"][r, t]
+        want = sionna_cfr(out["a"][r, t, ok], out["tau"][r, t, ok], snap.carrier_hz, f,
+                          normalize_delays)
+        scale = np.sum(np.abs(link.paths.gain))
+        assert np.max(np.abs(out["h_freq"][r, t] - want)) < 1e-9 * scale
+    # the normalisation turns each link's H by e^{+j2pi (f_c + f) tau_min}: |H| the same
+    plain = sionna_arrays(snap, f)["h_freq"]
+    np.testing.assert_allclose(np.abs(out["h_freq"]), np.abs(plain), rtol=1e-9, atol=1e-15)
 
 
 def test_sionna_layout_padding_and_angles(snap):

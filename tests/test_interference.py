@@ -432,6 +432,9 @@ def test_tool_on_a_snapshot_writes_the_picture_and_recovers_the_detections(tmp_p
                        "--range-max", "100", "--subcarriers", str(N), "--symbols", str(M)])
     text = capsys.readouterr().out
     assert rc == 0
+    # no silent stage: each printed as it starts, in order
+    starts = [text.find(f"] {stage}") for stage in itf.INTERFERENCE_STAGES]
+    assert -1 not in starts and starts == sorted(starts), starts
     assert (out / "interference.png").stat().st_size > 10_000
     rows = dict(line.rstrip("\n").rsplit(",", 1) for line in
                 (out / "interference_summary.csv").read_text().splitlines()[1:])

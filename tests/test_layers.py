@@ -17,6 +17,11 @@ Layers, low to high (a module may import its own layer and those below):
     radar                  waveform, synthesis, processing, CFAR, interference, truth
     evaluation             accuracy, budget, trade-off (nothing imports it)
     plots, views, commands, cli   what users run (and __main__)
+
+One import is by name on purpose: clradcom/cli.py imports the module of the subcommand
+chosen (``importlib.import_module("clradcom.commands." + name)``), so that the command
+starts without the tracer; the modules it names are all in clradcom.commands, the cli's
+own layer, which test_the_cli_loads_only_command_modules_by_name holds.
 """
 
 from __future__ import annotations
@@ -25,6 +30,8 @@ import ast
 from pathlib import Path
 
 import pytest
+
+from clradcom import cli
 
 PACKAGE = Path(__file__).resolve().parents[1] / "clradcom"
 
@@ -178,3 +185,12 @@ def test_architecture_doc_names_every_module():
     missing = [str(p.relative_to(PACKAGE.parent)) for p in MODULES
                if p.name != "__init__.py" and f"`{p.relative_to(PACKAGE.parent)}`" not in doc]
     assert missing == []
+
+
+def test_the_cli_loads_only_command_modules_by_name():
+    for name in cli.SUBCOMMANDS:
+        module = cli.command_module(name)
+        assert module.__name__.startswith("clradcom.commands.")
+        assert layer_of(module.__name__) == layer_of("clradcom.cli")
+    text = (PACKAGE / "cli.py").read_text()
+    assert text.count("importlib.import_module(") == 1

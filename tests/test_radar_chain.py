@@ -24,7 +24,7 @@ import pytest
 from clradcom.commands.trace import Stopwatch, radar_stage
 from clradcom.errors import PhysicsWarning
 from clradcom.radar import DETECTION_DTYPE, Waveform
-from clradcom.radar.interference import two_radar_run
+from clradcom.radar.interference import INTERFERENCE_STAGES, two_radar_run
 from clradcom.radar.pipeline import (
     ECHO_MARGIN_CELLS,
     radar_chain,
@@ -92,9 +92,21 @@ def test_trace_radar_drive_and_interference_give_the_same_detections(tmp_path, c
     _, drive = radar_step(OWN, radar, WF, seed=SEED, noise_figure_db=NF)
     _same(drive, dets)
 
-    # clradcom interference: A's image without D
+    # clradcom interference: A's image without D; every stage announced, in order
+    heard: list[str] = []
+    details: list[str] = []
     res = two_radar_run(OWN, D_TO_A, WF, tx_power_w=P_TX, interferer_tx_power_w=P_TX,
-                        noise_figure_db=NF, timing_offset_s=5e-6, cfo_hz=3000.0, seed=SEED)
+                        noise_figure_db=NF, timing_offset_s=5e-6, cfo_hz=3000.0, seed=SEED,
+                        progress=heard.append, detail=details.append)
+    assert len(heard) == len(INTERFERENCE_STAGES)
+    assert all(m.startswith(s) for m, s in zip(heard, INTERFERENCE_STAGES, strict=True))
+    # inside D's estimation (the longest stage) the steps and each fitted component
+    steps = [d for d in details if "components" not in d]
+    assert steps[0] == "fitting A's strong own echoes"
+    assert steps[-2:] == ["synchronising to D's cyclic prefixes",
+                          "D's channel from its symbols alone (power law)"]
+    assert "A's own echoes: 1 of at most 32 components" in details
+    assert details[-1].startswith("D's channel, round 2 of 2: ")
     found = interference_detections(res)
     _same(found["clean"], dets)
     _same(found["genie"], dets)

@@ -22,7 +22,6 @@ from pathlib import Path
 import numpy as np
 
 from clradcom.cli import (
-    check_snapshot_scene,
     finite_float,
     list_of,
     output_folder,
@@ -30,6 +29,7 @@ from clradcom.cli import (
     positive_int,
     run_tool,
 )
+from clradcom.commands.options import check_snapshot_scene
 from clradcom.errors import ArgumentError
 from clradcom.export import save_mat, save_sionna
 from clradcom.plots import plot_top_view
@@ -63,8 +63,12 @@ def main(argv=None) -> int:
                     default=None, help="comma-separated CFR offsets from the carrier "
                     "(Hz), instead of --subcarriers/--spacing-hz")
     ap.add_argument("--no-carrier-phase", action="store_true",
-                    help="export Sionna RT's a (carrier phase taken out) instead of "
-                         "clradcom's gain")
+                    help="export Sionna RT's passband a (carrier phase taken out) instead "
+                         "of clradcom's gain; h_freq stays the channel")
+    ap.add_argument("--normalize-delays", action="store_true",
+                    help="h_freq as Sionna RT's cfr() with its default normalize_delays="
+                         "True (each link's delays less its first path's); without it "
+                         "h_freq is cfr(normalize_delays=False)")
     ap.add_argument("--scene", default=None, help="the scene file, for the views")
     ap.add_argument("--top-view", action="store_true", help="write <name>_top.png")
     ap.add_argument("--glb", action="store_true", help="write <name>.glb (3-D view)")
@@ -113,6 +117,7 @@ def main(argv=None) -> int:
                      else subcarrier_offsets(args.subcarriers, args.spacing_hz))
             written.append(save_sionna(out / f"{stem}.sionna.npz", snap, freqs,
                                        carrier_phase=not args.no_carrier_phase,
+                                       normalize_delays=args.normalize_delays,
                                        inputs=inputs))
         if args.compressed:
             target = out / f"{stem}.compressed.npz"

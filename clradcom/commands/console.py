@@ -14,12 +14,13 @@
 from __future__ import annotations
 
 import sys
+import time
 import warnings
 from collections import Counter
 
 from tqdm import tqdm
 
-__all__ = ["WarningLog", "progress_bar", "trace_steps"]
+__all__ = ["WarningLog", "progress_bar", "stage_steps", "trace_steps", "write_line"]
 
 
 def progress_bar(total: int | None, desc: str, *, quiet: bool = False, unit: str = "it",
@@ -43,6 +44,31 @@ def trace_steps(bar: tqdm):
         bar.set_description_str(label, refresh=False)
         bar.refresh()
     return steps
+
+
+def write_line(text: str, stream=None) -> None:
+    """``text`` as one line on ``stream`` (stdout) above the progress bars, at once."""
+    out = stream or sys.stdout
+    tqdm.write(text, file=out)
+    out.flush()
+
+
+def stage_steps(bar: tqdm, started: float, stream=None):
+    """A ``progress(message)`` callback for a run of stages whose count is ``bar.total``:
+    each message ends the stage before it (the bar moves on by one), becomes the bar's
+    label, and is printed above the bar as ``[  12.3 s] message ...`` (seconds since
+    ``started``, a ``time.perf_counter()``) on ``stream`` (stdout), so a log without a
+    terminal still shows the stages in order."""
+    calls = 0
+
+    def progress(message: str) -> None:
+        nonlocal calls
+        if calls:
+            bar.update(1)
+        calls += 1
+        bar.set_description_str(message, refresh=True)
+        write_line(f"[{time.perf_counter() - started:6.1f} s] {message} ...", stream)
+    return progress
 
 
 def _one_line(message) -> str:

@@ -1,6 +1,6 @@
 """Drive a moving scene through time: trace it at every instant and follow its paths.
 
-    clradcom drive scenes/canonical/drive_by.toml
+    clradcom drive scenes/street/street_drive.toml
     clradcom drive scene.toml --start 0 --step 0.01 --count 100 --preset fast
     clradcom drive SCENE --workers 0                     serially in this process
     clradcom drive SCENE --scheduler tcp://host:8786     on workers started elsewhere
@@ -57,6 +57,7 @@ from pathlib import Path
 
 import numpy as np
 
+from clradcom.commands.console import progress_bar, write_line
 from clradcom.commands.options import (
     add_frame_arguments,
     add_sequence_arguments,
@@ -131,6 +132,8 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
         help="consecutive steps per task (default: the steps shared out evenly, one task "
              "per worker)")
     add_waveform_arguments(ap)
+    ap.add_argument("-q", "--quiet", action="store_true",
+                    help="no progress bars (they show only on a terminal)")
 
 
 def _radar_of(scene, args):
@@ -227,32 +230,44 @@ def run(args) -> int:
     links = None if index is None else [(index, index)]
     paths_of, n_paths, trace_s = [], [], []
     print(f"  {len(times)} steps on {cluster_text(args)}, retries {args.retries}")
+    quiet = getattr(args, "quiet", False)
     with staged_folder(out, inputs=scene.input_files, owned=OUTPUTS) as stage:
+        steps_bar = progress_bar(len(times), "trace", unit="step", quiet=quiet)
 
         def each(k, t, snap, seconds):
             trace_s.append(seconds)
             paths = sum(len(lk.paths.gain) for lk in snap.links)
             n_paths.append(paths)
-            print(f"  step {k + 1}/{len(times)}: t = {t:.6g} s, {paths} paths "
-                  f"({seconds:.2f} s)", flush=True)
+            write_line(f"  step {k + 1}/{len(times)}: t = {t:.6g} s, {paths} paths "
+                       f"({seconds:.2f} s)")
             if args.snapshots:
                 save_snapshot(Path(stage) / f"snapshot_{k:04d}.npz", snap)
             if index is not None:
                 paths_of.append(snap.links[0].paths)
 
         quiet_dask_logs()
-        snaps, _ = run_drive(scene, settings, times, workers=args.workers,
-                             scheduler=args.scheduler, devices=devices, retries=args.retries,
-                             links=links, chunk=args.chunk, each=each)
+        with steps_bar:
+            snaps, _ = run_drive(scene, settings, times, workers=args.workers,
+                                 scheduler=args.scheduler, devices=devices,
+                                 retries=args.retries, links=links, chunk=args.chunk,
+                                 each=each, traced=lambda: steps_bar.update(1))
+        write_line(f"  following {sum(n_paths)} paths from step to step into tracks ...")
         series = series_from_snapshots(snaps)
         del snaps
         save_series(Path(stage) / "series.npz", series)
         if index is not None:
-            res = drive_radar(scene, index, times, paths_of, wf, seed=args.seed,
-                              method=args.synthesis, noise_figure_db=nf,
-                              min_snr_db=args.min_snr_db, video=not args.no_video,
-                              each=lambda k, det: print(f"  frame {k + 1}/{len(times)}: "
-                                                        f"{len(det)} detections", flush=True))
+            with progress_bar(len(times), f"radar {args.radar}", unit="frame",
+                              quiet=quiet) as frames_bar:
+                def frame_done(k, det):
+                    frames_bar.update(1)
+                    write_line(f"  frame {k + 1}/{len(times)}: {len(det)} detections")
+
+                res = drive_radar(scene, index, times, paths_of, wf, seed=args.seed,
+                                  method=args.synthesis, noise_figure_db=nf,
+                                  min_snr_db=args.min_snr_db, video=not args.no_video,
+                                  each=frame_done)
+            write_line("  writing the tables, the tracks figure"
+                       + ("" if args.no_video else " and the video") + " ...")
             _radar_outputs(Path(stage), scene, res, times, n_paths, trace_s, args)
     print(f"{series.n_tracks} tracks over {series.n_steps} steps; outputs in {out}/")
     if index is not None:

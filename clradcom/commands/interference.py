@@ -52,6 +52,7 @@ import sys
 import time
 from pathlib import Path
 
+from clradcom.commands.console import progress_bar, stage_steps
 from clradcom.commands.options import (
     add_scene_or_snapshot_arguments,
     add_waveform_arguments,
@@ -74,7 +75,11 @@ from clradcom.commands.options import (
 )
 from clradcom.errors import ArgumentError, SceneError, SnapshotError
 from clradcom.files import staged_folder
-from clradcom.radar.interference import MAX_FREQUENCY_OFFSET, two_radar_run
+from clradcom.radar.interference import (
+    INTERFERENCE_STAGES,
+    MAX_FREQUENCY_OFFSET,
+    two_radar_run,
+)
 from clradcom.radar.plots import save_interference_images
 from clradcom.radar.report import (
     INTERFERENCE_IMAGES,
@@ -209,13 +214,15 @@ def run(args) -> int:
             snap = trace_into(stage, scene, preset_settings(args), args)
             own, dl = link_paths(snap, args, args.scene)
         try:
-            res = two_radar_run(
-                own, dl, wf, tx_power_w=p_a, interferer_tx_power_w=p_d, noise_figure_db=nf,
-                timing_offset_s=args.timing_offset_us * 1e-6, cfo_hz=args.cfo_hz,
-                phase_rad=math.radians(args.phase_deg), seed=args.seed,
-                own_synthesis=args.own_synthesis,
-                progress=lambda msg: print(f"[{time.perf_counter() - t0:6.1f} s] {msg} ...",
-                                           flush=True))
+            with progress_bar(len(INTERFERENCE_STAGES), "interference", unit="stage",
+                              quiet=getattr(args, "quiet", False)) as bar:
+                res = two_radar_run(
+                    own, dl, wf, tx_power_w=p_a, interferer_tx_power_w=p_d,
+                    noise_figure_db=nf, timing_offset_s=args.timing_offset_us * 1e-6,
+                    cfo_hz=args.cfo_hz, phase_rad=math.radians(args.phase_deg),
+                    seed=args.seed, own_synthesis=args.own_synthesis,
+                    progress=stage_steps(bar, t0),
+                    detail=lambda text: bar.set_postfix_str(text, refresh=True))
         except ValueError as exc:  # e.g. --cfo-hz with the D->A Doppler beyond the limit
             if args.scene is None:
                 if isinstance(exc, ArgumentError):

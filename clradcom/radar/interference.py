@@ -67,6 +67,12 @@ _SYMMETRY = {"bpsk": 2, "qpsk": 4, "8psk": 8, "16psk": 16, "16qam": 4, "64qam": 
 # ----------------------------------------------------------------------------------------
 # capture layout and signals
 # ----------------------------------------------------------------------------------------
+#: the stages of :func:`two_radar_run`, in order: its ``progress`` hears one line per
+#: stage as it starts (the command's bar counts them)
+INTERFERENCE_STAGES = ("A's frame", "A's echoes on the capture", "D's signal at A",
+                       "D estimated", "D cancelled", "images", "detections", "error figures")
+
+
 def capture_length(waveform: Waveform) -> int:
     """Samples of a capture: one guard symbol, A's M symbols, one guard symbol."""
     return (waveform.n_symbols + 2) * waveform.samples_per_symbol
@@ -361,7 +367,7 @@ def _ls_amplitudes(g, u, v):
 
 def fit_components(grid, df: float, t_sym: float, *, min_peak_to_floor_db: float,
                    max_components: int = 32, pad: int = 2,
-                   relax_sweeps: int = 10) -> tuple[Components, float]:
+                   relax_sweeps: int = 10, found=None) -> tuple[Components, float]:
     """Greedy fit (CLEAN with continuous refinement) of 2-D exponentials to ``grid`` (N, J).
 
     Each round: the unwindowed periodogram P = |Σ G e^{..}|²/(NJ) of the residual on a
@@ -372,7 +378,8 @@ def fit_components(grid, df: float, t_sym: float, *, min_peak_to_floor_db: float
     floor (median(P)/ln 2: the mean per-cell power of what is not fitted) or after
     ``max_components``.  A component of per-cell power |c|² peaks at NJ|c|² over that
     floor.  Delays are returned in [−T/2, T/2), Dopplers in [−1/(2T_sym), 1/(2T_sym)).
-    Returns (components, floor).
+    ``found(k)`` (optional) hears the count each time a component is fitted (the rounds
+    grow dearer with k: a progress bar's tick).  Returns (components, floor).
     """
     g = np.asarray(grid, complex)
     if g.ndim != 2:
@@ -398,6 +405,8 @@ def fit_components(grid, df: float, t_sym: float, *, min_peak_to_floor_db: float
         u, v = _atoms(nu, mu, n_sub, n_sym)
         amp = _ls_amplitudes(g, u, v)
         resid = g - u @ (amp[:, None] * v)
+        if found is not None:
+            found(nu.size)
     if nu.size > 1:
         # converge the joint fit: close (unresolved) components keep pulling each other;
         # a component picked up from a not yet converged residual then fades: drop it
@@ -525,7 +534,8 @@ def _components_to_paths(comp: Components, w_first: int, first_symbol: int, eps_
 def estimate_interferer(capture, own_symbols, waveform: Waveform, *,
                         own_margin_db: float = 20.0, min_peak_to_floor_db: float = 15.0,
                         backoff: int | None = None, iterations: int = 2,
-                        max_components: int = 32, min_sinr_db: float = 6.0) -> DEstimate:
+                        max_components: int = 32, min_sinr_db: float = 6.0,
+                        detail=None) -> DEstimate:
     """Realistic receiver: everything about D from the capture and A's own symbols.
 
     1. A's strong own echoes (per-cell power above the floor, which the interference
@@ -537,7 +547,15 @@ def estimate_interferer(capture, own_symbols, waveform: Waveform, *,
        gives a first channel and first decisions D̂ = dec(R/Ĥ); then ``iterations``
        rounds of: fit D's channel as 2-D exponentials (``fit_components``) on R/D̂,
        re-decide D̂ = dec(R/Ĥ).
+
+    ``detail(text)`` (optional) hears where it is, step by step and component by
+    component (the longest stage of ``clradcom interference``: a bar's postfix).
     """
+    tell = detail or (lambda text: None)
+
+    def fitting(what):
+        return lambda k: tell(f"{what}: {k} of at most {max_components} components")
+
     d_a = check_symbols(own_symbols, waveform, "own_symbols")
     y = np.asarray(capture, complex)
     n, m = waveform.n_subcarriers, waveform.n_symbols
@@ -546,27 +564,33 @@ def estimate_interferer(capture, own_symbols, waveform: Waveform, *,
     # 1. own echoes, selectively
     f_a = spectral_estimate(frame_symbols(y, waveform), d_a, "divide")
     own_thr = 10 * math.log10(n * m) - float(own_margin_db)
+    tell("fitting A's strong own echoes")
     own, _ = fit_components(f_a, df, t_sym, min_peak_to_floor_db=own_thr,
-                            max_components=max_components)
+                            max_components=max_components, found=fitting("A's own echoes"))
     y_d = y
     if own.amplitude.size:
+        tell(f"removing {own.amplitude.size} own echoes (time domain)")
         # A's window of symbol μ starts at capture sample L + μL + N_cp.
         g_o, tau_o, f_o = _components_to_paths(own, ell + waveform.n_cp, 1, 0.0, waveform)
         own_stream = np.concatenate([np.zeros((n, 1)), d_a], axis=1)
         y_d = y - stream_signal(own_stream, g_o, tau_o, f_o, waveform, y.size)
     # 2. synchronise to D
+    tell("synchronising to D's cyclic prefixes")
     theta, eps, _ = cp_sync(y_d, waveform)
     b = waveform.n_cp // 4 if backoff is None else int(backoff)
     r, w0 = demodulate_stream(y_d, waveform, theta, eps, b)
     # 3. decisions and channel
     mod = waveform.modulation
     comp = Components(np.zeros(0, complex), np.zeros(0), np.zeros(0))
+    tell("D's channel from its symbols alone (power law)")
     h = blind_channel(r, mod, df, t_sym)
     with np.errstate(divide="ignore", invalid="ignore"):
         dh = decide(np.where(h != 0, r / h, 0.0), mod)
-    for _ in range(int(iterations)):
+    for i in range(int(iterations)):
         comp, _ = fit_components(r / dh, df, t_sym, min_peak_to_floor_db=min_peak_to_floor_db,
-                                 max_components=max_components)
+                                 max_components=max_components,
+                                 found=fitting(f"D's channel, round {i + 1} of "
+                                               f"{int(iterations)}"))
         h = comp.grid(n, r.shape[1], df, t_sym)
         with np.errstate(divide="ignore", invalid="ignore"):
             dh = decide(np.where(h != 0, r / h, 0.0), mod)
@@ -663,7 +687,7 @@ def run_interference(own_signal, own_symbols, d_stream, gains, delays_s, doppler
                      phase_rad: float = 0.0, power_ratio: float = 1.0,
                      noise_variance: float = 0.0, rng=None, window="hann",
                      zero_pad=(2, 2), own_frame=None, frame_noise=None, own_paths=None,
-                     **estimate_kw) -> InterferenceResult:
+                     progress=None, detail=None, **estimate_kw) -> InterferenceResult:
     """A's radar image without D, with D, after genie and after realistic cancellation.
 
     ``own_signal`` is A's echo on the capture (``own_echo_signal``), ``own_symbols`` A's
@@ -679,8 +703,11 @@ def run_interference(own_signal, own_symbols, d_stream, gains, delays_s, doppler
     inverse DFTs), the cyclic prefixes and guard symbols get their own, so the receiver
     that estimates D sees the noise that the images hold. With ``own_paths`` (A's own
     echoes) every case also goes through the radar chain's detection
-    (:func:`clradcom.radar.pipeline.frame_result`): ``results``.
+    (:func:`clradcom.radar.pipeline.frame_result`): ``results``. ``progress`` (optional)
+    hears a line as each of the last six :data:`INTERFERENCE_STAGES` starts, ``detail``
+    where D's estimation is (:func:`estimate_interferer`).
     """
+    say = progress or (lambda msg: None)
     y_own = _own_frame(own_signal, waveform)
     d_a = check_symbols(own_symbols, waveform, "own_symbols")
     nv = _finite("noise_variance", noise_variance)
@@ -694,23 +721,29 @@ def run_interference(own_signal, own_symbols, d_stream, gains, delays_s, doppler
         ell, n_cp = waveform.samples_per_symbol, waveform.n_cp
         windows = noise[frame_slice(waveform)].reshape(waveform.n_symbols, ell)
         windows[:, n_cp:] = np.fft.ifft(w, axis=0, norm="ortho").T  # their DFT is w
+    say(f"D's signal at A through {np.size(gains)} D->A paths (time domain)")
     y_int = interference_signal(d_stream, gains, delays_s, dopplers_hz, waveform,
                                 timing_offset_s, cfo_hz, phase_rad, power_ratio)
     clean = y_own + noise
     rx = clean + y_int
-    est = estimate_interferer(rx, d_a, waveform, **estimate_kw)
+    say("D estimated: its channel and data from A's capture")
+    est = estimate_interferer(rx, d_a, waveform, detail=detail, **estimate_kw)
+    say("D cancelled: rebuilt and subtracted from the capture")
     y_hat = reconstruct_interferer(est, waveform, rx.size)
     base = frame_symbols(clean, waveform) if own_frame is None else \
         check_symbols(own_frame, waveform, "own_frame")
     # genie: the true data and channel removed, the bound
     frames = {"clean": base, "interfered": base + frame_symbols(y_int, waveform),
               "genie": base, "realistic": base + frame_symbols(y_int - y_hat, waveform)}
+    say("images without D, with D, genie and realistic cancellation")
     images = {}
     for key, fr_k in frames.items():
         f = spectral_estimate(fr_k, d_a, "divide")
         images[key] = radar_image(f, waveform, window, window, zero_pad[0], zero_pad[1])
+    say("detections of the four images")
     results = None if own_paths is None else \
         {k: frame_result(d_a, fr_k, own_paths, waveform) for k, fr_k in frames.items()}
+    say("error figures of D's estimate")
     floors = {k: image_floor(im) for k, im in images.items()}
     fr = frame_slice(waveform)
     p_i = float(np.mean(np.abs(y_int[fr]) ** 2))
@@ -755,7 +788,7 @@ def two_radar_run(own_paths, interferer_paths, waveform: Waveform, *, tx_power_w
                   interferer_tx_power_w: float, noise_figure_db: float,
                   timing_offset_s: float, cfo_hz: float, phase_rad: float = 0.0,
                   seed: int = 0, own_synthesis: str = "fast",
-                  progress=None) -> InterferenceResult:
+                  progress=None, detail=None) -> InterferenceResult:
     """The whole two-radar experiment from traced paths: radar A's own echoes
     (``own_paths``, the A->A link) and radar D's signal through the D->A link
     (``interferer_paths``), each radar with its own random data, plus A's thermal noise
@@ -770,7 +803,8 @@ def two_radar_run(own_paths, interferer_paths, waveform: Waveform, *, tx_power_w
     capture's noise come from (``seed``, 13). For D's estimator A's echoes are on the
     time-domain capture (``own_echo_signal`` with ``own_synthesis``; "fast": the strong
     echoes exact, there the cyclic prefixes are no copies). ``progress`` (optional) is
-    called with a line before each of the two long stages.
+    called with a line as each of the :data:`INTERFERENCE_STAGES` starts, in order;
+    ``detail`` (optional) hears the steps inside D's estimation, the longest stage.
     """
     for name, val in (("tx_power_w", tx_power_w), ("interferer_tx_power_w",
                                                    interferer_tx_power_w),
@@ -781,21 +815,20 @@ def two_radar_run(own_paths, interferer_paths, waveform: Waveform, *, tx_power_w
                          f"D {interferer_tx_power_w!r} W")
     say = progress or (lambda msg: None)
     noise_var = thermal_noise_power(waveform.bandwidth, noise_figure_db) / tx_power_w
-    say(f"synthesising {len(own_paths.gain)} own paths ({own_synthesis})")
+    say(f"A's frame: {len(own_paths.gain)} own paths ({own_synthesis} synthesis)")
     d_a, dr_own, w = radar_frame_parts(own_paths, waveform, seed=seed, method=own_synthesis,
                                        tx_power_w=tx_power_w, noise_figure_db=noise_figure_db)
     rng = np.random.default_rng((seed, 13))
     d_d = random_symbols(replace(waveform, n_symbols=stream_symbols(waveform)), rng)
+    say(f"A's echoes on the capture for D's estimator ({own_synthesis})")
     y_own = own_echo_signal(d_a, own_paths.gain, own_paths.delay_s, own_paths.doppler_hz,
                             waveform, method=own_synthesis)
-    say(f"{len(interferer_paths.gain)} interferer paths (time domain), estimation, "
-        "cancellation")
     return run_interference(
         y_own, d_a, d_d, interferer_paths.gain, interferer_paths.delay_s,
         interferer_paths.doppler_hz, waveform, timing_offset_s=timing_offset_s, cfo_hz=cfo_hz,
         phase_rad=phase_rad, power_ratio=interferer_tx_power_w / tx_power_w,
         noise_variance=noise_var, rng=rng, own_frame=dr_own + w, frame_noise=w,
-        own_paths=own_paths)
+        own_paths=own_paths, progress=progress, detail=detail)
 
 
 def _stream_from_capture(d_stream, est, waveform):

@@ -111,7 +111,8 @@ def warn_unmodelled(delays_s, dopplers_hz, waveform: Waveform, isi_modelled: boo
                 f"{int(long.sum())} of {tau.size} paths are delayed beyond the cyclic prefix "
                 f"(delays_s[{i}] = {float(tau[i])!r} s > T_CP = {waveform.cp_duration!r} s, range "
                 f"{waveform.isi_free_range:.2f} m): the frequency-domain model ignores "
-                "their inter-symbol interference; synthesize_time_domain models it",
+                "their inter-symbol interference; the exact time-domain synthesis models it "
+                "(--synthesis exact; in Python method=\"exact\", synthesize_time_domain)",
                 CyclicPrefixWarning, stacklevel=stacklevel)
 
 

@@ -91,6 +91,8 @@ def _read_inline_triangles(fields, tbl, kp) -> tuple[np.ndarray, np.ndarray]:
     kv, kf = f"{kp}.vertices", f"{kp}.faces"
     vv = fields.get(tbl, "vertices", kp)
     ff = fields.get(tbl, "faces", kp)
+    if isinstance(vv, np.ndarray) or isinstance(ff, np.ndarray):
+        return _inline_arrays(fields, vv, ff, kv, kf)
     if not isinstance(vv, list) or not vv:
         raise fields.err(kv, vv, "expected a non-empty array of [x, y, z] points (m)")
     verts = np.array([fields.vector(p, f"{kv}[{j}]", 3, "m") for j, p in enumerate(vv)])
@@ -106,6 +108,35 @@ def _read_inline_triangles(fields, tbl, kp) -> tuple[np.ndarray, np.ndarray]:
             raise fields.err(f"{kf}[{j}]", f, f"vertex index out of range 0..{len(verts) - 1}")
         faces[j] = f
     return verts, faces
+
+
+def _inline_arrays(fields, vv, ff, kv, kf) -> tuple[np.ndarray, np.ndarray]:
+    """``vertices`` (V, 3) and ``faces`` (F, 3) given as numpy arrays (a scene built in
+    Python, :func:`clradcom.scene.edit.add_object`), checked as a whole: the same
+    refusals as the lists of a file, without a Python loop over a large mesh."""
+    verts = np.asarray(vv)
+    if verts.ndim != 2 or verts.shape[1] != 3 or len(verts) == 0:
+        raise fields.err(kv, f"array of shape {verts.shape}",
+                         "expected a non-empty array of [x, y, z] points (m)")
+    if not (np.issubdtype(verts.dtype, np.floating) or np.issubdtype(verts.dtype, np.integer)):
+        raise fields.err(kv, f"array of {verts.dtype}", "expected numbers (m)")
+    verts = verts.astype(np.float64)
+    bad = ~np.all(np.isfinite(verts), axis=1)
+    if bad.any():
+        j = int(np.flatnonzero(bad)[0])
+        raise fields.err(f"{kv}[{j}]", verts[j].tolist(), "expected finite numbers (m)")
+    faces = np.asarray(ff)
+    if faces.ndim != 2 or faces.shape[1] != 3 or len(faces) == 0:
+        raise fields.err(kf, f"array of shape {faces.shape}",
+                         "expected a non-empty array of [i, j, k] vertex indices")
+    if not np.issubdtype(faces.dtype, np.integer):
+        raise fields.err(kf, f"array of {faces.dtype}", "expected 3 integer vertex indices")
+    out = (faces < 0) | (faces >= len(verts))
+    if out.any():
+        j = int(np.flatnonzero(out.any(axis=1))[0])
+        raise fields.err(f"{kf}[{j}]", faces[j].tolist(),
+                         f"vertex index out of range 0..{len(verts) - 1}")
+    return verts, faces.astype(np.int64)
 
 
 def load_mesh(fields: FieldReader, base_dir: Path, rel: str, key: str,

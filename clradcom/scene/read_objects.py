@@ -63,15 +63,17 @@ class PlacedMesh:
 
 
 def read_objects(fields: FieldReader, entries: list, materials: MaterialTable,
-                 carrier: float, base_dir: Path, placed=(), span=(0.0, 0.0)
+                 carrier: float, base_dir: Path, placed=(), span=(0.0, 0.0),
+                 mesh_cache: MeshCache | None = None
                  ) -> tuple[list[SceneObject], list[np.ndarray]]:
     """Objects (``placed`` ones first, then the entries in file order) and each one's world
     triangles (F, 3, 3); built-in materials they name join ``materials``. ``span`` is the
-    first and last instant traced (trajectories must cover it; poses are at the first)."""
+    first and last instant traced (trajectories must cover it; poses are at the first).
+    ``mesh_cache`` holds the mesh files read so far (new ones join it)."""
     objects: list[SceneObject] = []
     triangles: list[np.ndarray] = []
     seen: dict = {}
-    mesh_cache: MeshCache = {}
+    mesh_cache = {} if mesh_cache is None else mesh_cache
     start = 0
 
     def add(obj: SceneObject, tri: np.ndarray) -> None:

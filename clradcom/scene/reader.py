@@ -35,6 +35,7 @@ the object's velocity.
 
 from __future__ import annotations
 
+import copy
 import os
 import re
 import tomllib
@@ -53,7 +54,7 @@ from clradcom.scene.read_materials import read_materials
 from clradcom.scene.read_objects import read_objects
 from clradcom.scene.read_radars import read_radars
 from clradcom.scene.read_waveform import read_waveform
-from clradcom.scene.records import Radar, Scene, SceneObject
+from clradcom.scene.records import Radar, Scene, SceneDocument, SceneObject
 
 __all__ = ["load_scene", "scene_from_dict", "SHAPES", "MESH_SUFFIXES"]
 
@@ -61,18 +62,33 @@ TOP_KEYS = ("scene", "materials", "objects", "radars", "time", "waveform")
 SCENE_KEYS = ("name", "carrier_hz", "description", "import")
 
 
-def load_scene(path) -> Scene:
-    """Read and validate a TOML scene file; mesh and pattern paths are relative
-    to the scene file's folder.  Raises :class:`SceneError` on any bad input
-    (:class:`~clradcom.errors.ArgumentTypeError` when ``path`` is not a path)."""
+#: what :func:`load_scene` reads besides TOML: Mitsuba / Sionna RT XML and GeoJSON
+XML_SUFFIXES = (".xml",)
+GEOJSON_SUFFIXES = (".geojson", ".json")
+
+
+def load_scene(path, *, carrier_hz: float | None = None, **geojson_keys) -> Scene:
+    """Read and validate a scene file; mesh and pattern paths are relative to the scene
+    file's folder.  Raises :class:`SceneError` on any bad input
+    (:class:`~clradcom.errors.ArgumentTypeError` when ``path`` is not a path).
+
+    A TOML scene file says everything itself. A Mitsuba 3 / Sionna RT XML scene or a
+    GeoJSON file of building footprints holds no carrier and no radars: with
+    ``carrier_hz`` it is read as the TOML file that imports it would be (``[scene] import
+    = "<file>"``, or one ``[[objects]]`` entry with ``geojson = "<file>"`` and
+    ``geojson_keys``, e.g. ``material="itu_concrete"``, ``coordinates="metres"``), the
+    same objects; radars are added in Python (:func:`clradcom.scene.edit.add_radar`)."""
     path = _path_argument(path, "path")
     if not is_file(path):
         raise SceneError("scene file not found", file=path)
-    if path.suffix.lower() == ".xml":
-        raise SceneError("an XML (Mitsuba / Sionna RT) scene holds no carrier frequency "
-                         "and no radars: load a TOML scene file that imports it, "
-                         f"[scene] import = '{path.name}' with carrier_hz and [[radars]] "
-                         "(docs/scene-format.md)", file=path)
+    suffix = path.suffix.lower()
+    if suffix in XML_SUFFIXES + GEOJSON_SUFFIXES:
+        return _load_import(path, carrier_hz, geojson_keys)
+    if carrier_hz is not None or geojson_keys:
+        given = ["carrier_hz"] * (carrier_hz is not None) + sorted(geojson_keys)
+        raise SceneError(f"{', '.join(given)}: only for an XML or GeoJSON file; a TOML "
+                         "scene file gives its own ([scene] carrier_hz, [[objects]])",
+                         file=path)
     try:
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
@@ -92,13 +108,40 @@ def load_scene(path) -> Scene:
     return scene_from_dict(data, file=path, base_dir=path.parent)
 
 
-def scene_from_dict(data: dict, *, file="<dict>", base_dir=".") -> Scene:
-    """Build a :class:`Scene` from an already parsed TOML document (a dict)."""
+def _load_import(path: Path, carrier_hz, geojson_keys: dict) -> Scene:
+    """An XML or GeoJSON file read through the document that imports it."""
+    xml = path.suffix.lower() in XML_SUFFIXES
+    what = ("an XML (Mitsuba / Sionna RT) scene" if xml
+            else "a GeoJSON file of building footprints")
+    if carrier_hz is None:
+        how = (f"[scene] import = '{path.name}'" if xml
+               else f"an [[objects]] entry with geojson = '{path.name}'")
+        raise SceneError(f"{what} holds no carrier frequency and no radars: give "
+                         f"load_scene(..., carrier_hz=...) and add radars in Python, or "
+                         f"load a TOML scene file with carrier_hz, {how} and [[radars]] "
+                         "(docs/scene-format.md, docs/scene-api.md)", file=path)
+    if xml and geojson_keys:
+        raise SceneError(f"{', '.join(sorted(geojson_keys))}: only for a GeoJSON file",
+                         file=path)
+    table = {"name": path.stem, "carrier_hz": carrier_hz}
+    if xml:
+        data = {"scene": {**table, "import": path.name}}
+    else:
+        data = {"scene": table,
+                "objects": [{"name": path.stem, "geojson": path.name, **geojson_keys}]}
+    return scene_from_dict(data, file=path, base_dir=path.parent)
+
+
+def scene_from_dict(data: dict, *, file="<dict>", base_dir=".", mesh_cache=None) -> Scene:
+    """Build a :class:`Scene` from an already parsed TOML document (a dict); the scene
+    keeps a copy of it (``scene.document``) for the edits of :mod:`clradcom.scene.edit`.
+    ``mesh_cache`` (resolved path -> (vertices, faces)) holds mesh files already read."""
     file = _path_argument(file, "file")
     base_dir = _path_argument(base_dir, "base_dir")
     fields = FieldReader(file)
     if not isinstance(data, dict):
         raise fields.err(None, data, "scene document must be a table")
+    mesh_cache = {} if mesh_cache is None else mesh_cache
     fields.check_keys(data, TOP_KEYS, "")
     name, description, carrier = _read_scene_table(fields, data)
     time_axis = read_time_axis(fields, data)
@@ -111,7 +154,8 @@ def scene_from_dict(data: dict, *, file="<dict>", base_dir=".") -> Scene:
         rel = fields.get_str(data["scene"], "import", "scene")
         placed = read_xml_scene(fields, rel, "scene.import", materials, carrier, base_dir)
     objects, triangles = read_objects(fields, fields.array_of_tables(data, "objects"),
-                                      materials, carrier, base_dir, placed, span)
+                                      materials, carrier, base_dir, placed, span,
+                                      mesh_cache)
     radars = read_radars(fields, fields.array_of_tables(data, "radars"), objects, base_dir,
                          C0 / carrier, span)
     _warn_out_of_range(fields, carrier, objects, triangles, radars)
@@ -122,6 +166,10 @@ def scene_from_dict(data: dict, *, file="<dict>", base_dir=".") -> Scene:
     if time_axis is not None:
         scene.time_s, scene.time_axis = time_axis.start_s, time_axis
     scene.waveform = waveform
+    # copied once read (a value nested too deeply for copy was refused by then); the
+    # caller may change its dict afterwards
+    scene.__dict__["_document"] = SceneDocument(copy.deepcopy(data), base_dir, file,
+                                                mesh_cache)
     return scene
 
 

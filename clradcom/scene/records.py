@@ -19,7 +19,7 @@ from clradcom.scene.antenna import Pattern
 from clradcom.scene.materials import C0, ROUGHNESS_MODELS, Material
 
 __all__ = ["ARRAY_KINDS", "MODULATIONS", "OPTICS", "ROLES", "SBR_SPACING_WAVELENGTHS", "SIDES",
-           "ArrayLayout", "Motion", "Radar", "Scene", "SceneObject", "TimeAxis",
+           "ArrayLayout", "Motion", "Radar", "Scene", "SceneDocument", "SceneObject", "TimeAxis",
            "WaveformSpec", "with_object_optics"]
 
 #: the radar's modulations (``[waveform] modulation``, ``Waveform.modulation``)
@@ -134,6 +134,12 @@ class SceneObject:
     def n_triangles(self) -> int:
         return self.tri_stop - self.tri_start
 
+    def __repr__(self) -> str:
+        moving = (f", velocity {_short_vec(self.velocity)} m/s"
+                  if np.any(self.velocity != 0) else "")
+        return (f"SceneObject({self.name!r}: {self.n_triangles} triangles of "
+                f"{self.material_name}, at {_short_vec(self.position)} m{moving})")
+
 
 @dataclass(eq=False)
 class Radar:
@@ -170,6 +176,15 @@ class Radar:
     def boresight(self) -> np.ndarray:
         return self.orientation[:, 0].copy()
 
+    def __repr__(self) -> str:
+        on = f" on object {self.rides_on}" if self.rides_on >= 0 else ""
+        arrays = "".join(f", {key} {a.kind} of {a.n_elements}"
+                         for key, a in (("tx_array", self.tx_array),
+                                        ("rx_array", self.rx_array)) if a is not None)
+        return (f"Radar({self.name!r}: {self.role}, {self.pattern.kind} pattern, at "
+                f"{_short_vec(self.position)} m{on}, boresight "
+                f"{_short_vec(self.boresight)}{arrays})")
+
 
 @dataclass(frozen=True)
 class WaveformSpec:
@@ -196,6 +211,19 @@ class WaveformSpec:
             ("cyclic_prefix_s", self.cyclic_prefix_s),
             ("cyclic_prefix_samples", self.cyclic_prefix_samples),
             ("modulation", self.modulation)) if v is not None]
+
+
+@dataclass(frozen=True, eq=False)
+class SceneDocument:
+    """How a scene was written, kept for the Python edits (:mod:`clradcom.scene.edit`):
+    the TOML document (plain tables and values; meshes given in Python may be arrays),
+    the folder its relative paths start from, the file its messages name, and the mesh
+    files read for it (path -> (vertices, faces)), read once for all the edits."""
+
+    data: dict
+    base_dir: Path
+    file: Path
+    mesh_cache: dict
 
 
 @dataclass(eq=False)
@@ -232,6 +260,41 @@ class Scene:
     #: every file reading the scene opened: the scene file, its meshes, pattern tables
     #: and imports (XML, GeoJSON); outputs of a run are refused over any of them
     input_files: tuple[Path, ...] = ()
+
+    def __repr__(self) -> str:
+        """A few lines: the objects, triangles, radars and materials, each list cut
+        short (``scene.objects``, ``scene.radars`` and ``scene.materials`` hold them all)."""
+        origin = self.source
+        if origin is None and self.document is not None and str(self.document.file) != "<dict>":
+            origin = self.document.file
+        where = f" ({origin})" if origin is not None else ""
+        when = f", t = {self.time_s:g} s" if self.time_s != 0.0 else ""
+        lines = [f"Scene {self.name!r} at {self.carrier_hz / 1e9:g} GHz{when}{where}",
+                 f"  {len(self.objects)} object(s), {len(self.triangles):,} triangles: "
+                 + _names([f"{o.name} ({o.n_triangles})" for o in self.objects]),
+                 f"  {len(self.radars)} radar(s): " + _names(
+                     [f"{r.name} ({r.role} at {_short_vec(r.position)})" for r in self.radars]),
+                 f"  {len(self.materials)} material(s): "
+                 + _names([m.name for m in self.materials])]
+        if self.waveform is not None:
+            given = ", ".join(f"{k} {v}" for k, v in self.waveform.hash_params())
+            lines.append(f"  waveform: {given}")
+        return "\n".join(lines)
+
+    @property
+    def document(self) -> SceneDocument | None:
+        """The document this scene was read from (:func:`~clradcom.scene.reader.
+        scene_from_dict`, ``load_scene`` or an edit), or None. Not a field: a scene
+        derived with ``dataclasses.replace`` (``scene_at``, ``with_object_optics``) is no
+        longer what the document says, and has none."""
+        return self.__dict__.get("_document")
+
+    def __getstate__(self) -> dict:
+        # a pickled scene (a Dask task) travels without the document: the arrays are all
+        # a trace needs, and the document's meshes would double the bytes
+        state = dict(self.__dict__)
+        state.pop("_document", None)
+        return state
 
     # -- convenience -------------------------------------------------------
     @property
@@ -388,6 +451,23 @@ class Scene:
             h.update(repr(a.shape).encode())
             h.update(a.tobytes())
         return h.hexdigest()
+
+
+def _short_vec(v) -> str:
+    """[x, y, z] with 3 significant digits, for the records' reprs."""
+    return "[" + ", ".join(f"{float(x):.3g}" for x in np.asarray(v).reshape(-1)) + "]"
+
+
+def _names(items: list[str], limit: int = 80) -> str:
+    """``items`` joined until about ``limit`` characters, then how many more."""
+    out: list[str] = []
+    used = 0
+    for i, item in enumerate(items):
+        if out and used + len(item) > limit:
+            return ", ".join(out) + f", ... and {len(items) - i} more"
+        out.append(item)
+        used += len(item) + 2
+    return ", ".join(out) if out else "(none)"
 
 
 def with_object_optics(scene: Scene, overrides, argument: str = "overrides") -> Scene:

@@ -24,6 +24,7 @@ import numpy as np
 import trimesh
 
 from clradcom.geometry.triangles import ray_hit_distances
+from clradcom.scene.meshfiles import ply_bytes
 from clradcom.scene.models import rounded_car
 from clradcom.scene.records import Scene
 
@@ -123,23 +124,6 @@ class StreetPlan:
 
 
 # --- geometry helpers ----------------------------------------------------------------------------
-def ply_bytes(verts, faces) -> bytes:
-    """Binary little-endian PLY, float32 vertices, uchar-count int32 faces, fixed header
-    (written here, not by a library exporter, so the bytes do not depend on a trimesh
-    version)."""
-    v = np.ascontiguousarray(verts, dtype="<f4")
-    f = np.asarray(faces, dtype=np.int64)
-    rec = np.empty(len(f), dtype=[("n", "u1"), ("i", "<i4", (3,))])
-    rec["n"] = 3
-    rec["i"] = f
-    header = (
-        "ply\nformat binary_little_endian 1.0\ncomment clradcom tools/make_street.py\n"
-        f"element vertex {len(v)}\nproperty float x\nproperty float y\nproperty float z\n"
-        f"element face {len(f)}\nproperty list uchar int vertex_indices\nend_header\n"
-    )
-    return header.encode("ascii") + v.tobytes() + rec.tobytes()
-
-
 def quad_grid(origin, u, v, nu, nv, normal):
     """Grid of nu x nv quads (2 triangles each) spanning origin + [0,1]u + [0,1]v, facing normal."""
     origin, u, v = (np.asarray(a, dtype=np.float64) for a in (origin, u, v))
