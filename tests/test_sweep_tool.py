@@ -42,6 +42,25 @@ def test_sweep_refuses_bad_fields_in_one_line(tmp_path, capsys):
     assert not (tmp_path / "o").exists()
 
 
+def _worker_processes(pid: int) -> list:
+    """The Dask worker processes under process ``pid`` (multiprocessing's spawned
+    children of its nannies)."""
+    import psutil
+
+    try:
+        children = psutil.Process(pid).children(recursive=True)
+    except psutil.NoSuchProcess:
+        return []
+    out = []
+    for child in children:
+        try:
+            if any("spawn_main" in part for part in child.cmdline()):
+                out.append(child)
+        except psutil.Error:
+            continue
+    return out
+
+
 def test_ctrl_c_during_a_distributed_sweep_is_one_line_and_exit_130(tmp_path):
     """Ctrl-C at a terminal signals the whole process group: the command stops the
     cluster and says so in one line (exit 130); the workers print nothing, the output
@@ -54,15 +73,24 @@ def test_ctrl_c_during_a_distributed_sweep_is_one_line_and_exit_130(tmp_path):
 
     street = Path(__file__).resolve().parents[1] / "scenes" / "street" / "street.toml"
     out = tmp_path / "sweep"
+    # six paper traces: seconds of work per worker after the cluster is up, however fast
+    # a repeated trace of the street has become
     proc = subprocess.Popen(
         [sys.executable, "-m", "clradcom", "sweep", str(street), "--preset",
-         "fast,paper,paper,fast", "--workers", "2", "--out", str(out), "-q"],
+         ",".join(["paper"] * 6), "--workers", "2", "--out", str(out), "-q"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True,
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         first = proc.stdout.readline().decode()
         assert "traces of" in first, first
-        time.sleep(3.0)   # the cluster started and the workers are tracing
+        # Ctrl-C while the cluster starts is held back until it is up (distributed's
+        # _interrupts_ignored); this test wants it while the workers trace: wait for
+        # both worker processes (however loaded the machine), then a little more
+        deadline = time.monotonic() + 90.0
+        while len(_worker_processes(proc.pid)) < 2 and time.monotonic() < deadline:
+            assert proc.poll() is None, proc.communicate()[1].decode()
+            time.sleep(0.2)
+        time.sleep(2.0)
         os.killpg(proc.pid, signal.SIGINT)
         _, err = proc.communicate(timeout=120)
     finally:
