@@ -312,15 +312,13 @@ def radar_chain(paths, waveform: Waveform, *, radar=None, seed: int = 0,
     the angle bins, the detections sorted against ``paths`` at the TDM frame's unambiguous
     velocity (the element pairs' paths with ``channel`` "exact": ``paths`` None, nothing
     sorted out), and the point cloud of those kept."""
-    if isinstance(waveform, FmcwWaveform):
-        if radar is not None and (radar.tx_array is not None or radar.rx_array is not None):
-            raise ArgumentError("an FMCW radar with a TX or RX array (TDM-MIMO) is not "
-                                "built yet; give the radar no array, or use the OFDM "
-                                "waveform", argument="radar", value=radar.name)
+    has_array = radar is not None and (radar.tx_array is not None
+                                       or radar.rx_array is not None)
+    if isinstance(waveform, FmcwWaveform) and not has_array:
         frame = fmcw_frame(paths, waveform, seed=seed, method=method,
                            tx_power_w=tx_power_w, noise_figure_db=noise_figure_db)
         return fmcw_frame_result(frame, paths, waveform)
-    if radar is not None and (radar.tx_array is not None or radar.rx_array is not None):
+    if has_array:
         return _array_chain(paths, waveform, radar, seed=seed, tx_power_w=tx_power_w,
                             noise_figure_db=noise_figure_db, refine=refine, channel=channel,
                             pair_paths=pair_paths)

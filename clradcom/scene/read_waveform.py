@@ -10,12 +10,18 @@ gaps, is decided where the frame is built (docs/scene-format.md, "[waveform]").
 from __future__ import annotations
 
 from clradcom.scene.fields import FieldReader
-from clradcom.scene.records import MODULATIONS, WaveformSpec
+from clradcom.scene.records import FMCW_IF_TYPES, MODULATIONS, FmcwSpec, WaveformSpec
 
-__all__ = ["WAVEFORM_KEYS", "read_waveform"]
+__all__ = ["FMCW_KEYS", "WAVEFORM_KEYS", "WAVEFORM_KINDS", "read_waveform"]
 
-WAVEFORM_KEYS = ("subcarriers", "symbols", "subcarrier_spacing_hz", "useful_duration_s",
-                 "cyclic_prefix_s", "cyclic_prefix_samples", "modulation")
+WAVEFORM_KEYS = ("kind", "subcarriers", "symbols", "subcarrier_spacing_hz",
+                 "useful_duration_s", "cyclic_prefix_s", "cyclic_prefix_samples",
+                 "modulation")
+#: ``[waveform] kind``: the OFDM RadCom frame (the default) or an FMCW chirp sequence
+WAVEFORM_KINDS = ("ofdm", "fmcw")
+FMCW_KEYS = ("kind", "start_frequency_hz", "sweep_bandwidth_hz", "chirp_duration_s",
+             "idle_duration_s", "chirps", "adc_sample_rate_hz", "samples_per_chirp",
+             "adc_start_s", "if_type", "if_bandwidth_hz", "if_filter_order")
 
 
 def _positive_int(fields: FieldReader, tbl: dict, key: str, minimum: int) -> int | None:
@@ -23,18 +29,21 @@ def _positive_int(fields: FieldReader, tbl: dict, key: str, minimum: int) -> int
         return None
     v = tbl[key]
     if isinstance(v, bool) or not isinstance(v, int) or v < minimum:
-        raise fields.err(f"waveform.{key}", v, "must be a positive integer" if minimum else
-                         "must be an integer >= 0")
+        raise fields.err(f"waveform.{key}", v, "must be a positive integer" if minimum == 1
+                         else f"must be an integer >= {minimum}")
     return int(v)
 
 
-def read_waveform(fields: FieldReader, data: dict) -> WaveformSpec | None:
+def read_waveform(fields: FieldReader, data: dict) -> WaveformSpec | FmcwSpec | None:
     """The document's ``[waveform]`` table, or None when it has none."""
     if "waveform" not in data:
         return None
     tbl = data["waveform"]
     if not isinstance(tbl, dict):
         raise fields.err("waveform", tbl, "expected a table, written [waveform]")
+    kind = fields.get_str(tbl, "kind", "waveform", default="ofdm", choices=WAVEFORM_KINDS)
+    if kind == "fmcw":
+        return _read_fmcw(fields, tbl)
     fields.check_keys(tbl, WAVEFORM_KEYS, "waveform")
     modulation = fields.get_str(tbl, "modulation", "waveform", default=None)
     if modulation is not None and modulation.lower() not in MODULATIONS:
@@ -52,4 +61,29 @@ def read_waveform(fields: FieldReader, data: dict) -> WaveformSpec | None:
                                          lo=0.0, unit="s"),
         cyclic_prefix_samples=_positive_int(fields, tbl, "cyclic_prefix_samples", 0),
         modulation=None if modulation is None else modulation.lower(),
+    )
+
+
+def _read_fmcw(fields: FieldReader, tbl: dict) -> FmcwSpec:
+    fields.check_keys(tbl, FMCW_KEYS, "waveform")
+
+    def positive(key, unit):
+        return fields.get_float(tbl, key, "waveform", default=None, lo=0.0, lo_open=True,
+                                unit=unit)
+
+    if_type = fields.get_str(tbl, "if_type", "waveform", default=None, choices=FMCW_IF_TYPES)
+    return FmcwSpec(
+        start_frequency_hz=positive("start_frequency_hz", "Hz"),
+        sweep_bandwidth_hz=positive("sweep_bandwidth_hz", "Hz"),
+        chirp_duration_s=positive("chirp_duration_s", "s"),
+        idle_duration_s=fields.get_float(tbl, "idle_duration_s", "waveform", default=None,
+                                         lo=0.0, unit="s"),
+        chirps=_positive_int(fields, tbl, "chirps", 1),
+        adc_sample_rate_hz=positive("adc_sample_rate_hz", "Hz"),
+        samples_per_chirp=_positive_int(fields, tbl, "samples_per_chirp", 2),
+        adc_start_s=fields.get_float(tbl, "adc_start_s", "waveform", default=None, lo=0.0,
+                                     unit="s"),
+        if_type=if_type,
+        if_bandwidth_hz=positive("if_bandwidth_hz", "Hz"),
+        if_filter_order=_positive_int(fields, tbl, "if_filter_order", 1),
     )
