@@ -1,0 +1,168 @@
+"""One FMCW radar's chirps in another's beat signal: the interference, its closed forms,
+and the burst detection and repair that mitigates it (docs/fmcw.md §5).
+
+The interferer's chirps reach the victim through a link's paths (gain a_k at the traced
+carrier, one-way delay τ_k, Doppler f_D,k); the victim mixes them with the conjugate of
+its own chirp. Their difference frequency
+
+    Δf(t) = (f_0,I − f_0,V) + S_I t_I − S_V t_V + f_D
+
+(t_I, t_V the interferer's and the victim's fast times at t) sweeps at S_I − S_V; the IF
+filter passes it while |Δf| < B_IF. Sampled as a_k H_IF(Δf(t)) e^{jψ(t)}: the filter
+taken as quasi-static along the sweep, good while the sweep crosses the filter's band
+slowly against its response time, |S_I − S_V| ≪ B_IF² (docs/fmcw.md §5; Kim, Lee et al.
+and Toth et al. use the same picture: M. Toth, P. Meissner, A. Melzer, K. Witrisal,
+"Analytical investigation of non-coherent mutual FMCW radar interference", EuRAD 2018).
+
+Closed forms: a burst of duration 2B_IF/|S_I − S_V| (at −3 dB of the filter) and energy
+|a|² f_s ∫|H|² df / |S_I − S_V| per crossing, spread over every range bin; for equal
+slopes a constant Δf, i.e. a ghost target at R = c(τ + t_d − (f_0,I − f_0,V)/S)/2 (t_d the
+interferer's chirp start after the victim's).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from clradcom.errors import ArgumentError
+from clradcom.radar.fmcw import FmcwWaveform, _grid, if_response
+from clradcom.radar.synthesis import check_paths
+from clradcom.radar.waveform import SPEED_OF_LIGHT
+
+__all__ = ["burst_duration", "burst_energy", "chirp_interference", "floor_rise_db",
+           "ghost_range", "repair_bursts", "butterworth_noise_bandwidth"]
+
+
+def _check_waveforms(victim, interferer):
+    for name, wf in (("victim", victim), ("interferer", interferer)):
+        if not isinstance(wf, FmcwWaveform):
+            raise ArgumentError("must be an FmcwWaveform", argument=name, value=wf)
+
+
+def chirp_interference(victim: FmcwWaveform, interferer: FmcwWaveform, gains, delays_s,
+                       dopplers_hz, start_offset_s: float = 0.0) -> np.ndarray:
+    """The interferer's chirps in the victim's ADC frame (N, M), through the link's paths
+    (``gains`` at the traced carrier, one-way ``delays_s``, ``dopplers_hz``); its frame
+    starts ``start_offset_s`` after the victim's (either may be earlier: its chirps are
+    taken to run before and after the frame as within it). Complex I/Q; the real part is
+    what a real IF keeps."""
+    _check_waveforms(victim, interferer)
+    a, tau, fd = check_paths(gains, delays_s, dopplers_hz)
+    t_off = float(start_offset_s)
+    if not math.isfinite(t_off):
+        raise ArgumentError("must be finite", argument="start_offset_s", value=start_offset_s)
+    t_fast, u = _grid(victim)
+    t = u[None, :] + t_fast[:, None]  # (N, M) absolute time of every sample
+    fc = victim.traced_carrier_hz
+    f0v, sv = victim.start_hz, victim.slope
+    f0i, si = interferer.start_hz, interferer.slope
+    out = np.zeros(t.shape, complex)
+    for k in range(a.size):
+        t_rx = t - tau[k] - t_off  # the interferer's own time of what arrives at t
+        nu = np.floor(t_rx / interferer.chirp_interval)
+        t_i = t_rx - nu * interferer.chirp_interval
+        on = t_i < interferer.chirp_s
+        # the oscillators run continuously; each chirp ramps the frequency from f_0
+        cycles = ((f0i - f0v) * t - (f0i - fc) * tau[k] + 0.5 * si * t_i * t_i
+                  - 0.5 * sv * t_fast[:, None] ** 2 + fd[k] * t)
+        delta_f = (f0i - f0v) + si * t_i - sv * t_fast[:, None] + fd[k]
+        out += np.where(on, a[k] * if_response(victim, delta_f)
+                        * np.exp(2j * np.pi * (cycles - np.floor(cycles))), 0.0)
+    return out
+
+
+def burst_duration(victim: FmcwWaveform, interferer: FmcwWaveform) -> float:
+    """2 B_IF/|S_I − S_V|: how long the difference frequency stays within the IF filter's
+    −3 dB band (s); infinite for equal slopes."""
+    _check_waveforms(victim, interferer)
+    ds = abs(interferer.slope - victim.slope)
+    return math.inf if ds == 0 else 2.0 * victim.if_cutoff_hz / ds
+
+
+def butterworth_noise_bandwidth(cutoff_hz: float, order: int) -> float:
+    """∫|H(f)|² df over all f (two-sided) of a Butterworth low-pass, 2 f_c (π/2n)/sin(π/2n)."""
+    x = math.pi / (2.0 * order)
+    return 2.0 * cutoff_hz * x / math.sin(x)
+
+
+def burst_energy(victim: FmcwWaveform, interferer: FmcwWaveform, gain) -> float:
+    """Σ|i(n)|² of one burst of a path of gain ``gain``: |a|² f_s ∫|H|²df / |S_I − S_V|
+    (the samples within the burst, each |a H(Δf)|², Δf moving (S_I − S_V)/f_s per
+    sample)."""
+    _check_waveforms(victim, interferer)
+    ds = abs(interferer.slope - victim.slope)
+    if ds == 0:
+        raise ArgumentError("equal slopes make no burst but a ghost (ghost_range)",
+                            argument="interferer", value=interferer.slope)
+    nb = butterworth_noise_bandwidth(victim.if_cutoff_hz, victim.if_filter_order)
+    return abs(complex(gain)) ** 2 * victim.adc_rate_hz * nb / ds
+
+
+def floor_rise_db(victim: FmcwWaveform, interferer: FmcwWaveform, gain, noise_variance: float,
+                  beat_hz) -> np.ndarray:
+    """The rise of the range-Doppler image's floor (rectangular windows) at beat
+    frequencies ``beat_hz`` when every chirp carries one burst of a path of gain ``gain``:
+    the burst sweeps f at (S_I − S_V), spending df/|S_I − S_V| in each df, so a range bin
+    (df = f_s/N) gets |a H(f)|² f_s²/(N |S_I − S_V|) over the noise's σ² (its phase,
+    random from chirp to chirp, spreads it over the Doppler cells alike):
+    10 log10(1 + |a H(f)|² f_s² / (N |S_I − S_V| σ²)). Over the IF band, not beyond."""
+    _check_waveforms(victim, interferer)
+    if not (noise_variance > 0):
+        raise ArgumentError("must be positive", argument="noise_variance", value=noise_variance)
+    ds = abs(interferer.slope - victim.slope)
+    if ds == 0:
+        raise ArgumentError("equal slopes make no burst but a ghost (ghost_range)",
+                            argument="interferer", value=interferer.slope)
+    h2 = np.abs(if_response(victim, beat_hz)) ** 2
+    per_bin = abs(complex(gain)) ** 2 * h2 * victim.adc_rate_hz ** 2 \
+        / (victim.samples_per_chirp * ds)
+    return 10.0 * np.log10(1.0 + per_bin / noise_variance)
+
+
+def ghost_range(victim: FmcwWaveform, interferer: FmcwWaveform, delay_s: float,
+                chirp_offset_s: float) -> float:
+    """Range at which an equal-slope interferer shows as a target: its difference
+    frequency (f_0,I − f_0,V) − S(τ + t_d) is the beat of an echo at
+    R = c(τ + t_d − (f_0,I − f_0,V)/S)/2 (one-way delay τ, its chirps starting t_d after
+    the victim's)."""
+    _check_waveforms(victim, interferer)
+    if not math.isclose(interferer.slope, victim.slope, rel_tol=1e-12):
+        raise ArgumentError("a ghost needs equal slopes (unequal ones make bursts)",
+                            argument="interferer", value=interferer.slope)
+    s = victim.slope
+    return SPEED_OF_LIGHT * (delay_s + chirp_offset_s
+                             - (interferer.start_hz - victim.start_hz) / s) / 2.0
+
+
+def repair_bursts(frame, threshold: float = 4.0, guard: int = 2):
+    """Burst mitigation: in every chirp, the samples whose magnitude exceeds ``threshold``
+    times the chirp's robust spread σ̂ = median|x|/0.8326 (the rms of complex Gaussian
+    noise: its magnitude's median is σ·sqrt(ln 2); noise alone passes 4σ with probability
+    e^{-16} ≈ 1e-7 per sample) are replaced, with ``guard`` samples on each side, by
+    linear interpolation between the clean samples around them. Returns (repaired frame,
+    mask of the replaced samples)."""
+    x = np.array(frame, dtype=complex, copy=True)
+    if x.ndim != 2:
+        raise ArgumentError("must be (samples, chirps)", argument="frame", value=x.shape)
+    if not (threshold > 0) or isinstance(guard, bool) or not isinstance(guard, int) \
+            or guard < 0:
+        raise ArgumentError("threshold > 0 and an integer guard >= 0", argument="threshold",
+                            value=(threshold, guard))
+    mag = np.abs(x)
+    spread = np.median(mag, axis=0) / 0.8326
+    hit = mag > threshold * spread[None, :]
+    if guard:
+        kernel = np.ones(2 * guard + 1)
+        hit = np.apply_along_axis(lambda c: np.convolve(c, kernel, "same") > 0, 0, hit)
+    n = np.arange(x.shape[0])
+    for m in np.flatnonzero(hit.any(axis=0)):
+        bad = hit[:, m]
+        good = ~bad
+        if good.sum() < 2:
+            x[:, m] = 0.0
+            continue
+        x[bad, m] = (np.interp(n[bad], n[good], x[good, m].real)
+                     + 1j * np.interp(n[bad], n[good], x[good, m].imag))
+    return x, hit
