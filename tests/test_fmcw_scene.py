@@ -34,6 +34,17 @@ rx_array = { kind = "ula", count = 4, spacing_wavelengths = 0.5 }
 """
 
 
+RADAR_D = """
+[[radars]]
+name = "D"
+position = [30.0, 5.0, 1.0]
+orientation_deg = [0.0, 0.0, 180.0]
+pattern = "sector"
+tx_power_w = 0.01
+noise_figure_db = 10.0
+"""
+
+
 class NoOptions:
     """argparse's namespace with no waveform option given."""
 
@@ -47,7 +58,7 @@ def write(tmp_path, table=FMCW_TABLE, scene=CLOSING_PLATE_SCENE, name="plate.tom
 def test_scene_table_becomes_the_chirp_sequence(tmp_path):
     scene = load_scene(write(tmp_path))
     assert isinstance(scene.waveform, FmcwSpec)
-    wf, line = run_waveform(scene.carrier_hz, NoOptions(), scene=scene)
+    wf, line = run_waveform(scene.carrier_hz, NoOptions(), scene=scene, fmcw=True)
     assert isinstance(wf, FmcwWaveform)
     assert wf.traced_carrier_hz == scene.carrier_hz == 24e9
     assert wf.slope == pytest.approx(200e6 / 40e-6)
@@ -86,7 +97,7 @@ def test_reader_refuses_a_bad_value_by_file_and_key(tmp_path, edit, key):
 def test_contradictions_are_refused_naming_the_key(tmp_path, edit, key):
     scene = load_scene(write(tmp_path, FMCW_TABLE.replace(*edit)))
     with pytest.raises(SceneError) as err:
-        run_waveform(scene.carrier_hz, NoOptions(), scene=scene)
+        run_waveform(scene.carrier_hz, NoOptions(), scene=scene, fmcw=True)
     assert err.value.key == key
 
 
@@ -94,7 +105,7 @@ def test_a_default_that_contradicts_the_table_names_the_key_to_set(tmp_path):
     table = FMCW_TABLE.replace("samples_per_chirp = 128\n", "")  # default 256: too long
     scene = load_scene(write(tmp_path, table))
     with pytest.raises(SceneError, match="left out: the default 256") as err:
-        run_waveform(scene.carrier_hz, NoOptions(), scene=scene)
+        run_waveform(scene.carrier_hz, NoOptions(), scene=scene, fmcw=True)
     assert err.value.key == "waveform.samples_per_chirp"
 
 
@@ -103,8 +114,20 @@ def test_an_ofdm_option_beside_an_fmcw_scene_is_refused(tmp_path):
     args = NoOptions()
     args.subcarriers = 64
     with pytest.raises(ArgumentError) as err:
-        run_waveform(scene.carrier_hz, args, scene=scene)
+        run_waveform(scene.carrier_hz, args, scene=scene, fmcw=True)
     assert err.value.argument == "--subcarriers"
+
+
+@pytest.mark.parametrize("command", ["interference", "comms", "tradeoff"])
+def test_commands_that_run_ofdm_only_refuse_the_fmcw_scene_by_its_key(tmp_path, capsys,
+                                                                      command):
+    assert main([command, str(write(tmp_path, scene=CLOSING_PLATE_SCENE + RADAR_D))]) == 2
+    err = capsys.readouterr().err
+    assert "waveform.kind" in err and "OFDM radar only" in err
+    scene = load_scene(write(tmp_path))
+    with pytest.raises(SceneError) as exc:
+        run_waveform(scene.carrier_hz, NoOptions(), scene=scene)
+    assert exc.value.key == "waveform.kind"
 
 
 def test_trace_runs_the_fmcw_radar_and_finds_the_plate(tmp_path):

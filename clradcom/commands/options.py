@@ -444,7 +444,8 @@ class _Sources:
 
 
 def run_waveform(carrier_hz: float, args, *, scene=None, snapshot=None,
-                 modulations: tuple[str, ...] | None = None) -> tuple[Waveform, str]:
+                 modulations: tuple[str, ...] | None = None,
+                 fmcw: bool = False) -> tuple[Waveform | FmcwWaveform, str]:
     """The radar frame of a run and the line that states it (with the cyclic prefix's
     rounding): each parameter from the options in ``args`` (those of
     :func:`add_waveform_arguments`; absent attributes count as not given), else the
@@ -452,8 +453,15 @@ def run_waveform(carrier_hz: float, args, *, scene=None, snapshot=None,
     names the option (ArgumentError) or the scene's file and key (SceneError) and the
     value: N or M not positive, T against Δf, a cyclic prefix given in seconds and in
     samples that disagree, one not shorter than the symbol, an unknown modulation (or one
-    outside ``modulations`` when given), a carrier below half the bandwidth."""
+    outside ``modulations`` when given), a carrier below half the bandwidth. A scene
+    whose ``[waveform]`` is ``kind = "fmcw"`` gives its chirp sequence
+    (:func:`fmcw_run_waveform`) where the command runs one (``fmcw``), else is refused
+    by that key."""
     if scene is not None and isinstance(scene.waveform, FmcwSpec):
+        if not fmcw:
+            raise SceneError("this command runs the OFDM radar only (trace, radar, cube and "
+                             "drive run an FMCW one)", file=scene.source, key="waveform.kind",
+                             value="fmcw")
         return fmcw_run_waveform(carrier_hz, args, scene)
     paper = Waveform()
     src = _Sources(scene, snapshot)
