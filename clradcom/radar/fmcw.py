@@ -62,6 +62,8 @@ __all__ = ["IF_TYPES", "FmcwWaveform", "beat_frequencies", "correct_coupling",
            "synthesize_beat_exact"]
 
 IF_TYPES = ("complex", "real")
+#: finufft threads for the frame-sized transforms here (see synthesize_beat)
+FINUFFT_THREADS = 1
 
 
 def _positive(name: str, value) -> float:
@@ -442,10 +444,14 @@ def synthesize_beat(gains, delays_s, dopplers_hz, waveform: FmcwWaveform,
         j = np.arange(nodes_n)
         nodes = mid + half * np.cos((2 * j + 1) * np.pi / (2 * nodes_n))
         ell = _lagrange_weights(beta, nodes)
-    # one plan for all nodes (n_trans = R): the points are spread once
+    # one plan for all nodes (n_trans = R): the points are spread once. One thread: a
+    # frame-sized grid transforms in ~10 ms on one, and OpenMP's start-up and contention
+    # cost more (12 transforms of 1000 points into 256 x 128 modes: 82 ms on one thread,
+    # 472 ms on finufft's default, 2 cores under load)
     per_node = np.ascontiguousarray((coeff[:, None] * ell).T)
     lin = finufft.nufft2d1(px, py, per_node if nodes_n > 1 else per_node[0],
-                           n_modes=(n, m), eps=tol, isign=1).reshape(nodes_n, n, m)
+                           n_modes=(n, m), eps=tol, isign=1,
+                           nthreads=FINUFFT_THREADS).reshape(nodes_n, n, m)
     out = lin[0] * np.exp(1j * (nodes[0] * quad1 + nodes[0] ** 2 * quad2))
     for r in range(1, nodes_n):
         out += lin[r] * np.exp(1j * (nodes[r] * quad1 + nodes[r] ** 2 * quad2))
@@ -510,7 +516,8 @@ def residual_phase_noise(psd, delays_s, times_s, period_s: float, rng=None) -> n
     phi = []
     for shift in np.concatenate([[0.0], tau]):
         x = _wrap_phase((t - shift) / period)
-        phi.append(2.0 * finufft.nufft1d2(x, modes, isign=1, eps=1e-12, nthreads=1).real)
+        phi.append(2.0 * finufft.nufft1d2(x, modes, isign=1, eps=1e-12,
+                                          nthreads=FINUFFT_THREADS).real)
     return np.asarray(phi[1:]) - phi[0][None, :]
 
 
