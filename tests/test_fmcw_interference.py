@@ -6,13 +6,23 @@ import numpy as np
 import pytest
 
 from clradcom.errors import ArgumentError
+from clradcom.radar import (
+    Waveform,
+    ofdm_demodulate,
+    radar_image,
+    random_symbols,
+    spectral_estimate,
+)
 from clradcom.radar.fmcw import FmcwWaveform, fmcw_image, synthesize_beat
 from clradcom.radar.fmcw_interference import (
     burst_duration,
     burst_energy,
     chirp_interference,
+    chirp_into_ofdm,
     floor_rise_db,
     ghost_range,
+    ofdm_burst_energy,
+    ofdm_floor_rise_db,
     repair_bursts,
 )
 from clradcom.radar.pipeline import fmcw_process
@@ -144,3 +154,41 @@ def test_burst_repair_recovers_the_targets_sinr():
     assert mask.any(axis=0).sum() >= victim.n_chirps // 2
     # nothing to repair in the clean frame
     assert not repair_bursts(echo + noise)[1].any()
+
+
+def test_fmcw_into_ofdm_raises_the_floor_as_its_band_crossings_say():
+    """An FMCW radar sweeping across an OFDM radar's 23 MHz band at 5 MHz/µs: each chirp
+    crosses it in B/S = 4.6 µs (B samples per second, |a|² each); the OFDM image's floor
+    rises by 10 log10(1 + C|a|²B²/S / (L M σ²)) (QPSK, divided out, the cyclic prefixes'
+    share dropped): within 0.5 dB."""
+    ofdm = Waveform(carrier_hz=24e9, n_subcarriers=256, subcarrier_spacing_hz=90.909e3,
+                    cp_s=64 / (256 * 90.909e3), n_symbols=64)
+    fmcw = FmcwWaveform(traced_carrier_hz=24e9, start_hz=23.95e9, sweep_bandwidth_hz=200e6,
+                        chirp_s=40e-6, idle_s=10e-6, n_chirps=64, adc_rate_hz=5e6,
+                        samples_per_chirp=128, adc_start_s=1e-6)
+    a = 1e-3
+    x = chirp_into_ofdm(ofdm, fmcw, [a], [30.0 / C], [0.0], 3e-6)
+    b = ofdm.bandwidth
+    # the crossing lasts B/S: count the samples of one
+    on = np.flatnonzero(np.abs(x) > 0)
+    first = on[: np.argmax(np.diff(on) > 1) + 1] if np.any(np.diff(on) > 1) else on
+    assert first.size == pytest.approx(b * b / fmcw.slope, abs=1.0)
+    crossings = int(np.sum(np.diff(np.concatenate([[0], (np.abs(x) > 0).astype(int)])) == 1))
+    assert crossings == pytest.approx(ofdm.frame_duration / fmcw.chirp_interval, abs=1.0)
+    energy = np.sum(np.abs(x) ** 2)
+    assert energy == pytest.approx(crossings * ofdm_burst_energy(ofdm, fmcw, a), rel=0.02)
+    # through the OFDM receiver: image floors with and without it
+    # 13 dB over the noise: the prefixes' share (64 of 320 samples, 1 dB) shows
+    sigma2 = energy / ofdm.n_samples / 20
+    rng = np.random.default_rng(3)
+    d = random_symbols(ofdm, 5)
+    noise = np.sqrt(sigma2 / 2) * (rng.standard_normal(x.shape)
+                                   + 1j * rng.standard_normal(x.shape))
+    floors = []
+    for capture in (noise, noise + x):
+        f = spectral_estimate(ofdm_demodulate(capture, ofdm), d)
+        floors.append(np.mean(radar_image(f, ofdm, "rect", "rect").power))
+    rise = 10 * np.log10(floors[1] / floors[0])
+    want = ofdm_floor_rise_db(ofdm, fmcw, a, crossings, sigma2)
+    assert want > 10.0
+    assert rise == pytest.approx(want, abs=0.5)

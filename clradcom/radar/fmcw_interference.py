@@ -29,10 +29,11 @@ import numpy as np
 from clradcom.errors import ArgumentError
 from clradcom.radar.fmcw import FmcwWaveform, _grid, if_response
 from clradcom.radar.synthesis import check_paths
-from clradcom.radar.waveform import SPEED_OF_LIGHT
+from clradcom.radar.waveform import SPEED_OF_LIGHT, Waveform
 
-__all__ = ["burst_duration", "burst_energy", "chirp_interference", "floor_rise_db",
-           "ghost_range", "repair_bursts", "butterworth_noise_bandwidth"]
+__all__ = ["burst_duration", "burst_energy", "chirp_interference", "chirp_into_ofdm",
+           "floor_rise_db", "ghost_range", "ofdm_burst_energy", "ofdm_floor_rise_db",
+           "repair_bursts", "butterworth_noise_bandwidth"]
 
 
 def _check_waveforms(victim, interferer):
@@ -166,3 +167,53 @@ def repair_bursts(frame, threshold: float = 4.0, guard: int = 2):
         x[bad, m] = (np.interp(n[bad], n[good], x[good, m].real)
                      + 1j * np.interp(n[bad], n[good], x[good, m].imag))
     return x, hit
+
+
+# ----------------------------------------------------------------------------------------
+# FMCW into OFDM
+# ----------------------------------------------------------------------------------------
+def chirp_into_ofdm(victim: Waveform, interferer: FmcwWaveform, gains, delays_s,
+                    dopplers_hz, start_offset_s: float = 0.0) -> np.ndarray:
+    """An FMCW radar's chirps in an OFDM radar's capture: the M·L samples at f_s = NΔf of
+    :func:`clradcom.radar.synthesis.synthesize_time_domain` (t = 0 the frame's start),
+    through the link's paths, its frame starting ``start_offset_s`` after the OFDM one's.
+    The OFDM receiver takes its band [f_c, f_c + NΔf) (subcarrier n at f_c + nΔf) and no
+    more: a chirp counts while its frequency lies there (an ideal anti-alias filter; the
+    project's OFDM receiver has no other)."""
+    if not isinstance(victim, Waveform):
+        raise ArgumentError("must be an OFDM Waveform", argument="victim", value=victim)
+    if not isinstance(interferer, FmcwWaveform):
+        raise ArgumentError("must be an FmcwWaveform", argument="interferer", value=interferer)
+    a, tau, fd = check_paths(gains, delays_s, dopplers_hz)
+    t = np.arange(victim.n_samples) / victim.sample_rate
+    fc, f0, s = victim.carrier_hz, interferer.start_hz, interferer.slope
+    out = np.zeros(t.shape, complex)
+    for k in range(a.size):
+        t_rx = t - tau[k] - float(start_offset_s)
+        t_i = t_rx - np.floor(t_rx / interferer.chirp_interval) * interferer.chirp_interval
+        f_base = (f0 - fc) + s * t_i + fd[k]  # above the OFDM carrier
+        inside = (t_i < interferer.chirp_s) & (f_base >= 0.0) & (f_base < victim.bandwidth)
+        cycles = ((f0 - fc) * t - (f0 - interferer.traced_carrier_hz) * tau[k]
+                  + 0.5 * s * t_i * t_i + fd[k] * t)
+        out += np.where(inside, a[k] * np.exp(2j * np.pi * (cycles - np.floor(cycles))), 0.0)
+    return out
+
+
+def ofdm_burst_energy(victim: Waveform, interferer: FmcwWaveform, gain) -> float:
+    """Σ|i|² of one chirp's crossing of the OFDM band: it stays B/S there, f_s = B samples
+    per second, |a|² each: |a|² B²/S."""
+    b = victim.bandwidth
+    return abs(complex(gain)) ** 2 * b * b / interferer.slope
+
+
+def ofdm_floor_rise_db(victim: Waveform, interferer: FmcwWaveform, gain, crossings: int,
+                       noise_variance: float) -> float:
+    """The OFDM image floor's rise from ``crossings`` chirp crossings in its frame:
+    the receiver keeps N of every L samples (the cyclic prefixes dropped), its unitary DFT
+    and the division by unit-modulus symbols keep the power and whiten it over the N·M
+    cells: 10 log10(1 + crossings·|a|²B²/S / (L·M·σ²))."""
+    if not (noise_variance > 0):
+        raise ArgumentError("must be positive", argument="noise_variance", value=noise_variance)
+    e = crossings * ofdm_burst_energy(victim, interferer, gain)
+    return 10.0 * math.log10(1.0 + e / (victim.samples_per_symbol * victim.n_symbols
+                                        * noise_variance))
