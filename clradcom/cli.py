@@ -11,6 +11,8 @@
     clradcom rcs --out out/rcs                      the car's RCS against aspect
     clradcom drive scene.toml                       a moving scene over time: path series
     clradcom microdoppler scene.toml                the wheels' Doppler spread: spectrogram
+    clradcom compare-waveforms SNAPSHOT --scene SCENE --fmcw FMCW.toml
+                                                    OFDM against FMCW on the same paths
     clradcom view scenes/street/street.toml         the scene from above
     clradcom presets                                the tracer's named physics
     clradcom devices                                the OpenCL devices
@@ -27,6 +29,7 @@ import sys
 
 from clradcom import __version__
 from clradcom.commands import comms as comms_cmd
+from clradcom.commands import compare as compare_cmd
 from clradcom.commands import cube as cube_cmd
 from clradcom.commands import drive as drive_cmd
 from clradcom.commands import interference as interference_cmd
@@ -124,6 +127,10 @@ SUBCOMMANDS = {
     "microdoppler": ("the Doppler spread of wheels over the frames of a moving scene: "
                      "spectrogram against the expected interval", microdoppler_cmd.__doc__,
                      microdoppler_cmd.add_arguments, None, microdoppler_cmd.run),
+    "compare-waveforms": ("the OFDM and an FMCW radar on the same traced paths: images "
+                          "side by side, truth, resolution, CRB, data rate",
+                          compare_cmd.__doc__, compare_cmd.add_arguments, None,
+                          compare_cmd.run),
     "view": ("draw a scene from above, with a snapshot's strongest paths",
              radar_cmd.__doc__, radar_cmd.add_view_arguments, None, radar_cmd.run_view),
 }

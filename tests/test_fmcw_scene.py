@@ -157,3 +157,33 @@ def test_cube_runs_the_fmcw_tdm_mimo_radar_and_finds_the_plates_azimuth(tmp_path
     assert v_det == pytest.approx(v_true, abs=0.2)
     assert az_det == pytest.approx(az_true, abs=0.5)
     assert az_true == pytest.approx(np.degrees(np.arctan2(5.0, 20.0)), abs=0.5)
+
+
+def test_compare_waveforms_runs_both_radars_on_the_same_paths(tmp_path, capsys):
+    ofdm_scene = write(tmp_path, "\n[waveform]\nsubcarriers = 256\nsymbols = 64\n",
+                       name="ofdm.toml")
+    fmcw = tmp_path / "fmcw.toml"
+    fmcw.write_text(FMCW_TABLE)
+    out = tmp_path / "out"
+    assert main(["trace", str(ofdm_scene), "--out", str(out), "--rays", "2000", "-q"]) == 0
+    capsys.readouterr()
+    assert main(["compare-waveforms", str(out / "snapshot.npz"), "--scene", str(ofdm_scene),
+                 "--fmcw", str(fmcw)]) == 0
+    text = capsys.readouterr().out
+    assert "range resolution [m]               6.441           1.171" in text
+    assert "none" in text.splitlines()[[i for i, ln in enumerate(text.splitlines())
+                                       if "data carried" in ln][0]]
+    with open(out / "A_compare.csv") as fh:
+        rows = {r["waveform"]: r for r in csv.DictReader(fh)}
+    # the plate at 20 m closing at 8 m/s: each within a tenth of its own range cell
+    assert abs(float(rows["OFDM"]["range_error_m"])) < 0.1 * 6.441
+    assert abs(float(rows["FMCW"]["range_error_m"])) < 0.1 * 1.171
+    for r in rows.values():
+        assert abs(float(r["v_error_mps"])) < 0.1
+    assert (out / "A_compare.png").stat().st_size > 0
+    # an FMCW table where the OFDM one belongs, and the OFDM one for --fmcw, are refused
+    table = tmp_path / "ofdm_table.toml"
+    table.write_text("[waveform]\nsubcarriers = 256\n")
+    assert main(["compare-waveforms", str(out / "snapshot.npz"), "--scene", str(ofdm_scene),
+                 "--fmcw", str(table)]) == 2
+    assert "waveform.kind" in capsys.readouterr().err

@@ -542,18 +542,21 @@ FMCW_SCENE_KEYS = {"start_frequency_hz": "start_hz", "sweep_bandwidth_hz": "swee
                    "if_filter_order": "if_filter_order"}
 
 
-def fmcw_run_waveform(carrier_hz: float, args, scene) -> tuple[FmcwWaveform, str]:
+def fmcw_run_waveform(carrier_hz: float, args, scene, *, spec=None,
+                      source=None) -> tuple[FmcwWaveform, str]:
     """:func:`run_waveform` for a scene whose ``[waveform]`` is ``kind = "fmcw"``: the
     chirp sequence from the table (FmcwWaveform's defaults for the keys it leaves out),
     traced at the scene's carrier. An OFDM option given with it is refused by name; a
     contradiction is a SceneError naming the file, the key and the value (the
-    ``scene.carrier_hz`` where the sweep does not contain it)."""
+    ``scene.carrier_hz`` where the sweep does not contain it). ``spec``/``source``: an
+    FMCW table read from another file (``args`` None: no options to refuse)."""
     for attr, option in WAVEFORM_OPTIONS.items():
-        if getattr(args, attr, None) is not None:
+        if args is not None and getattr(args, attr, None) is not None:
             raise ArgumentError('sets the OFDM frame, but the scene\'s [waveform] is kind = '
                                 '"fmcw"; set the chirp sequence in the scene file',
                                 argument=option, value=getattr(args, attr))
-    spec = scene.waveform
+    spec = scene.waveform if spec is None else spec
+    source = scene.source if source is None else source
     given = spec.given()
     kw = {FMCW_SCENE_KEYS[k]: v for k, v in given.items()}
     try:
@@ -567,9 +570,9 @@ def fmcw_run_waveform(carrier_hz: float, args, scene) -> tuple[FmcwWaveform, str
             raise
         if key not in given:  # a default contradicts the file's other keys
             raise SceneError(f"(left out: the default {exc.value!r}) {exc.reason}; set "
-                             f"waveform.{key}", file=scene.source, key=f"waveform.{key}",
+                             f"waveform.{key}", file=source, key=f"waveform.{key}",
                              value=exc.value) from None
-        raise SceneError(exc.reason, file=scene.source, key=f"waveform.{key}",
+        raise SceneError(exc.reason, file=source, key=f"waveform.{key}",
                          value=given[key]) from None
     line = (f"waveform: FMCW, traced at f_c {carrier_hz / 1e9:.6g} GHz: sweep "
             f"{wf.start_hz / 1e9:.6g} GHz + {wf.sweep_bandwidth_hz / 1e6:.6g} MHz in "

@@ -9,10 +9,15 @@ gaps, is decided where the frame is built (docs/scene-format.md, "[waveform]").
 
 from __future__ import annotations
 
-from clradcom.scene.fields import FieldReader
+import tomllib
+from pathlib import Path
+
+from clradcom.errors import SceneError
+from clradcom.scene.fields import FieldReader, is_file
 from clradcom.scene.records import FMCW_IF_TYPES, MODULATIONS, FmcwSpec, WaveformSpec
 
-__all__ = ["FMCW_KEYS", "WAVEFORM_KEYS", "WAVEFORM_KINDS", "read_waveform"]
+__all__ = ["FMCW_KEYS", "WAVEFORM_KEYS", "WAVEFORM_KINDS", "load_waveform_table",
+           "read_waveform"]
 
 WAVEFORM_KEYS = ("kind", "subcarriers", "symbols", "subcarrier_spacing_hz",
                  "useful_duration_s", "cyclic_prefix_s", "cyclic_prefix_samples",
@@ -87,3 +92,22 @@ def _read_fmcw(fields: FieldReader, tbl: dict) -> FmcwSpec:
         if_bandwidth_hz=positive("if_bandwidth_hz", "Hz"),
         if_filter_order=_positive_int(fields, tbl, "if_filter_order", 1),
     )
+
+
+def load_waveform_table(path) -> WaveformSpec | FmcwSpec:
+    """A TOML file holding one ``[waveform]`` table (as a scene file writes it, either
+    kind), for a command that runs a second radar frame beside the scene's; SceneError
+    naming the file (and key) on anything else."""
+    path = Path(path)
+    if not is_file(path):
+        raise SceneError("waveform file not found", file=path)
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError, ValueError) as exc:
+        raise SceneError(f"cannot read the waveform file ({exc})", file=path) from None
+    fields = FieldReader(path)
+    fields.check_keys(data, ("waveform",), "")
+    spec = read_waveform(fields, data)
+    if spec is None:
+        raise SceneError("holds no [waveform] table", file=path)
+    return spec
