@@ -97,8 +97,8 @@ class FmcwWaveform:
     the paths' gains, patterns and Dopplers hold for it.
 
     Defaults: a 77 GHz corner radar, 1 GHz in 40 µs (S = 25 MHz/µs), 10 µs idle,
-    128 chirps, 256 complex samples at 10 MHz from 2 µs into the chirp: Δr = 0.15 m... the
-    exact figures come from the properties, never typed in.
+    128 chirps, 256 complex samples at 10 MHz from 2 µs into the chirp; the radar figures
+    (Δr, r_max, Δv, v_max) are properties computed from these, never typed in.
 
     The attributes the OFDM chain reads (``n_subcarriers``, ``n_symbols``,
     ``subcarrier_spacing_hz``, ``symbol_duration``, ``carrier_hz``, the resolutions and
@@ -504,8 +504,11 @@ def residual_phase_noise(psd, delays_s, times_s, period_s: float, rng=None) -> n
         raise ArgumentError(f"must be at least the span of the times ({span!r} s)",
                             argument="period_s", value=period_s)
     rng = np.random.default_rng(rng)
-    # lines up to the Nyquist rate of the finest time step wanted: 2^k >= 2 x the samples
-    n_lines = 1 << int(math.ceil(math.log2(max(8, 2 * t.size))))
+    # lines up to the Nyquist frequency of the finest time step (the ADC's f_s/2:
+    # anything above would fold), rounded up to a power of two
+    steps = np.diff(np.unique(t))
+    finest = float(steps.min()) if steps.size else period
+    n_lines = 1 << int(math.ceil(math.log2(max(8.0, period / (2.0 * finest)))))
     f = np.arange(1, n_lines + 1) / period
     # φ(t) = 2 Re Σ_i c_i e^{j2π f_i t} with E|c_i|² = S_φ(f_i)/(2 period):
     # E φ² = Σ_i 2 E|c_i|² = Σ_i S_φ(f_i)/period ≈ ∫ S_φ df
