@@ -366,3 +366,22 @@ def test_real_if_costs_three_db_of_snr():
             ratios.append(p[i, j] / floor)
         snr[kind] = 10 * np.log10(np.mean(ratios))
     assert snr["complex"] - snr["real"] == pytest.approx(10 * np.log10(2), abs=0.6)
+
+
+def test_the_waveforms_phase_noise_mask_is_used_by_default():
+    mask = dict(phase_noise_offsets_hz=(1e3, 1e5, 1e6), phase_noise_dbc_per_hz=(-60, -80, -100))
+    wf = _small(adc_start_s=1e-6, **mask)
+    tau, fd = _target(wf, 14.0, 0.0)
+    paths = los_paths([1.0], [tau], [fd])
+    own = fmcw_frame(paths, wf, seed=3)
+    given = fmcw_frame(paths, _small(adc_start_s=1e-6), seed=3,
+                       phase_noise=phase_noise_psd(mask["phase_noise_offsets_hz"],
+                                                   mask["phase_noise_dbc_per_hz"]))
+    assert np.array_equal(own, given)
+    assert not np.allclose(own, fmcw_frame(paths, _small(adc_start_s=1e-6), seed=3))
+    with pytest.raises(ArgumentError) as err:
+        _small(phase_noise_offsets_hz=(1e3, 1e5))
+    assert err.value.argument == "phase_noise_dbc_per_hz"
+    with pytest.raises(ArgumentError) as err:
+        _small(phase_noise_offsets_hz=(1e5, 1e3), phase_noise_dbc_per_hz=(-60, -80))
+    assert err.value.argument == "phase_noise_offsets_hz"

@@ -187,3 +187,26 @@ def test_compare_waveforms_runs_both_radars_on_the_same_paths(tmp_path, capsys):
     assert main(["compare-waveforms", str(out / "snapshot.npz"), "--scene", str(ofdm_scene),
                  "--fmcw", str(table)]) == 2
     assert "waveform.kind" in capsys.readouterr().err
+
+
+def test_phase_noise_mask_from_the_scene(tmp_path):
+    mask = ("samples_per_chirp = 128\nphase_noise_offsets_hz = [1e3, 1e5, 1e6]\n"
+            "phase_noise_dbc_per_hz = [-60, -80, -100]\n")
+    scene = load_scene(write(tmp_path, FMCW_TABLE.replace("samples_per_chirp = 128\n", mask)))
+    wf, _ = run_waveform(scene.carrier_hz, NoOptions(), scene=scene, fmcw=True)
+    assert wf.phase_noise_offsets_hz == (1e3, 1e5, 1e6)
+    assert wf.phase_noise_dbc_per_hz == (-60.0, -80.0, -100.0)
+    for bad, key in [("[-60, -80]", "waveform.phase_noise_dbc_per_hz"),
+                     (None, "waveform.phase_noise_dbc_per_hz")]:
+        text = mask if bad is None else mask.replace("[-60, -80, -100]", bad)
+        if bad is None:
+            text = text.replace("phase_noise_dbc_per_hz = [-60, -80, -100]\n", "")
+        scene = load_scene(write(tmp_path, FMCW_TABLE.replace("samples_per_chirp = 128\n",
+                                                              text), name="bad.toml"))
+        with pytest.raises(SceneError) as err:
+            run_waveform(scene.carrier_hz, NoOptions(), scene=scene, fmcw=True)
+        assert err.value.key == key
+    with pytest.raises(SceneError) as err:
+        load_scene(write(tmp_path, FMCW_TABLE.replace(
+            "samples_per_chirp = 128\n", "phase_noise_offsets_hz = 'a'\n"), name="c.toml"))
+    assert err.value.key == "waveform.phase_noise_offsets_hz"

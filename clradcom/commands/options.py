@@ -539,7 +539,9 @@ FMCW_SCENE_KEYS = {"start_frequency_hz": "start_hz", "sweep_bandwidth_hz": "swee
                    "chirps": "n_chirps", "adc_sample_rate_hz": "adc_rate_hz",
                    "samples_per_chirp": "samples_per_chirp", "adc_start_s": "adc_start_s",
                    "if_type": "if_type", "if_bandwidth_hz": "if_bandwidth_hz",
-                   "if_filter_order": "if_filter_order"}
+                   "if_filter_order": "if_filter_order",
+                   "phase_noise_offsets_hz": "phase_noise_offsets_hz",
+                   "phase_noise_dbc_per_hz": "phase_noise_dbc_per_hz"}
 
 
 def fmcw_run_waveform(carrier_hz: float, args, scene, *, spec=None,

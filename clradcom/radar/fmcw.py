@@ -117,6 +117,10 @@ class FmcwWaveform:
     if_type: str = "complex"
     if_bandwidth_hz: float | None = None
     if_filter_order: int = 4
+    #: the oscillator's phase-noise mask L(f) (dBc/Hz at offsets in Hz), or None for a
+    #: clean oscillator (:func:`phase_noise_psd`)
+    phase_noise_offsets_hz: tuple | None = None
+    phase_noise_dbc_per_hz: tuple | None = None
 
     kind = "fmcw"
 
@@ -148,6 +152,13 @@ class FmcwWaveform:
                     f"{fs!r} Hz: {self.nyquist_hz!r} Hz): noise and echoes passed by the "
                     "filter above it would fold onto nearer ranges", argument="if_bandwidth_hz",
                     value=self.if_bandwidth_hz)
+        offsets, levels = self.phase_noise_offsets_hz, self.phase_noise_dbc_per_hz
+        if (offsets is None) != (levels is None):
+            raise ArgumentError("the phase-noise mask needs its offsets and its levels",
+                                argument="phase_noise_dbc_per_hz" if levels is None
+                                else "phase_noise_offsets_hz", value=None)
+        if offsets is not None:
+            phase_noise_psd(offsets, levels)
         if not (f0 <= fc <= f0 + b):
             raise ArgumentError(
                 f"the sweep [{f0!r}, {f0 + b!r}] Hz does not contain the carrier the "
@@ -465,16 +476,21 @@ def phase_noise_psd(offsets_hz, dbc_per_hz):
     """A single-sideband phase-noise mask L(f) (dBc/Hz at offsets, as data sheets give it)
     as a function f -> S_φ(f) (rad²/Hz, one-sided: 2·10^{L/10}), interpolated linearly
     in log f, flat beyond the ends."""
-    f = np.asarray(offsets_hz, dtype=float)
-    level = np.asarray(dbc_per_hz, dtype=float)
+    try:
+        f = np.asarray(offsets_hz, dtype=float)
+        level = np.asarray(dbc_per_hz, dtype=float)
+    except (TypeError, ValueError):
+        raise ArgumentError("must be lists of numbers", argument="phase_noise_offsets_hz",
+                            value=offsets_hz) from None
     if f.ndim != 1 or f.size < 1 or f.shape != level.shape:
-        raise ArgumentError("offsets and levels must be 1-D of equal length",
-                            argument="offsets_hz", value=f.shape)
+        raise ArgumentError(f"must be as many levels as offsets ({f.size})",
+                            argument="phase_noise_dbc_per_hz", value=dbc_per_hz)
     if not (np.all(np.isfinite(f)) and np.all(f > 0) and np.all(np.diff(f) > 0)):
-        raise ArgumentError("must be positive and increasing", argument="offsets_hz",
-                            value=offsets_hz)
+        raise ArgumentError("must be positive and increasing",
+                            argument="phase_noise_offsets_hz", value=offsets_hz)
     if not np.all(np.isfinite(level)):
-        raise ArgumentError("must be finite", argument="dbc_per_hz", value=dbc_per_hz)
+        raise ArgumentError("must be finite", argument="phase_noise_dbc_per_hz",
+                            value=dbc_per_hz)
     logf = np.log10(f)
 
     def psd(freq):
@@ -532,10 +548,14 @@ def fmcw_frame(paths, waveform: FmcwWaveform, *, seed: int = 0, method: str = "f
                phase_noise=None, rng=None) -> np.ndarray:
     """The ADC frame (N, M) of one link's paths: ``method`` "fast" or "exact" synthesis,
     optional residual phase noise (``phase_noise``: a PSD function, as
-    :func:`phase_noise_psd` returns; the frame is then built path by path), thermal
+    :func:`phase_noise_psd` returns, by default the waveform's mask where it has one;
+    the frame is then built path by path), thermal
     noise kT·B·F/P_tx per I/Q sample (B = f_s, noise drawn from ``seed`` + 1), and the
     real part for a real IF (the I channel alone: 3 dB less SNR than I/Q)."""
     gains = np.asarray(paths.gain)
+    if phase_noise is None and waveform.phase_noise_offsets_hz is not None:
+        phase_noise = phase_noise_psd(waveform.phase_noise_offsets_hz,
+                                      waveform.phase_noise_dbc_per_hz)
     if phase_noise is not None:
         s = _frame_with_phase_noise(gains, paths.delay_s, paths.doppler_hz, waveform,
                                     phase_noise, seed, method)

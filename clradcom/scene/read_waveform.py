@@ -26,7 +26,8 @@ WAVEFORM_KEYS = ("kind", "subcarriers", "symbols", "subcarrier_spacing_hz",
 WAVEFORM_KINDS = ("ofdm", "fmcw")
 FMCW_KEYS = ("kind", "start_frequency_hz", "sweep_bandwidth_hz", "chirp_duration_s",
              "idle_duration_s", "chirps", "adc_sample_rate_hz", "samples_per_chirp",
-             "adc_start_s", "if_type", "if_bandwidth_hz", "if_filter_order")
+             "adc_start_s", "if_type", "if_bandwidth_hz", "if_filter_order",
+             "phase_noise_offsets_hz", "phase_noise_dbc_per_hz")
 
 
 def _positive_int(fields: FieldReader, tbl: dict, key: str, minimum: int) -> int | None:
@@ -91,7 +92,20 @@ def _read_fmcw(fields: FieldReader, tbl: dict) -> FmcwSpec:
         if_type=if_type,
         if_bandwidth_hz=positive("if_bandwidth_hz", "Hz"),
         if_filter_order=_positive_int(fields, tbl, "if_filter_order", 1),
+        phase_noise_offsets_hz=_numbers(fields, tbl, "phase_noise_offsets_hz", "Hz"),
+        phase_noise_dbc_per_hz=_numbers(fields, tbl, "phase_noise_dbc_per_hz", "dBc/Hz"),
     )
+
+
+def _numbers(fields: FieldReader, tbl: dict, key: str, unit: str) -> tuple | None:
+    """A non-empty array of finite numbers, as a tuple; None when the key is absent."""
+    if key not in tbl:
+        return None
+    v = tbl[key]
+    if not isinstance(v, list) or not v:
+        raise fields.err(f"waveform.{key}", v, f"expected a non-empty array of numbers "
+                         f"({unit})")
+    return tuple(fields.number(x, f"waveform.{key}", f"a number ({unit})") for x in v)
 
 
 def load_waveform_table(path) -> WaveformSpec | FmcwSpec:

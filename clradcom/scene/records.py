@@ -222,6 +222,8 @@ class FmcwSpec:
     if_type: str | None = None
     if_bandwidth_hz: float | None = None
     if_filter_order: int | None = None
+    phase_noise_offsets_hz: tuple | None = None
+    phase_noise_dbc_per_hz: tuple | None = None
 
     kind = "fmcw"
 
