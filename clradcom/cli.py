@@ -13,6 +13,8 @@
     clradcom rcs --out out/rcs                      the car's RCS against aspect
     clradcom drive scene.toml                       a moving scene over time: path series
     clradcom microdoppler scene.toml                the wheels' Doppler spread: spectrogram
+    clradcom compare-waveforms SNAPSHOT --scene SCENE --fmcw FMCW.toml
+                                                    OFDM against FMCW on the same paths
     clradcom view scenes/street/street.toml         the scene from above
     clradcom presets                                the tracer's named physics
     clradcom devices                                the OpenCL devices
@@ -102,6 +104,9 @@ SUBCOMMANDS = {
     "microdoppler": ("the Doppler spread of wheels over the frames of a moving scene: "
                      "spectrogram against the expected interval", "microdoppler",
                      "add_arguments", None, "run"),
+    "compare-waveforms": ("the OFDM and an FMCW radar on the same traced paths: images "
+                          "side by side, truth, resolution, CRB, data rate",
+                          "compare", "add_arguments", None, "run"),
     "view": ("draw a scene from above, with a snapshot's strongest paths",
              "radar", "add_view_arguments", None, "run_view"),
     "presets": ("list the tracer's named physics (--preset)",

@@ -48,11 +48,12 @@ from clradcom.errors import (
 )
 from clradcom.mechanisms.common import ENGINES
 from clradcom.presets import DEFAULT_PRESET, PRESETS
+from clradcom.radar.fmcw import FmcwWaveform
 from clradcom.radar.pipeline import SYNTHESIS_METHODS, check_frame_memory
 from clradcom.radar.synthesis import check_noise_figure
 from clradcom.radar.waveform import Waveform, round_cyclic_prefix
 from clradcom.scene.motion import MAX_TIME_STEPS
-from clradcom.scene.records import MODULATIONS, OPTICS
+from clradcom.scene.records import MODULATIONS, OPTICS, FmcwSpec
 from clradcom.snapshot import Snapshot, load_snapshot, save_snapshot
 from clradcom.trace import TraceSettings, trace_scene
 
@@ -265,7 +266,8 @@ class _Sources:
 
 
 def run_waveform(carrier_hz: float, args, *, scene=None, snapshot=None,
-                 modulations: tuple[str, ...] | None = None) -> tuple[Waveform, str]:
+                 modulations: tuple[str, ...] | None = None,
+                 fmcw: bool = False) -> tuple[Waveform | FmcwWaveform, str]:
     """The radar frame of a run and the line that states it (with the cyclic prefix's
     rounding): each parameter from the options in ``args`` (those of
     :func:`add_waveform_arguments`; absent attributes count as not given), else the
@@ -273,7 +275,16 @@ def run_waveform(carrier_hz: float, args, *, scene=None, snapshot=None,
     names the option (ArgumentError) or the scene's file and key (SceneError) and the
     value: N or M not positive, T against Δf, a cyclic prefix given in seconds and in
     samples that disagree, one not shorter than the symbol, an unknown modulation (or one
-    outside ``modulations`` when given), a carrier below half the bandwidth."""
+    outside ``modulations`` when given), a carrier below half the bandwidth. A scene
+    whose ``[waveform]`` is ``kind = "fmcw"`` gives its chirp sequence
+    (:func:`fmcw_run_waveform`) where the command runs one (``fmcw``), else is refused
+    by that key."""
+    if scene is not None and isinstance(scene.waveform, FmcwSpec):
+        if not fmcw:
+            raise SceneError("this command runs the OFDM radar only (trace, radar, cube and "
+                             "drive run an FMCW one)", file=scene.source, key="waveform.kind",
+                             value="fmcw")
+        return fmcw_run_waveform(carrier_hz, args, scene)
     paper = Waveform()
     src = _Sources(scene, snapshot)
     n = src.pick("subcarriers", args, ["subcarriers"], ["subcarriers"],
@@ -344,7 +355,62 @@ def run_waveform(carrier_hz: float, args, *, scene=None, snapshot=None,
     return wf, f"{head}\n  {statement}"
 
 
+#: ``[waveform] kind = "fmcw"`` key -> :class:`FmcwWaveform` field
+FMCW_SCENE_KEYS = {"start_frequency_hz": "start_hz", "sweep_bandwidth_hz": "sweep_bandwidth_hz",
+                   "chirp_duration_s": "chirp_s", "idle_duration_s": "idle_s",
+                   "chirps": "n_chirps", "adc_sample_rate_hz": "adc_rate_hz",
+                   "samples_per_chirp": "samples_per_chirp", "adc_start_s": "adc_start_s",
+                   "if_type": "if_type", "if_bandwidth_hz": "if_bandwidth_hz",
+                   "if_filter_order": "if_filter_order",
+                   "phase_noise_offsets_hz": "phase_noise_offsets_hz",
+                   "phase_noise_dbc_per_hz": "phase_noise_dbc_per_hz"}
+
+
+def fmcw_run_waveform(carrier_hz: float, args, scene, *, spec=None,
+                      source=None) -> tuple[FmcwWaveform, str]:
+    """:func:`run_waveform` for a scene whose ``[waveform]`` is ``kind = "fmcw"``: the
+    chirp sequence from the table (FmcwWaveform's defaults for the keys it leaves out),
+    traced at the scene's carrier. An OFDM option given with it is refused by name; a
+    contradiction is a SceneError naming the file, the key and the value (the
+    ``scene.carrier_hz`` where the sweep does not contain it). ``spec``/``source``: an
+    FMCW table read from another file (``args`` None: no options to refuse)."""
+    for attr, option in WAVEFORM_OPTIONS.items():
+        if args is not None and getattr(args, attr, None) is not None:
+            raise ArgumentError('sets the OFDM frame, but the scene\'s [waveform] is kind = '
+                                '"fmcw"; set the chirp sequence in the scene file',
+                                argument=option, value=getattr(args, attr))
+    spec = scene.waveform if spec is None else spec
+    source = scene.source if source is None else source
+    given = spec.given()
+    kw = {FMCW_SCENE_KEYS[k]: v for k, v in given.items()}
+    try:
+        wf = FmcwWaveform(traced_carrier_hz=carrier_hz, **kw)
+    except ArgumentError as exc:
+        if exc.argument == "traced_carrier_hz":
+            raise SceneError(exc.reason, file=scene.source, key="scene.carrier_hz",
+                             value=carrier_hz) from None
+        key = {v: k for k, v in FMCW_SCENE_KEYS.items()}.get(exc.argument)
+        if key is None:
+            raise
+        if key not in given:  # a default contradicts the file's other keys
+            raise SceneError(f"(left out: the default {exc.value!r}) {exc.reason}; set "
+                             f"waveform.{key}", file=source, key=f"waveform.{key}",
+                             value=exc.value) from None
+        raise SceneError(exc.reason, file=source, key=f"waveform.{key}",
+                         value=given[key]) from None
+    line = (f"waveform: FMCW, traced at f_c {carrier_hz / 1e9:.6g} GHz: sweep "
+            f"{wf.start_hz / 1e9:.6g} GHz + {wf.sweep_bandwidth_hz / 1e6:.6g} MHz in "
+            f"{wf.chirp_s * 1e6:.6g} µs (S {wf.slope / 1e12:.6g} MHz/µs), {wf.n_chirps} "
+            f"chirps every {wf.chirp_interval * 1e6:.6g} µs, {wf.samples_per_chirp} "
+            f"{wf.if_type} samples at {wf.adc_rate_hz / 1e6:.6g} MHz; Δr "
+            f"{wf.range_resolution:.4g} m, r_max {wf.max_range:.4g} m, Δv "
+            f"{wf.velocity_resolution:.4g} m/s, v_max ±{wf.max_velocity:.4g} m/s")
+    return wf, f"{line}\n  IF filter: Butterworth order {wf.if_filter_order}, cutoff " \
+               f"{wf.if_cutoff_hz / 1e6:.6g} MHz (range {wf.if_range:.4g} m)"
+
+
 __all__ = ["TOOL_ERRORS", "WAVEFORM_OPTIONS", "add_waveform_arguments", "run_waveform",
+           "fmcw_run_waveform",
            "finite_float", "float_in", "int_in", "list_of",
            "noise_figure_db", "non_negative_float", "non_negative_int", "output_folder",
            "positive_float", "positive_int", "run_tool", "seed"]

@@ -58,7 +58,7 @@ def run_radar(args) -> int:
     scene = load_scene(args.scene)
     snap = read_snapshot(args.snapshot)
     check_snapshot_scene(snap, scene, args.snapshot, args.scene)
-    wf, frame = run_waveform(scene.carrier_hz, args, scene=scene)
+    wf, frame = run_waveform(scene.carrier_hz, args, scene=scene, fmcw=True)
     print(f"  {frame}")
     check_frame_memory(wf, args.synthesis)
     noise = radar_noise(scene, args)

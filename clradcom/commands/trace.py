@@ -286,7 +286,7 @@ def run(args) -> int:
         scene = load_scene(args.scene)
         if getattr(args, "optics", None):
             scene = with_object_optics(scene, args.optics, argument="--optics")
-    wf, frame = run_waveform(scene.carrier_hz, args, scene=scene)
+    wf, frame = run_waveform(scene.carrier_hz, args, scene=scene, fmcw=True)
     print(f"  {frame}")
     check_frame_memory(wf, args.synthesis)
     noise = radar_noise(scene, args)

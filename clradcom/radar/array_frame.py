@@ -45,6 +45,7 @@ from clradcom.radar.cube import (
     tdm_channels,
 )
 from clradcom.radar.element_trace import pair_channel_arrays
+from clradcom.radar.fmcw import FmcwWaveform, correct_coupling, synthesize_beat
 from clradcom.radar.mimo import mimo_received, tdm_range_doppler, virtual_positions
 from clradcom.radar.synthesis import (
     SYNTHESIS_ACCURACY,
@@ -80,15 +81,18 @@ def array_offsets(radar):
     return tx_l @ r.T, rx_l @ r.T, virtual_positions(tx_l, rx_l)
 
 
-def mimo_waveform(waveform: Waveform, n_tx: int) -> Waveform:
-    """The waveform with its symbol count cut down to a multiple of the transmitters
-    (TDM: each sends every n_tx-th symbol); unchanged when it already is one."""
+def mimo_waveform(waveform: Waveform | FmcwWaveform, n_tx: int) -> Waveform | FmcwWaveform:
+    """The waveform with its symbol (an FMCW one's chirp) count cut down to a multiple of
+    the transmitters (TDM: each sends every n_tx-th symbol or chirp); unchanged when it
+    already is one."""
     m = (waveform.n_symbols // n_tx) * n_tx
     if m < n_tx:
         raise ArgumentError(f"has fewer symbols than the {n_tx} transmitters",
                             argument="waveform", value=waveform.n_symbols)
     if m == waveform.n_symbols:
         return waveform
+    if isinstance(waveform, FmcwWaveform):
+        return dataclasses.replace(waveform, n_chirps=m)
     return dataclasses.replace(waveform, n_symbols=m)
 
 
@@ -155,8 +159,11 @@ def tdm_frame(paths, radar, waveform: Waveform, *, seed: int = 0,
     the radar's own echoes (module docstring; ``channel``/``pair_paths`` as
     :func:`element_channels`); thermal noise per receive element when both
     ``tx_power_w`` and ``noise_figure_db`` are given (noise seeded with seed + 1)."""
-    d = random_symbols(waveform, seed)
     gains, delays, dopplers = element_channels(paths, radar, waveform, channel, pair_paths)
+    if isinstance(waveform, FmcwWaveform):
+        return _fmcw_tdm_frame(gains, delays, dopplers, waveform, seed=seed,
+                               tx_power_w=tx_power_w, noise_figure_db=noise_figure_db)
+    d = random_symbols(waveform, seed)
     if channel == "synthetic" and radar_patterns_shared(radar):
         received = mimo_received(d, gains, np.asarray(paths.delay_s),
                                  np.asarray(paths.doppler_hz), waveform, mode="tdm")
@@ -169,6 +176,36 @@ def tdm_frame(paths, radar, waveform: Waveform, *, seed: int = 0,
         received = add_thermal_noise(received, tx_power_w, noise_figure_db,
                                      waveform.bandwidth, rng=rng)
     return d, received
+
+
+def _fmcw_tdm_frame(gains, delays, dopplers, waveform: FmcwWaveform, *, seed, tx_power_w,
+                    noise_figure_db):
+    """(D, received) of an FMCW TDM-MIMO frame: transmitter i sends chirps μ = m·E_tx + i,
+    every receiver dechirps each (fast synthesis per element pair, its own paths); D is
+    all ones, so that the OFDM chain's F = D_r/D is the beat frame itself (docs/fmcw.md
+    §3). I/Q noise kT·f_s·F/P_tx per sample and receiver, seeded with seed + 1."""
+    if waveform.if_type != "complex":
+        raise ArgumentError("an array radar's FMCW frame needs I/Q samples (if_type "
+                            '"complex"): the real IF\'s mirrored half has no cube yet',
+                            argument="if_type", value=waveform.if_type)
+    g = np.asarray(gains)
+    et, er, _ = g.shape
+    owner = np.arange(waveform.n_chirps) % et
+    received = np.zeros((er, waveform.samples_per_chirp, waveform.n_chirps), complex)
+    for i in range(et):
+        for j in range(er):
+            keep = g[i, j] != 0
+            if keep.any():
+                s = synthesize_beat(g[i, j][keep], np.asarray(delays)[i, j][keep],
+                                    np.asarray(dopplers)[i, j][keep], waveform)
+                received[j][:, owner == i] = s[:, owner == i]
+    if tx_power_w is not None and noise_figure_db is not None:
+        check_tx_power(tx_power_w)
+        check_noise_figure(noise_figure_db)
+        rng = np.random.default_rng(seed + 1)
+        received = add_thermal_noise(received, tx_power_w, noise_figure_db,
+                                     waveform.adc_rate_hz, rng=rng)
+    return np.ones(received.shape[1:], complex), received
 
 
 def radar_patterns_shared(radar) -> bool:
@@ -217,6 +254,9 @@ def run_array_radar(paths, radar, waveform: Waveform, *, seed: int = 0,
     if refine == "ml" and virt.shape[0] > 1 and wf.n_symbols // tx.shape[0] > 1:
         f, slow = tdm_channels(received, d, wf, tx.shape[0])
         det = refine_detections(det, cube, f, slow, virt, wf)
+    if isinstance(wf, FmcwWaveform):  # the beat's range-Doppler coupling (docs/fmcw.md §3)
+        det["range_m"], det["velocity_mps"] = correct_coupling(det["range_m"],
+                                                               det["velocity_mps"], wf)
     pts = point_cloud(det, radar.position, radar.orientation)
     return ArrayResult(wf, rd, cube, det, pts)
 

@@ -95,11 +95,13 @@ def cramer_rao_bound(waveform: Waveform, snr_per_cell) -> CramerRaoBound:
         var(r̂) ≥ 6c² / [(4πΔf)² SNR NM(N²−1)],
         var(v̂) ≥ 6c² / [(4πf_c T_sym)² SNR NM(M²−1)].
 
-    Paper frame, SNR 0 dB per cell: σ_r ≥ 1.2 mm, σ_v ≥ 1.5 mm/s.
+    Paper frame, SNR 0 dB per cell: σ_r ≥ 1.2 mm, σ_v ≥ 1.5 mm/s. An FMCW frame
+    (``kind`` "fmcw": Δf = S/f_s, T_sym = T_r, f_c the ADC window's centre) has the same
+    two-frequency model (docs/fmcw.md §3).
     """
-    if not isinstance(waveform, Waveform):
-        raise ArgumentError("must be a clradcom.radar.Waveform", argument="waveform",
-                            value=waveform)
+    if not (isinstance(waveform, Waveform) or getattr(waveform, "kind", None) == "fmcw"):
+        raise ArgumentError("must be a clradcom.radar.Waveform or FmcwWaveform",
+                            argument="waveform", value=waveform)
     snr = np.asarray(snr_per_cell, dtype=float)
     if not np.all(np.isfinite(snr)) or np.any(snr <= 0):
         raise ArgumentError("must be positive and finite (linear, not dB)",

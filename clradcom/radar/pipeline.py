@@ -35,6 +35,7 @@ from clradcom.radar.array_frame import run_array_radar
 from clradcom.radar.cfar import RADAR_GUARD, RADAR_TRAIN
 from clradcom.radar.cube import point_cloud
 from clradcom.radar.estimation import estimate_detections
+from clradcom.radar.fmcw import FmcwWaveform, correct_coupling, fmcw_frame, fmcw_image
 from clradcom.radar.processing import RadarImage
 from clradcom.radar.synthesis import (
     SYNTHESIS_ACCURACY,
@@ -61,9 +62,9 @@ IMAGE_ARRAYS_PER_CELL = 2.5
 def frame_memory_bytes(waveform: Waveform, method: str = "fast", zero_pad=(2, 2)) -> int:
     """Bytes that :func:`radar_frame` and :func:`process` hold at their peak for one
     N x M frame (16 N M bytes per complex128 array; :data:`FRAME_ARRAYS`)."""
-    if not isinstance(waveform, Waveform):
-        raise ArgumentError("must be a clradcom.radar.Waveform", argument="waveform",
-                            value=waveform)
+    if not isinstance(waveform, Waveform | FmcwWaveform):
+        raise ArgumentError("must be a clradcom.radar.Waveform or FmcwWaveform",
+                            argument="waveform", value=waveform)
     if method not in SYNTHESIS_METHODS:
         raise ArgumentError(f"must be one of {SYNTHESIS_METHODS}", argument="method",
                             value=method)
@@ -218,7 +219,8 @@ def path_ranges_velocities(paths, waveform: Waveform) -> tuple[np.ndarray, np.nd
     velocity lambda f_D / 2 (m/s, closing positive, as the image's velocity axis)."""
     tau = np.asarray(paths.delay_s, dtype=np.float64)
     fd = np.asarray(paths.doppler_hz, dtype=np.float64)
-    return SPEED_OF_LIGHT * tau / 2.0, SPEED_OF_LIGHT * fd / (2.0 * waveform.carrier_hz)
+    # the snapshot's Doppler is at the traced carrier (an FMCW frame's centre differs)
+    return SPEED_OF_LIGHT * tau / 2.0, fd / waveform.velocity_to_doppler(1.0)
 
 
 def sort_detections(detections, paths, waveform: Waveform, *,
@@ -269,6 +271,33 @@ def frame_result(D, Dr, paths, waveform: Waveform) -> FrameResult:
                        float(r_path.max()) if r_path.size else 0.0)
 
 
+def fmcw_process(frame, waveform: FmcwWaveform, *, window="hann", zero_pad=(2, 2),
+                 p_fa=1e-6, cfar="ca", guard=RADAR_GUARD, train=RADAR_TRAIN,
+                 accuracy: float = SYNTHESIS_ACCURACY, refine: bool = True):
+    """:func:`process` for an FMCW beat frame (N, M): the frame is the spectral estimate
+    (docs/fmcw.md §3), so the same image, CFAR on the critical grid and periodogram
+    refinement run on it; then each detection's range and velocity are freed of the
+    range-Doppler coupling (:func:`clradcom.radar.fmcw.correct_coupling`). A real IF's
+    image holds only the range bins below the wrap."""
+    image = fmcw_image(frame, waveform, window, zero_pad)
+    critical = image if tuple(zero_pad) == (1, 1) else fmcw_image(frame, waveform, window)
+    detections = find_targets(frame, waveform, window=window, p_fa=p_fa, cfar=cfar,
+                              guard=guard, train=train, accuracy=accuracy, refine=refine,
+                              critical=critical)
+    r, v = correct_coupling(detections["range_m"], detections["velocity_mps"], waveform)
+    detections["range_m"], detections["velocity_mps"] = r, v
+    return image, detections
+
+
+def fmcw_frame_result(frame, paths, waveform: FmcwWaveform) -> FrameResult:
+    """:func:`frame_result` for an FMCW beat frame."""
+    image, dets = fmcw_process(frame, waveform)
+    kept, aliased, beyond = sort_detections(dets, paths, waveform)
+    r_path, _ = path_ranges_velocities(paths, waveform)
+    return FrameResult(image, kept, aliased, beyond,
+                       float(r_path.max()) if r_path.size else 0.0)
+
+
 def radar_chain(paths, waveform: Waveform, *, radar=None, seed: int = 0,
                 method: str = "fast", tx_power_w: float | None = None,
                 noise_figure_db: float | None = None, refine: str = "ml",
@@ -283,7 +312,13 @@ def radar_chain(paths, waveform: Waveform, *, radar=None, seed: int = 0,
     the angle bins, the detections sorted against ``paths`` at the TDM frame's unambiguous
     velocity (the element pairs' paths with ``channel`` "exact": ``paths`` None, nothing
     sorted out), and the point cloud of those kept."""
-    if radar is not None and (radar.tx_array is not None or radar.rx_array is not None):
+    has_array = radar is not None and (radar.tx_array is not None
+                                       or radar.rx_array is not None)
+    if isinstance(waveform, FmcwWaveform) and not has_array:
+        frame = fmcw_frame(paths, waveform, seed=seed, method=method,
+                           tx_power_w=tx_power_w, noise_figure_db=noise_figure_db)
+        return fmcw_frame_result(frame, paths, waveform)
+    if has_array:
         return _array_chain(paths, waveform, radar, seed=seed, tx_power_w=tx_power_w,
                             noise_figure_db=noise_figure_db, refine=refine, channel=channel,
                             pair_paths=pair_paths)

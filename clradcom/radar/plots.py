@@ -230,3 +230,45 @@ def save_interference_images(images: dict, path_stem, detections: dict, floor_cl
     save_figure(fig, paths[0], inputs=inputs, dpi=120)
     save_figure(fig, paths[1], inputs=inputs)
     return paths
+
+
+def save_side_by_side(images: dict, detections: dict, path_stem, *, range_max_m: float,
+                      velocity_max_mps: float, dynamic_range_db: float = 60.0, inputs=()):
+    """Radar images of different frames side by side (``images``: title -> RadarImage,
+    each on its own axes, cut to ``range_max_m`` and ±``velocity_max_mps``), each in dB
+    re its own strongest cell there, down ``dynamic_range_db``; ``detections``: title ->
+    detections drawn as circles. Writes ``<stem>.png`` and ``<stem>.svg``."""
+    if not images or set(images) != set(detections):
+        raise ArgumentError("must name the same images and detections", argument="images",
+                            value=sorted(images))
+    fig = new_figure(figsize=(6.0 * len(images) + 1.5, 4.4), layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = np.atleast_1d(fig.subplots(1, len(images)))
+    im = None
+    for ax, (title, img) in zip(axes, images.items(), strict=True):
+        ri = np.flatnonzero(img.range_m <= range_max_m)
+        vi = np.flatnonzero(np.abs(img.velocity_mps) <= velocity_max_mps)
+        if ri.size < 2 or vi.size < 2:
+            raise ArgumentError(f"selects fewer than two cells of the {title} image",
+                                argument="range_max_m", value=range_max_m)
+        crop = img.power_db[np.ix_(ri, vi)]
+        crop = crop - float(crop.max())
+        ext = (img.range_m[ri[0]], img.range_m[ri[-1]], img.velocity_mps[vi[0]],
+               img.velocity_mps[vi[-1]])
+        im = ax.imshow(crop.T, origin="lower", aspect="auto", cmap="jet",
+                       vmin=-dynamic_range_db, vmax=0.0, extent=ext, interpolation="nearest")
+        det = detections[title]
+        if len(det):
+            ax.plot(det["range_m"], det["velocity_mps"], "o", mfc="none", mec="white",
+                    ms=8, mew=1.2)
+        ax.set_xlim(ext[0], ext[1])
+        ax.set_ylim(ext[2], ext[3])
+        ax.set_title(title)
+        ax.set_xlabel("range [m]")
+        ax.set_ylabel("relative velocity [m/s]")
+    fig.colorbar(im, ax=list(axes), label="power re each image's strongest cell [dB]")
+    stem = Path(path_stem)
+    paths = (stem.with_suffix(".png"), stem.with_suffix(".svg"))
+    save_figure(fig, paths[0], inputs=inputs, dpi=120)
+    save_figure(fig, paths[1], inputs=inputs)
+    return paths

@@ -9,13 +9,25 @@ gaps, is decided where the frame is built (docs/scene-format.md, "[waveform]").
 
 from __future__ import annotations
 
-from clradcom.scene.fields import FieldReader
-from clradcom.scene.records import MODULATIONS, WaveformSpec
+import tomllib
+from pathlib import Path
 
-__all__ = ["WAVEFORM_KEYS", "read_waveform"]
+from clradcom.errors import SceneError
+from clradcom.scene.fields import FieldReader, is_file
+from clradcom.scene.records import FMCW_IF_TYPES, MODULATIONS, FmcwSpec, WaveformSpec
 
-WAVEFORM_KEYS = ("subcarriers", "symbols", "subcarrier_spacing_hz", "useful_duration_s",
-                 "cyclic_prefix_s", "cyclic_prefix_samples", "modulation")
+__all__ = ["FMCW_KEYS", "WAVEFORM_KEYS", "WAVEFORM_KINDS", "load_waveform_table",
+           "read_waveform"]
+
+WAVEFORM_KEYS = ("kind", "subcarriers", "symbols", "subcarrier_spacing_hz",
+                 "useful_duration_s", "cyclic_prefix_s", "cyclic_prefix_samples",
+                 "modulation")
+#: ``[waveform] kind``: the OFDM RadCom frame (the default) or an FMCW chirp sequence
+WAVEFORM_KINDS = ("ofdm", "fmcw")
+FMCW_KEYS = ("kind", "start_frequency_hz", "sweep_bandwidth_hz", "chirp_duration_s",
+             "idle_duration_s", "chirps", "adc_sample_rate_hz", "samples_per_chirp",
+             "adc_start_s", "if_type", "if_bandwidth_hz", "if_filter_order",
+             "phase_noise_offsets_hz", "phase_noise_dbc_per_hz")
 
 
 def _positive_int(fields: FieldReader, tbl: dict, key: str, minimum: int) -> int | None:
@@ -23,18 +35,21 @@ def _positive_int(fields: FieldReader, tbl: dict, key: str, minimum: int) -> int
         return None
     v = tbl[key]
     if isinstance(v, bool) or not isinstance(v, int) or v < minimum:
-        raise fields.err(f"waveform.{key}", v, "must be a positive integer" if minimum else
-                         "must be an integer >= 0")
+        raise fields.err(f"waveform.{key}", v, "must be a positive integer" if minimum == 1
+                         else f"must be an integer >= {minimum}")
     return int(v)
 
 
-def read_waveform(fields: FieldReader, data: dict) -> WaveformSpec | None:
+def read_waveform(fields: FieldReader, data: dict) -> WaveformSpec | FmcwSpec | None:
     """The document's ``[waveform]`` table, or None when it has none."""
     if "waveform" not in data:
         return None
     tbl = data["waveform"]
     if not isinstance(tbl, dict):
         raise fields.err("waveform", tbl, "expected a table, written [waveform]")
+    kind = fields.get_str(tbl, "kind", "waveform", default="ofdm", choices=WAVEFORM_KINDS)
+    if kind == "fmcw":
+        return _read_fmcw(fields, tbl)
     fields.check_keys(tbl, WAVEFORM_KEYS, "waveform")
     modulation = fields.get_str(tbl, "modulation", "waveform", default=None)
     if modulation is not None and modulation.lower() not in MODULATIONS:
@@ -53,3 +68,60 @@ def read_waveform(fields: FieldReader, data: dict) -> WaveformSpec | None:
         cyclic_prefix_samples=_positive_int(fields, tbl, "cyclic_prefix_samples", 0),
         modulation=None if modulation is None else modulation.lower(),
     )
+
+
+def _read_fmcw(fields: FieldReader, tbl: dict) -> FmcwSpec:
+    fields.check_keys(tbl, FMCW_KEYS, "waveform")
+
+    def positive(key, unit):
+        return fields.get_float(tbl, key, "waveform", default=None, lo=0.0, lo_open=True,
+                                unit=unit)
+
+    if_type = fields.get_str(tbl, "if_type", "waveform", default=None, choices=FMCW_IF_TYPES)
+    return FmcwSpec(
+        start_frequency_hz=positive("start_frequency_hz", "Hz"),
+        sweep_bandwidth_hz=positive("sweep_bandwidth_hz", "Hz"),
+        chirp_duration_s=positive("chirp_duration_s", "s"),
+        idle_duration_s=fields.get_float(tbl, "idle_duration_s", "waveform", default=None,
+                                         lo=0.0, unit="s"),
+        chirps=_positive_int(fields, tbl, "chirps", 1),
+        adc_sample_rate_hz=positive("adc_sample_rate_hz", "Hz"),
+        samples_per_chirp=_positive_int(fields, tbl, "samples_per_chirp", 2),
+        adc_start_s=fields.get_float(tbl, "adc_start_s", "waveform", default=None, lo=0.0,
+                                     unit="s"),
+        if_type=if_type,
+        if_bandwidth_hz=positive("if_bandwidth_hz", "Hz"),
+        if_filter_order=_positive_int(fields, tbl, "if_filter_order", 1),
+        phase_noise_offsets_hz=_numbers(fields, tbl, "phase_noise_offsets_hz", "Hz"),
+        phase_noise_dbc_per_hz=_numbers(fields, tbl, "phase_noise_dbc_per_hz", "dBc/Hz"),
+    )
+
+
+def _numbers(fields: FieldReader, tbl: dict, key: str, unit: str) -> tuple | None:
+    """A non-empty array of finite numbers, as a tuple; None when the key is absent."""
+    if key not in tbl:
+        return None
+    v = tbl[key]
+    if not isinstance(v, list) or not v:
+        raise fields.err(f"waveform.{key}", v, f"expected a non-empty array of numbers "
+                         f"({unit})")
+    return tuple(fields.number(x, f"waveform.{key}", f"a number ({unit})") for x in v)
+
+
+def load_waveform_table(path) -> WaveformSpec | FmcwSpec:
+    """A TOML file holding one ``[waveform]`` table (as a scene file writes it, either
+    kind), for a command that runs a second radar frame beside the scene's; SceneError
+    naming the file (and key) on anything else."""
+    path = Path(path)
+    if not is_file(path):
+        raise SceneError("waveform file not found", file=path)
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError, ValueError) as exc:
+        raise SceneError(f"cannot read the waveform file ({exc})", file=path) from None
+    fields = FieldReader(path)
+    fields.check_keys(data, ("waveform",), "")
+    spec = read_waveform(fields, data)
+    if spec is None:
+        raise SceneError("holds no [waveform] table", file=path)
+    return spec

@@ -19,8 +19,8 @@ from clradcom.scene.antenna import Pattern
 from clradcom.scene.materials import C0, ROUGHNESS_MODELS, Material
 
 __all__ = ["ARRAY_KINDS", "MODULATIONS", "OPTICS", "ROLES", "SBR_SPACING_WAVELENGTHS", "SIDES",
-           "ArrayLayout", "Motion", "Radar", "Scene", "SceneDocument", "SceneObject", "TimeAxis",
-           "WaveformSpec", "with_object_optics"]
+           "ArrayLayout", "FMCW_IF_TYPES", "FmcwSpec", "Motion", "Radar", "Scene",
+           "SceneDocument", "SceneObject", "TimeAxis", "WaveformSpec", "with_object_optics"]
 
 #: the radar's modulations (``[waveform] modulation``, ``Waveform.modulation``)
 MODULATIONS = ("bpsk", "qpsk", "8psk", "16psk", "16qam", "64qam", "256qam")
@@ -226,6 +226,44 @@ class SceneDocument:
     mesh_cache: dict
 
 
+#: the IF sampling of an FMCW radar (``[waveform] if_type``)
+FMCW_IF_TYPES = ("complex", "real")
+
+
+@dataclass(frozen=True)
+class FmcwSpec:
+    """The scene file's ``[waveform]`` table with ``kind = "fmcw"``, as written: each
+    field None where the file leaves it out (:class:`clradcom.radar.fmcw.FmcwWaveform`'s
+    defaults fill it in). Checked one value at a time by the reader; whether they fit
+    together (the ADC window inside the chirp, the IF band the ADC takes, the sweep
+    around the scene's carrier) is decided where the frame is built
+    (:func:`clradcom.commands.options.run_waveform`)."""
+
+    start_frequency_hz: float | None = None
+    sweep_bandwidth_hz: float | None = None
+    chirp_duration_s: float | None = None
+    idle_duration_s: float | None = None
+    chirps: int | None = None
+    adc_sample_rate_hz: float | None = None
+    samples_per_chirp: int | None = None
+    adc_start_s: float | None = None
+    if_type: str | None = None
+    if_bandwidth_hz: float | None = None
+    if_filter_order: int | None = None
+    phase_noise_offsets_hz: tuple | None = None
+    phase_noise_dbc_per_hz: tuple | None = None
+
+    kind = "fmcw"
+
+    def given(self) -> dict:
+        """{key: value} of the keys the file gave."""
+        return {k: v for k, v in self.__dict__.items() if v is not None}
+
+    def hash_params(self) -> list:
+        """``kind`` and the keys given, in a fixed order, for :meth:`Scene.content_hash`."""
+        return [["kind", "'fmcw'"]] + [[k, repr(v)] for k, v in self.given().items()]
+
+
 @dataclass(eq=False)
 class Scene:
     """A loaded scene.  The flattened arrays are what the BVH builder and the
@@ -255,8 +293,8 @@ class Scene:
     time_s: float = 0.0
     #: the file's ``[time]`` table, or None
     time_axis: TimeAxis | None = None
-    #: the file's ``[waveform]`` table, or None
-    waveform: WaveformSpec | None = None
+    #: the file's ``[waveform]`` table (an FMCW one with ``kind = "fmcw"``), or None
+    waveform: WaveformSpec | FmcwSpec | None = None
     #: every file reading the scene opened: the scene file, its meshes, pattern tables
     #: and imports (XML, GeoJSON); outputs of a run are refused over any of them
     input_files: tuple[Path, ...] = ()
