@@ -262,6 +262,19 @@ def trihedral_runs(runtime):
     return run, run(device_sbr.BATCH_TUBES)
 
 
+def launched_kernels(runtime, monkeypatch) -> list:
+    """The names of the kernels ``runtime`` launches from now on (the list fills)."""
+    names = []
+    orig = type(runtime).launch
+
+    def launch(self, kernel, *args, name=None, **kw):
+        names.append(name)
+        return orig(self, kernel, *args, name=name, **kw)
+
+    monkeypatch.setattr(type(runtime), "launch", launch)
+    return names
+
+
 def test_batches_and_runs_give_the_same_records(runtime):
     run, whole = trihedral_runs(runtime)
     assert len(whole) > 0
@@ -274,14 +287,7 @@ def test_bounces_in_one_launch_give_the_wavefront_records(runtime, monkeypatch):
     records, bit for bit, whichever the device would take by itself; each mode is the one
     that runs (checked by the kernels launched)."""
     run, _ = trihedral_runs(runtime)
-    names = []
-    orig = type(runtime).launch
-
-    def launch(self, kernel, *args, name=None, **kw):
-        names.append(name)
-        return orig(self, kernel, *args, name=name, **kw)
-
-    monkeypatch.setattr(type(runtime), "launch", launch)
+    names = launched_kernels(runtime, monkeypatch)
     records = {}
     for mode in ((runtime.info.vendor,), ()):
         monkeypatch.setattr(device_sbr, "PERSISTENT_BOUNCE_VENDORS", mode)
@@ -298,14 +304,7 @@ def test_bounces_in_one_launch_give_the_wavefront_records(runtime, monkeypatch):
 
 def test_records_beyond_the_buffer_reduce_the_bounce_again(runtime, monkeypatch):
     run, whole = trihedral_runs(runtime)
-    names = []
-    orig = type(runtime).launch
-
-    def launch(self, kernel, *args, name=None, **kw):
-        names.append(name)
-        return orig(self, kernel, *args, name=name, **kw)
-
-    monkeypatch.setattr(type(runtime), "launch", launch)
+    names = launched_kernels(runtime, monkeypatch)
     run(device_sbr.BATCH_TUBES)
     roomy = names.count("sbr_reduce (sbr.cl)")
     # a buffer of 16 records at first: a bounce overflows it, grows it and is reduced

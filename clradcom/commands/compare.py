@@ -27,8 +27,9 @@ from clradcom.commands.options import (
     read_snapshot,
     run_waveform,
 )
+from clradcom.commands.radar import monostatic_links
 from clradcom.commands.trace import Stopwatch, radar_noise
-from clradcom.errors import ArgumentError, SceneError
+from clradcom.errors import SceneError
 from clradcom.files import staged_folder
 from clradcom.radar.estimation import cramer_rao_bound
 from clradcom.radar.fmcw import FmcwWaveform, fmcw_cramer_rao_bound
@@ -106,11 +107,7 @@ def run(args) -> int:
     for wf in (ofdm, fmcw):
         check_frame_memory(wf, args.synthesis)
     noise = radar_noise(scene, args)
-    mono = [lk for lk in snap if lk.tx_index == lk.rx_index
-            and scene.radars[lk.tx_index].role == "txrx"]
-    if not mono:
-        raise ArgumentError("holds no link of a radar to itself, so there is no echo to "
-                            "image", argument="snapshot", value=args.snapshot)
+    mono = monostatic_links(snap, scene, args.snapshot)
     print("  figure                              OFDM            FMCW")
     for name, a, b in waveform_rows(ofdm, fmcw):
         print(f"  {name:<34} {a:<15} {b}")

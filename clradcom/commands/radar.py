@@ -43,6 +43,17 @@ __all__ = ["RADAR_OUTPUTS", "add_radar_arguments", "add_view_arguments", "run_ra
 RADAR_OUTPUTS = ("*_image.png", "*_image.svg", "*_detections.csv", "*_truth.csv")
 
 
+def monostatic_links(snap, scene, snapshot) -> list:
+    """The links of ``snap`` from a transmitting and receiving radar to itself (its
+    echoes), refused when there is none (``snapshot``: the file named)."""
+    mono = [lk for lk in snap if lk.tx_index == lk.rx_index
+            and scene.radars[lk.tx_index].role == "txrx"]
+    if not mono:
+        raise ArgumentError("holds no link of a radar to itself, so there is no echo to "
+                            "image", argument="snapshot", value=snapshot)
+    return mono
+
+
 def add_radar_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("snapshot", help="a snapshot.npz written by clradcom trace")
     ap.add_argument("--scene", required=True,
@@ -62,11 +73,7 @@ def run_radar(args) -> int:
     print(f"  {frame}")
     check_frame_memory(wf, args.synthesis)
     noise = radar_noise(scene, args)
-    mono = [lk for lk in snap if lk.tx_index == lk.rx_index
-            and scene.radars[lk.tx_index].role == "txrx"]
-    if not mono:
-        raise ArgumentError("holds no link of a radar to itself, so there is no echo to "
-                            "image", argument="snapshot", value=args.snapshot)
+    mono = monostatic_links(snap, scene, args.snapshot)
     out = Path(args.out) if args.out else Path(args.snapshot).parent
     with staged_folder(out, inputs=[*scene.input_files, args.snapshot],
                       owned=RADAR_OUTPUTS) as stage:
