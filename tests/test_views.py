@@ -138,7 +138,7 @@ def test_html_is_self_contained_and_holds_the_data(scene, snap, tmp_path):
 def test_html_script_runs_and_draws_everything(scene, snap, tmp_path):
     """The page's own script, run by node against a recording stand-in for the browser's
     WebGL context: it decodes the inline data and draws every triangle, path segment and
-    radar. (No headless browser is installed here; node runs the same JavaScript.)"""
+    radar. (test_a_real_browser_draws_the_paths_and_radars draws it in Chromium.)"""
     node = shutil.which("node")
     if node is None:
         pytest.skip("node is not installed: the page's script is checked where it is")
@@ -286,3 +286,56 @@ def test_view_shows_inline_in_jupyter_offline(scene, snap, tmp_path):
         html_page(scene, snap, n_paths=5)
     assert "all_mechanisms" in repr(v) and len(repr(v)) < 100
     assert v.save(tmp_path / "v.html").read_text("utf-8") == html_page(scene, snap, n_paths=5)
+
+
+def _screenshot(page: str, folder: Path, name: str) -> np.ndarray:
+    """The page drawn by headless Chromium (WebGL through SwiftShader), its text overlay
+    hidden so that only the canvas counts: (H, W, 3) uint8."""
+    browser = shutil.which("chromium-headless-shell") or shutil.which("chromium")
+    if browser is None:
+        pytest.skip("Chromium is not installed: the page is drawn where it is (.ci/run "
+                    "installs chromium-headless-shell)")
+    from PIL import Image
+
+    html_file, png = folder / f"{name}.html", folder / f"{name}.png"
+    html_file.write_text(page.replace("</head>", "<style>#info{display:none}</style></head>",
+                                      1), encoding="utf-8")
+    subprocess.run([browser, "--headless", "--no-sandbox", "--disable-gpu",
+                    "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
+                    "--window-size=800,600", "--virtual-time-budget=3000",
+                    f"--screenshot={png}", html_file.as_uri()],
+                   check=True, capture_output=True, timeout=120)
+    return np.asarray(Image.open(png).convert("RGB"))
+
+
+def _pixels_near(image: np.ndarray, colours: np.ndarray, tol: int = 6) -> int:
+    """How many pixels of ``image`` lie within ``tol`` of any of ``colours`` (N, 3)."""
+    flat = image.reshape(-1, 1, 3).astype(np.int16)
+    return int((np.abs(flat - colours[None].astype(np.int16)).max(axis=2) <= tol)
+               .any(axis=1).sum())
+
+
+def test_a_real_browser_draws_the_paths_and_radars(scene, snap, tmp_path):
+    """The HTML view in headless Chromium (issue #31): the scene's triangles, the paths in
+    their gain colours and the radars are on the screen from the default camera; the same
+    scene without a snapshot shows none of the path colours."""
+    payload = page_payload(scene, snap, n_paths=50)
+    path_rgb = np.unique(np.frombuffer(base64.b64decode(payload["seg_rgb"]), np.uint8)
+                         .reshape(-1, 3), axis=0)
+    tri_rgb = np.unique(np.frombuffer(base64.b64decode(payload["tri_rgb"]), np.uint8)
+                        .reshape(-1, 3), axis=0)
+    # path colours that no material shares (the lit faces are darker shades of theirs)
+    own = path_rgb[np.abs(path_rgb[:, None].astype(int) - tri_rgb[None]).max(axis=2)
+                   .min(axis=1) > 40]
+    assert len(own) >= 3
+    radar_rgb = np.array([[230, 31, 31]])
+    with_paths = _screenshot(html_page(scene, snap, n_paths=50), tmp_path, "paths")
+    without = _screenshot(html_page(scene), tmp_path, "none")
+    background = np.array([[245, 245, 242]])
+    for image in (with_paths, without):
+        # WebGL drew the scene: most of the canvas is not the page's background
+        assert image.shape[2] == 3 and _pixels_near(image, background, 3) < 0.8 * image[..., 0].size
+        assert _pixels_near(image, radar_rgb, 12) >= 10
+    drawn = _pixels_near(with_paths, own)
+    assert drawn >= 150, drawn
+    assert _pixels_near(without, own) < drawn / 20
