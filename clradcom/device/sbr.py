@@ -303,8 +303,9 @@ class _Wavefront:
         self.n_queued, self.n_groups, self.n_records = (empty(4) for _ in range(3))
 
     def _zero(self, *bufs):
+        # a fill, not a blocking host copy: the queue is not drained for a counter
         for b in bufs:
-            self.cl.enqueue_copy(self.rt.queue, b, np.zeros(1, np.int32))
+            self.rt.fill(b, np.int32(0), 4)
 
     def _read(self, buf) -> int:
         out = np.zeros(1, np.int32)
@@ -362,8 +363,7 @@ class _Wavefront:
 
     def _bounce(self, m: int, n_live: int, first_bounce: int, max_bounces: int):
         counts = np.zeros(2, np.int32)
-        with self.rt.guard("SBR bounce"):
-            self.cl.enqueue_copy(self.rt.queue, self.bounce_counts, counts)
+        self.rt.fill(self.bounce_counts, np.int32(0), counts.nbytes)
         self._run_bvh("sbr_bounce", n_live, *self.bounce_args, np.int32(m),
                       np.int32(first_bounce), np.int32(max_bounces), self.queues[0],
                       np.int32(n_live), self.queues[1], self.footprints, self.bounce_counts)
@@ -375,8 +375,7 @@ class _Wavefront:
         """Every bounce of the n_live launched tubes in one launch (sbr_bounces): the
         footprints per bounce, in :attr:`footprint_regions`."""
         counts = np.zeros(max_bounces, np.int32)
-        with self.rt.guard("SBR bounces"):
-            self.cl.enqueue_copy(self.rt.queue, self.bounce_counts, counts)
+        self.rt.fill(self.bounce_counts, np.int32(0), counts.nbytes)
         self._run_bvh("sbr_bounces", n_live, *self.bounce_args, np.int32(first_bounce),
                       np.int32(max_bounces), self.queues[0], np.int32(n_live),
                       self.footprint_area, np.int32(self.region), self.bounce_counts)
