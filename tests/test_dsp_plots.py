@@ -1,5 +1,8 @@
 """Radar image plot (paper Fig. 3 style): files, limits, detection markers."""
 
+import re
+from pathlib import Path
+
 import numpy as np
 import pytest
 from dsp_helpers import small_waveform
@@ -11,7 +14,7 @@ from clradcom.radar import (
     spectral_estimate,
     synthesize_frequency_domain,
 )
-from clradcom.radar.plots import plot_radar_image, save_radar_image
+from clradcom.radar.plots import IMAGE_CMAP, plot_radar_image, save_radar_image
 
 
 def _scene():
@@ -49,3 +52,15 @@ def test_radar_images_use_a_perceptually_uniform_colour_map():
     img, det = _scene()
     for fig in (plot_radar_image(img, det),):
         assert [im.get_cmap().name for im in fig.axes[0].images] == ["viridis"]
+
+
+def test_no_figure_of_the_package_uses_jet():
+    """Issue #31: perceptually uniform colour maps throughout; every radar image takes
+    clradcom.radar.plots.IMAGE_CMAP, and no plotting code names jet (or its kin)."""
+    assert IMAGE_CMAP in ("viridis", "cividis", "magma", "inferno", "plasma")
+    package = Path(__file__).resolve().parents[1] / "clradcom"
+    offenders = [f"{path.relative_to(package)}:{n}"
+                 for path in sorted(package.rglob("*.py"))
+                 for n, line in enumerate(path.read_text().splitlines(), 1)
+                 if re.search(r"""cmap\s*=\s*["'](jet|rainbow|hsv|gist_rainbow)["']""", line)]
+    assert not offenders, offenders

@@ -27,6 +27,10 @@ from clradcom.radar.report import INTERFERENCE_TITLES
 MOUNTING_RETURN_M = 1.0
 
 
+#: the colour map of every radar image: perceptually uniform (viridis), never jet
+IMAGE_CMAP = "viridis"
+
+
 def mounting_range_m(range_resolution_m: float) -> float:
     """Range below which an image's cells belong to the radar's own mounting return:
     :data:`MOUNTING_RETURN_M` plus two range cells (the main lobe of the Hann window is
@@ -112,7 +116,7 @@ def plot_radar_image(image: RadarImage, detections=None, range_lim_m=(0.0, 100.0
     FigureCanvasAgg(fig)
     ax = fig.add_subplot()
     im = ax.imshow(
-        (crop - top).T, origin="lower", aspect="auto", cmap="viridis",
+        (crop - top).T, origin="lower", aspect="auto", cmap=IMAGE_CMAP,
         vmin=-dynamic_range_db, vmax=0.0,
         extent=(r[ri[0]] - dr / 2, r[ri[-1]] + dr / 2, v[vi[0]] - dv / 2, v[vi[-1]] + dv / 2),
         interpolation="nearest",
@@ -204,7 +208,7 @@ def plot_interference_images(images: dict, detections: dict, floor_clean: float,
     ext = (r[ri[0]], r[ri[-1]], v[vi[0]], v[vi[-1]])
     for ax, key in zip(axes, keys, strict=True):
         crop = images[key].power_db[np.ix_(ri, vi)] - top
-        im = ax.imshow(crop.T, origin="lower", aspect="auto", cmap="viridis", vmin=-dyn_db,
+        im = ax.imshow(crop.T, origin="lower", aspect="auto", cmap=IMAGE_CMAP, vmin=-dyn_db,
                        vmax=0.0, extent=ext, interpolation="nearest")
         det = detections[key]
         if len(det):
@@ -255,7 +259,7 @@ def save_side_by_side(images: dict, detections: dict, path_stem, *, range_max_m:
         crop = crop - float(crop.max())
         ext = (img.range_m[ri[0]], img.range_m[ri[-1]], img.velocity_mps[vi[0]],
                img.velocity_mps[vi[-1]])
-        im = ax.imshow(crop.T, origin="lower", aspect="auto", cmap="jet",
+        im = ax.imshow(crop.T, origin="lower", aspect="auto", cmap=IMAGE_CMAP,
                        vmin=-dynamic_range_db, vmax=0.0, extent=ext, interpolation="nearest")
         det = detections[title]
         if len(det):
