@@ -523,6 +523,10 @@ __kernel void sbr_bounce(__global const Bvh8Node *nodes,
     for (int k = 0; k < SBR_TUBE_TRIS; ++k) o->tri[k] = (k == bounce - 1) ? tri : t->tri[k];
 }
 
+/* Built only where it runs (SBR_PERSISTENT, clradcom/device/sbr.py): with it in the
+ * program, Intel's CPU compiler gave NaN points in sbr_bounce's records without fp64 and
+ * crashed the process with fp64 (tests/test_no_fp64.py, tests/test_sbr_engines.py). */
+#ifdef SBR_PERSISTENT
 /* Every bounce of every launched tube in one work item each (sbr_bounce's steps in a
  * loop, the tube kept in private memory): bounce m's footprints into region m - 1 of
  * `footprints` (`region` footprints each), counted in counts[m - 1]. For devices that
@@ -570,6 +574,7 @@ __kernel void sbr_bounces(__global const Bvh8Node *nodes,
         d = d_out;
     }
 }
+#endif
 
 /* One work item per footprint of bounce m: the tube's cross-section and the fields of
  * both tx polarisations at it, replayed from its launch through its m - 1 reflections

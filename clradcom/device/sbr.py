@@ -510,7 +510,9 @@ def shoot_and_radiate(caster: RayCaster, scene, tri_face, windows, tx_frame, rec
                      np.int32(n_rx), real(wavelength), np.float32(1.0 - SIGHT_STOP)]
     window_bufs = [dev(win_f, real), dev(win_i, np.int32), dev(blocks, np.int32)]
     wave = _Wavefront(
-        caster, _defines(max_bounces, precision), _options(precision), dtype, n_rx,
+        caster, {**_defines(max_bounces, precision),
+                 **({"SBR_PERSISTENT": 1} if persistent_bounces(rt) else {})},
+        _options(precision), dtype, n_rx,
         len(blocks), batch_tubes,
         launch_args=[*window_bufs[:2], dev(windows.masks, np.uint8), window_bufs[2],
                      *(dev(a, np.int32) for a in _overlap_lists(windows.n_windows, earlier)),
