@@ -261,7 +261,8 @@ class _Wavefront:
         _, tube_bytes, footprint_bytes, lit_bytes, contribution_bytes = (
             int(x) for x in _struct_sizes(rt, options, program_defines))
         max_bounces = int(defines["SBR_MAX_BOUNCES"])
-        self.persistent = persistent_bounces(rt)
+        # the build decides: sbr_bounces exists only in a program built for it
+        self.persistent = bool(defines.get("SBR_PERSISTENT"))
         # per tube: two queues and a footprint (persistent: one queue and a footprint per
         # bounce), its illumination, per receiver a contribution and its footprint
         per_tube = ((tube_bytes + max_bounces * footprint_bytes) if self.persistent

@@ -136,20 +136,40 @@ def tdm_received_pairs(symbols, gains, delays_s, dopplers_hz, waveform: Waveform
     μ from transmitter μ mod E_tx, time origin the FFT window centre (as
     :func:`clradcom.radar.mimo.mimo_received`, which shares one Doppler per path)."""
     d = np.asarray(symbols)
+    return _tdm_by_pairs(
+        gains, delays_s, dopplers_hz, (waveform.n_subcarriers, waveform.n_symbols),
+        lambda g, tau, fd: d * channel_transfer_function(g, tau, fd, waveform,
+                                                         waveform.fft_window_centre))
+
+
+def _tdm_by_pairs(gains, delays, dopplers, shape, pair_frame):
+    """(E_rx, *shape) of a TDM frame from its element pairs' own paths (E_tx, E_rx, P):
+    ``pair_frame(gains, delays, dopplers)`` of a pair's nonzero paths gives its whole
+    (*shape) frame, of which receiver j keeps the slots (last axis) μ that transmitter
+    μ mod E_tx sends."""
     g = np.asarray(gains)
     et, er, _ = g.shape
-    owner = np.arange(waveform.n_symbols) % et
-    out = np.zeros((er, waveform.n_subcarriers, waveform.n_symbols), complex)
+    owner = np.arange(shape[-1]) % et
+    out = np.zeros((er, *shape), complex)
     for i in range(et):
         for j in range(er):
             keep = g[i, j] != 0
-            if not keep.any():
-                continue
-            h = channel_transfer_function(g[i, j][keep], np.asarray(delays_s)[i, j][keep],
-                                          np.asarray(dopplers_hz)[i, j][keep], waveform,
-                                          waveform.fft_window_centre)
-            out[j][:, owner == i] = d[:, owner == i] * h[:, owner == i]
+            if keep.any():
+                frame = pair_frame(g[i, j][keep], np.asarray(delays)[i, j][keep],
+                                   np.asarray(dopplers)[i, j][keep])
+                out[j][:, owner == i] = frame[:, owner == i]
     return out
+
+
+def _with_thermal_noise(received, tx_power_w, noise_figure_db, bandwidth_hz, seed: int):
+    """``received`` with thermal noise over ``bandwidth_hz`` per receive element when both
+    ``tx_power_w`` and ``noise_figure_db`` are given (seeded with seed + 1)."""
+    if tx_power_w is None or noise_figure_db is None:
+        return received
+    check_tx_power(tx_power_w)
+    check_noise_figure(noise_figure_db)
+    return add_thermal_noise(received, tx_power_w, noise_figure_db, bandwidth_hz,
+                             rng=np.random.default_rng(seed + 1))
 
 
 def tdm_frame(paths, radar, waveform: Waveform, *, seed: int = 0,
@@ -169,13 +189,8 @@ def tdm_frame(paths, radar, waveform: Waveform, *, seed: int = 0,
                                  np.asarray(paths.doppler_hz), waveform, mode="tdm")
     else:
         received = tdm_received_pairs(d, gains, delays, dopplers, waveform)
-    if tx_power_w is not None and noise_figure_db is not None:
-        check_tx_power(tx_power_w)
-        check_noise_figure(noise_figure_db)
-        rng = np.random.default_rng(seed + 1)
-        received = add_thermal_noise(received, tx_power_w, noise_figure_db,
-                                     waveform.bandwidth, rng=rng)
-    return d, received
+    return d, _with_thermal_noise(received, tx_power_w, noise_figure_db, waveform.bandwidth,
+                                  seed)
 
 
 def _fmcw_tdm_frame(gains, delays, dopplers, waveform: FmcwWaveform, *, seed, tx_power_w,
@@ -188,23 +203,11 @@ def _fmcw_tdm_frame(gains, delays, dopplers, waveform: FmcwWaveform, *, seed, tx
         raise ArgumentError("an array radar's FMCW frame needs I/Q samples (if_type "
                             '"complex"): the real IF\'s mirrored half has no cube yet',
                             argument="if_type", value=waveform.if_type)
-    g = np.asarray(gains)
-    et, er, _ = g.shape
-    owner = np.arange(waveform.n_chirps) % et
-    received = np.zeros((er, waveform.samples_per_chirp, waveform.n_chirps), complex)
-    for i in range(et):
-        for j in range(er):
-            keep = g[i, j] != 0
-            if keep.any():
-                s = synthesize_beat(g[i, j][keep], np.asarray(delays)[i, j][keep],
-                                    np.asarray(dopplers)[i, j][keep], waveform)
-                received[j][:, owner == i] = s[:, owner == i]
-    if tx_power_w is not None and noise_figure_db is not None:
-        check_tx_power(tx_power_w)
-        check_noise_figure(noise_figure_db)
-        rng = np.random.default_rng(seed + 1)
-        received = add_thermal_noise(received, tx_power_w, noise_figure_db,
-                                     waveform.adc_rate_hz, rng=rng)
+    received = _tdm_by_pairs(
+        gains, delays, dopplers, (waveform.samples_per_chirp, waveform.n_chirps),
+        lambda g, tau, fd: synthesize_beat(g, tau, fd, waveform))
+    received = _with_thermal_noise(received, tx_power_w, noise_figure_db,
+                                   waveform.adc_rate_hz, seed)
     return np.ones(received.shape[1:], complex), received
 
 
