@@ -86,13 +86,50 @@ CONNECT_TIMEOUT_S = 5.0
 REFUSALS = (SceneError, SnapshotError, ArgumentError, ArgumentTypeError)
 
 
+#: set by :func:`quiet_dask_logs`: the workers a run connects to get :class:`QuietHangUps`
+_quiet_logs = False
+
+
 def quiet_dask_logs() -> None:
     """Dask's own log lines, in this process and the local clusters it starts later,
     errors only: at Ctrl-C every cancelled task and stopped worker logs a warning that is
-    not the user's business, and a command's own errors reach them as one line. For the
+    not the user's business, and a command's own errors reach them as one line. The
+    errors a peer's hang-up raises are dropped too (:class:`QuietHangUps`). For the
     commands (``clradcom sweep``, ``drive``); a library caller keeps Dask's logging."""
+    global _quiet_logs
+    _quiet_logs = True
     os.environ["DASK_LOGGING__DISTRIBUTED"] = "error"   # read by each worker at start
     logging.getLogger("distributed").setLevel(logging.ERROR)
+    _drop_hang_ups()
+
+
+def _not_a_hang_up(record: logging.LogRecord) -> bool:
+    """False for a record logged for an exception of a connection its peer closed (a
+    cluster stopping while a worker still sends a result to a client or worker that is
+    gone): a logging filter that drops those."""
+    exc = record.exc_info[1] if record.exc_info else None
+    return not isinstance(exc, (distributed.comm.CommClosedError, BrokenPipeError,
+                                ConnectionResetError))
+
+
+def _drop_hang_ups() -> None:
+    """Hang-ups (:func:`_not_a_hang_up`) kept off the handlers of Dask's ``distributed`` logger
+    in this process (a filter on the handlers: a logger's own filter would miss the
+    records of its children, ``distributed.worker`` among them)."""
+    for handler in logging.getLogger("distributed").handlers:
+        if _not_a_hang_up not in handler.filters:
+            handler.addFilter(_not_a_hang_up)
+
+
+class QuietHangUps(WorkerPlugin):
+    """The commands' quiet logging on each worker: Ctrl-C stops the cluster while a worker
+    may still be sending data, and its ERROR record with a traceback ("failed during get
+    data") is no news to the user, whose run already ends in one line."""
+
+    name = "clradcom-quiet-hang-ups"
+
+    def setup(self, worker) -> None:
+        _drop_hang_ups()
 
 
 def max_local_workers() -> int:
@@ -366,8 +403,10 @@ def drive_tasks(scene: Scene, settings: TraceSettings, times=None, *, chunk: int
 # ----------------------------------------------------------------------------------------
 def local_cluster(workers: int, *, retries: int = 2, threads_per_worker: int | None = None,
                   **kwargs) -> distributed.LocalCluster:
-    """A ``LocalCluster`` of ``workers`` processes with one thread each, no dashboard,
-    its scheduler allowing a task ``retries`` worker deaths. On PoCL each worker's CPU
+    """A ``LocalCluster`` of ``workers`` processes with one thread each, no dashboard
+    (its scheduler's HTTP routes on a free port, so that two runs at once do not meet on
+    Dask's 8787), its scheduler allowing a task ``retries`` worker deaths. On PoCL each
+    worker's CPU
     device gets ``threads_per_worker`` threads (default: the cores shared out evenly;
     an explicit ``POCL_MAX_PTHREAD_COUNT`` in the environment wins)."""
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
@@ -381,7 +420,8 @@ def local_cluster(workers: int, *, retries: int = 2, threads_per_worker: int | N
     with dask.config.set({ALLOWED_FAILURES: retries}), _interrupts_ignored():
         return distributed.LocalCluster(
             n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
-            env=env, **kwargs)
+            scheduler_kwargs={"dashboard": False, "dashboard_address": ":0"}, env=env,
+            **kwargs)
 
 
 @contextlib.contextmanager
@@ -607,6 +647,8 @@ def _run_serial(tasks, devices, on_result, keep) -> list[TaskResult]:
 
 
 def _run_on(client, tasks, devices, retries, on_result, keep) -> list[TaskResult]:
+    if _quiet_logs:
+        client.register_plugin(QuietHangUps())
     client.register_plugin(DevicePlugin(devices))
     shared = _shared_args(client, tasks)
 

@@ -223,3 +223,37 @@ def test_an_unreachable_scheduler_is_refused_in_seconds():
     with pytest.raises(ArgumentError, match=r"no Dask scheduler answered there within 5 s"):
         cd.run_tasks([cd.Task("a", always_raise, (1,))], scheduler=f"tcp://127.0.0.1:{port}")
     assert time.perf_counter() - t0 < 30
+
+
+def test_quiet_logs_drop_a_peer_hang_up_but_keep_other_errors():
+    """At Ctrl-C a worker still sending data to a client or worker that is gone logs
+    "failed during get data" with a traceback; the commands' quiet logging drops it (on
+    the workers through QuietHangUps) and keeps every other error."""
+    import subprocess
+    import sys
+
+    script = """
+import logging
+from distributed.comm import CommClosedError
+from clradcom import distributed as cd
+cd.quiet_dask_logs()
+cd.QuietHangUps().setup(worker=None)   # a second install adds no second filter
+log = logging.getLogger("distributed.worker")
+for exc in (BrokenPipeError(32, "Broken pipe"), ConnectionResetError(104, "reset"),
+            CommClosedError("in <TCP ...>: Stream is closed"), ValueError("a real fault")):
+    try:
+        raise exc
+    except Exception:
+        log.exception("failed during get data with %s", type(exc).__name__)
+log.error("an error without an exception")
+print(sum(len(h.filters) for h in logging.getLogger("distributed").handlers))
+"""
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.split() == ["1"]
+    assert "failed during get data with ValueError" in proc.stderr
+    assert "ValueError: a real fault" in proc.stderr
+    assert "an error without an exception" in proc.stderr
+    for dropped in ("BrokenPipeError", "ConnectionResetError", "CommClosedError"):
+        assert dropped not in proc.stderr, proc.stderr
