@@ -13,6 +13,7 @@ import trimesh
 from clradcom.device.raycast import RayCaster
 from clradcom.device.runtime import Runtime
 from clradcom.errors import ArgumentError, DeviceFallbackWarning
+from clradcom.geometry.ray_order import coherent_order
 from clradcom.mechanisms import specular as sp
 from clradcom.mechanisms.specular import fibonacci_sphere
 from clradcom.physics.vectors import orthonormal_frame
@@ -129,6 +130,27 @@ def test_lattice_key_set_is_the_distinct_keys_and_survives_a_full_table(runtime)
     assert len(told) == 1 and "2^6 slots filled up" in told[0]
     with pytest.raises(ArgumentError, match="table_bits"):
         caster.lattice_key_set(origin, local, rot, tri_face, 4, base, table_bits=40)
+
+
+def test_coherent_launch_order_finds_the_same_candidates(runtime):
+    """specular.prepare launches its lattice in coherent order (docs/performance.md): each
+    ray's key is its own, so the set of candidates is the Fibonacci order's."""
+    tris = _room()
+    caster = RayCaster(tris, runtime=runtime)
+    tri_face = np.arange(len(tris), dtype=np.int32) // 2
+    local = fibonacci_sphere(20000)
+    ordered = np.ascontiguousarray(local[coherent_order(local)])
+    rot = np.eye(3)[:, [1, 2, 0]]
+    origin = np.array([0.7, -0.4, 0.2])
+    base = sp.key_base(int(tri_face.max()) + 1, 5)
+    keys = caster.lattice_keys(origin, local, rot, tri_face, 5, base)
+    keys_ordered = caster.lattice_keys(origin, ordered, rot, tri_face, 5, base)
+    # ray for ray the same key, only in the new order
+    np.testing.assert_array_equal(keys_ordered, keys[coherent_order(local)])
+    want = caster.lattice_key_set(origin, local, rot, tri_face, 5, base)
+    assert len(want) > 200
+    np.testing.assert_array_equal(
+        caster.lattice_key_set(origin, ordered, rot, tri_face, 5, base), want)
 
 
 # ---------------------------------------------------------------------------
