@@ -140,9 +140,9 @@ def main(argv=None):
 
 
 def run(args) -> int:
-    # the direction lattice, two ray sets and their hits (32 bytes each) and the bounce
-    # computation's float64 temporaries
-    check_memory(args.rays * (24 + 2 * (32 + 32) + 6 * 24), what=f"{args.rays} rays",
+    # the direction lattice, four ray sets (two orders) and their hits (32 bytes each),
+    # the bounce computation's float64 temporaries and the order's two int64 indices
+    check_memory(args.rays * (24 + 4 * (32 + 32) + 6 * 24 + 16), what=f"{args.rays} rays",
                  argument="--rays", value=args.rays, advice="use fewer --rays")
 
     tris, _ = street_triangles(seed=0)
