@@ -176,6 +176,13 @@ def test_trace_and_radar_run_each_radar_with_its_own_frame(tmp_path, capsys):
     for name in ("A", "B"):
         assert (again / f"{name}_truth.csv").read_text() == \
             (out / f"{name}_truth.csv").read_text()
+    # compare-waveforms puts the --fmcw chirp beside each radar's OFDM frame: B's own
+    # FMCW table is refused by its key
+    table = tmp_path / "fmcw.toml"
+    table.write_text(FMCW_OWN.replace("[radars.waveform]", "[waveform]"))
+    assert main(["compare-waveforms", str(out / "snapshot.npz"), "--scene", str(path),
+                 "--fmcw", str(table), "--out", str(tmp_path / "cmp")]) == 2
+    assert "radars[1].waveform.kind" in capsys.readouterr().err
 
 
 def test_cube_runs_the_chosen_radars_own_frame(tmp_path, capsys):
