@@ -14,7 +14,7 @@ import pytest
 from tool_helpers import CLOSING_PLATE_SCENE
 
 from clradcom.cli import main
-from clradcom.commands.options import run_waveform
+from clradcom.commands.options import refuse_radar_waveforms, run_waveform
 from clradcom.errors import SceneError
 from clradcom.radar.fmcw import FmcwWaveform
 from clradcom.radar.waveform import Waveform
@@ -212,3 +212,19 @@ def test_drive_runs_the_chosen_radars_own_frame(tmp_path):
     for step, want in ((0, 20.0), (1, 19.2)):
         ranges = [float(r["range_m"]) for r in rows if int(r["frame"]) == step]
         assert min(abs(r - want) for r in ranges) < 0.2
+
+
+def test_commands_of_one_frame_refuse_a_radars_own_table_by_its_key(tmp_path, capsys):
+    """comms decodes with the receiver's frame: a sender's other frame is refused; map and
+    microdoppler build one frame for the scene and refuse a radar's own table rather than
+    run the scene's in its place."""
+    own_ofdm = "[radars.waveform]\nsubcarriers = 128\nsymbols = 64\n"
+    path = write(tmp_path, own=own_ofdm,
+                 radar_b=RADAR_B.replace('name = "B"', 'name = "D"'))
+    assert main(["comms", str(path), "--out", str(tmp_path / "c")]) == 2
+    err = capsys.readouterr().err
+    assert "radars[1].waveform" in err and "frames differ" in err
+    with pytest.raises(SceneError) as exc:
+        refuse_radar_waveforms(load_scene(path), "map")
+    assert exc.value.key == "radars[1].waveform"
+    refuse_radar_waveforms(load_scene(write(tmp_path, own="", name="plain.toml")), "map")

@@ -362,6 +362,17 @@ def run_waveform(carrier_hz: float, args, *, scene=None, snapshot=None,
     return wf, f"{head}\n  {statement}"
 
 
+def refuse_radar_waveforms(scene, command: str) -> None:
+    """For a command that builds one frame for the whole scene: a radar's own waveform
+    table, which it would not read, refused by its key (never silently the scene's)."""
+    for i, r in enumerate(scene.radars):
+        if r.waveform is not None:
+            raise SceneError(f"clradcom {command} builds one frame for the scene and does "
+                             "not read a radar's own waveform; give the frame in the "
+                             "scene's [waveform]", file=scene.source,
+                             key=f"radars[{i}].waveform", value=r.waveform.hash_params())
+
+
 def radar_waveforms(scene, args, indices, *, fmcw: bool = True) -> tuple[dict, list[str]]:
     """Each radar's frame (:func:`run_waveform` with ``radar``) for the radars
     ``indices`` of ``scene``: ({index: waveform}, the lines that state them). Where no
@@ -436,7 +447,7 @@ def fmcw_run_waveform(carrier_hz: float, args, scene, *, spec=None,
 
 
 __all__ = ["TOOL_ERRORS", "WAVEFORM_OPTIONS", "add_waveform_arguments", "run_waveform",
-           "radar_waveforms",
+           "radar_waveforms", "refuse_radar_waveforms",
            "fmcw_run_waveform",
            "finite_float", "float_in", "int_in", "list_of",
            "noise_figure_db", "non_negative_float", "non_negative_int", "output_folder",
