@@ -98,6 +98,7 @@ from clradcom.radar.plots import save_interference_images, save_side_by_side
 from clradcom.radar.report import (
     INTERFERENCE_IMAGES,
     INTERFERENCE_TITLES,
+    display_range_db,
     interference_detections,
     interference_summary,
     mixed_summary,
@@ -109,6 +110,8 @@ from clradcom.radar.waveform import Waveform
 from clradcom.scene.reader import load_scene
 from clradcom.trace import check_launch_memory
 
+#: the relative speeds a mixed pair's images show, m/s (the street's cars: within ±30)
+MIXED_VELOCITY_SHOWN = 50.0
 #: the names this tool writes into its output folder (clradcom.files.staged_folder); the
 #: snapshot only when it traces a scene
 OUTPUTS = ("interference.png", "interference.svg", "interference_summary.csv")
@@ -239,7 +242,10 @@ def run_mixed(args, scene, victim, interferer, lines, powers, t0) -> int:
         dets = {k: res.results[k].detections for k in MIXED_IMAGES}
         save_side_by_side({titles[k]: res.results[k].image for k in MIXED_IMAGES},
                           {titles[k]: dets[k] for k in MIXED_IMAGES}, stage / "interference",
-                          range_max_m=args.range_max, velocity_max_mps=victim.max_velocity,
+                          range_max_m=args.range_max,
+                          velocity_max_mps=min(victim.max_velocity, MIXED_VELOCITY_SHOWN),
+                          # down to the clean image's floor: the interferer's floor shows
+                          dynamic_range_db=display_range_db(res.results["clean"].image),
                           inputs=scene.input_files)
         rows = mixed_summary(res)
         print(f"\n  {res.victim_kind.upper()} victim {args.victim}, "
