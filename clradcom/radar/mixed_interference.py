@@ -339,16 +339,20 @@ def _fmcw_victim(own_paths, a, tau, fd, victim, interferer, tx_power_w, noise_fi
     rise = 10 * np.log10(_bin_floors(hit, victim)[inside] / floor_clean[inside])
     equal = isinstance(interferer, FmcwWaveform) and interferer.slope == victim.slope
     if equal:
-        p_i = np.full(beat.shape, np.nan)  # a ghost, not a floor (its sidelobes only)
-        extra["predicted_ghost_range_m"] = ghost_range(
-            victim, interferer, float(tau[np.argmax(np.abs(a))]), start_offset_s)
+        # a ghost, not a floor (what the floor shows is its sidelobes); a ghost where the
+        # chirps keep their offset, i.e. repeat alike: t_d the nearest chirp's
+        p_i = np.full(beat.shape, np.nan)
+        if interferer.chirp_interval == victim.chirp_interval:
+            t_r = victim.chirp_interval
+            t_d = start_offset_s - t_r * round(start_offset_s / t_r)
+            extra["predicted_ghost_range_m"] = ghost_range(
+                victim, interferer, float(tau[np.argmax(np.abs(a))]), t_d)
     elif isinstance(interferer, FmcwWaveform):
         p_i = fmcw_burst_floor(victim, interferer, a, tau, fd, start_offset_s, beat)
         extra["predicted_burst_duration_s"] = burst_duration(victim, interferer)
         extra["burst_duration_s"] = _burst_length(i, victim)
     else:
         p_i = ofdm_band_floor(victim, interferer, a, tau, beat)
-    # equal slopes: a ghost, whose range is the measure (the floor holds its sidelobes)
     predicted = 10 * np.log10(1 + p_i[inside] / floor_clean[inside])
     if equal:
         rise = np.full(rise.shape, np.nan)
@@ -359,7 +363,7 @@ def _fmcw_victim(own_paths, a, tau, fd, victim, interferer, tx_power_w, noise_fi
     repaired = _bridge(hit, mask)
     results = {k: fmcw_frame_result(x, own_paths, victim)
                for k, x in zip(MIXED_IMAGES, (clean, hit, repaired), strict=True)}
-    if equal:
+    if "predicted_ghost_range_m" in extra:
         extra["ghost_range_m"] = _ghost(results["clean"], results["interfered"],
                                         extra["predicted_ghost_range_m"], victim)
     return MixedResult(
