@@ -150,6 +150,9 @@ def test_two_fmcw_radars_with_equal_slopes_make_a_ghost_where_the_closed_form_sa
     assert res.predicted_ghost_range_m == pytest.approx(C * (tau + 0.2e-6) / 2, rel=1e-9)
     assert res.ghost_range_m == pytest.approx(res.predicted_ghost_range_m, rel=0.01)
     assert math.isnan(res.measured_floor_rise_db) and res.mitigated_share == 0.0
+    # chirps that repeat at another interval move the ghost from chirp to chirp: no figure
+    other = _run(street, "A", "D", replace(fmcw, idle_s=12e-6), fmcw, offset_s=0.2e-6)
+    assert math.isnan(other.predicted_ghost_range_m) and math.isnan(other.ghost_range_m)
 
 
 def test_the_link_closed_forms_reduce_to_one_paths():
