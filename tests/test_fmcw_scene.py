@@ -118,7 +118,8 @@ def test_an_ofdm_option_beside_an_fmcw_scene_is_refused(tmp_path):
     assert err.value.argument == "--subcarriers"
 
 
-@pytest.mark.parametrize("command", ["interference", "comms", "tradeoff"])
+# (interference runs FMCW radars too: tests/test_mixed_interference.py)
+@pytest.mark.parametrize("command", ["comms", "tradeoff"])
 def test_commands_that_run_ofdm_only_refuse_the_fmcw_scene_by_its_key(tmp_path, capsys,
                                                                       command):
     assert main([command, str(write(tmp_path, scene=CLOSING_PLATE_SCENE + RADAR_D))]) == 2

@@ -43,7 +43,8 @@ from clradcom.scene.street import (
 REPO = Path(__file__).resolve().parent.parent
 DEFAULT_OUT = REPO / "scenes" / "street"
 #: the names this tool writes into its output folder (clradcom.files.staged_folder)
-OUTPUTS = ("street.toml", "street_mimo.toml", "street_drive.toml", "README.md", "meshes")
+OUTPUTS = ("street.toml", "street_mimo.toml", "street_drive.toml", "street_fmcw_ofdm.toml",
+           "README.md", "meshes")
 
 
 def options_from_args(args) -> StreetOptions:
@@ -68,6 +69,9 @@ def build(args) -> Path:
         write_text(stage / "street_mimo.toml", street_toml(replace(options, mimo=True), plan))
         # the drive variant: the same street with a [time] table (one second, 20 frames)
         write_text(stage / "street_drive.toml", street_toml(replace(options, drive=True), plan))
+        # the FMCW + OFDM variant: radar D with an FMCW waveform of its own
+        write_text(stage / "street_fmcw_ofdm.toml",
+                   street_toml(replace(options, mixed=True), plan))
         scene = load_scene(stage / "street.toml")
         truth = detection_truth(scene, "A", ["carB", "carC", "carD"])
         write_text(stage / "README.md", street_readme(options, plan, scene, truth))

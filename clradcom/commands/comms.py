@@ -171,8 +171,17 @@ def run(args) -> int:
                             value=preset_settings(args).specular.rays)
         scene = load_scene(args.scene)
         p_tx, nf = scene_radars(args, scene)
+        # the sender's frame; the receiver decodes with its own, so they must agree
+        it, ir = scene_radar_indices(scene, args, "--tx", "--rx")
         wf, frame = run_waveform(scene.carrier_hz, args, scene=scene,
-                                 modulations=COMMS_MODULATIONS)
+                                 modulations=COMMS_MODULATIONS, radar=it)
+        if run_waveform(scene.carrier_hz, args, scene=scene, modulations=COMMS_MODULATIONS,
+                        radar=ir)[0] != wf:
+            spec, key = scene.radar_waveform(ir if scene.radars[ir].waveform is not None
+                                             else it)
+            raise SceneError("the sender's and the receiver's frames differ: the receiver "
+                             "decodes with its own; give them one", file=scene.source,
+                             key=key, value=spec.hash_params())
         sources, owned = scene.input_files, (*OUTPUTS, "snapshot.npz")
     else:
         snap = read_snapshot(args.snapshot)

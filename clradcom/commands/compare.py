@@ -24,8 +24,8 @@ from clradcom.commands.options import (
     check_snapshot_scene,
     fmcw_run_waveform,
     output_folder,
+    radar_waveforms,
     read_snapshot,
-    run_waveform,
 )
 from clradcom.commands.radar import monostatic_links
 from clradcom.commands.trace import Stopwatch, radar_noise
@@ -96,21 +96,30 @@ def run(args) -> int:
                          file=scene.source, key="waveform.kind", value="fmcw")
     snap = read_snapshot(args.snapshot)
     check_snapshot_scene(snap, scene, args.snapshot, args.scene)
-    ofdm, line = run_waveform(scene.carrier_hz, args, scene=scene)
+    mono = monostatic_links(snap, scene, args.snapshot)
+    # each radar's OFDM frame: its own [radars.waveform] where it has one (an FMCW one
+    # refused by its key: compare-waveforms puts the --fmcw chirp beside the OFDM frame)
+    frames, lines = radar_waveforms(scene, args, [lk.tx_index for lk in mono], fmcw=False)
     spec = load_waveform_table(args.fmcw)
     if not isinstance(spec, FmcwSpec):
         raise SceneError('must hold kind = "fmcw"', file=args.fmcw, key="waveform.kind",
                          value="ofdm")
     fmcw, fline = fmcw_run_waveform(scene.carrier_hz, None, scene, spec=spec,
                                     source=Path(args.fmcw))
-    print(f"  {line}\n  {fline}")
-    for wf in (ofdm, fmcw):
+    print("\n".join(f"  {line}" for line in lines) + f"\n  {fline}")
+    for wf in (*frames.values(), fmcw):
         check_frame_memory(wf, args.synthesis)
     noise = radar_noise(scene, args)
-    mono = monostatic_links(snap, scene, args.snapshot)
-    print("  figure                              OFDM            FMCW")
-    for name, a, b in waveform_rows(ofdm, fmcw):
-        print(f"  {name:<34} {a:<15} {b}")
+    shown = []
+    for ofdm in frames.values():
+        if ofdm in shown:
+            continue
+        shown.append(ofdm)
+        own = [scene.radars[j].name for j, w in frames.items() if w == ofdm]
+        head = "" if len(frames) == len(own) else f"  ({', '.join(own)})"
+        print("  figure                              OFDM            FMCW" + head)
+        for name, a, b in waveform_rows(ofdm, fmcw):
+            print(f"  {name:<34} {a:<15} {b}")
     out = Path(args.out) if args.out else Path(args.snapshot).parent
     with staged_folder(out, inputs=[*scene.input_files, args.snapshot, args.fmcw],
                        owned=COMPARE_OUTPUTS) as stage:
@@ -118,8 +127,8 @@ def run(args) -> int:
             radar = scene.radars[link.tx_index]
             if radar.tx_power_w == 0:
                 continue
-            compare_radar(sw, args, scene, link, radar, noise[link.tx_index], ofdm, fmcw,
-                          stage)
+            compare_radar(sw, args, scene, link, radar, noise[link.tx_index],
+                          frames[link.tx_index], fmcw, stage)
     print(f"outputs in {out}/")
     return 0
 

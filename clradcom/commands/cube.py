@@ -173,7 +173,7 @@ def run(args) -> int:
         scene = load_scene(args.scene)
     index = array_radar(scene, args.radar)
     radar = scene.radars[index]
-    wf, frame = run_waveform(scene.carrier_hz, args, scene=scene, fmcw=True)
+    wf, frame = run_waveform(scene.carrier_hz, args, scene=scene, fmcw=True, radar=index)
     print(f"  {frame}")
     nf = trace_cmd.radar_noise(scene, args)[index]
     out = Path(args.out or Path("out") / scene.name)

@@ -158,7 +158,7 @@ def _radar_of(scene, args):
     if args.mp4 and not ffmpeg_available():
         raise ArgumentError("needs ffmpeg on the PATH (the GIF needs nothing; leave --mp4 "
                             "out)", argument="--mp4", value=None)
-    wf, frame = run_waveform(scene.carrier_hz, args, scene=scene, fmcw=True)
+    wf, frame = run_waveform(scene.carrier_hz, args, scene=scene, fmcw=True, radar=index)
     print(f"  {frame}")
     check_frame_memory(wf, args.synthesis)
     return index, wf, radar_noise(scene, args)[index]

@@ -32,6 +32,17 @@ as clradcom trace; about as long); with
 --snapshot the existing snapshot's links are used and the noise comes from
 --tx-power-w / --noise-figure-db.
 
+A radar may carry its own waveform ([radars.waveform], OFDM or FMCW). A pair with an
+FMCW radar (FMCW or OFDM into FMCW, FMCW into OFDM; scenes/street/street_fmcw_ofdm.toml)
+runs instead the interferer's signal through the traced link into the victim's own
+frame, with --timing-offset-us the interferer's frame start after the victim's and
+--cfo-hz / --phase-deg its carrier offset and phase: the floor rise against its closed
+form through the link, for two FMCW radars the burst length (unequal slopes) or the
+ghost's range (equal ones), and one mitigation (FMCW victim: burst repair; OFDM victim:
+the crossed symbols bridged along slow time). Written: interference.png / .svg (the
+victim without, with the interferer, after mitigation) and interference_summary.csv
+(docs/interference.md §6). Two OFDM radars must share one frame.
+
 Everything is checked before anything is traced: the options, the radars' names, their
 transmit powers (a radar transmitting nothing, 0 W, has no echoes to image or no
 interference to cause: refused) and noise figure (>= 0 dB), the waveform (--subcarriers a
@@ -75,24 +86,32 @@ from clradcom.commands.options import (
 )
 from clradcom.errors import ArgumentError, SceneError, SnapshotError
 from clradcom.files import staged_folder
+from clradcom.radar.fmcw import FmcwWaveform
 from clradcom.radar.interference import (
     INTERFERENCE_STAGES,
     MAX_FREQUENCY_OFFSET,
     two_radar_run,
 )
-from clradcom.radar.plots import save_interference_images
+from clradcom.radar.mixed_interference import MIXED_IMAGES, MIXED_STAGES, mixed_pair_run
+from clradcom.radar.pipeline import check_frame_memory
+from clradcom.radar.plots import save_interference_images, save_side_by_side
 from clradcom.radar.report import (
     INTERFERENCE_IMAGES,
     INTERFERENCE_TITLES,
+    display_range_db,
     interference_detections,
     interference_summary,
+    mixed_summary,
     recovered_detections,
     sorted_detections_line,
     write_table,
 )
+from clradcom.radar.waveform import Waveform
 from clradcom.scene.reader import load_scene
 from clradcom.trace import check_launch_memory
 
+#: the relative speeds a mixed pair's images show, m/s (the street's cars: within ±30)
+MIXED_VELOCITY_SHOWN = 50.0
 #: the names this tool writes into its output folder (clradcom.files.staged_folder); the
 #: snapshot only when it traces a scene
 OUTPUTS = ("interference.png", "interference.svg", "interference_summary.csv")
@@ -172,6 +191,103 @@ def check_offsets(args, wf) -> None:
                             "ambiguous beyond", argument="--cfo-hz", value=args.cfo_hz)
 
 
+def pair_waveforms(scene, args):
+    """(the victim's frame, the interferer's, the lines stating them): each radar's own
+    (its ``[radars.waveform]``, else the scene's ``[waveform]``), OFDM or FMCW. Two OFDM
+    radars must share one frame (the victim decodes the interferer with its own):
+    refused by the interferer's table otherwise."""
+    iv, id_ = scene_radar_indices(scene, args, "--victim", "--interferer")
+    victim, line_v = run_waveform(scene.carrier_hz, args, scene=scene, fmcw=True, radar=iv)
+    interferer, line_i = run_waveform(scene.carrier_hz, args, scene=scene, fmcw=True,
+                                      radar=id_)
+    if isinstance(victim, Waveform) and isinstance(interferer, Waveform):
+        if victim != interferer:
+            spec, key = scene.radar_waveform(
+                id_ if scene.radars[id_].waveform is not None else iv)
+            raise SceneError("two OFDM radars with different frames: the victim decodes "
+                             "and cancels the interferer with its own frame; give them one",
+                             file=scene.source, key=key, value=spec.hash_params())
+        return victim, interferer, [line_v]
+    names = (scene.radars[iv].name, scene.radars[id_].name)
+    return victim, interferer, [f"victim {names[0]}: {line_v}",
+                                f"interferer {names[1]}: {line_i}"]
+
+
+def run_mixed(args, scene, victim, interferer, lines, powers, t0) -> int:
+    """A pair with an FMCW radar (docs/interference.md §6): the victim's own echoes and
+    the interferer's signal through the traced link, the closed forms, the mitigation."""
+    p_v, p_i, nf = powers
+    for line in lines:
+        print(line, flush=True)
+    print("  the interferer's frame starts --timing-offset-us after the victim's; "
+          "--cfo-hz and --phase-deg offset its carrier and phase", flush=True)
+    check_frame_memory(victim, args.own_synthesis)
+    out = Path(args.out)
+    with staged_folder(out, inputs=scene.input_files,
+                       owned=(*OUTPUTS, "snapshot.npz")) as stage:
+        snap = trace_into(stage, scene, preset_settings(args), args)
+        own, dl = link_paths(snap, args, args.scene)
+        with progress_bar(len(MIXED_STAGES), "interference", unit="stage",
+                          quiet=getattr(args, "quiet", False)) as bar:
+            res = mixed_pair_run(own, dl, victim, interferer, tx_power_w=p_v,
+                                 interferer_tx_power_w=p_i, noise_figure_db=nf,
+                                 start_offset_s=args.timing_offset_us * 1e-6,
+                                 cfo_hz=args.cfo_hz, phase_rad=math.radians(args.phase_deg),
+                                 seed=args.seed, method=args.own_synthesis,
+                                 progress=stage_steps(bar, t0))
+        titles = {"clean": f"{args.victim} without {args.interferer}",
+                  "interfered": f"{args.victim} with {args.interferer} "
+                                f"({res.interferer_kind.upper()}) interfering",
+                  "mitigated": f"{args.victim} after mitigation"}
+        dets = {k: res.results[k].detections for k in MIXED_IMAGES}
+        save_side_by_side({titles[k]: res.results[k].image for k in MIXED_IMAGES},
+                          {titles[k]: dets[k] for k in MIXED_IMAGES}, stage / "interference",
+                          range_max_m=args.range_max,
+                          velocity_max_mps=min(victim.max_velocity, MIXED_VELOCITY_SHOWN),
+                          # down to the clean image's floor: the interferer's floor shows
+                          dynamic_range_db=display_range_db(res.results["clean"].image),
+                          inputs=scene.input_files)
+        rows = mixed_summary(res)
+        print(f"\n  {res.victim_kind.upper()} victim {args.victim}, "
+              f"{res.interferer_kind.upper()} interferer {args.interferer}; mitigation: "
+              f"{res.mitigation}")
+        _print_rows(rows)
+        write_table(stage / "interference_summary.csv", rows, ["quantity", "value"])
+    _print_found(dets, {k: res.results[k] for k in MIXED_IMAGES}, titles, victim)
+    print(f"\n[{time.perf_counter() - t0:6.1f} s] wrote {out}/interference.png, .svg, "
+          "interference_summary.csv")
+    return 0
+
+
+def _print_rows(rows) -> None:
+    for name, val in rows:
+        if isinstance(val, int):
+            print(f"  {name:<68} {val:10d}")
+        elif 0 < abs(val) < 1e-2:
+            print(f"  {name:<68} {val:10.2e}")
+        else:
+            print(f"  {name:<68} {val:10.3f}")
+
+
+def _print_found(dets, results, titles, wf) -> None:
+    """Which detections of the interference-free image each other image finds again."""
+    keys = list(dets)
+    ref = dets[keys[0]]
+    print("\n  detections " + "; ".join(f"{k}: {len(dets[k])}" for k in keys))
+    for k in keys:
+        line = sorted_detections_line(results[k])
+        if line:
+            print(f"  {titles[k]}: {line}")
+    found = {k: recovered_detections(ref, dets[k], wf) for k in keys[1:]}
+    print(f"  {'range m':>8} {'v m/s':>7} {'SNR dB':>7}   "
+          + "  ".join(f"{k:>10}" for k in keys[1:]))
+    for i, d in enumerate(ref):
+        marks = "  ".join(f"{'yes' if found[k][i] else 'NO':>10}" for k in keys[1:])
+        print(f"  {d['range_m']:8.2f} {d['velocity_mps']:7.2f} {d['snr_db']:7.1f}   {marks}")
+    for k in keys[1:]:
+        print(f"  {k}: {sum(found[k])} of {len(ref)} interference-free detections found")
+
+
 def link_paths(snap, args, source):
     """A's own echoes and D's signal at A from the snapshot, a missing link named."""
     try:
@@ -197,7 +313,10 @@ def run(args) -> int:
                             value=preset_settings(args).specular.rays)
         scene = load_scene(args.scene)
         p_a, p_d, nf = scene_radars(args, scene)
-        wf, frame = run_waveform(scene.carrier_hz, args, scene=scene)
+        victim, interferer, lines = pair_waveforms(scene, args)
+        if isinstance(victim, FmcwWaveform) or isinstance(interferer, FmcwWaveform):
+            return run_mixed(args, scene, victim, interferer, lines, (p_a, p_d, nf), t0)
+        wf, frame = victim, lines[0]
         sources, owned = scene.input_files, (*OUTPUTS, "snapshot.npz")
     else:
         snap = read_snapshot(args.snapshot)

@@ -46,6 +46,7 @@ from clradcom.commands.options import (
     output_folder,
     parse_command,
     positive_float,
+    refuse_radar_waveforms,
     run_tool,
     run_waveform,
 )
@@ -194,6 +195,7 @@ def run(args) -> int:
     check_memory(need, what=f"a map of {grid.nx} x {grid.ny} cells with {args.rays} rays",
                  argument="--rays", value=args.rays, budget_bytes=budget,
                  advice="launch fewer --rays, or use a larger --cell or a smaller --area")
+    refuse_radar_waveforms(scene, "map")
     wf, frame = run_waveform(scene.carrier_hz, args, scene=scene,
                              modulations=COMMS_MODULATIONS)
     runtime = get_runtime(args.device)

@@ -34,6 +34,7 @@ from clradcom.commands.options import (
     add_waveform_arguments,
     output_folder,
     positive_float,
+    refuse_radar_waveforms,
     run_waveform,
     seed,
     sequence_times,
@@ -80,6 +81,7 @@ def run(args) -> int:
     times = sequence_times(scene, args)
     settings = settings_from_args(args)
     check_launch_memory(settings, argument="--rays", value=settings.specular.rays)
+    refuse_radar_waveforms(scene, "microdoppler")
     waveform, line = run_waveform(scene.carrier_hz, args, scene=scene)
     check_frame_memory(waveform)
     print(line)

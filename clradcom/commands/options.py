@@ -226,8 +226,10 @@ def add_waveform_arguments(ap: argparse.ArgumentParser, *,
 class _Sources:
     """Where each waveform parameter came from, to name it in a refusal."""
 
-    def __init__(self, scene, snapshot):
+    def __init__(self, scene, snapshot, radar=None):
         self.scene, self.snapshot, self.where = scene, snapshot, {}
+        self.spec, self.prefix = (None, "waveform") if scene is None \
+            else scene.radar_waveform(radar)
 
     def pick(self, name, args, attrs, spec_keys, default):
         """The first of: the options ``attrs``, the scene's ``spec_keys``, ``default``;
@@ -237,7 +239,7 @@ class _Sources:
         if given:
             self.where[name] = ("option", given)
             return given
-        spec = None if self.scene is None else self.scene.waveform
+        spec = self.spec
         if spec is not None:
             given = {k: getattr(spec, k) for k in spec_keys}
             given = {k: v for k, v in given.items() if v is not None}
@@ -259,7 +261,8 @@ class _Sources:
         if kind == "scene":
             value = given[keys[0]] if len(keys) == 1 else {k: given[k] for k in keys}
             return SceneError(reason, file=self.scene.source,
-                              key=" and ".join(f"waveform.{k}" for k in keys), value=value)
+                              key=" and ".join(f"{self.prefix}.{k}" for k in keys),
+                              value=value)
         return ArgumentError(f"the paper's default {reason}; set it with an option or in "
                              "the scene's [waveform]", argument=name,
                              value=next(iter(given.values())))
@@ -267,7 +270,8 @@ class _Sources:
 
 def run_waveform(carrier_hz: float, args, *, scene=None, snapshot=None,
                  modulations: tuple[str, ...] | None = None,
-                 fmcw: bool = False) -> tuple[Waveform | FmcwWaveform, str]:
+                 fmcw: bool = False,
+                 radar: int | None = None) -> tuple[Waveform | FmcwWaveform, str]:
     """The radar frame of a run and the line that states it (with the cyclic prefix's
     rounding): each parameter from the options in ``args`` (those of
     :func:`add_waveform_arguments`; absent attributes count as not given), else the
@@ -278,15 +282,18 @@ def run_waveform(carrier_hz: float, args, *, scene=None, snapshot=None,
     outside ``modulations`` when given), a carrier below half the bandwidth. A scene
     whose ``[waveform]`` is ``kind = "fmcw"`` gives its chirp sequence
     (:func:`fmcw_run_waveform`) where the command runs one (``fmcw``), else is refused
-    by that key."""
-    if scene is not None and isinstance(scene.waveform, FmcwSpec):
+    by that key. ``radar`` (an index into ``scene.radars``): that radar's frame, from
+    its own ``waveform`` table where it has one (refusals then name
+    ``radars[i].waveform.<key>``), else the scene's."""
+    spec, prefix = (None, "waveform") if scene is None else scene.radar_waveform(radar)
+    if isinstance(spec, FmcwSpec):
         if not fmcw:
             raise SceneError("this command runs the OFDM radar only (trace, radar, cube and "
-                             "drive run an FMCW one)", file=scene.source, key="waveform.kind",
-                             value="fmcw")
-        return fmcw_run_waveform(carrier_hz, args, scene)
+                             "drive run an FMCW one)", file=scene.source,
+                             key=f"{prefix}.kind", value="fmcw")
+        return fmcw_run_waveform(carrier_hz, args, scene, spec=spec, key_prefix=prefix)
     paper = Waveform()
-    src = _Sources(scene, snapshot)
+    src = _Sources(scene, snapshot, radar)
     n = src.pick("subcarriers", args, ["subcarriers"], ["subcarriers"],
                  {"subcarriers": paper.n_subcarriers})
     n = next(iter(n.values()))
@@ -355,6 +362,34 @@ def run_waveform(carrier_hz: float, args, *, scene=None, snapshot=None,
     return wf, f"{head}\n  {statement}"
 
 
+def refuse_radar_waveforms(scene, command: str) -> None:
+    """For a command that builds one frame for the whole scene: a radar's own waveform
+    table, which it would not read, refused by its key (never silently the scene's)."""
+    for i, r in enumerate(scene.radars):
+        if r.waveform is not None:
+            raise SceneError(f"clradcom {command} builds one frame for the scene and does "
+                             "not read a radar's own waveform; give the frame in the "
+                             "scene's [waveform]", file=scene.source,
+                             key=f"radars[{i}].waveform", value=r.waveform.hash_params())
+
+
+def radar_waveforms(scene, args, indices, *, fmcw: bool = True) -> tuple[dict, list[str]]:
+    """Each radar's frame (:func:`run_waveform` with ``radar``) for the radars
+    ``indices`` of ``scene``: ({index: waveform}, the lines that state them). Where no
+    radar has its own ``waveform`` table, one line, as for a single frame; else one per
+    radar, led by its name."""
+    indices = list(indices)
+    if not indices:  # nothing to image: the frame is still checked and stated
+        return {}, [run_waveform(scene.carrier_hz, args, scene=scene, fmcw=fmcw)[1]]
+    frames = {i: run_waveform(scene.carrier_hz, args, scene=scene, fmcw=fmcw, radar=i)
+              for i in indices}
+    if all(scene.radars[i].waveform is None for i in indices):
+        lines = [next(iter(frames.values()))[1]] if frames else []
+    else:
+        lines = [f"{scene.radars[i].name}: {line}" for i, (_, line) in frames.items()]
+    return {i: wf for i, (wf, _) in frames.items()}, lines
+
+
 #: ``[waveform] kind = "fmcw"`` key -> :class:`FmcwWaveform` field
 FMCW_SCENE_KEYS = {"start_frequency_hz": "start_hz", "sweep_bandwidth_hz": "sweep_bandwidth_hz",
                    "chirp_duration_s": "chirp_s", "idle_duration_s": "idle_s",
@@ -367,17 +402,19 @@ FMCW_SCENE_KEYS = {"start_frequency_hz": "start_hz", "sweep_bandwidth_hz": "swee
 
 
 def fmcw_run_waveform(carrier_hz: float, args, scene, *, spec=None,
-                      source=None) -> tuple[FmcwWaveform, str]:
+                      source=None, key_prefix: str = "waveform") -> tuple[FmcwWaveform, str]:
     """:func:`run_waveform` for a scene whose ``[waveform]`` is ``kind = "fmcw"``: the
     chirp sequence from the table (FmcwWaveform's defaults for the keys it leaves out),
     traced at the scene's carrier. An OFDM option given with it is refused by name; a
     contradiction is a SceneError naming the file, the key and the value (the
     ``scene.carrier_hz`` where the sweep does not contain it). ``spec``/``source``: an
-    FMCW table read from another file (``args`` None: no options to refuse)."""
+    FMCW table read from another file (``args`` None: no options to refuse);
+    ``key_prefix``: the key refusals name (``radars[i].waveform`` for a radar's own)."""
     for attr, option in WAVEFORM_OPTIONS.items():
         if args is not None and getattr(args, attr, None) is not None:
-            raise ArgumentError('sets the OFDM frame, but the scene\'s [waveform] is kind = '
-                                '"fmcw"; set the chirp sequence in the scene file',
+            table = "[waveform]" if key_prefix == "waveform" else key_prefix
+            raise ArgumentError(f'sets the OFDM frame, but the scene\'s {table} is '
+                                'kind = "fmcw"; set the chirp sequence in the scene file',
                                 argument=option, value=getattr(args, attr))
     spec = scene.waveform if spec is None else spec
     source = scene.source if source is None else source
@@ -394,9 +431,9 @@ def fmcw_run_waveform(carrier_hz: float, args, scene, *, spec=None,
             raise
         if key not in given:  # a default contradicts the file's other keys
             raise SceneError(f"(left out: the default {exc.value!r}) {exc.reason}; set "
-                             f"waveform.{key}", file=source, key=f"waveform.{key}",
+                             f"{key_prefix}.{key}", file=source, key=f"{key_prefix}.{key}",
                              value=exc.value) from None
-        raise SceneError(exc.reason, file=source, key=f"waveform.{key}",
+        raise SceneError(exc.reason, file=source, key=f"{key_prefix}.{key}",
                          value=given[key]) from None
     line = (f"waveform: FMCW, traced at f_c {carrier_hz / 1e9:.6g} GHz: sweep "
             f"{wf.start_hz / 1e9:.6g} GHz + {wf.sweep_bandwidth_hz / 1e6:.6g} MHz in "
@@ -410,6 +447,7 @@ def fmcw_run_waveform(carrier_hz: float, args, scene, *, spec=None,
 
 
 __all__ = ["TOOL_ERRORS", "WAVEFORM_OPTIONS", "add_waveform_arguments", "run_waveform",
+           "radar_waveforms", "refuse_radar_waveforms",
            "fmcw_run_waveform",
            "finite_float", "float_in", "int_in", "list_of",
            "noise_figure_db", "non_negative_float", "non_negative_int", "output_folder",

@@ -24,8 +24,8 @@ from clradcom.commands.options import (
     add_waveform_arguments,
     check_snapshot_scene,
     output_folder,
+    radar_waveforms,
     read_snapshot,
-    run_waveform,
 )
 from clradcom.commands.trace import Stopwatch, radar_noise, radar_stage
 from clradcom.errors import ArgumentError
@@ -69,11 +69,13 @@ def run_radar(args) -> int:
     scene = load_scene(args.scene)
     snap = read_snapshot(args.snapshot)
     check_snapshot_scene(snap, scene, args.snapshot, args.scene)
-    wf, frame = run_waveform(scene.carrier_hz, args, scene=scene, fmcw=True)
-    print(f"  {frame}")
-    check_frame_memory(wf, args.synthesis)
-    noise = radar_noise(scene, args)
     mono = monostatic_links(snap, scene, args.snapshot)
+    frames, lines = radar_waveforms(scene, args, [lk.tx_index for lk in mono])
+    for line in lines:
+        print(f"  {line}")
+    for wf in frames.values():
+        check_frame_memory(wf, args.synthesis)
+    noise = radar_noise(scene, args)
     out = Path(args.out) if args.out else Path(args.snapshot).parent
     with staged_folder(out, inputs=[*scene.input_files, args.snapshot],
                       owned=RADAR_OUTPUTS) as stage:
@@ -83,7 +85,8 @@ def run_radar(args) -> int:
                 print(f"  {radar.name}: tx_power_w = 0 W: it transmits nothing, so it has no "
                       "echo; no radar image or tables for it")
                 continue
-            radar_stage(sw, args, scene, wf, link, radar, noise[link.tx_index], stage)
+            radar_stage(sw, args, scene, frames[link.tx_index], link, radar,
+                        noise[link.tx_index], stage)
     print(f"outputs in {out}/")
     return 0
 

@@ -77,8 +77,8 @@ from clradcom.commands.options import (
     object_optics_pair,
     output_folder,
     positive_int,
+    radar_waveforms,
     run_tool,
-    run_waveform,
 )
 from clradcom.device.runtime import get_runtime
 from clradcom.errors import ArgumentError, SceneError
@@ -286,9 +286,11 @@ def run(args) -> int:
         scene = load_scene(args.scene)
         if getattr(args, "optics", None):
             scene = with_object_optics(scene, args.optics, argument="--optics")
-    wf, frame = run_waveform(scene.carrier_hz, args, scene=scene, fmcw=True)
-    print(f"  {frame}")
-    check_frame_memory(wf, args.synthesis)
+    frames, lines = radar_waveforms(scene, args, imaged_radars(scene))
+    for line in lines:
+        print(f"  {line}")
+    for wf in frames.values():
+        check_frame_memory(wf, args.synthesis)
     noise = radar_noise(scene, args)
     out = Path(args.out or Path("out") / scene.name)
     with staged_folder(out, inputs=scene.input_files, owned=OUTPUTS) as stage:
@@ -323,7 +325,8 @@ def run(args) -> int:
                 print(f"  {radar.name}: tx_power_w = 0 W: it transmits nothing, so it has no "
                       "echo; no radar image or tables for it")
                 continue
-            radar_stage(sw, args, scene, wf, link, radar, noise[link.tx_index], stage)
+            radar_stage(sw, args, scene, frames[link.tx_index], link, radar,
+                        noise[link.tx_index], stage)
         with sw.stage("top view"):
             mono = [lk for lk in snap if lk.tx_index == lk.rx_index]
             plot_top_view(scene, snap, mono[0] if mono else None, path=stage / "scene_top.png")
@@ -332,6 +335,11 @@ def run(args) -> int:
         print(f"  {dt:8.2f} s  {name}")
     print(f"outputs in {out}/")
     return 0
+
+
+def imaged_radars(scene) -> list[int]:
+    """The radars whose own echoes a run images: those that transmit and receive."""
+    return [i for i, r in enumerate(scene.radars) if r.role == "txrx"]
 
 
 def describe_settings(args, settings: TraceSettings) -> str:

@@ -316,7 +316,7 @@ def run(args) -> int:
             except ArgumentError as exc:
                 raise ArgumentError(str(exc), argument="--vary",
                                     value=f"{name}={value!r}") from None
-    wf, frame = run_waveform(scene.carrier_hz, args, scene=scene)
+    wf, frame = run_waveform(scene.carrier_hz, args, scene=scene, radar=radar_idx)
     print(frame, flush=True)
     nf_db = radar.noise_figure_db if radar.noise_figure_db is not None else 10.0
     try:

@@ -31,7 +31,8 @@ from clradcom.radar.fmcw import FINUFFT_THREADS, FmcwWaveform, _grid, if_respons
 from clradcom.radar.synthesis import _wrap_phase, check_paths
 from clradcom.radar.waveform import SPEED_OF_LIGHT, Waveform, check_symbols
 
-__all__ = ["burst_duration", "burst_energy", "chirp_interference", "chirp_into_ofdm",
+__all__ = ["burst_duration", "burst_energy", "burst_floor_power", "chirp_interference",
+           "chirp_into_ofdm",
            "floor_rise_db", "ghost_range", "ofdm_burst_energy", "ofdm_floor_rise_db",
            "ofdm_into_fmcw", "ofdm_energy_per_chirp",
            "repair_bursts", "butterworth_noise_bandwidth"]
@@ -102,24 +103,34 @@ def burst_energy(victim: FmcwWaveform, interferer: FmcwWaveform, gain) -> float:
     return abs(complex(gain)) ** 2 * victim.adc_rate_hz * nb / ds
 
 
-def floor_rise_db(victim: FmcwWaveform, interferer: FmcwWaveform, gain, noise_variance: float,
-                  beat_hz) -> np.ndarray:
-    """The rise of the range-Doppler image's floor (rectangular windows) at beat
-    frequencies ``beat_hz`` when every chirp carries one burst of a path of gain ``gain``:
-    the burst sweeps f at (S_I − S_V), spending df/|S_I − S_V| in each df, so a range bin
-    (df = f_s/N) gets |a H(f)|² f_s²/(N |S_I − S_V|) over the noise's σ² (its phase,
-    random from chirp to chirp, spreads it over the Doppler cells alike):
-    10 log10(1 + |a H(f)|² f_s² / (N |S_I − S_V| σ²)). Over the IF band, not beyond."""
+def burst_floor_power(victim: FmcwWaveform, interferer: FmcwWaveform, gain,
+                      beat_hz) -> np.ndarray:
+    """The power per cell (rectangular windows, noise-normalised: a sample's noise σ²
+    is a cell's σ²) that one burst per chirp of a path of gain ``gain`` leaves in the
+    range bins of beat frequencies ``beat_hz``: the burst sweeps f at (S_I − S_V),
+    spending df/|S_I − S_V| in each df, so a bin (df = f_s/N) gets
+    |a H(f)|² f_s²/(N |S_I − S_V|); its phase, random from chirp to chirp, spreads it over
+    the Doppler cells alike."""
     _check_waveforms(victim, interferer)
-    if not (noise_variance > 0):
-        raise ArgumentError("must be positive", argument="noise_variance", value=noise_variance)
     ds = abs(interferer.slope - victim.slope)
     if ds == 0:
         raise ArgumentError("equal slopes make no burst but a ghost (ghost_range)",
                             argument="interferer", value=interferer.slope)
     h2 = np.abs(if_response(victim, beat_hz)) ** 2
-    per_bin = abs(complex(gain)) ** 2 * h2 * victim.adc_rate_hz ** 2 \
+    return abs(complex(gain)) ** 2 * h2 * victim.adc_rate_hz ** 2 \
         / (victim.samples_per_chirp * ds)
+
+
+def floor_rise_db(victim: FmcwWaveform, interferer: FmcwWaveform, gain, noise_variance: float,
+                  beat_hz) -> np.ndarray:
+    """The rise of the range-Doppler image's floor (rectangular windows) at beat
+    frequencies ``beat_hz`` when every chirp carries one burst of a path of gain ``gain``
+    (:func:`burst_floor_power` over the noise's σ²):
+    10 log10(1 + |a H(f)|² f_s² / (N |S_I − S_V| σ²)). Over the IF band, not beyond."""
+    _check_waveforms(victim, interferer)
+    if not (noise_variance > 0):
+        raise ArgumentError("must be positive", argument="noise_variance", value=noise_variance)
+    per_bin = burst_floor_power(victim, interferer, gain, beat_hz)
     return 10.0 * np.log10(1.0 + per_bin / noise_variance)
 
 
@@ -285,18 +296,16 @@ def ofdm_into_fmcw(victim: FmcwWaveform, interferer: Waveform, symbols, gains, d
     near = (lo > band_lo - IF_REACH * b_if) & (lo < band_hi + IF_REACH * b_if) & (t_fast >= 0)
     sample_at = k0 + np.arange(victim.samples_per_chirp) * q
     f0v, s = victim.start_hz, victim.slope
-    out = np.zeros((victim.samples_per_chirp, victim.n_chirps), complex)
-    for mu in range(victim.n_chirps):
-        t = mu * victim.chirp_interval + t_fast[near]
-        seg = np.zeros(n_fine, complex)
-        for k in range(a.size):
-            x = _ofdm_at(t - tau[k] - start_offset_s, d, interferer)
-            cycles = ((band_lo - f0v) * t - 0.5 * s * t_fast[near] ** 2
-                      - (band_lo - victim.traced_carrier_hz) * tau[k] + fd[k] * t)
-            seg[near] += a[k] * x * np.exp(2j * np.pi * (cycles - np.floor(cycles)))
-        filtered = np.fft.ifft(np.fft.fft(seg, n_fft) * h)[:n_fine]
-        out[:, mu] = filtered[sample_at]
-    return out
+    # every chirp's segment at once (M, samples near the band), path by path
+    t = (np.arange(victim.n_chirps) * victim.chirp_interval)[:, None] + t_fast[near][None, :]
+    seg = np.zeros((victim.n_chirps, n_fine), complex)
+    for k in range(a.size):
+        x = _ofdm_at((t - tau[k] - start_offset_s).ravel(), d, interferer).reshape(t.shape)
+        cycles = ((band_lo - f0v) * t - 0.5 * s * t_fast[near] ** 2
+                  - (band_lo - victim.traced_carrier_hz) * tau[k] + fd[k] * t)
+        seg[:, near] += a[k] * x * np.exp(2j * np.pi * (cycles - np.floor(cycles)))
+    filtered = np.fft.ifft(np.fft.fft(seg, n_fft, axis=1) * h[None, :], axis=1)[:, :n_fine]
+    return np.ascontiguousarray(filtered[:, sample_at].T)
 
 
 def ofdm_energy_per_chirp(victim: FmcwWaveform, gain) -> float:

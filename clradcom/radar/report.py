@@ -14,13 +14,15 @@ import numpy as np
 
 from clradcom.files import write_csv
 from clradcom.radar.interference import InterferenceResult
+from clradcom.radar.mixed_interference import MixedResult
 from clradcom.radar.processing import RadarImage
 from clradcom.radar.waveform import Waveform
 from clradcom.scene.street import TABLE_III
 
 __all__ = ["DETECTION_COLUMNS", "INTERFERENCE_IMAGES", "INTERFERENCE_TITLES", "STATIC_RANGE_M",
            "TRUTH_COLUMNS", "detection_rows", "display_range_db", "interference_detections",
-           "interference_summary", "match_tolerances", "moving_objects", "paper_table_iii",
+           "interference_summary", "match_tolerances", "mixed_summary", "moving_objects",
+           "paper_table_iii",
            "recovered_detections", "sorted_detections_line", "truth_table_lines",
            "scene_reach_m", "static_returns_beyond", "strongest_static_cell", "truth_rows",
            "write_table"]
@@ -260,3 +262,32 @@ def interference_summary(result: InterferenceResult, waveform: Waveform) -> list
         ("D channel components fitted", int(e.components.amplitude.size)),
         ("own echoes removed before decoding D", int(e.own.amplitude.size)),
     ]
+
+
+def mixed_summary(result: MixedResult) -> list[tuple]:
+    """(quantity, value) rows of a pair with an FMCW radar (docs/interference.md §6):
+    the floor rise measured against its closed form through the link, the burst length
+    or the ghost's range against theirs, the link paths used, the mitigation and the
+    floors it leaves. A figure that does not apply to the pair is left out."""
+    res = result
+    rows = [("victim kind (0 OFDM, 1 FMCW)", int(res.victim_kind == "fmcw")),
+            ("interferer kind (0 OFDM, 1 FMCW)", int(res.interferer_kind == "fmcw")),
+            ("link paths used (within 40 dB of the strongest)", int(res.link_paths_used)),
+            ("link power left out (share)", res.link_power_left_out)]
+    if not math.isnan(res.measured_floor_rise_db):
+        rows += [("floor rise predicted through the link [dB]", res.predicted_floor_rise_db),
+                 ("floor rise measured [dB]", res.measured_floor_rise_db)]
+    if not math.isnan(res.predicted_burst_duration_s):
+        rows += [("burst duration predicted 2 B_IF/|S_I - S_V| [us]",
+                  res.predicted_burst_duration_s * 1e6),
+                 ("burst duration measured [us]", res.burst_duration_s * 1e6)]
+    if not math.isnan(res.predicted_ghost_range_m):
+        rows += [("ghost range predicted [m]", res.predicted_ghost_range_m),
+                 ("ghost range measured [m]", res.ghost_range_m)]
+    rows += [("image floor without the interferer [dB]", _db(res.floors["clean"])),
+             ("image floor with it, re without [dB]",
+              _db(res.floors["interfered"] / res.floors["clean"])),
+             ("image floor after mitigation, re without [dB]",
+              _db(res.floors["mitigated"] / res.floors["clean"])),
+             ("share of the frame mitigation replaced", res.mitigated_share)]
+    return rows

@@ -99,15 +99,25 @@ def add_radar(scene: Scene, name: str, position=None, **keys) -> Scene:
     return _rebuilt(scene, data)
 
 
-def set_waveform(scene: Scene, **keys) -> Scene:
+def set_waveform(scene: Scene, radar: str | None = None, **keys) -> Scene:
     """``scene`` with its ``[waveform]`` table replaced by ``keys`` (``subcarriers``,
-    ``symbols``, ``subcarrier_spacing_hz``, ``cyclic_prefix_s``, ``modulation``, ...);
-    no keys removes it (the commands' options and the paper's frame then apply)."""
+    ``symbols``, ``subcarrier_spacing_hz``, ``cyclic_prefix_s``, ``modulation``, ...;
+    ``kind="fmcw"`` and the chirp's keys for an FMCW radar); no keys removes it (the
+    commands' options and the paper's frame then apply). With ``radar`` (a radar's
+    name): that radar's own ``waveform`` table instead, which it runs in place of the
+    scene's (no keys: it follows the scene's again)."""
     data = _data(scene)
-    if keys:
-        data["waveform"] = _plain(keys)
+    if radar is not None:
+        kind, target = _entry(scene, data, radar)
+        if kind != "radars":
+            raise SceneError("names an object; only a radar has a waveform",
+                             file=_document(scene).file, key="radar", value=radar)
     else:
-        data.pop("waveform", None)
+        target = data
+    if keys:
+        target["waveform"] = _plain(keys)
+    else:
+        target.pop("waveform", None)
     return _rebuilt(scene, data)
 
 

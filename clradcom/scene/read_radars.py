@@ -1,6 +1,6 @@
 """The ``[[radars]]`` entries of a scene file -> :class:`Radar` records: pose (in the
 world, or in the frame of the object it ``rides_on``), velocity, role, power, noise
-figure, pattern and polarisation."""
+figure, pattern and polarisation, and the radar's own waveform where it has one."""
 
 from __future__ import annotations
 
@@ -25,13 +25,14 @@ from clradcom.scene.motion import (
 )
 from clradcom.scene.read_arrays import read_arrays
 from clradcom.scene.read_patterns import read_pattern
+from clradcom.scene.read_waveform import read_waveform_table
 from clradcom.scene.records import ROLES, Radar, SceneObject
 
 __all__ = ["RADAR_KEYS", "read_radars"]
 
 RADAR_KEYS = ("name", "position", "rides_on", "orientation_deg", "velocity", "pattern",
               "polarization", "role", "tx_power_w", "noise_figure_db", "description",
-              "array", "tx_array", "rx_array", *MOTION_KEYS)
+              "array", "tx_array", "rx_array", "waveform", *MOTION_KEYS)
 
 
 def read_radars(fields: FieldReader, entries: list, objects: list[SceneObject],
@@ -107,12 +108,15 @@ def _read_radar(fields, kp, tbl, seen, objects, base_dir, wavelength_m,
                          "0-20 dB)")
     pattern, pol, pol_name = read_pattern(fields, tbl, kp, base_dir)
     tx_array, rx_array = read_arrays(fields, tbl, kp, wavelength_m, base_dir)
+    # the radar's own frame, over the scene's [waveform] (docs/scene-format.md)
+    waveform = (read_waveform_table(fields, tbl["waveform"], f"{kp}.waveform")
+                if "waveform" in tbl else None)
     return Radar(
         name=name, position=np.asarray(position, dtype=np.float64), rides_on=rides,
         orientation=orientation, pattern=pattern, polarization=pol,
         polarization_name=pol_name, velocity=velocity, role=role, tx_power_w=power,
         noise_figure_db=nf, position_local=pos_local, orientation_deg=ori_deg,
-        tx_array=tx_array, rx_array=rx_array, motion=motion,
+        tx_array=tx_array, rx_array=rx_array, motion=motion, waveform=waveform,
     )
 
 

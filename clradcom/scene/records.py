@@ -164,6 +164,9 @@ class Radar:
     rx_array: ArrayLayout | None = None
     #: rotation and/or trajectory of a radar that rides on nothing (None: ``velocity``)
     motion: Motion | None = None
+    #: the radar's own ``waveform`` table (OFDM or FMCW), or None: the scene's
+    #: ``[waveform]`` then applies (:meth:`Scene.radar_waveform`)
+    waveform: WaveformSpec | FmcwSpec | None = None
 
     def world_to_local(self, directions_world) -> np.ndarray:
         """(K,3) world directions -> antenna-frame directions (R^T d)."""
@@ -354,6 +357,14 @@ class Scene:
     def material_index(self, name: str) -> int:
         return self._index(self.materials, name, "material")
 
+    def radar_waveform(self, index: int | None) -> tuple[WaveformSpec | FmcwSpec | None, str]:
+        """(the waveform table radar ``index`` runs, the key its refusals name): its own
+        ``radars[i].waveform`` where it has one, else the scene's ``waveform`` (None when
+        neither is given; also for ``index`` None)."""
+        if index is not None and self.radars[index].waveform is not None:
+            return self.radars[index].waveform, f"radars[{index}].waveform"
+        return self.waveform, "waveform"
+
     @property
     def moving(self) -> bool:
         """True when anything turns or follows a trajectory (the velocities then depend
@@ -469,6 +480,9 @@ class Scene:
                    for key, a in (("tx_array", r.tx_array), ("rx_array", r.rx_array))
                    if a is not None]
                 + ([["motion", r.motion.hash_params()]] if r.motion is not None else [])
+                # a radar's own waveform only when set, so scenes without keep their hashes
+                + ([["waveform", r.waveform.hash_params()]] if r.waveform is not None
+                   else [])
                 for r in self.radars
             ],
         }

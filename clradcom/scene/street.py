@@ -79,6 +79,17 @@ MIMO_TX_SPACING_WAVELENGTHS = MIMO_RX * MIMO_RX_SPACING_WAVELENGTHS
 DRIVE_START_S, DRIVE_STEP_S, DRIVE_COUNT = 0.0, 0.05, 20
 
 
+#: radar D's own FMCW chirp sequence in street_fmcw_ofdm.toml: a 24 GHz ISM-band corner
+#: radar, 250 MHz in 40 µs from 23.95 GHz (its ADC window, 2-27.6 µs, sweeps
+#: 23.96-24.12 GHz, across the OFDM radar's band 24.0-24.093 GHz), 128 chirps every 50 µs,
+#: 256 I/Q samples at 10 MHz behind a 2.5 MHz IF filter (60 m)
+MIXED_FMCW = (("kind", '"fmcw"'), ("start_frequency_hz", "23.95e9"),
+              ("sweep_bandwidth_hz", "250e6"), ("chirp_duration_s", "40e-6"),
+              ("idle_duration_s", "10e-6"), ("chirps", "128"),
+              ("adc_sample_rate_hz", "10e6"), ("samples_per_chirp", "256"),
+              ("adc_start_s", "2e-6"), ("if_bandwidth_hz", "2.5e6"))
+
+
 @dataclass(frozen=True)
 class StreetOptions:
     """The variants of the street (tools/make_street.py's options; defaults: the committed
@@ -102,6 +113,9 @@ class StreetOptions:
     mimo: bool = False
     #: a [time] table: one second of the street in 20 frames (street_drive.toml)
     drive: bool = False
+    #: radar D carries the FMCW chirp sequence of :data:`MIXED_FMCW` as its own waveform,
+    #: radar A keeps the paper's OFDM frame (street_fmcw_ofdm.toml)
+    mixed: bool = False
 
 
 @dataclass
@@ -270,12 +284,18 @@ def street_toml(options: StreetOptions, plan: StreetPlan) -> str:
       f"car_flat_ends = {str(options.car_flat_ends).lower()}, "
       f"range_from = {options.range_from}, lane_width = {num(options.lane_width)} m"
       + (", mimo = true" if options.mimo else "")
-      + (", drive = true" if options.drive else ""))
+      + (", drive = true" if options.drive else "")
+      + (", mixed = true" if options.mixed else ""))
     if options.drive:
         w(f"# Drive variant: a [time] table of {DRIVE_COUNT} instants {num(DRIVE_STEP_S)} s "
           "apart (one second, the cars at their set")
         w("# speeds) for `clradcom drive --radar A` (docs/tracking.md); everything else is "
           "street.toml's.")
+    if options.mixed:
+        w("# FMCW + OFDM variant: radar D carries an FMCW chirp-sequence radar (its own "
+          "[radars.waveform]),")
+        w("# radar A the paper's OFDM one (`clradcom interference` runs the pair both ways); "
+          "everything else is street.toml's.")
     if options.mimo:
         w("# MIMO variant: radar A carries a 3 tx x 4 rx array (12-element virtual ULA at "
           "lambda/2);")
@@ -283,7 +303,8 @@ def street_toml(options: StreetOptions, plan: StreetPlan) -> str:
     w("")
     w("[scene]")
     w('name = "street_mimo"' if options.mimo else
-      'name = "street_drive"' if options.drive else 'name = "street"')
+      'name = "street_drive"' if options.drive else
+      'name = "street_fmcw_ofdm"' if options.mixed else 'name = "street"')
     w("carrier_hz = 24e9")
     w('description = "OFDM RadCom paper street: cars A, C at +12.9 m/s; B, D oncoming at '
       '-13.3 and -14.5 m/s; radar A on car A\'s front bumper"')
@@ -363,6 +384,13 @@ def street_toml(options: StreetOptions, plan: StreetPlan) -> str:
               f'{num(MIMO_TX_SPACING_WAVELENGTHS)} }}')
             w(f'rx_array = {{ kind = "ula", count = {MIMO_RX}, spacing_wavelengths = '
               f'{num(MIMO_RX_SPACING_WAVELENGTHS)} }}')
+        if options.mixed and k == "D":
+            w("")
+            w("# D's own frame: an FMCW chirp sequence in the 24 GHz ISM band (A keeps the "
+              "paper's OFDM)")
+            w("[radars.waveform]")
+            for key, value in MIXED_FMCW:
+                w(f"{key} = {value}")
         w("")
     return "\n".join(L).rstrip("\n") + "\n"
 
@@ -496,6 +524,15 @@ def street_readme(options: StreetOptions, plan: StreetPlan, scene: Scene,
       "(e.g. 2 tx / 2 rx), the paper's radar has one tx and one rx antenna. "
       "`clradcom cube scenes/street/street_mimo.toml` traces it and builds the radar cube, "
       "the point cloud and the truth table (docs/dsp.md §9).")
+    w("")
+    w("## FMCW + OFDM variant (`street_fmcw_ofdm.toml`)")
+    w("")
+    w("The same street, scene name `street_fmcw_ofdm`, with radar D carrying an FMCW "
+      "chirp-sequence radar of its own (`[radars.waveform]`: 250 MHz in 40 µs from "
+      "23.95 GHz, 128 chirps every 50 µs, 256 I/Q samples at 10 MHz, IF 2.5 MHz) while "
+      "radar A keeps the paper's OFDM frame. `clradcom interference "
+      "scenes/street/street_fmcw_ofdm.toml` runs D's chirps into A's OFDM image, "
+      "`--victim D --interferer A` A's OFDM into D's beat signal (docs/interference.md §6).")
     w("")
     w("## Drive variant (`street_drive.toml`)")
     w("")
