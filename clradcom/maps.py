@@ -26,6 +26,12 @@ the cell summed incoherently. Mechanisms: line of sight and specular reflections
 sampled by diffuse rays) and with ``MapSettings(diffraction=True)`` first-order UTD edge
 diffraction (Keller-cone rays from the lit edges).
 
+With ``MapSettings(coherent=True)`` the cell's value is instead the coherent sum at its
+centre (:class:`CellSums`): the segments grouped by wavefront (the image source of
+their reflections, or their wedge), each group's mean power as above and its phase at
+the centre from its unfolded length there (float64 on the host), the groups added as
+complex fields; diffuse scattering adds in power.
+
 The estimate converges where enough segments pass through a cell: at least
 :data:`MIN_SEGMENTS` (``RadioMap.converged``; docs/maps.md, tests/test_maps.py).
 """
@@ -38,7 +44,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from clradcom.device.maps import Slab, accumulate_segments
+from clradcom.device.maps import Slab, accumulate_segments, segment_cells
 from clradcom.device.raycast import make_rays, spawn_origins
 from clradcom.device.runtime import Runtime
 from clradcom.errors import ArgumentError, ArgumentTypeError
@@ -52,7 +58,8 @@ from clradcom.physics.em import C0, fresnel_coefficients, reflected_fields
 from clradcom.physics.vectors import perpendicular
 from clradcom.scene.records import Radar, Scene
 
-__all__ = ["MIN_SEGMENTS", "MapGrid", "MapSettings", "RadioMap", "find_radar",
+__all__ = ["MIN_SEGMENTS", "CellSums", "MapGrid", "MapSettings", "RadioMap", "Wave",
+           "find_radar",
            "launch_lattice", "map_memory_bytes", "radio_map"]
 
 #: The convergence rule: a cell's value is trusted where at least this many ray segments
@@ -65,6 +72,13 @@ MIN_SEGMENTS = 20
 #: street (batches of 2^16 rays, 3 reflections): 520 bytes a ray, 610 with diffraction
 #: (its Keller-cone rounds hold at most a batch of rays); twice that for a margin.
 BYTES_PER_RAY = 1200
+
+#: A coherent map's (segment, cell) records a launched ray makes: measured 2.6 on the
+#: street (radar A, 20 m x 10 m at 5 cm cells, 3 reflections: 11 cells for each segment
+#: that reaches the layer), rounded up; and the host bytes one record holds while its
+#: batch is weighed (its indices, length, phase, complex term and the sort's copies).
+COHERENT_RECORDS_PER_RAY = 4
+BYTES_PER_RECORD = 160
 
 
 @dataclass(frozen=True)
@@ -91,6 +105,12 @@ class MapSettings:
     edge_step_m: float = 0.05
     cone_step_deg: float = 1.0
     seed: int = 0  #: of the diffuse rays' directions and nothing else
+    #: the coherent sum for small cells (docs/maps.md "The coherent sum"): per cell the
+    #: rays grouped by wavefront (the image source of their reflections, or the edge they
+    #: left), each group's mean power as the incoherent map estimates it and its phase at
+    #: the cell's centre, the groups added as complex fields; diffuse scattering, random
+    #: in phase as the tracer's tiles are, adds in power
+    coherent: bool = False
     batch: int = 1 << 18  #: rays traced together (host memory: BYTES_PER_RAY each)
 
     def __post_init__(self):
@@ -98,7 +118,7 @@ class MapSettings:
         check_number("MapSettings", "max_reflections", self.max_reflections, low=0,
                      high=16, integer=True)
         check_number("MapSettings", "batch", self.batch, low=1, integer=True)
-        for name in ("line_of_sight", "scattering"):
+        for name in ("line_of_sight", "scattering", "coherent"):
             if not isinstance(getattr(self, name), bool):
                 raise ArgumentError("must be True or False", argument=f"MapSettings.{name}",
                                     value=getattr(self, name))
@@ -194,10 +214,21 @@ class RadioMap:
     rx_name: str | None  #: whose antenna receives; None: gain 1, every polarisation
     rays: int  #: launched
     tx_power_w: float = 1.0
+    #: True where ``gain`` is the coherent sum (MapSettings.coherent); the incoherent one
+    #: is then ``incoherent_gain``
+    coherent: bool = False
+    incoherent_gain: np.ndarray | None = None
+    #: coherent maps: the fewest segments of a wavefront group holding >= 1 % of a
+    #: cell's power (CellSums.group_count)
+    group_count: np.ndarray | None = None
 
     @property
     def converged(self) -> np.ndarray:
-        """(ny, nx) bool: cells that satisfy the convergence rule (:data:`MIN_SEGMENTS`)."""
+        """(ny, nx) bool: cells that satisfy the convergence rule (:data:`MIN_SEGMENTS`
+        segments; for a coherent map in each wavefront group that holds 1 % of the
+        cell's power or more)."""
+        if self.coherent and self.group_count is not None:
+            return (self.count >= MIN_SEGMENTS) & (self.group_count >= MIN_SEGMENTS)
         return self.count >= MIN_SEGMENTS
 
     def gain_db(self, floor_db: float = -300.0) -> np.ndarray:
@@ -235,9 +266,15 @@ def launch_lattice(n_rays: int, pattern) -> tuple[np.ndarray, float]:
 def map_memory_bytes(settings: MapSettings, grid: MapGrid) -> int:
     """Host memory a map holds at its peak: a batch of rays (:data:`BYTES_PER_RAY` each),
     the launch lattice (24 bytes a ray), and the grid's float64 sums, int64 counts and
-    float32/int32 device copies (24 bytes a cell)."""
-    return (min(settings.batch, settings.rays) * BYTES_PER_RAY + 24 * settings.rays
+    float32/int32 device copies (24 bytes a cell); a coherent map adds its records
+    (:data:`COHERENT_RECORDS_PER_RAY` a launched ray, :data:`BYTES_PER_RECORD` each while
+    a batch's are weighed, 40 bytes each kept as a (cell, group) sum)."""
+    need = (min(settings.batch, settings.rays) * BYTES_PER_RAY + 24 * settings.rays
             + 24 * grid.n_cells)
+    if settings.coherent:
+        need += COHERENT_RECORDS_PER_RAY * (
+            min(settings.batch, settings.rays) * BYTES_PER_RECORD + 40 * settings.rays)
+    return need
 
 
 def _rotate(v, m) -> np.ndarray:
@@ -264,18 +301,24 @@ def _basis(directions_world, orientation):
     return _rotate(th, rot_t), _rotate(ph, rot_t)
 
 
+def _projection(field, directions, rx: Radar | None) -> np.ndarray:
+    """The receiver's complex projection p(E) (R, 1) of field vectors E (R, 3) arriving
+    along ``directions`` (em.path_gains' bilinear form at -direction), or E itself (R, 3)
+    without a receiver: what a coherent sum adds, |p|^2 the power."""
+    if rx is None:
+        return np.asarray(field, dtype=np.complex128)
+    rot = np.asarray(rx.orientation, dtype=np.float64)
+    c = np.asarray(rx.pattern.field(_rotate(-directions, rot)), dtype=np.complex128)
+    th, ph = _basis(-directions, rot)
+    return (c[:, 0] * np.einsum("ij,ij->i", th, field)
+            + c[:, 1] * np.einsum("ij,ij->i", ph, field))[:, None]
+
+
 def _received(field, directions, rx: Radar | None) -> np.ndarray:
     """|p(E)|^2 (R,): the power the receiver takes from field vectors E (R, 3) arriving
     along ``directions``: the bilinear projection onto its pattern's (C_theta, C_phi) at
     -direction (em.path_gains), or |E|^2 without a receiver."""
-    if rx is None:
-        return np.sum(np.abs(field) ** 2, axis=1)
-    rot = np.asarray(rx.orientation, dtype=np.float64)
-    c = np.asarray(rx.pattern.field(_rotate(-directions, rot)), dtype=np.complex128)
-    th, ph = _basis(-directions, rot)
-    p = c[:, 0] * np.einsum("ij,ij->i", th, field) + c[:, 1] * np.einsum("ij,ij->i", ph,
-                                                                          field)
-    return np.abs(p) ** 2
+    return np.sum(np.abs(_projection(field, directions, rx)) ** 2, axis=1)
 
 
 def _reaches(slab: Slab, origins, directions, lengths, margin: float = 1e-3) -> np.ndarray:
@@ -301,6 +344,129 @@ def _reaches(slab: Slab, origins, directions, lengths, margin: float = 1e-3) -> 
     return ok & (t0 <= t1)
 
 
+#: Image sources closer than this (m) are one wavefront: coplanar triangles of one wall
+#: mirror the source onto the same point up to float64 rounding.
+IMAGE_SOURCE_TOLERANCE_M = 1e-4
+
+
+@dataclass
+class Wave:
+    """What the coherent sum needs of a batch of segments besides their power: ``polar``
+    (S, C) the received complex amplitude per segment (the receiver's projection p(E),
+    C = 1, or the field vector E without a receiver, C = 3), ``group`` (S, G) int64 rows
+    naming the wavefront each belongs to, and ``path_length(rows, points)`` the unfolded
+    length (m, float64) from the transmitter along the wavefront of segments ``rows`` to
+    the world ``points``."""
+
+    polar: np.ndarray
+    group: np.ndarray
+    path_length: Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+
+class CellSums:
+    """The sums a map's cells collect. Incoherent: each segment's weight x length in each
+    cell (on the device) and the segment counts. Coherent (``coherent=True``): in
+    addition, per cell and wavefront group, W the summed weight x length (the group's
+    mean power over the cell) and Z the same terms times the segment's unit polarisation
+    phasor with the carrier phase e^{-jkL} of its wavefront's length to the cell's centre
+    (float64 on the host); a group's complex field at the centre is sqrt(W) Z / |Z|.
+    Segments given without a :class:`Wave` (diffuse scattering) add in power only."""
+
+    def __init__(self, runtime, grid: MapGrid, wavenumber: float, coherent: bool):
+        self.runtime = runtime
+        self.grid = grid
+        self.slab = grid.slab()
+        self.wavenumber = float(wavenumber)
+        self.coherent = coherent
+        shape = (grid.ny, grid.nx)
+        self.power = np.zeros(shape)
+        self.count = np.zeros(shape, dtype=np.int64)
+        self.power_only = np.zeros(shape) if coherent else self.power
+        self._groups: dict[tuple, int] = {}
+        self._keys = np.zeros(0, dtype=np.int64)
+        self._w = np.zeros(0)
+        self._n = np.zeros(0, dtype=np.int64)
+        self._z = np.zeros((0, 1), dtype=np.complex128)
+        self._centres = grid.centres().reshape(-1, 3)
+
+    def add(self, origins, directions, lengths, weights, wave: Wave | None = None) -> None:
+        """Segments (origin, unit direction, length to their end, weight per metre)."""
+        if not self.coherent or wave is None:
+            accumulate_segments(self.runtime, self.slab, origins, directions, lengths,
+                                weights, self.power_only, self.count)
+            return
+        seg, cell, length = segment_cells(self.runtime, self.slab, origins, directions,
+                                          lengths)
+        keep = weights[seg] > 0
+        seg, cell, length = seg[keep], cell[keep], length[keep]
+        wl = weights[seg] * length
+        n_cells = self.grid.n_cells
+        self.power += np.bincount(cell, wl, minlength=n_cells).reshape(self.power.shape)
+        self.count += np.bincount(cell, minlength=n_cells).reshape(self.count.shape)
+        if not len(seg):
+            return
+        polar = np.asarray(wave.polar, dtype=np.complex128)
+        size = np.linalg.norm(polar, axis=1)
+        unit = polar / np.where(size > 0, size, 1.0)[:, None]
+        phase = np.exp(-1j * self.wavenumber * wave.path_length(seg, self._centres[cell]))
+        z = (wl * phase)[:, None] * unit[seg]
+        keys = self._group_ids(wave.group)[seg] * n_cells + cell
+        if self._z.shape[1] != z.shape[1]:
+            self._z = np.zeros((0, z.shape[1]), dtype=np.complex128)
+        keys = np.concatenate([self._keys, keys])
+        self._keys, inverse = np.unique(keys, return_inverse=True)
+        self._w = np.bincount(inverse, np.concatenate([self._w, wl]))
+        self._n = np.bincount(inverse, np.concatenate([self._n, np.ones(len(wl))])).astype(
+            np.int64)
+        zz = np.concatenate([self._z, z])
+        self._z = np.stack([np.bincount(inverse, zz[:, c].real)
+                            + 1j * np.bincount(inverse, zz[:, c].imag)
+                            for c in range(zz.shape[1])], axis=1)
+
+    def _group_ids(self, rows: np.ndarray) -> np.ndarray:
+        unique, inverse = np.unique(np.asarray(rows, dtype=np.int64), axis=0,
+                                    return_inverse=True)
+        ids = np.array([self._groups.setdefault(tuple(r), len(self._groups))
+                        for r in unique.tolist()], dtype=np.int64)
+        return ids[inverse.reshape(-1)]
+
+    @property
+    def groups(self) -> int:
+        """Wavefront groups seen so far."""
+        return len(self._groups)
+
+    def incoherent(self) -> np.ndarray:
+        return self.power if self.power_only is self.power else self.power + self.power_only
+
+    def group_count(self, share: float = 0.01) -> np.ndarray:
+        """(ny, nx) int64: the fewest segments of any wavefront group that holds at least
+        ``share`` of its cell's coherent-summed power (every group's W), 0 where none
+        does: the coherent map's convergence count, since each group's power is
+        estimated from its own segments."""
+        n_cells = self.grid.n_cells
+        cell = self._keys % n_cells
+        total = np.bincount(cell, self._w, minlength=n_cells)
+        significant = self._w >= share * total[cell]
+        fewest = np.full(n_cells, np.iinfo(np.int64).max)
+        np.minimum.at(fewest, cell[significant], self._n[significant])
+        fewest[fewest == np.iinfo(np.int64).max] = 0
+        return fewest.reshape(self.power.shape)
+
+    def coherent_gain(self) -> np.ndarray:
+        """(ny, nx): |sum over groups of sqrt(W) Z / |Z||^2 plus the power-only sums."""
+        n_cells = self.grid.n_cells
+        size = np.linalg.norm(self._z, axis=1)
+        amplitude = np.sqrt(self._w)[:, None] * self._z / np.where(size > 0, size,
+                                                                    1.0)[:, None]
+        cell = self._keys % n_cells
+        field = np.stack([np.bincount(cell, amplitude[:, c].real, minlength=n_cells)
+                          + 1j * np.bincount(cell, amplitude[:, c].imag,
+                                             minlength=n_cells)
+                          for c in range(amplitude.shape[1])], axis=1)
+        gain = np.sum(np.abs(field) ** 2, axis=1).reshape(self.power.shape)
+        return gain + self.power_only
+
+
 def _cosine_directions(normals, rng) -> np.ndarray:
     """One unit direction per row, cosine-weighted over the hemisphere about ``normals``
     (R, 3) unit (Malley's method: a uniform point of the unit disc lifted onto it)."""
@@ -324,7 +490,7 @@ def _te_tm(k, n):
 
 
 def _scatter(scene, geom, slab, org, dirs, field, t, prim, normals, receiver, scale,
-             settings, rng, power, count) -> None:
+             settings, rng, sums: CellSums) -> None:
     """Diffuse rays from the hits ``prim`` of rays (org, dirs, field) on faces whose
     material scatters (S > 0), accumulated into the layer: the tracer's Lambertian tile
     model (:mod:`clradcom.mechanisms.scattering`) sampled. A tube of power P (its
@@ -369,8 +535,7 @@ def _scatter(scene, geom, slab, org, dirs, field, t, prim, normals, receiver, sc
         received = ((1.0 - share[near]) * _received(co[near], out[near], receiver)
                     + share[near] * _received(cross[near], out[near], receiver))
         weights = scale * (s_coef[near] ** 2 * gamma2[near] / m) * received
-        accumulate_segments(geom.runtime, slab, origins[near], out[near], lengths[near],
-                            weights, power, count)
+        sums.add(origins[near], out[near], lengths[near], weights)
 
 
 def _edge_samples(wedges, step: float):
@@ -384,8 +549,8 @@ def _edge_samples(wedges, step: float):
     return w, points, wedges.length[w] / pieces[w]
 
 
-def _diffract(scene, geom, slab, wedges, tx: Radar, receiver, scale, settings, power,
-              count) -> None:
+def _diffract(scene, geom, slab, wedges, tx: Radar, receiver, scale, settings,
+              sums: CellSums) -> None:
     """First-order UTD diffraction into the layer (:attr:`MapSettings.diffraction`).
 
     Each edge piece Q of length dl that the transmitter sees (a cast from tx to a point 1 mm
@@ -470,10 +635,30 @@ def _diffract(scene, geom, slab, wedges, tx: Radar, receiver, scale, settings, p
         basis = utd.edge_fixed_basis(k_in[j], out, e[j])
         dyad = utd.diffraction_dyad(d_soft, d_hard, *basis)
         field = np.einsum("rij,rj->ri", dyad, ei[rows])
+        polar = _projection(field, out, receiver)
         weights = (scale * sin_b[j] ** 2 * dphi[rows] * dl[j]
-                   * _received(field, out, receiver))
-        accumulate_segments(geom.runtime, slab, origins, out, lengths, weights, power,
-                            count)
+                   * np.sum(np.abs(polar) ** 2, axis=1))
+        wedge = w[j]
+        sums.add(origins, out, lengths, weights, Wave(
+            polar=polar, group=np.stack([np.ones_like(wedge), wedge], axis=1),
+            path_length=lambda rows, points, wedge=wedge: _edge_path_length(
+                tx_pos, wedges.start[wedge[rows]], wedges.direction[wedge[rows]],
+                points)))
+
+
+def _edge_path_length(source, start, direction, points) -> np.ndarray:
+    """The shortest length (m) from ``source`` (3,) via the infinite line through
+    ``start`` along unit ``direction`` (R, 3) to ``points`` (R, 3): the unfolded length of
+    the diffracted ray through each point (Keller's law puts its edge point where the two
+    legs make equal angles with the edge), sqrt((b - a)^2 + (r_1 + r_2)^2) with a, b the
+    positions of source and point along the edge and r_1, r_2 their distances from it."""
+    to_source = source - start
+    to_point = points - start
+    a = np.einsum("ij,ij->i", to_source, direction)
+    b = np.einsum("ij,ij->i", to_point, direction)
+    r1 = np.linalg.norm(to_source - a[:, None] * direction, axis=1)
+    r2 = np.linalg.norm(to_point - b[:, None] * direction, axis=1)
+    return np.hypot(b - a, r1 + r2)
 
 
 def _layer_distance(slab: Slab, origins, directions, lengths) -> np.ndarray:
@@ -547,9 +732,9 @@ def radio_map(scene: Scene, tx, grid: MapGrid, rx=None, settings: MapSettings | 
     rot = np.asarray(transmitter.orientation, dtype=np.float64)
     scale = (lam / (4.0 * np.pi)) ** 2 * solid_angle / slab.cell_volume
     origin = np.asarray(transmitter.position, dtype=np.float64)
-    power = np.zeros((slab.ny, slab.nx))
-    count = np.zeros((slab.ny, slab.nx), dtype=np.int64)
+    sums = CellSums(rt, grid, 2.0 * np.pi / lam, settings.coherent)
     normals = geom.caster.normals64() if geom.caster is not None else None
+    corners = geom.caster.triangles[:, 0] if geom.caster is not None else None
     tri_material = np.asarray(scene.tri_material)
     n_batches = -(-len(local) // settings.batch)
     rng = np.random.default_rng(settings.seed)
@@ -562,6 +747,10 @@ def radio_map(scene: Scene, tx, grid: MapGrid, rx=None, settings: MapSettings | 
         th, ph = _basis(dirs, rot)
         field = c[:, :1] * th + c[:, 1:] * ph
         org = np.broadcast_to(origin, dirs.shape).copy()
+        # every segment's wavefront is a sphere about its image source: the transmitter
+        # mirrored in the planes of the faces it reflected off (float64, from the faces'
+        # own corners, so the hit points' float32 rounding does not enter)
+        image = org.copy()
         for order in range(settings.max_reflections + 1):
             if geom.caster is not None and len(dirs):
                 hits = geom.caster.closest_hit(make_rays(org, dirs))
@@ -572,20 +761,31 @@ def radio_map(scene: Scene, tx, grid: MapGrid, rx=None, settings: MapSettings | 
                 prim = np.full(len(dirs), -1)
             if order > 0 or settings.line_of_sight:
                 near = _reaches(slab, org, dirs, t)
-                weights = scale * _received(field[near], dirs[near], receiver)
-                accumulate_segments(rt, slab, org[near], dirs[near], t[near], weights,
-                                    power, count)
+                polar = _projection(field[near], dirs[near], receiver)
+                weights = scale * np.sum(np.abs(polar) ** 2, axis=1)
+                wave = None
+                if settings.coherent:
+                    src = image[near]
+                    quantised = np.round(src / IMAGE_SOURCE_TOLERANCE_M).astype(np.int64)
+                    group = np.column_stack([np.zeros(len(src), np.int64),
+                                             np.full(len(src), order), quantised])
+                    wave = Wave(polar=polar, group=group,
+                                path_length=lambda rows, points, src=src: np.linalg.norm(
+                                    points - src[rows], axis=1))
+                sums.add(org[near], dirs[near], t[near], weights, wave)
             hit = prim >= 0
             if settings.scattering and order <= settings.scattering_reflections \
                     and hit.any():
                 _scatter(scene, geom, slab, org[hit], dirs[hit], field[hit], t[hit],
-                         prim[hit], normals, receiver, scale, settings, rng, power, count)
+                         prim[hit], normals, receiver, scale, settings, rng, sums)
             if order == settings.max_reflections or not hit.any():
                 break
-            org, dirs, field, t, prim = org[hit], dirs[hit], field[hit], t[hit], prim[hit]
+            org, dirs, field, t, prim, image = (a[hit] for a in (org, dirs, field, t, prim,
+                                                                 image))
             n = normals[prim]
             point = org + t[:, None] * dirs
             field = reflected_fields(scene, tri_material[prim], dirs, n, field)
+            image = image - 2.0 * np.einsum("ij,ij->i", image - corners[prim], n)[:, None] * n
             dirs = dirs - 2.0 * np.einsum("ij,ij->i", dirs, n)[:, None] * n
             dirs /= np.linalg.norm(dirs, axis=1)[:, None]
             org = spawn_origins(point, n, dirs)
@@ -593,9 +793,13 @@ def radio_map(scene: Scene, tx, grid: MapGrid, rx=None, settings: MapSettings | 
         wedges = diffraction.prepare(geom, DiffractionSettings(max_diffractions=1))
         if wedges is not None and len(wedges):
             _diffract(scene, geom, slab, wedges, transmitter, receiver, scale / solid_angle,
-                      settings, power, count)
+                      settings, sums)
     if steps is not None:
         steps(n_batches, n_batches)
-    return RadioMap(grid=grid, gain=power, count=count, tx_name=transmitter.name,
+    incoherent = sums.incoherent()
+    gain = sums.coherent_gain() if settings.coherent else incoherent
+    return RadioMap(grid=grid, gain=gain, count=sums.count, tx_name=transmitter.name,
                     rx_name=None if receiver is None else receiver.name, rays=len(local),
-                    tx_power_w=float(transmitter.tx_power_w))
+                    tx_power_w=float(transmitter.tx_power_w), coherent=settings.coherent,
+                    incoherent_gain=incoherent if settings.coherent else None,
+                    group_count=sums.group_count() if settings.coherent else None)

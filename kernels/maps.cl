@@ -40,20 +40,18 @@ inline bool clip_axis(const float o, const float d, const float lo, const float 
     return *t0 < *t1;
 }
 
-__kernel void accumulate_segments(__global const float4 *origin,    /* xyz, w unused */
-                                  __global const float4 *direction, /* unit xyz, w length */
-                                  __global const float *weight,     /* per metre in a cell */
-                                  const float z_lo, const float z_hi,
-                                  const float cell_x, const float cell_y,
-                                  const int nx, const int ny, const int n,
-                                  __global float *power,            /* (ny, nx) */
-                                  __global int *count)              /* (ny, nx) */
+/* Walks one segment through the slab's cells. With power != 0 each cell it crosses gets
+ * w x (length inside) and a count; else the (segment, cell, length) records are appended
+ * to rec_* at slots taken from *n_records (those past capacity are counted, not
+ * written, so the host can size the buffer and run again). */
+inline void walk_segment(const int gid, const float w, const float4 o, const float4 d,
+                         const float z_lo, const float z_hi,
+                         const float cell_x, const float cell_y, const int nx, const int ny,
+                         __global float *power, __global int *count,
+                         __global int *rec_segment, __global int *rec_cell,
+                         __global float *rec_length, volatile __global int *n_records,
+                         const int capacity)
 {
-    int gid = get_global_id(0);
-    if (gid >= n) return;
-    float w = weight[gid];
-    if (!(w > 0.0f)) return;
-    float4 o = origin[gid], d = direction[gid];
     float t0 = 0.0f, t1 = d.w;
     if (!clip_axis(o.z, d.z, z_lo, z_hi, &t0, &t1)) return;
     if (!clip_axis(o.x, d.x, 0.0f, cell_x * nx, &t0, &t1)) return;
@@ -78,8 +76,17 @@ __kernel void accumulate_segments(__global const float4 *origin,    /* xyz, w un
         float inside = t_exit - t;
         if (inside > 0.0f) {
             int cell = iy * nx + ix;
-            add_float(power + cell, w * inside);
-            atomic_inc(count + cell);
+            if (power) {
+                add_float(power + cell, w * inside);
+                atomic_inc(count + cell);
+            } else {
+                int slot = atomic_inc(n_records);
+                if (slot < capacity) {
+                    rec_segment[slot] = gid;
+                    rec_cell[slot] = cell;
+                    rec_length[slot] = inside;
+                }
+            }
         }
         if (t_exit >= t1) break;
         t = t_exit;
@@ -92,4 +99,39 @@ __kernel void accumulate_segments(__global const float4 *origin,    /* xyz, w un
         }
         if (ix < 0 || ix >= nx || iy < 0 || iy >= ny) break;
     }
+}
+
+__kernel void accumulate_segments(__global const float4 *origin,    /* xyz, w unused */
+                                  __global const float4 *direction, /* unit xyz, w length */
+                                  __global const float *weight,     /* per metre in a cell */
+                                  const float z_lo, const float z_hi,
+                                  const float cell_x, const float cell_y,
+                                  const int nx, const int ny, const int n,
+                                  __global float *power,            /* (ny, nx) */
+                                  __global int *count)              /* (ny, nx) */
+{
+    int gid = get_global_id(0);
+    if (gid >= n) return;
+    float w = weight[gid];
+    if (!(w > 0.0f)) return;
+    walk_segment(gid, w, origin[gid], direction[gid], z_lo, z_hi, cell_x, cell_y, nx, ny,
+                 power, count, 0, 0, 0, 0, 0);
+}
+
+/* The cells each segment crosses, as records: the coherent sum (docs/maps.md) needs each
+ * segment's length in each cell apart, to weigh the phase of its wavefront at the cell's
+ * centre on the host in float64. */
+__kernel void segment_cells(__global const float4 *origin,
+                            __global const float4 *direction,
+                            const float z_lo, const float z_hi,
+                            const float cell_x, const float cell_y,
+                            const int nx, const int ny, const int n,
+                            __global int *rec_segment, __global int *rec_cell,
+                            __global float *rec_length,
+                            volatile __global int *n_records, const int capacity)
+{
+    int gid = get_global_id(0);
+    if (gid >= n) return;
+    walk_segment(gid, 1.0f, origin[gid], direction[gid], z_lo, z_hi, cell_x, cell_y, nx,
+                 ny, 0, 0, rec_segment, rec_cell, rec_length, n_records, capacity);
 }

@@ -5,6 +5,8 @@
 each cell's box is added to that cell (the track-length estimator, docs/maps.md), with
 float sums by 32-bit compare-and-swap, so a device without 64-bit atomics runs it.
 :func:`accumulate_segments_host` is the numpy reference it is tested against.
+:func:`segment_cells` walks the same cells and returns each segment's length in each
+cell apart, for the coherent sum, whose phases the host weighs in float64.
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ import numpy as np
 
 from clradcom.errors import ArgumentError
 
-__all__ = ["Slab", "accumulate_segments", "accumulate_segments_host"]
+__all__ = ["Slab", "accumulate_segments", "accumulate_segments_host", "segment_cells"]
 
 SOURCE = "maps.cl"
 
@@ -123,6 +125,57 @@ def accumulate_segments(runtime, slab: Slab, origins, directions, lengths, weigh
         power += sums.astype(np.float64) * scale
         count += hits
     return power, count
+
+
+def segment_cells(runtime, slab: Slab, origins, directions, lengths,
+                  capacity: int | None = None):
+    """The cells each segment crosses, walked as :func:`accumulate_segments` walks them:
+    ``(segment, cell, length)`` int64 segment rows, int64 flat cell indices
+    (iy * nx + ix) and float64 lengths (m) inside the cell's box, one record per segment
+    and cell, in the device's order. ``capacity`` (records) is a first guess; a batch that
+    needs more is run again with room for all."""
+    import pyopencl as cl
+
+    origins = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
+    directions = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
+    lengths = np.asarray(lengths, dtype=np.float64).reshape(-1)
+    if not (len(directions) == len(lengths) == len(origins)):
+        raise ArgumentError("origins, directions and lengths must have one row per "
+                            "segment", argument="segments",
+                            value=(len(origins), len(directions), len(lengths)))
+    empty = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0))
+    if not len(origins):
+        return empty
+    kernel = runtime.kernel(SOURCE, "segment_cells")
+    local = runtime.local_size(kernel)
+    o, d = _relative(slab, origins, directions, lengths)
+    capacity = int(capacity or 4 * len(o))
+    mf = cl.mem_flags
+    while True:
+        n_records = np.zeros(1, dtype=np.int32)
+        with runtime.kernel_clock(), runtime.guard("radio map cells of segments"):
+            bufs = [cl.Buffer(runtime.context, mf.WRITE_ONLY, size=4 * capacity)
+                    for _ in range(3)]
+            n_buf = cl.Buffer(runtime.context, mf.READ_WRITE | mf.COPY_HOST_PTR,
+                              hostbuf=n_records)
+            runtime.launch(kernel, len(o), local, runtime.to_device(o), runtime.to_device(d),
+                           np.float32(0.0), np.float32(slab.z_hi - slab.z_lo),
+                           np.float32(slab.cell_x), np.float32(slab.cell_y),
+                           np.int32(slab.nx), np.int32(slab.ny), np.int32(len(o)), *bufs,
+                           n_buf, np.int32(capacity), name="segment_cells")
+            cl.enqueue_copy(runtime.queue, n_records, n_buf, is_blocking=True)
+            total = int(n_records[0])
+            if total > capacity:
+                capacity = total
+                continue
+            seg = np.empty(total, np.int32)
+            cell = np.empty(total, np.int32)
+            length = np.empty(total, np.float32)
+            if total:
+                for host, buf in zip((seg, cell, length), bufs, strict=True):
+                    cl.enqueue_copy(runtime.queue, host, buf, is_blocking=False)
+                runtime.queue.finish()
+        return seg.astype(np.int64), cell.astype(np.int64), length.astype(np.float64)
 
 
 def accumulate_segments_host(slab: Slab, origins, directions, lengths, weights):
