@@ -32,6 +32,10 @@ their reflections, or their wedge), each group's mean power as above and its pha
 the centre from its unfolded length there (float64 on the host), the groups added as
 complex fields; diffuse scattering adds in power.
 
+With ``MapSettings(optics=...)`` the objects the tracer gives physical optics (the cars
+under the paper preset) return their PO facets' fields evaluated at the cell centres
+instead of their GO single reflections (:func:`_po_facets`).
+
 The estimate converges where enough segments pass through a cell: at least
 :data:`MIN_SEGMENTS` (``RadioMap.converged``; docs/maps.md, tests/test_maps.py).
 """
@@ -47,14 +51,24 @@ import numpy as np
 from clradcom.device.maps import Slab, accumulate_segments, segment_cells
 from clradcom.device.raycast import make_rays, spawn_origins
 from clradcom.device.runtime import Runtime
+from clradcom.device.visibility import surface_sees
 from clradcom.errors import ArgumentError, ArgumentTypeError
+from clradcom.geometry.triangles import triangle_normals
 from clradcom.mechanisms import diffraction
 from clradcom.mechanisms.common import Geometry, build_geometry, check_number
 from clradcom.mechanisms.diffraction import DiffractionSettings
+from clradcom.mechanisms.optics import MODES as OPTICS_MODES
+from clradcom.mechanisms.optics import object_optics
 from clradcom.mechanisms.specular import fibonacci_cap, fibonacci_sphere
 from clradcom.memory import check_memory
 from clradcom.physics import utd
-from clradcom.physics.em import C0, fresnel_coefficients, reflected_fields
+from clradcom.physics.em import (
+    C0,
+    fresnel_coefficients,
+    material_reflection_dyad,
+    reflected_fields,
+)
+from clradcom.physics.po import far_field_pieces, po_transfer
 from clradcom.physics.vectors import perpendicular
 from clradcom.scene.records import Radar, Scene
 
@@ -79,6 +93,10 @@ BYTES_PER_RAY = 1200
 #: batch is weighed (its indices, length, phase, complex term and the sort's copies).
 COHERENT_RECORDS_PER_RAY = 4
 BYTES_PER_RECORD = 160
+
+#: Host bytes a facet-cell pair of the PO stage holds while its round is weighed (the
+#: transfer dyads, directions, the facet integral's temporaries, the sight rays).
+BYTES_PER_PO_PAIR = 2000
 
 
 @dataclass(frozen=True)
@@ -111,6 +129,14 @@ class MapSettings:
     #: the cell's centre, the groups added as complex fields; diffuse scattering, random
     #: in phase as the tracer's tiles are, adds in power
     coherent: bool = False
+    #: physical optics as the tracer's OpticsSettings.mode ("none", "pec", "sbr": the
+    #: paper preset's) chooses it per object (objects' own ``optics`` keys first,
+    #: docs/po.md): the first bounce off an object with PO optics is its PO facets'
+    #: field evaluated at the cell centres instead of the GO reflection, and with "po"
+    #: optics (SBR) its later bounces' exit rays run on through the cells
+    optics: str = "none"
+    #: facet-cell pairs of the PO stage weighed together (host memory ~2 kB each)
+    po_batch: int = 1 << 16
     batch: int = 1 << 18  #: rays traced together (host memory: BYTES_PER_RAY each)
 
     def __post_init__(self):
@@ -133,6 +159,11 @@ class MapSettings:
         check_number("MapSettings", "edge_step_m", self.edge_step_m, low=0.0, low_open=True)
         check_number("MapSettings", "cone_step_deg", self.cone_step_deg, low=0.0,
                      high=90.0, low_open=True)
+        if self.optics not in OPTICS_MODES:
+            raise ArgumentError(f"must be one of {', '.join(map(repr, OPTICS_MODES))} "
+                                "(OpticsSettings.mode)", argument="MapSettings.optics",
+                                value=self.optics)
+        check_number("MapSettings", "po_batch", self.po_batch, low=1, integer=True)
 
 
 @dataclass(frozen=True)
@@ -217,6 +248,14 @@ class RadioMap:
     #: True where ``gain`` is the coherent sum (MapSettings.coherent); the incoherent one
     #: is then ``incoherent_gain``
     coherent: bool = False
+    #: physical optics as the tracer's OpticsSettings.mode ("none", "pec", "sbr": the
+    #: paper preset's) chooses it per object (objects' own ``optics`` keys first,
+    #: docs/po.md): the first bounce off an object with PO optics is its PO facets'
+    #: field evaluated at the cell centres instead of the GO reflection, and with "po"
+    #: optics (SBR) its later bounces' exit rays run on through the cells
+    optics: str = "none"
+    #: facet-cell pairs of the PO stage weighed together (host memory ~2 kB each)
+    po_batch: int = 1 << 16
     incoherent_gain: np.ndarray | None = None
     #: coherent maps: the fewest segments of a wavefront group holding >= 1 % of a
     #: cell's power (CellSums.group_count)
@@ -268,9 +307,13 @@ def map_memory_bytes(settings: MapSettings, grid: MapGrid) -> int:
     the launch lattice (24 bytes a ray), and the grid's float64 sums, int64 counts and
     float32/int32 device copies (24 bytes a cell); a coherent map adds its records
     (:data:`COHERENT_RECORDS_PER_RAY` a launched ray, :data:`BYTES_PER_RECORD` each while
-    a batch's are weighed, 40 bytes each kept as a (cell, group) sum)."""
+    a batch's are weighed, 40 bytes each kept as a (cell, group) sum); physical optics
+    a round of :attr:`MapSettings.po_batch` facet-cell pairs (:data:`BYTES_PER_PO_PAIR`
+    each)."""
     need = (min(settings.batch, settings.rays) * BYTES_PER_RAY + 24 * settings.rays
             + 24 * grid.n_cells)
+    if settings.optics != "none":
+        need += settings.po_batch * BYTES_PER_PO_PAIR
     if settings.coherent:
         need += COHERENT_RECORDS_PER_RAY * (
             min(settings.batch, settings.rays) * BYTES_PER_RECORD + 40 * settings.rays)
@@ -388,6 +431,7 @@ class CellSums:
         self._n = np.zeros(0, dtype=np.int64)
         self._z = np.zeros((0, 1), dtype=np.complex128)
         self._centres = grid.centres().reshape(-1, 3)
+        self._points: np.ndarray | None = None  # fields evaluated at the centres
 
     def add(self, origins, directions, lengths, weights, wave: Wave | None = None) -> None:
         """Segments (origin, unit direction, length to their end, weight per metre)."""
@@ -423,6 +467,24 @@ class CellSums:
                             + 1j * np.bincount(inverse, zz[:, c].imag)
                             for c in range(zz.shape[1])], axis=1)
 
+    def add_at_centres(self, cell, amplitude) -> None:
+        """Complex amplitudes (S, C) evaluated at the centres of cells ``cell`` (S,)
+        (the PO facets' fields): their power adds to the incoherent sums and, coherent,
+        the amplitudes themselves to the cell's field, each exact at the centre."""
+        cell = np.asarray(cell, dtype=np.int64)
+        amplitude = np.asarray(amplitude, dtype=np.complex128)
+        n_cells = self.grid.n_cells
+        power = np.sum(np.abs(amplitude) ** 2, axis=1)
+        self.power += np.bincount(cell, power, minlength=n_cells).reshape(self.power.shape)
+        if not self.coherent:
+            return
+        if self._points is None:
+            self._points = np.zeros((n_cells, amplitude.shape[1]), dtype=np.complex128)
+        for c in range(amplitude.shape[1]):
+            self._points[:, c] += (np.bincount(cell, amplitude[:, c].real, minlength=n_cells)
+                                   + 1j * np.bincount(cell, amplitude[:, c].imag,
+                                                      minlength=n_cells))
+
     def _group_ids(self, rows: np.ndarray) -> np.ndarray:
         unique, inverse = np.unique(np.asarray(rows, dtype=np.int64), axis=0,
                                     return_inverse=True)
@@ -453,7 +515,8 @@ class CellSums:
         return fewest.reshape(self.power.shape)
 
     def coherent_gain(self) -> np.ndarray:
-        """(ny, nx): |sum over groups of sqrt(W) Z / |Z||^2 plus the power-only sums."""
+        """(ny, nx): |sum over groups of sqrt(W) Z / |Z| plus the fields evaluated at the
+        centres|^2, plus the power-only sums."""
         n_cells = self.grid.n_cells
         size = np.linalg.norm(self._z, axis=1)
         amplitude = np.sqrt(self._w)[:, None] * self._z / np.where(size > 0, size,
@@ -463,6 +526,8 @@ class CellSums:
                           + 1j * np.bincount(cell, amplitude[:, c].imag,
                                              minlength=n_cells)
                           for c in range(amplitude.shape[1])], axis=1)
+        if self._points is not None:
+            field = field + self._points if len(self._keys) else self._points
         gain = np.sum(np.abs(field) ** 2, axis=1).reshape(self.power.shape)
         return gain + self.power_only
 
@@ -646,6 +711,115 @@ def _diffract(scene, geom, slab, wedges, tx: Radar, receiver, scale, settings,
                 points)))
 
 
+def _po_facets(scene, geom, grid: MapGrid, tx: Radar, receiver, objects, settings,
+               sums: CellSums) -> None:
+    """The PO facet returns of ``objects`` at every cell centre: the tracer's
+    :func:`clradcom.mechanisms.physical_optics.po_paths` with a receiver at each centre.
+    A facet lit from tx (front side, or either side of a two-sided object; inside tx's
+    pattern; its centroid seeing tx) radiates to the centres on its lit side that its
+    centroid sees, E = (lambda / 4 pi) T e_tx e^{-jkL} / L with T of
+    :func:`clradcom.physics.po.po_transfer` (PEC current, or a penetrable material's
+    Fresnel-weighted currents), received as the map's receiver takes a field. Pairs
+    with the centre in a facet's near zone (closer than 2 D) are split into far-field
+    pieces as the tracer's default ``split="near"`` does. The tracer's floor (facets
+    80 dB under the link's strongest dropped) is not applied: such terms add nothing
+    visible to a power."""
+    tri = np.flatnonzero(np.isin(scene.tri_object, objects))
+    if not len(tri):
+        return
+    v = np.asarray(scene.triangles)[tri]
+    normal = triangle_normals(v)
+    centroid = v.mean(axis=1)
+    tx_pos = np.asarray(tx.position, dtype=np.float64)
+    side = np.einsum("ij,ij->i", normal, tx_pos - centroid)
+    two_sided = np.asarray(scene.tri_two_sided)[tri]
+    normal = np.where((two_sided & (side < 0))[:, None], -normal, normal)
+    lit = (side > 0) | (two_sided & (side < 0))
+    to_facet = centroid - tx_pos
+    k_dep = to_facet / np.linalg.norm(to_facet, axis=1)[:, None]
+    rot = np.asarray(tx.orientation, dtype=np.float64)
+    c_tx = np.asarray(tx.pattern.field(_rotate(k_dep, rot)), dtype=np.complex128)
+    lit &= np.abs(c_tx).sum(axis=1) > 0
+    idx = np.flatnonzero(lit)
+    if len(idx):
+        lit[idx[~surface_sees(geom.caster, centroid[idx], normal[idx], tx_pos, tri[idx],
+                              tri_face=geom.faces.tri_face, engine=geom.engine)]] = False
+    keep = np.flatnonzero(lit)
+    if not len(keep):
+        return
+    tri, v, normal, centroid, k_dep, c_tx = (a[keep] for a in (tri, v, normal, centroid,
+                                                               k_dep, c_tx))
+    th, ph = _basis(k_dep, rot)
+    e_tx = c_tx[:, :1] * th + c_tx[:, 1:] * ph
+    material = np.asarray(scene.tri_material)[tri]
+    pec = np.asarray(scene.material_pec)[material]
+    size = np.max(np.linalg.norm(v - np.roll(v, 1, axis=1), axis=2), axis=1)
+    centres = grid.centres().reshape(-1, 3)
+    n_cells = len(centres)
+    k = 2.0 * np.pi / scene.wavelength_m
+    lam = scene.wavelength_m
+    per_round = max(1, settings.po_batch // n_cells)
+    for start in range(0, len(tri), per_round):
+        f = np.repeat(np.arange(start, min(start + per_round, len(tri))), n_cells)
+        cell = np.tile(np.arange(n_cells), len(f) // n_cells)
+        toward = centres[cell] - centroid[f]
+        front = np.einsum("ij,ij->i", normal[f], toward) > 0
+        f, cell = f[front], cell[front]
+        if not len(f):
+            continue
+        sees = surface_sees(geom.caster, centroid[f], normal[f], centres[cell], tri[f],
+                            tri_face=geom.faces.tri_face, engine=geom.engine)
+        f, cell = f[sees], cell[sees]
+        if not len(f):
+            continue
+        near = (np.linalg.norm(centres[cell] - centroid[f], axis=1) < 2.0 * size[f]) | (
+            np.linalg.norm(tx_pos - centroid[f], axis=1) < 2.0 * size[f])
+        amplitude = []
+        cells = []
+        far = np.flatnonzero(~near)
+        if len(far):
+            amplitude.append(_po_received(scene, v[f[far]], normal[f[far]], pec[f[far]],
+                                          material[f[far]], tx_pos, centres[cell[far]],
+                                          e_tx[f[far]], receiver, k, lam))
+            cells.append(cell[far])
+        for c in np.unique(cell[near]):
+            rows = f[near][cell[near] == c]
+            pieces, parent, _ = far_field_pieces(v[rows], [tx_pos, centres[c]], lam, "near")
+            each = _po_received(scene, pieces, normal[rows][parent], pec[rows][parent],
+                                material[rows][parent], tx_pos,
+                                np.broadcast_to(centres[c], (len(pieces), 3)),
+                                e_tx[rows][parent], receiver, k, lam)
+            # a facet's pieces are one facet's return: summed as fields, as the tracer's
+            facet = np.zeros((len(rows), each.shape[1]), dtype=np.complex128)
+            np.add.at(facet, parent, each)
+            amplitude.append(facet)
+            cells.append(np.full(len(rows), c))
+        sums.add_at_centres(np.concatenate(cells), np.concatenate(amplitude))
+
+
+def _po_received(scene, v, normal, pec, material, tx_pos, points, e_tx, receiver, k,
+                 lam) -> np.ndarray:
+    """The receiver's amplitude (S, C) of PO facets (or pieces) ``v`` lit by tx's field
+    ``e_tx`` at ``points``: the PEC rows with the PEC current, the others with their
+    material's reflection dyad (:func:`~clradcom.physics.em.material_reflection_dyad`),
+    as :mod:`clradcom.mechanisms.physical_optics` takes them."""
+    amplitude = None
+    for rows, metal in ((np.flatnonzero(pec), True), (np.flatnonzero(~pec), False)):
+        if not len(rows):
+            continue
+        reflection = None if metal else (
+            lambda k_in, n, m=material[rows]: material_reflection_dyad(scene, m, k_in, n))
+        T, L, _, _, k_arr = po_transfer(v[rows], normal[rows], tx_pos, points[rows],
+                                        scene.carrier_hz, reflection)
+        field = (np.einsum("rij,rj->ri", T, e_tx[rows])
+                 * (lam / (4.0 * np.pi) * np.exp(-1j * k * L) / L)[:, None])
+        p = _projection(field, k_arr, receiver)
+        if amplitude is None:
+            amplitude = np.zeros((len(v), p.shape[1]), dtype=np.complex128)
+        amplitude[rows] = p
+    return amplitude
+
+
 def _edge_path_length(source, start, direction, points) -> np.ndarray:
     """The shortest length (m) from ``source`` (3,) via the infinite line through
     ``start`` along unit ``direction`` (R, 3) to ``points`` (R, 3): the unfolded length of
@@ -736,6 +910,12 @@ def radio_map(scene: Scene, tx, grid: MapGrid, rx=None, settings: MapSettings | 
     normals = geom.caster.normals64() if geom.caster is not None else None
     corners = geom.caster.triangles[:, 0] if geom.caster is not None else None
     tri_material = np.asarray(scene.tri_material)
+    tri_object = np.asarray(scene.tri_object)
+    # physical optics as the tracer chooses it (optics.replaced_paths): an object with PO
+    # facets gives no GO single reflection; one with SBR-PO keeps its later bounces'
+    # exit rays (the GO limit of its tubes' footprint radiation)
+    modes = np.array(object_optics(scene, settings.optics))
+    po_objects = np.flatnonzero(modes != "go")
     n_batches = -(-len(local) // settings.batch)
     rng = np.random.default_rng(settings.seed)
     for b, start in enumerate(range(0, len(local), settings.batch)):
@@ -751,6 +931,7 @@ def radio_map(scene: Scene, tx, grid: MapGrid, rx=None, settings: MapSettings | 
         # mirrored in the planes of the faces it reflected off (float64, from the faces'
         # own corners, so the hit points' float32 rounding does not enter)
         image = org.copy()
+        last_prim = np.full(len(dirs), -1)
         for order in range(settings.max_reflections + 1):
             if geom.caster is not None and len(dirs):
                 hits = geom.caster.closest_hit(make_rays(org, dirs))
@@ -761,6 +942,8 @@ def radio_map(scene: Scene, tx, grid: MapGrid, rx=None, settings: MapSettings | 
                 prim = np.full(len(dirs), -1)
             if order > 0 or settings.line_of_sight:
                 near = _reaches(slab, org, dirs, t)
+                if order == 1 and len(po_objects):
+                    near &= ~np.isin(tri_object[last_prim], po_objects)
                 polar = _projection(field[near], dirs[near], receiver)
                 weights = scale * np.sum(np.abs(polar) ** 2, axis=1)
                 wave = None
@@ -782,6 +965,7 @@ def radio_map(scene: Scene, tx, grid: MapGrid, rx=None, settings: MapSettings | 
                 break
             org, dirs, field, t, prim, image = (a[hit] for a in (org, dirs, field, t, prim,
                                                                  image))
+            last_prim = prim
             n = normals[prim]
             point = org + t[:, None] * dirs
             field = reflected_fields(scene, tri_material[prim], dirs, n, field)
@@ -789,8 +973,11 @@ def radio_map(scene: Scene, tx, grid: MapGrid, rx=None, settings: MapSettings | 
             dirs = dirs - 2.0 * np.einsum("ij,ij->i", dirs, n)[:, None] * n
             dirs /= np.linalg.norm(dirs, axis=1)[:, None]
             org = spawn_origins(point, n, dirs)
+    if len(po_objects) and geom.caster is not None:
+        _po_facets(scene, geom, grid, transmitter, receiver, po_objects, settings, sums)
     if settings.diffraction and geom.caster is not None:
-        wedges = diffraction.prepare(geom, DiffractionSettings(max_diffractions=1))
+        wedges = diffraction.prepare(geom, DiffractionSettings(max_diffractions=1),
+                                     po_objects)
         if wedges is not None and len(wedges):
             _diffract(scene, geom, slab, wedges, transmitter, receiver, scale / solid_angle,
                       settings, sums)

@@ -192,3 +192,4 @@ def test_map_command_writes_the_coherent_map(tmp_path, capsys):
     assert reached.sum() > 0.5 * reached.size
     assert np.allclose(data["value_db"][reached], coherent.value_db[reached], atol=1e-6)
     assert np.abs(coherent.value_db - incoherent.value_db)[reached].max() > 3.0
+

@@ -9,7 +9,8 @@ Rays are shot from one radar and their segments accumulated into the cells of a
 horizontal layer (--height, --thickness) over a rectangle (--area, default the scene's
 footprint) on the OpenCL device (docs/maps.md); line of sight, up to --reflections
 specular reflections and, with --scattering and --diffraction, diffuse scattering and
-first-order edge diffraction; --coherent adds the wavefronts as fields at the carrier
+first-order edge diffraction; --optics sbr gives the cars (the targets) their physical
+optics as the tracer's paper preset does; --coherent adds the wavefronts as fields at the carrier
 (cells small against the interference fringes). The kinds:
 
   gain    received power of --tx's frame (dBW) with --rx's antenna in each cell (without
@@ -115,6 +116,10 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--cone-step", type=positive_float, default=1.0,
                     help="with --diffraction: Keller-cone ray spacing in degrees "
                          "(default 1)")
+    ap.add_argument("--optics", choices=("none", "pec", "sbr"), default="none",
+                    help="physical optics as the tracer's --physical-optics chooses it per "
+                         "object (sbr: the paper preset's; the cars' first bounce becomes "
+                         "their PO facets' field at the cell centres; default none: GO)")
     ap.add_argument("--coherent", action="store_true",
                     help="the coherent sum at the carrier: each wavefront's power per cell "
                          "with its phase at the cell's centre, added as fields (for cells "
@@ -192,7 +197,8 @@ def run(args) -> int:
     settings = MapSettings(rays=args.rays, max_reflections=args.reflections,
                            scattering=args.scattering, diffuse_rays=args.diffuse_rays,
                            diffraction=args.diffraction, edge_step_m=args.edge_step,
-                           cone_step_deg=args.cone_step, coherent=args.coherent)
+                           cone_step_deg=args.cone_step, coherent=args.coherent,
+                           optics=args.optics)
     budget = None if args.memory_budget is None else parse_bytes(args.memory_budget,
                                                                  "--memory-budget")
     need = map_memory_bytes(settings, grid)
@@ -207,7 +213,8 @@ def run(args) -> int:
           f"at z = {grid.height_m:g} m ({grid.thickness:g} m thick), {args.rays} rays, "
           f"{args.reflections} reflections{', scattering' if args.scattering else ''}"
           f"{', diffraction' if args.diffraction else ''}"
-          f"{', coherent' if args.coherent else ''}; "
+          f"{', coherent' if args.coherent else ''}"
+          f"{'' if args.optics == 'none' else ', optics ' + args.optics}; "
           f"{frame}", flush=True)
     n_maps = 2 if args.kind == "sinr" and args.interferer is not None else 1
     with progress_bar(n_maps, f"{args.kind} map", quiet=args.quiet, unit="batch") as bar:
@@ -237,7 +244,8 @@ def run(args) -> int:
             "tx": args.tx, "rx": args.rx, "interferer": args.interferer,
             "rays": args.rays, "reflections": args.reflections,
             "scattering": args.scattering, "diffraction": args.diffraction,
-            "coherent": args.coherent, "min_segments": MIN_SEGMENTS}
+            "coherent": args.coherent, "optics": args.optics,
+            "min_segments": MIN_SEGMENTS}
     sources = scene.input_files
     target = Path(args.out)
     with staged_folder(target, inputs=sources, owned=OUTPUTS) as stage:
