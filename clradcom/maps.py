@@ -43,12 +43,13 @@ The estimate converges where enough segments pass through a cell: at least
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
-from clradcom.device.maps import Slab, accumulate_segments, segment_cells
+from clradcom.device.maps import Slab, accumulate_segments, po_facet_fields, segment_cells
 from clradcom.device.raycast import make_rays, spawn_origins
 from clradcom.device.runtime import Runtime
 from clradcom.device.visibility import surface_sees
@@ -68,7 +69,7 @@ from clradcom.physics.em import (
     material_reflection_dyad,
     reflected_fields,
 )
-from clradcom.physics.po import far_field_pieces, po_transfer
+from clradcom.physics.po import MAX_SUBDIVISION_LEVELS, NEAR_SIZE_FACTOR, po_transfer
 from clradcom.physics.vectors import perpendicular
 from clradcom.scene.records import Radar, Scene
 
@@ -137,6 +138,10 @@ class MapSettings:
     optics: str = "none"
     #: facet-cell pairs of the PO stage weighed together (host memory ~2 kB each)
     po_batch: int = 1 << 16
+    #: where the PEC facets' PO fields are evaluated: "device" (float32 about the grid's
+    #: corner, the carrier phase in float64 on the host) or "host" (float64 numpy, the
+    #: tracer's po_transfer)
+    po_engine: str = "device"
     batch: int = 1 << 18  #: rays traced together (host memory: BYTES_PER_RAY each)
 
     def __post_init__(self):
@@ -164,6 +169,9 @@ class MapSettings:
                                 "(OpticsSettings.mode)", argument="MapSettings.optics",
                                 value=self.optics)
         check_number("MapSettings", "po_batch", self.po_batch, low=1, integer=True)
+        if self.po_engine not in ("device", "host"):
+            raise ArgumentError("must be 'device' or 'host'", argument="MapSettings.po_engine",
+                                value=self.po_engine)
 
 
 @dataclass(frozen=True)
@@ -256,10 +264,17 @@ class RadioMap:
     optics: str = "none"
     #: facet-cell pairs of the PO stage weighed together (host memory ~2 kB each)
     po_batch: int = 1 << 16
+    #: where the PEC facets' PO fields are evaluated: "device" (float32 about the grid's
+    #: corner, the carrier phase in float64 on the host) or "host" (float64 numpy, the
+    #: tracer's po_transfer)
+    po_engine: str = "device"
     incoherent_gain: np.ndarray | None = None
     #: coherent maps: the fewest segments of a wavefront group holding >= 1 % of a
     #: cell's power (CellSums.group_count)
     group_count: np.ndarray | None = None
+    #: wall seconds of the stages: "rays" (launch, bounces, scattering, accumulation),
+    #: "physical optics", "diffraction", "coherent sum"
+    stage_seconds: dict[str, float] | None = None
 
     @property
     def converged(self) -> np.ndarray:
@@ -753,66 +768,109 @@ def _po_facets(scene, geom, grid: MapGrid, tx: Radar, receiver, objects, setting
     e_tx = c_tx[:, :1] * th + c_tx[:, 1:] * ph
     material = np.asarray(scene.tri_material)[tri]
     pec = np.asarray(scene.material_pec)[material]
-    size = np.max(np.linalg.norm(v - np.roll(v, 1, axis=1), axis=2), axis=1)
     centres = grid.centres().reshape(-1, 3)
     n_cells = len(centres)
     k = 2.0 * np.pi / scene.wavelength_m
     lam = scene.wavelength_m
     per_round = max(1, settings.po_batch // n_cells)
+    corner = np.array([grid.x_min, grid.y_min, grid.height_m])
+    offset = np.einsum("ij,ij->i", normal, centroid)
     for start in range(0, len(tri), per_round):
-        f = np.repeat(np.arange(start, min(start + per_round, len(tri))), n_cells)
-        cell = np.tile(np.arange(n_cells), len(f) // n_cells)
-        toward = centres[cell] - centroid[f]
-        front = np.einsum("ij,ij->i", normal[f], toward) > 0
-        f, cell = f[front], cell[front]
+        block = slice(start, min(start + per_round, len(tri)))
+        # the centres on each facet's lit side: n . centre > n . centroid
+        front = np.einsum("ij,kj->ik", normal[block], centres) > offset[block, None]
+        f, cell = np.nonzero(front)
         if not len(f):
             continue
-        sees = surface_sees(geom.caster, centroid[f], normal[f], centres[cell], tri[f],
-                            tri_face=geom.faces.tri_face, engine=geom.engine)
+        f += start
+        toward = centres[cell] - centroid[f]
+        # one float32 sight ray per pair: a cell centre stands in free space, not on a
+        # face, so the tracer's float64 confirmation of an antenna's last millimetres
+        # (surface_sees) decides nothing here and costs 20x the cast
+        origin = spawn_origins(centroid[f], normal[f], toward)
+        sees = ~geom.caster.occluded(make_rays(origin, centres[cell] - origin, tmin=0.0,
+                                               tmax=1.0 - 1e-6), ignore_prim=tri[f])
         f, cell = f[sees], cell[sees]
         if not len(f):
             continue
-        near = (np.linalg.norm(centres[cell] - centroid[f], axis=1) < 2.0 * size[f]) | (
-            np.linalg.norm(tx_pos - centroid[f], axis=1) < 2.0 * size[f])
-        amplitude = []
-        cells = []
-        far = np.flatnonzero(~near)
-        if len(far):
-            amplitude.append(_po_received(scene, v[f[far]], normal[f[far]], pec[f[far]],
-                                          material[f[far]], tx_pos, centres[cell[far]],
-                                          e_tx[f[far]], receiver, k, lam))
-            cells.append(cell[far])
-        for c in np.unique(cell[near]):
-            rows = f[near][cell[near] == c]
-            pieces, parent, _ = far_field_pieces(v[rows], [tx_pos, centres[c]], lam, "near")
-            each = _po_received(scene, pieces, normal[rows][parent], pec[rows][parent],
-                                material[rows][parent], tx_pos,
-                                np.broadcast_to(centres[c], (len(pieces), 3)),
-                                e_tx[rows][parent], receiver, k, lam)
-            # a facet's pieces are one facet's return: summed as fields, as the tracer's
-            facet = np.zeros((len(rows), each.shape[1]), dtype=np.complex128)
-            np.add.at(facet, parent, each)
-            amplitude.append(facet)
-            cells.append(np.full(len(rows), c))
-        sums.add_at_centres(np.concatenate(cells), np.concatenate(amplitude))
+        # pairs with tx or the centre in a facet's near zone: split into far-field pieces
+        # (each pair its own), summed back per pair as fields, as po_paths does
+        pieces, parent = _near_zone_pieces(v[f], tx_pos, centres[cell])
+        each = _po_received(scene, pieces, normal[f][parent], pec[f][parent],
+                            material[f][parent], tx_pos, centres[cell][parent],
+                            e_tx[f][parent], receiver, k, lam,
+                            runtime=None if settings.po_engine == "host" else geom.runtime,
+                            corner=corner)
+        if len(pieces) == len(f):  # nothing split: parent is 0, 1, 2, ...
+            amplitude = each
+        else:
+            amplitude = np.stack([np.bincount(parent, each[:, c].real, minlength=len(f))
+                                  + 1j * np.bincount(parent, each[:, c].imag,
+                                                     minlength=len(f))
+                                  for c in range(each.shape[1])], axis=1)
+        sums.add_at_centres(cell, amplitude)
+
+
+def _near_zone_pieces(v, source, points) -> tuple[np.ndarray, np.ndarray]:
+    """(pieces (P, 3, 3), parent (P,)): facet-point pairs (v (S, 3, 3), points (S, 3))
+    cut into midpoint quarters until neither ``source`` nor the pair's point lies in a
+    piece's near zone (closer than NEAR_SIZE_FACTOR times its longest edge), at most
+    MAX_SUBDIVISION_LEVELS times: :func:`clradcom.physics.po.far_field_pieces`' rule
+    "near" with each pair's own antennas, so one call serves every cell."""
+    parent = np.arange(len(v))
+    done_v, done_p = [], []
+    for level in range(MAX_SUBDIVISION_LEVELS + 1):
+        size = np.sqrt(np.max(np.sum((v - v[:, [1, 2, 0]]) ** 2, axis=-1), axis=1))
+        centre = v.mean(axis=1)
+        reach = np.minimum(np.linalg.norm(centre - source, axis=1),
+                           np.linalg.norm(centre - points[parent], axis=1))
+        ok = reach >= NEAR_SIZE_FACTOR * size
+        if level == MAX_SUBDIVISION_LEVELS or ok.all():
+            done_v.append(v)
+            done_p.append(parent)
+            break
+        done_v.append(v[ok])
+        done_p.append(parent[ok])
+        split = v[~ok]
+        mids = 0.5 * (split + split[:, [1, 2, 0]])  # m01, m12, m20
+        v = np.stack([np.stack([split[:, 0], mids[:, 0], mids[:, 2]], axis=1),
+                      np.stack([mids[:, 0], split[:, 1], mids[:, 1]], axis=1),
+                      np.stack([mids[:, 2], mids[:, 1], split[:, 2]], axis=1),
+                      mids], axis=1).reshape(-1, 3, 3)
+        parent = np.repeat(parent[~ok], 4)
+    return np.concatenate(done_v), np.concatenate(done_p)
 
 
 def _po_received(scene, v, normal, pec, material, tx_pos, points, e_tx, receiver, k,
-                 lam) -> np.ndarray:
+                 lam, runtime=None, corner=None) -> np.ndarray:
     """The receiver's amplitude (S, C) of PO facets (or pieces) ``v`` lit by tx's field
     ``e_tx`` at ``points``: the PEC rows with the PEC current, the others with their
     material's reflection dyad (:func:`~clradcom.physics.em.material_reflection_dyad`),
-    as :mod:`clradcom.mechanisms.physical_optics` takes them."""
+    as :mod:`clradcom.mechanisms.physical_optics` takes them. With a ``runtime`` the
+    PEC rows' fields are the device's (:func:`clradcom.device.maps.po_facet_fields`,
+    positions relative to ``corner``); without, the host's float64 reference."""
     amplitude = None
     for rows, metal in ((np.flatnonzero(pec), True), (np.flatnonzero(~pec), False)):
         if not len(rows):
             continue
-        reflection = None if metal else (
-            lambda k_in, n, m=material[rows]: material_reflection_dyad(scene, m, k_in, n))
-        T, L, _, _, k_arr = po_transfer(v[rows], normal[rows], tx_pos, points[rows],
-                                        scene.carrier_hz, reflection)
-        field = (np.einsum("rij,rj->ri", T, e_tx[rows])
-                 * (lam / (4.0 * np.pi) * np.exp(-1j * k * L) / L)[:, None])
+        if metal and runtime is not None:
+            # the PEC facets on the device, the carrier phase of the float64 length here
+            centroid = v[rows].mean(axis=1)
+            r_t = np.linalg.norm(centroid - tx_pos, axis=1)
+            to_point = points[rows] - centroid
+            r_r = np.linalg.norm(to_point, axis=1)
+            k_arr = to_point / r_r[:, None]
+            field = po_facet_fields(runtime, corner, v[rows], normal[rows], e_tx[rows],
+                                    tx_pos, points[rows], k)
+            field *= (lam / (4.0 * np.pi) * np.exp(-1j * k * (r_t + r_r)))[:, None]
+        else:
+            reflection = None if metal else (
+                lambda k_in, n, m=material[rows]: material_reflection_dyad(scene, m, k_in,
+                                                                           n))
+            T, L, _, _, k_arr = po_transfer(v[rows], normal[rows], tx_pos, points[rows],
+                                            scene.carrier_hz, reflection)
+            field = (np.einsum("rij,rj->ri", T, e_tx[rows])
+                     * (lam / (4.0 * np.pi) * np.exp(-1j * k * L) / L)[:, None])
         p = _projection(field, k_arr, receiver)
         if amplitude is None:
             amplitude = np.zeros((len(v), p.shape[1]), dtype=np.complex128)
@@ -918,6 +976,8 @@ def radio_map(scene: Scene, tx, grid: MapGrid, rx=None, settings: MapSettings | 
     po_objects = np.flatnonzero(modes != "go")
     n_batches = -(-len(local) // settings.batch)
     rng = np.random.default_rng(settings.seed)
+    clock = time.perf_counter()
+    seconds: dict[str, float] = {}
     for b, start in enumerate(range(0, len(local), settings.batch)):
         if steps is not None:
             steps(b, n_batches)
@@ -973,8 +1033,12 @@ def radio_map(scene: Scene, tx, grid: MapGrid, rx=None, settings: MapSettings | 
             dirs = dirs - 2.0 * np.einsum("ij,ij->i", dirs, n)[:, None] * n
             dirs /= np.linalg.norm(dirs, axis=1)[:, None]
             org = spawn_origins(point, n, dirs)
+    seconds["rays"] = time.perf_counter() - clock
     if len(po_objects) and geom.caster is not None:
+        clock = time.perf_counter()
         _po_facets(scene, geom, grid, transmitter, receiver, po_objects, settings, sums)
+        seconds["physical optics"] = time.perf_counter() - clock
+    clock = time.perf_counter()
     if settings.diffraction and geom.caster is not None:
         wedges = diffraction.prepare(geom, DiffractionSettings(max_diffractions=1),
                                      po_objects)
@@ -983,10 +1047,14 @@ def radio_map(scene: Scene, tx, grid: MapGrid, rx=None, settings: MapSettings | 
                       settings, sums)
     if steps is not None:
         steps(n_batches, n_batches)
+    seconds["diffraction"] = time.perf_counter() - clock
+    clock = time.perf_counter()
     incoherent = sums.incoherent()
     gain = sums.coherent_gain() if settings.coherent else incoherent
+    seconds["coherent sum"] = time.perf_counter() - clock
     return RadioMap(grid=grid, gain=gain, count=sums.count, tx_name=transmitter.name,
                     rx_name=None if receiver is None else receiver.name, rays=len(local),
                     tx_power_w=float(transmitter.tx_power_w), coherent=settings.coherent,
                     incoherent_gain=incoherent if settings.coherent else None,
-                    group_count=sums.group_count() if settings.coherent else None)
+                    group_count=sums.group_count() if settings.coherent else None,
+                    stage_seconds=seconds)

@@ -40,8 +40,9 @@ def test_po_facets_at_the_cell_centres_are_the_tracers_po_paths(runtime):
     fields at the cell centres against trace_scene's PO paths to receivers there, at 30
     cells around the car, 2 to 8 m from it (facets near a centre split into far-field
     pieces as the tracer's): within 0.01 dB (the same facets, visibility and integrals;
-    measured at most 6e-5 dB), and the coherent map within 0.01 dB of the traced
-    |sum_k a_k|^2 (the facets' fields add exactly at the centre). The GO map of the
+    measured at most 6e-5 dB), and the coherent map
+    within 2e-3 of the incoherent power from the traced |sum_k a_k|^2 (the facets'
+    fields add exactly at the centre). The GO map of the
     same car misses them by far: a faceted body gives GO a glint only where a facet's
     normal bisects the directions."""
     tx = radar("tx", [0, 0, 0.5], role="tx", polarization="V",
@@ -77,11 +78,47 @@ def test_po_facets_at_the_cell_centres_are_the_tracers_po_paths(runtime):
     err = np.abs(10 * np.log10(m.gain[pick[:, 0], pick[:, 1]] / traced))
     assert err.max() <= 0.01, np.sort(err)[-5:]
     traced_coherent = np.array([abs(np.sum(link.paths.gain)) ** 2 for link in snap.links])
-    err = np.abs(10 * np.log10(coherent.gain[pick[:, 0], pick[:, 1]] / traced_coherent))
-    assert err.max() <= 0.01, np.sort(err)[-5:]
+    err = np.abs(coherent.gain[pick[:, 0], pick[:, 1]] - traced_coherent) / traced
+    assert err.max() <= 2e-3, np.sort(err)[-5:]
     with np.errstate(divide="ignore"):
         go_err = np.abs(10 * np.log10(go.gain[pick[:, 0], pick[:, 1]] / traced))
     assert np.median(go_err) > 3.0, np.median(go_err)
+
+
+def device_vs_host(runtime):
+    """(worst |device - host| of the coherent map, of the incoherent one), each over the
+    incoherent power, on the car at 0.25 m cells (~10^5 facet-cell pairs, near-zone
+    pieces among them)."""
+    tx = radar("tx", [0, 0, 0.5], role="tx", polarization="V",
+               pattern={"type": "cosine", "half_power_beamwidth_deg": 90.0})
+    scene = car_scene([tx, radar("rx", [5, 0, 0.5], role="rx", polarization="H",
+                                 pattern="isotropic")])
+    grid = MapGrid(2, 16, -8, 8, 0.5, cell_m=0.25)
+    maps = {engine: radio_map(scene, "tx", grid, rx="rx", runtime=runtime,
+                              settings=MapSettings(rays=1000, max_reflections=1,
+                                                   line_of_sight=False, optics="sbr",
+                                                   coherent=True, po_engine=engine))
+            for engine in ("device", "host")}
+    power = maps["host"].incoherent_gain
+    reached = power > 0
+    assert reached.mean() > 0.5
+    assert np.array_equal(maps["device"].incoherent_gain > 0, reached)
+    return tuple(float((np.abs(getattr(maps["device"], layer) - getattr(maps["host"], layer))
+                        [reached] / power[reached]).max())
+                 for layer in ("gain", "incoherent_gain"))
+
+
+@pytest.mark.filterwarnings("ignore::clradcom.errors.FresnelZoneWarning")
+def test_device_po_fields_match_the_float64_host_reference(runtime, no_fp64):
+    """The PEC facets' PO fields on the device (about the grid's corner, the carrier
+    phase in float64 on the host) against the host's float64 po_transfer: in double
+    (fp64 devices) to 1e-9 of the incoherent power (measured 1.3e-11); in float32
+    (devices without fp64) to 1e-2 (0.04 dB; measured 4.9e-3 on PoCL), the far
+    sidelobes' edge sums losing what float32 loses of terms 500 times the lobe."""
+    assert runtime.info.has_double
+    assert max(device_vs_host(runtime)) < 1e-9
+    coherent, incoherent = device_vs_host(no_fp64)
+    assert coherent < 1e-2 and incoherent < 1e-2, (coherent, incoherent)
 
 
 BOX_SCENE = """

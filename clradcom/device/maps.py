@@ -7,6 +7,8 @@ float sums by 32-bit compare-and-swap, so a device without 64-bit atomics runs i
 :func:`accumulate_segments_host` is the numpy reference it is tested against.
 :func:`segment_cells` walks the same cells and returns each segment's length in each
 cell apart, for the coherent sum, whose phases the host weighs in float64.
+:func:`po_facet_fields` evaluates PEC facets' physical-optics fields at points (the cell
+centres), without the carrier phase, which the host adds in float64.
 """
 
 from __future__ import annotations
@@ -17,7 +19,8 @@ import numpy as np
 
 from clradcom.errors import ArgumentError
 
-__all__ = ["Slab", "accumulate_segments", "accumulate_segments_host", "segment_cells"]
+__all__ = ["Slab", "accumulate_segments", "accumulate_segments_host", "po_facet_fields",
+           "segment_cells"]
 
 SOURCE = "maps.cl"
 
@@ -176,6 +179,56 @@ def segment_cells(runtime, slab: Slab, origins, directions, lengths,
                     cl.enqueue_copy(runtime.queue, host, buf, is_blocking=False)
                 runtime.queue.finish()
         return seg.astype(np.int64), cell.astype(np.int64), length.astype(np.float64)
+
+
+def po_facet_fields(runtime, corner, vertices, normals, e_tx, source, points,
+                    wavenumber: float, batch: int = 1 << 18) -> np.ndarray:
+    """(S, 3) complex: the PO field of PEC facet-point pairs on the device, F with the
+    field at the point (lambda / 4 pi) e^{-jkL} F (kernels/maps.cl po_facet_fields;
+    :func:`clradcom.physics.po.po_transfer` times ``e_tx`` over L without e^{-jkL}).
+    ``vertices`` (S, 3, 3), lit-side unit ``normals`` (S, 3), the transmitter's field
+    ``e_tx`` (S, 3) complex at the facet, ``source`` (3,) the transmitter, ``points``
+    (S, 3), all world float64, sent relative to ``corner`` (3,): in double where the
+    device has fp64 (a far sidelobe is a small difference of large edge terms), else in
+    float32 (1e-3 of such a lobe)."""
+    import pyopencl as cl
+
+    vertices = np.asarray(vertices, dtype=np.float64).reshape(-1, 3, 3)
+    count = len(vertices)
+    out = np.zeros((count, 3), dtype=np.complex128)
+    if not count:
+        return out
+    corner = np.asarray(corner, dtype=np.float64)
+    double = bool(runtime.info.has_double)
+    real = np.float64 if double else np.float32
+    kernel = runtime.kernel(SOURCE, "po_facet_fields",
+                            defines={"PO_DOUBLE": 1} if double else None)
+    local = runtime.local_size(kernel)
+    src = np.zeros(4, dtype=real)
+    src[:3] = np.asarray(source, dtype=np.float64) - corner
+    src[3] = wavenumber
+    e_tx = np.asarray(e_tx, dtype=np.complex128)
+    for start in range(0, count, batch):
+        stop = min(start + batch, count)
+        v = vertices[start:stop]
+        centroid = v.mean(axis=1)
+        rows = np.empty((stop - start, 21), dtype=real)
+        rows[:, :9] = (v - centroid[:, None, :]).reshape(-1, 9)
+        rows[:, 9:12] = centroid - corner
+        rows[:, 12:15] = normals[start:stop]
+        rows[:, 15:18] = e_tx[start:stop].real
+        rows[:, 18:21] = e_tx[start:stop].imag
+        pts = np.zeros((stop - start, 4), dtype=real)
+        pts[:, :3] = np.asarray(points[start:stop], dtype=np.float64) - corner
+        field = np.empty((stop - start, 6), dtype=real)
+        with runtime.kernel_clock(), runtime.guard("radio map PO facets"):
+            buf = cl.Buffer(runtime.context, cl.mem_flags.WRITE_ONLY, size=field.nbytes)
+            runtime.launch(kernel, stop - start, local, runtime.to_device(rows),
+                           runtime.to_device(pts), src, np.int32(stop - start), buf,
+                           name="po_facet_fields")
+            cl.enqueue_copy(runtime.queue, field, buf, is_blocking=True)
+        out[start:stop] = field[:, :3] + 1j * field[:, 3:]
+    return out
 
 
 def accumulate_segments_host(slab: Slab, origins, directions, lengths, weights):
