@@ -775,6 +775,8 @@ def _po_facets(scene, geom, grid: MapGrid, tx: Radar, receiver, objects, setting
     per_round = max(1, settings.po_batch // n_cells)
     corner = np.array([grid.x_min, grid.y_min, grid.height_m])
     offset = np.einsum("ij,ij->i", normal, centroid)
+    size = np.sqrt(np.max(np.sum((v - v[:, [1, 2, 0]]) ** 2, axis=-1), axis=1))
+    from_tx = np.linalg.norm(centroid - tx_pos, axis=1)
     for start in range(0, len(tri), per_round):
         block = slice(start, min(start + per_round, len(tri)))
         # the centres on each facet's lit side: n . centre > n . centroid
@@ -793,21 +795,30 @@ def _po_facets(scene, geom, grid: MapGrid, tx: Radar, receiver, objects, setting
         f, cell = f[sees], cell[sees]
         if not len(f):
             continue
-        # pairs with tx or the centre in a facet's near zone: split into far-field pieces
-        # (each pair its own), summed back per pair as fields, as po_paths does
-        pieces, parent = _near_zone_pieces(v[f], tx_pos, centres[cell])
-        each = _po_received(scene, pieces, normal[f][parent], pec[f][parent],
-                            material[f][parent], tx_pos, centres[cell][parent],
-                            e_tx[f][parent], receiver, k, lam,
-                            runtime=None if settings.po_engine == "host" else geom.runtime,
-                            corner=corner)
-        if len(pieces) == len(f):  # nothing split: parent is 0, 1, 2, ...
-            amplitude = each
-        else:
-            amplitude = np.stack([np.bincount(parent, each[:, c].real, minlength=len(f))
-                                  + 1j * np.bincount(parent, each[:, c].imag,
-                                                     minlength=len(f))
-                                  for c in range(each.shape[1])], axis=1)
+        engine = None if settings.po_engine == "host" else geom.runtime
+        # pairs with tx or the centre in a facet's near zone (po.py's rule "near"): split
+        # into far-field pieces, each pair its own, summed back per pair as fields, as
+        # po_paths does; the others whole
+        to_centre = np.linalg.norm(toward[sees], axis=1)
+        near = (np.minimum(to_centre, from_tx[f]) < NEAR_SIZE_FACTOR * size[f])
+        amplitude = np.empty((len(f), 1 if receiver is not None else 3), np.complex128)
+        whole = np.flatnonzero(~near)
+        if len(whole):
+            amplitude[whole] = _po_received(
+                scene, v[f[whole]], normal[f[whole]], pec[f[whole]], material[f[whole]],
+                tx_pos, centres[cell[whole]], e_tx[f[whole]], receiver, k, lam,
+                runtime=engine, corner=corner, centroid=centroid[f[whole]])
+        split = np.flatnonzero(near)
+        if len(split):
+            pieces, parent = _near_zone_pieces(v[f[split]], tx_pos, centres[cell[split]])
+            rows = f[split][parent]
+            each = _po_received(scene, pieces, normal[rows], pec[rows], material[rows],
+                                tx_pos, centres[cell[split]][parent], e_tx[rows],
+                                receiver, k, lam, runtime=engine, corner=corner)
+            amplitude[split] = np.stack(
+                [np.bincount(parent, each[:, c].real, minlength=len(split))
+                 + 1j * np.bincount(parent, each[:, c].imag, minlength=len(split))
+                 for c in range(each.shape[1])], axis=1)
         sums.add_at_centres(cell, amplitude)
 
 
@@ -842,26 +853,27 @@ def _near_zone_pieces(v, source, points) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _po_received(scene, v, normal, pec, material, tx_pos, points, e_tx, receiver, k,
-                 lam, runtime=None, corner=None) -> np.ndarray:
+                 lam, runtime=None, corner=None, centroid=None) -> np.ndarray:
     """The receiver's amplitude (S, C) of PO facets (or pieces) ``v`` lit by tx's field
     ``e_tx`` at ``points``: the PEC rows with the PEC current, the others with their
     material's reflection dyad (:func:`~clradcom.physics.em.material_reflection_dyad`),
     as :mod:`clradcom.mechanisms.physical_optics` takes them. With a ``runtime`` the
     PEC rows' fields are the device's (:func:`clradcom.device.maps.po_facet_fields`,
-    positions relative to ``corner``); without, the host's float64 reference."""
+    positions relative to ``corner``; ``centroid`` (S, 3) the facets' own, when known);
+    without, the host's float64 reference."""
     amplitude = None
     for rows, metal in ((np.flatnonzero(pec), True), (np.flatnonzero(~pec), False)):
         if not len(rows):
             continue
         if metal and runtime is not None:
             # the PEC facets on the device, the carrier phase of the float64 length here
-            centroid = v[rows].mean(axis=1)
-            r_t = np.linalg.norm(centroid - tx_pos, axis=1)
-            to_point = points[rows] - centroid
+            mid = v[rows].mean(axis=1) if centroid is None else centroid[rows]
+            r_t = np.linalg.norm(mid - tx_pos, axis=1)
+            to_point = points[rows] - mid
             r_r = np.linalg.norm(to_point, axis=1)
             k_arr = to_point / r_r[:, None]
             field = po_facet_fields(runtime, corner, v[rows], normal[rows], e_tx[rows],
-                                    tx_pos, points[rows], k)
+                                    tx_pos, points[rows], k, centroids=mid)
             field *= (lam / (4.0 * np.pi) * np.exp(-1j * k * (r_t + r_r)))[:, None]
         else:
             reflection = None if metal else (

@@ -182,13 +182,14 @@ def segment_cells(runtime, slab: Slab, origins, directions, lengths,
 
 
 def po_facet_fields(runtime, corner, vertices, normals, e_tx, source, points,
-                    wavenumber: float, batch: int = 1 << 18) -> np.ndarray:
+                    wavenumber: float, batch: int = 1 << 18, centroids=None) -> np.ndarray:
     """(S, 3) complex: the PO field of PEC facet-point pairs on the device, F with the
     field at the point (lambda / 4 pi) e^{-jkL} F (kernels/maps.cl po_facet_fields;
     :func:`clradcom.physics.po.po_transfer` times ``e_tx`` over L without e^{-jkL}).
     ``vertices`` (S, 3, 3), lit-side unit ``normals`` (S, 3), the transmitter's field
     ``e_tx`` (S, 3) complex at the facet, ``source`` (3,) the transmitter, ``points``
-    (S, 3), all world float64, sent relative to ``corner`` (3,): in double where the
+    (S, 3), all world float64 (``centroids`` (S, 3) the vertices' means, when known),
+    sent relative to ``corner`` (3,): in double where the
     device has fp64 (a far sidelobe is a small difference of large edge terms), else in
     float32 (1e-3 of such a lobe)."""
     import pyopencl as cl
@@ -211,7 +212,7 @@ def po_facet_fields(runtime, corner, vertices, normals, e_tx, source, points,
     for start in range(0, count, batch):
         stop = min(start + batch, count)
         v = vertices[start:stop]
-        centroid = v.mean(axis=1)
+        centroid = v.mean(axis=1) if centroids is None else centroids[start:stop]
         rows = np.empty((stop - start, 21), dtype=real)
         rows[:, :9] = (v - centroid[:, None, :]).reshape(-1, 9)
         rows[:, 9:12] = centroid - corner
