@@ -778,6 +778,7 @@ def _po_facets(scene, geom, grid: MapGrid, tx: Radar, receiver, objects, setting
     per_round = max(1, settings.po_batch // n_cells)
     corner = np.array([grid.x_min, grid.y_min, grid.height_m])
     offset = np.einsum("ij,ij->i", normal, centroid)
+    rx_rot = None if receiver is None else np.asarray(receiver.orientation, np.float64)
     size = np.sqrt(np.max(np.sum((v - v[:, [1, 2, 0]]) ** 2, axis=-1), axis=1))
     from_tx = np.linalg.norm(centroid - tx_pos, axis=1)
     for start in range(0, len(tri), per_round):
@@ -789,6 +790,14 @@ def _po_facets(scene, geom, grid: MapGrid, tx: Radar, receiver, objects, setting
             continue
         f += start
         toward = centres[cell] - centroid[f]
+        if receiver is not None:
+            # arrivals outside the receiver's pattern take nothing (po_paths drops them):
+            # no sight ray, no field (a 90-degree sector keeps a quarter of the pairs)
+            arrival = toward / np.linalg.norm(toward, axis=1)[:, None]
+            seen = np.asarray(receiver.pattern.gain(_rotate(-arrival, rx_rot))) > 0
+            f, cell, toward = f[seen], cell[seen], toward[seen]
+            if not len(f):
+                continue
         # one float32 sight ray per pair: a cell centre stands in free space, not on a
         # face, so the tracer's float64 confirmation of an antenna's last millimetres
         # (surface_sees) decides nothing here and costs 20x the cast

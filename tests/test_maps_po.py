@@ -36,18 +36,22 @@ def car_scene(radars, objects=(CAR,)):
 @pytest.mark.filterwarnings("ignore::clradcom.errors.FresnelZoneWarning")
 def test_po_facets_at_the_cell_centres_are_the_tracers_po_paths(runtime):
     """The paper's PEC car mesh (748 facets), a single bounce and no line of sight, under
-    the paper preset's optics ("sbr": the car's first bounce is PO): the map's PO facet
-    fields at the cell centres against trace_scene's PO paths to receivers there, at 30
-    cells around the car, 2 to 8 m from it (facets near a centre split into far-field
-    pieces as the tracer's): within 0.01 dB (the same facets, visibility and integrals;
-    measured at most 6e-5 dB), and the coherent map
-    within 2e-3 of the incoherent power from the traced |sum_k a_k|^2 (the facets'
-    fields add exactly at the centre). The GO map of the
-    same car misses them by far: a faceted body gives GO a glint only where a facet's
-    normal bisects the directions."""
+    the paper preset's optics ("sbr": the car's first bounce is PO), a receiver with a
+    120-degree sector turned to 150 degrees (facets outside it take nothing, in both):
+    the map's PO facet fields at the cell centres against trace_scene's PO paths to
+    receivers there, at 30 cells around the car, 2 to 8 m from it (facets near a centre
+    split into far-field pieces as the tracer's): within 0.02 dB (the same facets,
+    visibility and integrals; measured 0.007 dB at most, 2e-14 dB at the median: the
+    tracer drops facets 80 dB under a link's strongest, the map keeps them), and the
+    coherent map within 2e-3 of the incoherent power
+    from the traced |sum_k a_k|^2 (the facets' fields add exactly at the centre). The GO
+    map of the same car misses them by far: a faceted body gives GO a glint only where a
+    facet's normal bisects the directions."""
     tx = radar("tx", [0, 0, 0.5], role="tx", polarization="V",
                pattern={"type": "cosine", "half_power_beamwidth_deg": 90.0})
-    rx_kw = dict(role="rx", polarization="V", pattern="isotropic")
+    rx_kw = dict(role="rx", polarization="V", orientation_deg=[0.0, 0.0, 150.0],
+                 pattern={"type": "sector", "azimuth_width_deg": 120.0,
+                          "elevation_width_deg": 180.0})
     scene = car_scene([tx, radar("rx", [5, 0, 0.5], **rx_kw)])
     grid = MapGrid(2, 16, -8, 8, 0.5, cell_m=0.5)
     single = dict(rays=20_000, max_reflections=1, line_of_sight=False)
@@ -64,7 +68,7 @@ def test_po_facets_at_the_cell_centres_are_the_tracers_po_paths(runtime):
     across = rel @ [-np.sin(np.pi / 6), np.cos(np.pi / 6)]
     outside = (np.abs(along) > 1.9 + 0.3) | (np.abs(across) > 0.93 + 0.3)
     cells = np.argwhere(outside & (m.gain > 0))
-    assert len(cells) > 300
+    assert len(cells) > 200
     pick = cells[np.random.default_rng(0).choice(len(cells), 30, replace=False)]
     sample = car_scene([tx, *(radar(f"r{i}", centres[iy, ix], **rx_kw)
                               for i, (iy, ix) in enumerate(pick))])
@@ -76,7 +80,7 @@ def test_po_facets_at_the_cell_centres_are_the_tracers_po_paths(runtime):
     traced = np.array([np.sum(np.abs(link.paths.gain) ** 2) for link in snap.links])
     assert (traced > 0).all()
     err = np.abs(10 * np.log10(m.gain[pick[:, 0], pick[:, 1]] / traced))
-    assert err.max() <= 0.01, np.sort(err)[-5:]
+    assert err.max() <= 0.02, np.sort(err)[-5:]
     traced_coherent = np.array([abs(np.sum(link.paths.gain)) ** 2 for link in snap.links])
     err = np.abs(coherent.gain[pick[:, 0], pick[:, 1]] - traced_coherent) / traced
     assert err.max() <= 2e-3, np.sort(err)[-5:]
