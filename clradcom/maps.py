@@ -1047,13 +1047,16 @@ def radio_map(scene: Scene, tx, grid: MapGrid, rx=None, settings: MapSettings | 
                          prim[hit], normals, receiver, scale, settings, rng, sums)
             if order == settings.max_reflections or not hit.any():
                 break
-            org, dirs, field, t, prim, image = (a[hit] for a in (org, dirs, field, t, prim,
-                                                                 image))
+            org, dirs, field, t, prim = (a[hit] for a in (org, dirs, field, t, prim))
+            if settings.coherent:
+                image = image[hit]
             last_prim = prim
             n = normals[prim]
             point = org + t[:, None] * dirs
             field = reflected_fields(scene, tri_material[prim], dirs, n, field)
-            image = image - 2.0 * np.einsum("ij,ij->i", image - corners[prim], n)[:, None] * n
+            if settings.coherent:
+                image = image - 2.0 * np.einsum("ij,ij->i", image - corners[prim],
+                                                n)[:, None] * n
             dirs = dirs - 2.0 * np.einsum("ij,ij->i", dirs, n)[:, None] * n
             dirs /= np.linalg.norm(dirs, axis=1)[:, None]
             org = spawn_origins(point, n, dirs)
