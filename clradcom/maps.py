@@ -26,6 +26,16 @@ the cell summed incoherently. Mechanisms: line of sight and specular reflections
 sampled by diffuse rays) and with ``MapSettings(diffraction=True)`` first-order UTD edge
 diffraction (Keller-cone rays from the lit edges).
 
+With ``MapSettings(coherent=True)`` the cell's value is instead the coherent sum at its
+centre (:class:`CellSums`): the segments grouped by wavefront (the image source of
+their reflections, or their wedge), each group's mean power as above and its phase at
+the centre from its unfolded length there (float64 on the host), the groups added as
+complex fields; diffuse scattering adds in power.
+
+With ``MapSettings(optics=...)`` the objects the tracer gives physical optics (the cars
+under the paper preset) return their PO facets' fields evaluated at the cell centres
+instead of their GO single reflections (:func:`_po_facets`).
+
 The estimate converges where enough segments pass through a cell: at least
 :data:`MIN_SEGMENTS` (``RadioMap.converged``; docs/maps.md, tests/test_maps.py).
 """
@@ -33,26 +43,38 @@ The estimate converges where enough segments pass through a cell: at least
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
-from clradcom.device.maps import Slab, accumulate_segments
+from clradcom.device.maps import Slab, accumulate_segments, po_facet_fields, segment_cells
 from clradcom.device.raycast import make_rays, spawn_origins
 from clradcom.device.runtime import Runtime
+from clradcom.device.visibility import surface_sees
 from clradcom.errors import ArgumentError, ArgumentTypeError
+from clradcom.geometry.triangles import triangle_normals
 from clradcom.mechanisms import diffraction
 from clradcom.mechanisms.common import Geometry, build_geometry, check_number
 from clradcom.mechanisms.diffraction import DiffractionSettings
+from clradcom.mechanisms.optics import MODES as OPTICS_MODES
+from clradcom.mechanisms.optics import object_optics
 from clradcom.mechanisms.specular import fibonacci_cap, fibonacci_sphere
 from clradcom.memory import check_memory
 from clradcom.physics import utd
-from clradcom.physics.em import C0, fresnel_coefficients, reflected_fields
+from clradcom.physics.em import (
+    C0,
+    fresnel_coefficients,
+    material_reflection_dyad,
+    reflected_fields,
+)
+from clradcom.physics.po import MAX_SUBDIVISION_LEVELS, NEAR_SIZE_FACTOR, po_transfer
 from clradcom.physics.vectors import perpendicular
 from clradcom.scene.records import Radar, Scene
 
-__all__ = ["MIN_SEGMENTS", "MapGrid", "MapSettings", "RadioMap", "find_radar",
+__all__ = ["MIN_SEGMENTS", "CellSums", "MapGrid", "MapSettings", "RadioMap", "Wave",
+           "find_radar",
            "launch_lattice", "map_memory_bytes", "radio_map"]
 
 #: The convergence rule: a cell's value is trusted where at least this many ray segments
@@ -65,6 +87,20 @@ MIN_SEGMENTS = 20
 #: street (batches of 2^16 rays, 3 reflections): 520 bytes a ray, 610 with diffraction
 #: (its Keller-cone rounds hold at most a batch of rays); twice that for a margin.
 BYTES_PER_RAY = 1200
+
+#: A coherent map's (segment, cell) records a launched ray makes: measured 2.6 on the
+#: street (radar A, 20 m x 10 m at 5 cm cells, 3 reflections: 11 cells for each segment
+#: that reaches the layer), rounded up; and the host bytes one record holds while its
+#: batch is weighed (its indices, length, phase, complex term and the sort's copies).
+#: A bound, not a measure: tracemalloc saw the records' arrays after the ray batch's
+#: peak, not on it (2^18 rays of that map, 331,169 records in the batch: a 143 MB peak
+#: against 140 MB for the incoherent map).
+COHERENT_RECORDS_PER_RAY = 4
+BYTES_PER_RECORD = 160
+
+#: Host bytes a facet-cell pair of the PO stage holds while its round is weighed (the
+#: transfer dyads, directions, the facet integral's temporaries, the sight rays).
+BYTES_PER_PO_PAIR = 2000
 
 
 @dataclass(frozen=True)
@@ -91,6 +127,24 @@ class MapSettings:
     edge_step_m: float = 0.05
     cone_step_deg: float = 1.0
     seed: int = 0  #: of the diffuse rays' directions and nothing else
+    #: the coherent sum for small cells (docs/maps.md "The coherent sum"): per cell the
+    #: rays grouped by wavefront (the image source of their reflections, or the edge they
+    #: left), each group's mean power as the incoherent map estimates it and its phase at
+    #: the cell's centre, the groups added as complex fields; diffuse scattering, random
+    #: in phase as the tracer's tiles are, adds in power
+    coherent: bool = False
+    #: physical optics as the tracer's OpticsSettings.mode ("none", "pec", "sbr": the
+    #: paper preset's) chooses it per object (objects' own ``optics`` keys first,
+    #: docs/po.md): the first bounce off an object with PO optics is its PO facets'
+    #: field evaluated at the cell centres instead of the GO reflection, and with "po"
+    #: optics (SBR) its later bounces' exit rays run on through the cells
+    optics: str = "none"
+    #: facet-cell pairs of the PO stage weighed together (host memory ~2 kB each)
+    po_batch: int = 1 << 16
+    #: where the PEC facets' PO fields are evaluated: "device" (float32 about the grid's
+    #: corner, the carrier phase in float64 on the host) or "host" (float64 numpy, the
+    #: tracer's po_transfer)
+    po_engine: str = "device"
     batch: int = 1 << 18  #: rays traced together (host memory: BYTES_PER_RAY each)
 
     def __post_init__(self):
@@ -98,7 +152,7 @@ class MapSettings:
         check_number("MapSettings", "max_reflections", self.max_reflections, low=0,
                      high=16, integer=True)
         check_number("MapSettings", "batch", self.batch, low=1, integer=True)
-        for name in ("line_of_sight", "scattering"):
+        for name in ("line_of_sight", "scattering", "coherent"):
             if not isinstance(getattr(self, name), bool):
                 raise ArgumentError("must be True or False", argument=f"MapSettings.{name}",
                                     value=getattr(self, name))
@@ -113,6 +167,14 @@ class MapSettings:
         check_number("MapSettings", "edge_step_m", self.edge_step_m, low=0.0, low_open=True)
         check_number("MapSettings", "cone_step_deg", self.cone_step_deg, low=0.0,
                      high=90.0, low_open=True)
+        if self.optics not in OPTICS_MODES:
+            raise ArgumentError(f"must be one of {', '.join(map(repr, OPTICS_MODES))} "
+                                "(OpticsSettings.mode)", argument="MapSettings.optics",
+                                value=self.optics)
+        check_number("MapSettings", "po_batch", self.po_batch, low=1, integer=True)
+        if self.po_engine not in ("device", "host"):
+            raise ArgumentError("must be 'device' or 'host'", argument="MapSettings.po_engine",
+                                value=self.po_engine)
 
 
 @dataclass(frozen=True)
@@ -194,10 +256,36 @@ class RadioMap:
     rx_name: str | None  #: whose antenna receives; None: gain 1, every polarisation
     rays: int  #: launched
     tx_power_w: float = 1.0
+    #: True where ``gain`` is the coherent sum (MapSettings.coherent); the incoherent one
+    #: is then ``incoherent_gain``
+    coherent: bool = False
+    #: physical optics as the tracer's OpticsSettings.mode ("none", "pec", "sbr": the
+    #: paper preset's) chooses it per object (objects' own ``optics`` keys first,
+    #: docs/po.md): the first bounce off an object with PO optics is its PO facets'
+    #: field evaluated at the cell centres instead of the GO reflection, and with "po"
+    #: optics (SBR) its later bounces' exit rays run on through the cells
+    optics: str = "none"
+    #: facet-cell pairs of the PO stage weighed together (host memory ~2 kB each)
+    po_batch: int = 1 << 16
+    #: where the PEC facets' PO fields are evaluated: "device" (float32 about the grid's
+    #: corner, the carrier phase in float64 on the host) or "host" (float64 numpy, the
+    #: tracer's po_transfer)
+    po_engine: str = "device"
+    incoherent_gain: np.ndarray | None = None
+    #: coherent maps: the fewest segments of a wavefront group holding >= 1 % of a
+    #: cell's power (CellSums.group_count)
+    group_count: np.ndarray | None = None
+    #: wall seconds of the stages: "rays" (launch, bounces, scattering, accumulation),
+    #: "physical optics", "diffraction", "coherent sum"
+    stage_seconds: dict[str, float] | None = None
 
     @property
     def converged(self) -> np.ndarray:
-        """(ny, nx) bool: cells that satisfy the convergence rule (:data:`MIN_SEGMENTS`)."""
+        """(ny, nx) bool: cells that satisfy the convergence rule (:data:`MIN_SEGMENTS`
+        segments; for a coherent map in each wavefront group that holds 1 % of the
+        cell's power or more)."""
+        if self.coherent and self.group_count is not None:
+            return (self.count >= MIN_SEGMENTS) & (self.group_count >= MIN_SEGMENTS)
         return self.count >= MIN_SEGMENTS
 
     def gain_db(self, floor_db: float = -300.0) -> np.ndarray:
@@ -235,9 +323,19 @@ def launch_lattice(n_rays: int, pattern) -> tuple[np.ndarray, float]:
 def map_memory_bytes(settings: MapSettings, grid: MapGrid) -> int:
     """Host memory a map holds at its peak: a batch of rays (:data:`BYTES_PER_RAY` each),
     the launch lattice (24 bytes a ray), and the grid's float64 sums, int64 counts and
-    float32/int32 device copies (24 bytes a cell)."""
-    return (min(settings.batch, settings.rays) * BYTES_PER_RAY + 24 * settings.rays
+    float32/int32 device copies (24 bytes a cell); a coherent map adds its records
+    (:data:`COHERENT_RECORDS_PER_RAY` a launched ray, :data:`BYTES_PER_RECORD` each while
+    a batch's are weighed, 40 bytes each kept as a (cell, group) sum); physical optics
+    a round of :attr:`MapSettings.po_batch` facet-cell pairs (:data:`BYTES_PER_PO_PAIR`
+    each)."""
+    need = (min(settings.batch, settings.rays) * BYTES_PER_RAY + 24 * settings.rays
             + 24 * grid.n_cells)
+    if settings.optics != "none":
+        need += settings.po_batch * BYTES_PER_PO_PAIR
+    if settings.coherent:
+        need += COHERENT_RECORDS_PER_RAY * (
+            min(settings.batch, settings.rays) * BYTES_PER_RECORD + 40 * settings.rays)
+    return need
 
 
 def _rotate(v, m) -> np.ndarray:
@@ -264,18 +362,24 @@ def _basis(directions_world, orientation):
     return _rotate(th, rot_t), _rotate(ph, rot_t)
 
 
+def _projection(field, directions, rx: Radar | None) -> np.ndarray:
+    """The receiver's complex projection p(E) (R, 1) of field vectors E (R, 3) arriving
+    along ``directions`` (em.path_gains' bilinear form at -direction), or E itself (R, 3)
+    without a receiver: what a coherent sum adds, |p|^2 the power."""
+    if rx is None:
+        return np.asarray(field, dtype=np.complex128)
+    rot = np.asarray(rx.orientation, dtype=np.float64)
+    c = np.asarray(rx.pattern.field(_rotate(-directions, rot)), dtype=np.complex128)
+    th, ph = _basis(-directions, rot)
+    return (c[:, 0] * np.einsum("ij,ij->i", th, field)
+            + c[:, 1] * np.einsum("ij,ij->i", ph, field))[:, None]
+
+
 def _received(field, directions, rx: Radar | None) -> np.ndarray:
     """|p(E)|^2 (R,): the power the receiver takes from field vectors E (R, 3) arriving
     along ``directions``: the bilinear projection onto its pattern's (C_theta, C_phi) at
     -direction (em.path_gains), or |E|^2 without a receiver."""
-    if rx is None:
-        return np.sum(np.abs(field) ** 2, axis=1)
-    rot = np.asarray(rx.orientation, dtype=np.float64)
-    c = np.asarray(rx.pattern.field(_rotate(-directions, rot)), dtype=np.complex128)
-    th, ph = _basis(-directions, rot)
-    p = c[:, 0] * np.einsum("ij,ij->i", th, field) + c[:, 1] * np.einsum("ij,ij->i", ph,
-                                                                          field)
-    return np.abs(p) ** 2
+    return np.sum(np.abs(_projection(field, directions, rx)) ** 2, axis=1)
 
 
 def _reaches(slab: Slab, origins, directions, lengths, margin: float = 1e-3) -> np.ndarray:
@@ -301,6 +405,151 @@ def _reaches(slab: Slab, origins, directions, lengths, margin: float = 1e-3) -> 
     return ok & (t0 <= t1)
 
 
+#: Image sources closer than this (m) are one wavefront: coplanar triangles of one wall
+#: mirror the source onto the same point up to float64 rounding.
+IMAGE_SOURCE_TOLERANCE_M = 1e-4
+
+
+@dataclass
+class Wave:
+    """What the coherent sum needs of a batch of segments besides their power: ``polar``
+    (S, C) the received complex amplitude per segment (the receiver's projection p(E),
+    C = 1, or the field vector E without a receiver, C = 3), ``group`` (S, G) int64 rows
+    naming the wavefront each belongs to, and ``path_length(rows, points)`` the unfolded
+    length (m, float64) from the transmitter along the wavefront of segments ``rows`` to
+    the world ``points``."""
+
+    polar: np.ndarray
+    group: np.ndarray
+    path_length: Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+
+class CellSums:
+    """The sums a map's cells collect. Incoherent: each segment's weight x length in each
+    cell (on the device) and the segment counts. Coherent (``coherent=True``): in
+    addition, per cell and wavefront group, W the summed weight x length (the group's
+    mean power over the cell) and Z the same terms times the segment's unit polarisation
+    phasor with the carrier phase e^{-jkL} of its wavefront's length to the cell's centre
+    (float64 on the host); a group's complex field at the centre is sqrt(W) Z / |Z|.
+    Segments given without a :class:`Wave` (diffuse scattering) add in power only."""
+
+    def __init__(self, runtime, grid: MapGrid, wavenumber: float, coherent: bool):
+        self.runtime = runtime
+        self.grid = grid
+        self.slab = grid.slab()
+        self.wavenumber = float(wavenumber)
+        self.coherent = coherent
+        shape = (grid.ny, grid.nx)
+        self.power = np.zeros(shape)
+        self.count = np.zeros(shape, dtype=np.int64)
+        self.power_only = np.zeros(shape) if coherent else self.power
+        self._groups: dict[tuple, int] = {}
+        self._keys = np.zeros(0, dtype=np.int64)
+        self._w = np.zeros(0)
+        self._n = np.zeros(0, dtype=np.int64)
+        self._z = np.zeros((0, 1), dtype=np.complex128)
+        self._centres = grid.centres().reshape(-1, 3)
+        self._points: np.ndarray | None = None  # fields evaluated at the centres
+
+    def add(self, origins, directions, lengths, weights, wave: Wave | None = None) -> None:
+        """Segments (origin, unit direction, length to their end, weight per metre)."""
+        if not self.coherent or wave is None:
+            accumulate_segments(self.runtime, self.slab, origins, directions, lengths,
+                                weights, self.power_only, self.count)
+            return
+        seg, cell, length = segment_cells(self.runtime, self.slab, origins, directions,
+                                          lengths)
+        keep = weights[seg] > 0
+        seg, cell, length = seg[keep], cell[keep], length[keep]
+        wl = weights[seg] * length
+        n_cells = self.grid.n_cells
+        self.power += np.bincount(cell, wl, minlength=n_cells).reshape(self.power.shape)
+        self.count += np.bincount(cell, minlength=n_cells).reshape(self.count.shape)
+        if not len(seg):
+            return
+        polar = np.asarray(wave.polar, dtype=np.complex128)
+        size = np.linalg.norm(polar, axis=1)
+        unit = polar / np.where(size > 0, size, 1.0)[:, None]
+        phase = np.exp(-1j * self.wavenumber * wave.path_length(seg, self._centres[cell]))
+        z = (wl * phase)[:, None] * unit[seg]
+        keys = self._group_ids(wave.group)[seg] * n_cells + cell
+        if self._z.shape[1] != z.shape[1]:
+            self._z = np.zeros((0, z.shape[1]), dtype=np.complex128)
+        keys = np.concatenate([self._keys, keys])
+        self._keys, inverse = np.unique(keys, return_inverse=True)
+        self._w = np.bincount(inverse, np.concatenate([self._w, wl]))
+        self._n = np.bincount(inverse, np.concatenate([self._n, np.ones(len(wl))])).astype(
+            np.int64)
+        zz = np.concatenate([self._z, z])
+        self._z = np.stack([np.bincount(inverse, zz[:, c].real)
+                            + 1j * np.bincount(inverse, zz[:, c].imag)
+                            for c in range(zz.shape[1])], axis=1)
+
+    def add_at_centres(self, cell, amplitude) -> None:
+        """Complex amplitudes (S, C) evaluated at the centres of cells ``cell`` (S,)
+        (the PO facets' fields): their power adds to the incoherent sums and, coherent,
+        the amplitudes themselves to the cell's field, each exact at the centre."""
+        cell = np.asarray(cell, dtype=np.int64)
+        amplitude = np.asarray(amplitude, dtype=np.complex128)
+        n_cells = self.grid.n_cells
+        power = np.sum(np.abs(amplitude) ** 2, axis=1)
+        self.power += np.bincount(cell, power, minlength=n_cells).reshape(self.power.shape)
+        if not self.coherent:
+            return
+        if self._points is None:
+            self._points = np.zeros((n_cells, amplitude.shape[1]), dtype=np.complex128)
+        for c in range(amplitude.shape[1]):
+            self._points[:, c] += (np.bincount(cell, amplitude[:, c].real, minlength=n_cells)
+                                   + 1j * np.bincount(cell, amplitude[:, c].imag,
+                                                      minlength=n_cells))
+
+    def _group_ids(self, rows: np.ndarray) -> np.ndarray:
+        unique, inverse = np.unique(np.asarray(rows, dtype=np.int64), axis=0,
+                                    return_inverse=True)
+        ids = np.array([self._groups.setdefault(tuple(r), len(self._groups))
+                        for r in unique.tolist()], dtype=np.int64)
+        return ids[inverse.reshape(-1)]
+
+    @property
+    def groups(self) -> int:
+        """Wavefront groups seen so far."""
+        return len(self._groups)
+
+    def incoherent(self) -> np.ndarray:
+        return self.power if self.power_only is self.power else self.power + self.power_only
+
+    def group_count(self, share: float = 0.01) -> np.ndarray:
+        """(ny, nx) int64: the fewest segments of any wavefront group that holds at least
+        ``share`` of its cell's coherent-summed power (every group's W), 0 where none
+        does: the coherent map's convergence count, since each group's power is
+        estimated from its own segments."""
+        n_cells = self.grid.n_cells
+        cell = self._keys % n_cells
+        total = np.bincount(cell, self._w, minlength=n_cells)
+        significant = self._w >= share * total[cell]
+        fewest = np.full(n_cells, np.iinfo(np.int64).max)
+        np.minimum.at(fewest, cell[significant], self._n[significant])
+        fewest[fewest == np.iinfo(np.int64).max] = 0
+        return fewest.reshape(self.power.shape)
+
+    def coherent_gain(self) -> np.ndarray:
+        """(ny, nx): |sum over groups of sqrt(W) Z / |Z| plus the fields evaluated at the
+        centres|^2, plus the power-only sums."""
+        n_cells = self.grid.n_cells
+        size = np.linalg.norm(self._z, axis=1)
+        amplitude = np.sqrt(self._w)[:, None] * self._z / np.where(size > 0, size,
+                                                                    1.0)[:, None]
+        cell = self._keys % n_cells
+        field = np.stack([np.bincount(cell, amplitude[:, c].real, minlength=n_cells)
+                          + 1j * np.bincount(cell, amplitude[:, c].imag,
+                                             minlength=n_cells)
+                          for c in range(amplitude.shape[1])], axis=1)
+        if self._points is not None:
+            field = field + self._points if len(self._keys) else self._points
+        gain = np.sum(np.abs(field) ** 2, axis=1).reshape(self.power.shape)
+        return gain + self.power_only
+
+
 def _cosine_directions(normals, rng) -> np.ndarray:
     """One unit direction per row, cosine-weighted over the hemisphere about ``normals``
     (R, 3) unit (Malley's method: a uniform point of the unit disc lifted onto it)."""
@@ -324,7 +573,7 @@ def _te_tm(k, n):
 
 
 def _scatter(scene, geom, slab, org, dirs, field, t, prim, normals, receiver, scale,
-             settings, rng, power, count) -> None:
+             settings, rng, sums: CellSums) -> None:
     """Diffuse rays from the hits ``prim`` of rays (org, dirs, field) on faces whose
     material scatters (S > 0), accumulated into the layer: the tracer's Lambertian tile
     model (:mod:`clradcom.mechanisms.scattering`) sampled. A tube of power P (its
@@ -369,8 +618,7 @@ def _scatter(scene, geom, slab, org, dirs, field, t, prim, normals, receiver, sc
         received = ((1.0 - share[near]) * _received(co[near], out[near], receiver)
                     + share[near] * _received(cross[near], out[near], receiver))
         weights = scale * (s_coef[near] ** 2 * gamma2[near] / m) * received
-        accumulate_segments(geom.runtime, slab, origins[near], out[near], lengths[near],
-                            weights, power, count)
+        sums.add(origins[near], out[near], lengths[near], weights)
 
 
 def _edge_samples(wedges, step: float):
@@ -384,8 +632,8 @@ def _edge_samples(wedges, step: float):
     return w, points, wedges.length[w] / pieces[w]
 
 
-def _diffract(scene, geom, slab, wedges, tx: Radar, receiver, scale, settings, power,
-              count) -> None:
+def _diffract(scene, geom, slab, wedges, tx: Radar, receiver, scale, settings,
+              sums: CellSums) -> None:
     """First-order UTD diffraction into the layer (:attr:`MapSettings.diffraction`).
 
     Each edge piece Q of length dl that the transmitter sees (a cast from tx to a point 1 mm
@@ -470,10 +718,203 @@ def _diffract(scene, geom, slab, wedges, tx: Radar, receiver, scale, settings, p
         basis = utd.edge_fixed_basis(k_in[j], out, e[j])
         dyad = utd.diffraction_dyad(d_soft, d_hard, *basis)
         field = np.einsum("rij,rj->ri", dyad, ei[rows])
+        polar = _projection(field, out, receiver)
         weights = (scale * sin_b[j] ** 2 * dphi[rows] * dl[j]
-                   * _received(field, out, receiver))
-        accumulate_segments(geom.runtime, slab, origins, out, lengths, weights, power,
-                            count)
+                   * np.sum(np.abs(polar) ** 2, axis=1))
+        wedge = w[j]
+        sums.add(origins, out, lengths, weights, Wave(
+            polar=polar, group=np.stack([np.ones_like(wedge), wedge], axis=1),
+            path_length=lambda rows, points, wedge=wedge: _edge_path_length(
+                tx_pos, wedges.start[wedge[rows]], wedges.direction[wedge[rows]],
+                points)))
+
+
+def _po_facets(scene, geom, grid: MapGrid, tx: Radar, receiver, objects, settings,
+               sums: CellSums) -> None:
+    """The PO facet returns of ``objects`` at every cell centre: the tracer's
+    :func:`clradcom.mechanisms.physical_optics.po_paths` with a receiver at each centre.
+    A facet lit from tx (front side, or either side of a two-sided object; inside tx's
+    pattern; its centroid seeing tx) radiates to the centres on its lit side that its
+    centroid sees, E = (lambda / 4 pi) T e_tx e^{-jkL} / L with T of
+    :func:`clradcom.physics.po.po_transfer` (PEC current, or a penetrable material's
+    Fresnel-weighted currents), received as the map's receiver takes a field. Pairs
+    with the centre in a facet's near zone (closer than 2 D) are split into far-field
+    pieces as the tracer's default ``split="near"`` does. The tracer's floor (facets
+    80 dB under the link's strongest dropped) is not applied: such terms add nothing
+    visible to a power."""
+    tri = np.flatnonzero(np.isin(scene.tri_object, objects))
+    if not len(tri):
+        return
+    v = np.asarray(scene.triangles)[tri]
+    normal = triangle_normals(v)
+    centroid = v.mean(axis=1)
+    tx_pos = np.asarray(tx.position, dtype=np.float64)
+    side = np.einsum("ij,ij->i", normal, tx_pos - centroid)
+    two_sided = np.asarray(scene.tri_two_sided)[tri]
+    normal = np.where((two_sided & (side < 0))[:, None], -normal, normal)
+    lit = (side > 0) | (two_sided & (side < 0))
+    to_facet = centroid - tx_pos
+    k_dep = to_facet / np.linalg.norm(to_facet, axis=1)[:, None]
+    rot = np.asarray(tx.orientation, dtype=np.float64)
+    c_tx = np.asarray(tx.pattern.field(_rotate(k_dep, rot)), dtype=np.complex128)
+    lit &= np.abs(c_tx).sum(axis=1) > 0
+    idx = np.flatnonzero(lit)
+    if len(idx):
+        lit[idx[~surface_sees(geom.caster, centroid[idx], normal[idx], tx_pos, tri[idx],
+                              tri_face=geom.faces.tri_face, engine=geom.engine)]] = False
+    keep = np.flatnonzero(lit)
+    if not len(keep):
+        return
+    tri, v, normal, centroid, k_dep, c_tx = (a[keep] for a in (tri, v, normal, centroid,
+                                                               k_dep, c_tx))
+    th, ph = _basis(k_dep, rot)
+    e_tx = c_tx[:, :1] * th + c_tx[:, 1:] * ph
+    material = np.asarray(scene.tri_material)[tri]
+    pec = np.asarray(scene.material_pec)[material]
+    centres = grid.centres().reshape(-1, 3)
+    n_cells = len(centres)
+    k = 2.0 * np.pi / scene.wavelength_m
+    lam = scene.wavelength_m
+    per_round = max(1, settings.po_batch // n_cells)
+    corner = np.array([grid.x_min, grid.y_min, grid.height_m])
+    offset = np.einsum("ij,ij->i", normal, centroid)
+    rx_rot = None if receiver is None else np.asarray(receiver.orientation, np.float64)
+    size = np.sqrt(np.max(np.sum((v - v[:, [1, 2, 0]]) ** 2, axis=-1), axis=1))
+    from_tx = np.linalg.norm(centroid - tx_pos, axis=1)
+    for start in range(0, len(tri), per_round):
+        block = slice(start, min(start + per_round, len(tri)))
+        # the centres on each facet's lit side: n . centre > n . centroid
+        front = np.einsum("ij,kj->ik", normal[block], centres) > offset[block, None]
+        f, cell = np.nonzero(front)
+        if not len(f):
+            continue
+        f += start
+        toward = centres[cell] - centroid[f]
+        if receiver is not None:
+            # arrivals outside the receiver's pattern take nothing (po_paths drops them):
+            # no sight ray, no field (a 90-degree sector keeps a quarter of the pairs)
+            arrival = toward / np.linalg.norm(toward, axis=1)[:, None]
+            seen = np.asarray(receiver.pattern.gain(_rotate(-arrival, rx_rot))) > 0
+            f, cell, toward = f[seen], cell[seen], toward[seen]
+            if not len(f):
+                continue
+        # one float32 sight ray per pair: a cell centre stands in free space, not on a
+        # face, so the tracer's float64 confirmation of an antenna's last millimetres
+        # (surface_sees) decides nothing here and costs 20x the cast
+        origin = spawn_origins(centroid[f], normal[f], toward)
+        sees = ~geom.caster.occluded(make_rays(origin, centres[cell] - origin, tmin=0.0,
+                                               tmax=1.0 - 1e-6), ignore_prim=tri[f])
+        f, cell = f[sees], cell[sees]
+        if not len(f):
+            continue
+        engine = None if settings.po_engine == "host" else geom.runtime
+        # pairs with tx or the centre in a facet's near zone (po.py's rule "near"): split
+        # into far-field pieces, each pair its own, summed back per pair as fields, as
+        # po_paths does; the others whole
+        to_centre = np.linalg.norm(toward[sees], axis=1)
+        near = (np.minimum(to_centre, from_tx[f]) < NEAR_SIZE_FACTOR * size[f])
+        amplitude = np.empty((len(f), 1 if receiver is not None else 3), np.complex128)
+        whole = np.flatnonzero(~near)
+        if len(whole):
+            amplitude[whole] = _po_received(
+                scene, v[f[whole]], normal[f[whole]], pec[f[whole]], material[f[whole]],
+                tx_pos, centres[cell[whole]], e_tx[f[whole]], receiver, k, lam,
+                runtime=engine, corner=corner, centroid=centroid[f[whole]])
+        split = np.flatnonzero(near)
+        if len(split):
+            pieces, parent = _near_zone_pieces(v[f[split]], tx_pos, centres[cell[split]])
+            rows = f[split][parent]
+            each = _po_received(scene, pieces, normal[rows], pec[rows], material[rows],
+                                tx_pos, centres[cell[split]][parent], e_tx[rows],
+                                receiver, k, lam, runtime=engine, corner=corner)
+            amplitude[split] = np.stack(
+                [np.bincount(parent, each[:, c].real, minlength=len(split))
+                 + 1j * np.bincount(parent, each[:, c].imag, minlength=len(split))
+                 for c in range(each.shape[1])], axis=1)
+        sums.add_at_centres(cell, amplitude)
+
+
+def _near_zone_pieces(v, source, points) -> tuple[np.ndarray, np.ndarray]:
+    """(pieces (P, 3, 3), parent (P,)): facet-point pairs (v (S, 3, 3), points (S, 3))
+    cut into midpoint quarters until neither ``source`` nor the pair's point lies in a
+    piece's near zone (closer than NEAR_SIZE_FACTOR times its longest edge), at most
+    MAX_SUBDIVISION_LEVELS times: :func:`clradcom.physics.po.far_field_pieces`' rule
+    "near" with each pair's own antennas, so one call serves every cell."""
+    parent = np.arange(len(v))
+    done_v, done_p = [], []
+    for level in range(MAX_SUBDIVISION_LEVELS + 1):
+        size = np.sqrt(np.max(np.sum((v - v[:, [1, 2, 0]]) ** 2, axis=-1), axis=1))
+        centre = v.mean(axis=1)
+        reach = np.minimum(np.linalg.norm(centre - source, axis=1),
+                           np.linalg.norm(centre - points[parent], axis=1))
+        ok = reach >= NEAR_SIZE_FACTOR * size
+        if level == MAX_SUBDIVISION_LEVELS or ok.all():
+            done_v.append(v)
+            done_p.append(parent)
+            break
+        done_v.append(v[ok])
+        done_p.append(parent[ok])
+        split = v[~ok]
+        mids = 0.5 * (split + split[:, [1, 2, 0]])  # m01, m12, m20
+        v = np.stack([np.stack([split[:, 0], mids[:, 0], mids[:, 2]], axis=1),
+                      np.stack([mids[:, 0], split[:, 1], mids[:, 1]], axis=1),
+                      np.stack([mids[:, 2], mids[:, 1], split[:, 2]], axis=1),
+                      mids], axis=1).reshape(-1, 3, 3)
+        parent = np.repeat(parent[~ok], 4)
+    return np.concatenate(done_v), np.concatenate(done_p)
+
+
+def _po_received(scene, v, normal, pec, material, tx_pos, points, e_tx, receiver, k,
+                 lam, runtime=None, corner=None, centroid=None) -> np.ndarray:
+    """The receiver's amplitude (S, C) of PO facets (or pieces) ``v`` lit by tx's field
+    ``e_tx`` at ``points``: the PEC rows with the PEC current, the others with their
+    material's reflection dyad (:func:`~clradcom.physics.em.material_reflection_dyad`),
+    as :mod:`clradcom.mechanisms.physical_optics` takes them. With a ``runtime`` the
+    PEC rows' fields are the device's (:func:`clradcom.device.maps.po_facet_fields`,
+    positions relative to ``corner``; ``centroid`` (S, 3) the facets' own, when known);
+    without, the host's float64 reference."""
+    amplitude = None
+    for rows, metal in ((np.flatnonzero(pec), True), (np.flatnonzero(~pec), False)):
+        if not len(rows):
+            continue
+        if metal and runtime is not None:
+            # the PEC facets on the device, the carrier phase of the float64 length here
+            mid = v[rows].mean(axis=1) if centroid is None else centroid[rows]
+            r_t = np.linalg.norm(mid - tx_pos, axis=1)
+            to_point = points[rows] - mid
+            r_r = np.linalg.norm(to_point, axis=1)
+            k_arr = to_point / r_r[:, None]
+            field = po_facet_fields(runtime, corner, v[rows], normal[rows], e_tx[rows],
+                                    tx_pos, points[rows], k, centroids=mid)
+            field *= (lam / (4.0 * np.pi) * np.exp(-1j * k * (r_t + r_r)))[:, None]
+        else:
+            reflection = None if metal else (
+                lambda k_in, n, m=material[rows]: material_reflection_dyad(scene, m, k_in,
+                                                                           n))
+            T, L, _, _, k_arr = po_transfer(v[rows], normal[rows], tx_pos, points[rows],
+                                            scene.carrier_hz, reflection)
+            field = (np.einsum("rij,rj->ri", T, e_tx[rows])
+                     * (lam / (4.0 * np.pi) * np.exp(-1j * k * L) / L)[:, None])
+        p = _projection(field, k_arr, receiver)
+        if amplitude is None:
+            amplitude = np.zeros((len(v), p.shape[1]), dtype=np.complex128)
+        amplitude[rows] = p
+    return amplitude
+
+
+def _edge_path_length(source, start, direction, points) -> np.ndarray:
+    """The shortest length (m) from ``source`` (3,) via the infinite line through
+    ``start`` along unit ``direction`` (R, 3) to ``points`` (R, 3): the unfolded length of
+    the diffracted ray through each point (Keller's law puts its edge point where the two
+    legs make equal angles with the edge), sqrt((b - a)^2 + (r_1 + r_2)^2) with a, b the
+    positions of source and point along the edge and r_1, r_2 their distances from it."""
+    to_source = source - start
+    to_point = points - start
+    a = np.einsum("ij,ij->i", to_source, direction)
+    b = np.einsum("ij,ij->i", to_point, direction)
+    r1 = np.linalg.norm(to_source - a[:, None] * direction, axis=1)
+    r2 = np.linalg.norm(to_point - b[:, None] * direction, axis=1)
+    return np.hypot(b - a, r1 + r2)
 
 
 def _layer_distance(slab: Slab, origins, directions, lengths) -> np.ndarray:
@@ -547,12 +988,20 @@ def radio_map(scene: Scene, tx, grid: MapGrid, rx=None, settings: MapSettings | 
     rot = np.asarray(transmitter.orientation, dtype=np.float64)
     scale = (lam / (4.0 * np.pi)) ** 2 * solid_angle / slab.cell_volume
     origin = np.asarray(transmitter.position, dtype=np.float64)
-    power = np.zeros((slab.ny, slab.nx))
-    count = np.zeros((slab.ny, slab.nx), dtype=np.int64)
+    sums = CellSums(rt, grid, 2.0 * np.pi / lam, settings.coherent)
     normals = geom.caster.normals64() if geom.caster is not None else None
+    corners = geom.caster.triangles[:, 0] if geom.caster is not None else None
     tri_material = np.asarray(scene.tri_material)
+    tri_object = np.asarray(scene.tri_object)
+    # physical optics as the tracer chooses it (optics.replaced_paths): an object with PO
+    # facets gives no GO single reflection; one with SBR-PO keeps its later bounces'
+    # exit rays (the GO limit of its tubes' footprint radiation)
+    modes = np.array(object_optics(scene, settings.optics))
+    po_objects = np.flatnonzero(modes != "go")
     n_batches = -(-len(local) // settings.batch)
     rng = np.random.default_rng(settings.seed)
+    clock = time.perf_counter()
+    seconds: dict[str, float] = {}
     for b, start in enumerate(range(0, len(local), settings.batch)):
         if steps is not None:
             steps(b, n_batches)
@@ -562,6 +1011,11 @@ def radio_map(scene: Scene, tx, grid: MapGrid, rx=None, settings: MapSettings | 
         th, ph = _basis(dirs, rot)
         field = c[:, :1] * th + c[:, 1:] * ph
         org = np.broadcast_to(origin, dirs.shape).copy()
+        # every segment's wavefront is a sphere about its image source: the transmitter
+        # mirrored in the planes of the faces it reflected off (float64, from the faces'
+        # own corners, so the hit points' float32 rounding does not enter)
+        image = org.copy()
+        last_prim = np.full(len(dirs), -1)
         for order in range(settings.max_reflections + 1):
             if geom.caster is not None and len(dirs):
                 hits = geom.caster.closest_hit(make_rays(org, dirs))
@@ -572,30 +1026,62 @@ def radio_map(scene: Scene, tx, grid: MapGrid, rx=None, settings: MapSettings | 
                 prim = np.full(len(dirs), -1)
             if order > 0 or settings.line_of_sight:
                 near = _reaches(slab, org, dirs, t)
-                weights = scale * _received(field[near], dirs[near], receiver)
-                accumulate_segments(rt, slab, org[near], dirs[near], t[near], weights,
-                                    power, count)
+                if order == 1 and len(po_objects):
+                    near &= ~np.isin(tri_object[last_prim], po_objects)
+                polar = _projection(field[near], dirs[near], receiver)
+                weights = scale * np.sum(np.abs(polar) ** 2, axis=1)
+                wave = None
+                if settings.coherent:
+                    src = image[near]
+                    quantised = np.round(src / IMAGE_SOURCE_TOLERANCE_M).astype(np.int64)
+                    group = np.column_stack([np.zeros(len(src), np.int64),
+                                             np.full(len(src), order), quantised])
+                    wave = Wave(polar=polar, group=group,
+                                path_length=lambda rows, points, src=src: np.linalg.norm(
+                                    points - src[rows], axis=1))
+                sums.add(org[near], dirs[near], t[near], weights, wave)
             hit = prim >= 0
             if settings.scattering and order <= settings.scattering_reflections \
                     and hit.any():
                 _scatter(scene, geom, slab, org[hit], dirs[hit], field[hit], t[hit],
-                         prim[hit], normals, receiver, scale, settings, rng, power, count)
+                         prim[hit], normals, receiver, scale, settings, rng, sums)
             if order == settings.max_reflections or not hit.any():
                 break
-            org, dirs, field, t, prim = org[hit], dirs[hit], field[hit], t[hit], prim[hit]
+            org, dirs, field, t, prim = (a[hit] for a in (org, dirs, field, t, prim))
+            if settings.coherent:
+                image = image[hit]
+            last_prim = prim
             n = normals[prim]
             point = org + t[:, None] * dirs
             field = reflected_fields(scene, tri_material[prim], dirs, n, field)
+            if settings.coherent:
+                image = image - 2.0 * np.einsum("ij,ij->i", image - corners[prim],
+                                                n)[:, None] * n
             dirs = dirs - 2.0 * np.einsum("ij,ij->i", dirs, n)[:, None] * n
             dirs /= np.linalg.norm(dirs, axis=1)[:, None]
             org = spawn_origins(point, n, dirs)
+    seconds["rays"] = time.perf_counter() - clock
+    if len(po_objects) and geom.caster is not None:
+        clock = time.perf_counter()
+        _po_facets(scene, geom, grid, transmitter, receiver, po_objects, settings, sums)
+        seconds["physical optics"] = time.perf_counter() - clock
+    clock = time.perf_counter()
     if settings.diffraction and geom.caster is not None:
-        wedges = diffraction.prepare(geom, DiffractionSettings(max_diffractions=1))
+        wedges = diffraction.prepare(geom, DiffractionSettings(max_diffractions=1),
+                                     po_objects)
         if wedges is not None and len(wedges):
             _diffract(scene, geom, slab, wedges, transmitter, receiver, scale / solid_angle,
-                      settings, power, count)
+                      settings, sums)
     if steps is not None:
         steps(n_batches, n_batches)
-    return RadioMap(grid=grid, gain=power, count=count, tx_name=transmitter.name,
+    seconds["diffraction"] = time.perf_counter() - clock
+    clock = time.perf_counter()
+    incoherent = sums.incoherent()
+    gain = sums.coherent_gain() if settings.coherent else incoherent
+    seconds["coherent sum"] = time.perf_counter() - clock
+    return RadioMap(grid=grid, gain=gain, count=sums.count, tx_name=transmitter.name,
                     rx_name=None if receiver is None else receiver.name, rays=len(local),
-                    tx_power_w=float(transmitter.tx_power_w))
+                    tx_power_w=float(transmitter.tx_power_w), coherent=settings.coherent,
+                    incoherent_gain=incoherent if settings.coherent else None,
+                    group_count=sums.group_count() if settings.coherent else None,
+                    stage_seconds=seconds)

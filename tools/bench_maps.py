@@ -5,12 +5,14 @@
 
 The map: radar A's frame received with D's antenna over x in [-40, 160] m,
 y in [-20, 20] m at D's height, 0.5 m cells (32,000 cells; --area, --cell), line of sight,
---reflections specular reflections, diffuse scattering and first-order diffraction
-(--go-only: without these two; docs/maps.md), timed warm (a first small map builds the
-kernels). The reference: trace_scene from A to a receiver with D's antenna at --samples
-cell centres picked among the converged cells, once with the map's physics (specular,
-one diffraction and scattering without reflections beside them, no PO/SBR) and once with
-the paper preset (every mechanism, PO/SBR on the cars); the time per
+--reflections specular reflections, diffuse scattering, first-order diffraction and the
+cars' physical optics as the paper preset chooses it (--optics sbr: PO facets at the cell
+centres, SBR exit rays; --go-only: none of these; docs/maps.md), timed warm (a first
+small map builds the kernels), with the seconds of its stages. The reference:
+trace_scene from A to a receiver with D's antenna at --samples cell centres picked among
+the converged cells, once with the map's physics (specular, one diffraction and
+scattering without reflections beside them, the same optics) and once with the paper
+preset (every mechanism, PO/SBR on the cars); the time per
 link is the median of the links after the first (which carries A's candidate search and
 SBR shot), and tracing every cell is extrapolated as first link + cells x median.
 Prints the map's time, both extrapolations and their ratios to the map, and the map's
@@ -26,10 +28,12 @@ import argparse
 import dataclasses
 import os
 import time
+import warnings
 
 import numpy as np
 
 from clradcom.device.runtime import get_runtime
+from clradcom.errors import FresnelZoneWarning
 from clradcom.maps import MapGrid, MapSettings, radio_map
 from clradcom.mechanisms.common import build_geometry
 from clradcom.scene import load_scene
@@ -86,8 +90,13 @@ def main(argv=None) -> int:
                     help="line of sight and reflections only (no scattering, diffraction)")
     ap.add_argument("--edge-step", type=float, default=0.2)
     ap.add_argument("--cone-step", type=float, default=2.0)
+    ap.add_argument("--optics", default="sbr", choices=("none", "pec", "sbr"),
+                    help="physical optics of the map and its own-physics trace (default "
+                         "sbr, the paper preset's; --go-only: none)")
     ap.add_argument("--device", default=None)
     args = ap.parse_args(argv)
+    # the per-link PO of the cars warns of facets in a radar's Fresnel zone once a link
+    warnings.simplefilter("ignore", FresnelZoneWarning)
     runtime = get_runtime(args.device)
     scene = load_scene(args.scene)
     tx = scene.radars[scene.radar_index(args.tx)]
@@ -95,12 +104,14 @@ def main(argv=None) -> int:
     x0, x1, y0, y1 = (float(v) for v in args.area.split(","))
     grid = MapGrid(x0, x1, y0, y1, float(rx.position[2]), cell_m=args.cell)
     full = not args.go_only
+    optics = args.optics if full else "none"
     settings = MapSettings(rays=args.rays, max_reflections=args.reflections,
                            scattering=full, diffraction=full, edge_step_m=args.edge_step,
-                           cone_step_deg=args.cone_step)
+                           cone_step_deg=args.cone_step, optics=optics)
     print(f"{scene.name}: {len(scene.triangles)} triangles; {grid.nx} x {grid.ny} = "
           f"{grid.n_cells} cells of {grid.cell_m} m; {args.rays} rays, {args.reflections} "
-          f"reflections{'' if args.go_only else ', scattering, diffraction'}; "
+          f"reflections{'' if args.go_only else ', scattering, diffraction'}"
+          f"{'' if optics == 'none' else ', optics ' + optics}; "
           f"{runtime.info.describe()}; load {os.getloadavg()[0]:.1f}")
     geometry = build_geometry(scene, runtime)
     radio_map(scene, tx, grid, rx=rx, settings=MapSettings(rays=1000), geometry=geometry)
@@ -108,9 +119,10 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     m = radio_map(scene, tx, grid, rx=rx, settings=settings, geometry=geometry)
     map_s = time.perf_counter() - t0
-    print(f"map: {map_s:.2f} s ({runtime.kernel_seconds - k0:.2f} s in kernels), "
-          f"{m.converged.mean():.0%} of the cells converged, {(m.count > 0).mean():.0%} "
-          "reached")
+    print(f"map: {map_s:.2f} s ({runtime.kernel_seconds - k0:.2f} s in kernels; "
+          + ", ".join(f"{k} {v:.2f} s" for k, v in m.stage_seconds.items())
+          + f"), {m.converged.mean():.0%} of the cells converged, "
+          f"{(m.count > 0).mean():.0%} reached; load {os.getloadavg()[0]:.1f}")
 
     rng = np.random.default_rng(0)
     cells = np.argwhere(m.converged & (m.gain > 0))
@@ -124,7 +136,7 @@ def main(argv=None) -> int:
     go = TraceSettings(specular=SpecularSettings(max_reflections=args.reflections,
                                                  rays=1_000_000),
                        diffraction=DiffractionSettings(max_diffractions=int(full)),
-                       optics=OpticsSettings(mode="none"),
+                       optics=OpticsSettings(mode=optics),
                        scattering=ScatteringSettings(enabled=full))
     # the map estimates the mean over each cell's volume: a GO field has lit/unlit edges
     # (small facets' reflected beams, shadows) that a point at the centre may fall beside,

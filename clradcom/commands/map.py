@@ -9,7 +9,9 @@ Rays are shot from one radar and their segments accumulated into the cells of a
 horizontal layer (--height, --thickness) over a rectangle (--area, default the scene's
 footprint) on the OpenCL device (docs/maps.md); line of sight, up to --reflections
 specular reflections and, with --scattering and --diffraction, diffuse scattering and
-first-order edge diffraction. The kinds:
+first-order edge diffraction; --optics sbr gives the cars (the targets) their physical
+optics as the tracer's paper preset does; --coherent adds the wavefronts as fields at the carrier
+(cells small against the interference fringes). The kinds:
 
   gain    received power of --tx's frame (dBW) with --rx's antenna in each cell (without
           --rx: gain 1, both polarisations)
@@ -115,6 +117,14 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--cone-step", type=positive_float, default=1.0,
                     help="with --diffraction: Keller-cone ray spacing in degrees "
                          "(default 1)")
+    ap.add_argument("--optics", choices=("none", "pec", "sbr"), default="none",
+                    help="physical optics as the tracer's --physical-optics chooses it per "
+                         "object (sbr: the paper preset's; the cars' first bounce becomes "
+                         "their PO facets' field at the cell centres; default none: GO)")
+    ap.add_argument("--coherent", action="store_true",
+                    help="the coherent sum at the carrier: each wavefront's power per cell "
+                         "with its phase at the cell's centre, added as fields (for cells "
+                         "small against the fringes; docs/maps.md)")
     ap.add_argument("--rcs", type=positive_float, default=1.0,
                     help="radar: the point target's RCS in m² (default 1)")
     ap.add_argument("--window", default="rect", choices=("rect", "hann", "hamming",
@@ -188,7 +198,8 @@ def run(args) -> int:
     settings = MapSettings(rays=args.rays, max_reflections=args.reflections,
                            scattering=args.scattering, diffuse_rays=args.diffuse_rays,
                            diffraction=args.diffraction, edge_step_m=args.edge_step,
-                           cone_step_deg=args.cone_step)
+                           cone_step_deg=args.cone_step, coherent=args.coherent,
+                           optics=args.optics)
     budget = None if args.memory_budget is None else parse_bytes(args.memory_budget,
                                                                  "--memory-budget")
     need = map_memory_bytes(settings, grid)
@@ -203,7 +214,9 @@ def run(args) -> int:
     print(f"{args.kind} map of {scene.name}: {grid.nx} x {grid.ny} cells of {grid.cell_m:g} m "
           f"at z = {grid.height_m:g} m ({grid.thickness:g} m thick), {args.rays} rays, "
           f"{args.reflections} reflections{', scattering' if args.scattering else ''}"
-          f"{', diffraction' if args.diffraction else ''}; "
+          f"{', diffraction' if args.diffraction else ''}"
+          f"{', coherent' if args.coherent else ''}"
+          f"{'' if args.optics == 'none' else ', optics ' + args.optics}; "
           f"{frame}", flush=True)
     n_maps = 2 if args.kind == "sinr" and args.interferer is not None else 1
     with progress_bar(n_maps, f"{args.kind} map", quiet=args.quiet, unit="batch") as bar:
@@ -233,6 +246,7 @@ def run(args) -> int:
             "tx": args.tx, "rx": args.rx, "interferer": args.interferer,
             "rays": args.rays, "reflections": args.reflections,
             "scattering": args.scattering, "diffraction": args.diffraction,
+            "coherent": args.coherent, "optics": args.optics,
             "min_segments": MIN_SEGMENTS}
     sources = scene.input_files
     target = Path(args.out)

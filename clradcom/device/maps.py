@@ -5,6 +5,10 @@
 each cell's box is added to that cell (the track-length estimator, docs/maps.md), with
 float sums by 32-bit compare-and-swap, so a device without 64-bit atomics runs it.
 :func:`accumulate_segments_host` is the numpy reference it is tested against.
+:func:`segment_cells` walks the same cells and returns each segment's length in each
+cell apart, for the coherent sum, whose phases the host weighs in float64.
+:func:`po_facet_fields` evaluates PEC facets' physical-optics fields at points (the cell
+centres), without the carrier phase, which the host adds in float64.
 """
 
 from __future__ import annotations
@@ -15,7 +19,8 @@ import numpy as np
 
 from clradcom.errors import ArgumentError
 
-__all__ = ["Slab", "accumulate_segments", "accumulate_segments_host"]
+__all__ = ["Slab", "accumulate_segments", "accumulate_segments_host", "po_facet_fields",
+           "segment_cells"]
 
 SOURCE = "maps.cl"
 
@@ -123,6 +128,108 @@ def accumulate_segments(runtime, slab: Slab, origins, directions, lengths, weigh
         power += sums.astype(np.float64) * scale
         count += hits
     return power, count
+
+
+def segment_cells(runtime, slab: Slab, origins, directions, lengths,
+                  capacity: int | None = None):
+    """The cells each segment crosses, walked as :func:`accumulate_segments` walks them:
+    ``(segment, cell, length)`` int64 segment rows, int64 flat cell indices
+    (iy * nx + ix) and float64 lengths (m) inside the cell's box, one record per segment
+    and cell, in the device's order. ``capacity`` (records) is a first guess; a batch that
+    needs more is run again with room for all."""
+    import pyopencl as cl
+
+    origins = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
+    directions = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
+    lengths = np.asarray(lengths, dtype=np.float64).reshape(-1)
+    if not (len(directions) == len(lengths) == len(origins)):
+        raise ArgumentError("origins, directions and lengths must have one row per "
+                            "segment", argument="segments",
+                            value=(len(origins), len(directions), len(lengths)))
+    empty = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0))
+    if not len(origins):
+        return empty
+    kernel = runtime.kernel(SOURCE, "segment_cells")
+    local = runtime.local_size(kernel)
+    o, d = _relative(slab, origins, directions, lengths)
+    capacity = int(capacity or 4 * len(o))
+    mf = cl.mem_flags
+    while True:
+        n_records = np.zeros(1, dtype=np.int32)
+        with runtime.kernel_clock(), runtime.guard("radio map cells of segments"):
+            bufs = [cl.Buffer(runtime.context, mf.WRITE_ONLY, size=4 * capacity)
+                    for _ in range(3)]
+            n_buf = cl.Buffer(runtime.context, mf.READ_WRITE | mf.COPY_HOST_PTR,
+                              hostbuf=n_records)
+            runtime.launch(kernel, len(o), local, runtime.to_device(o), runtime.to_device(d),
+                           np.float32(0.0), np.float32(slab.z_hi - slab.z_lo),
+                           np.float32(slab.cell_x), np.float32(slab.cell_y),
+                           np.int32(slab.nx), np.int32(slab.ny), np.int32(len(o)), *bufs,
+                           n_buf, np.int32(capacity), name="segment_cells")
+            cl.enqueue_copy(runtime.queue, n_records, n_buf, is_blocking=True)
+            total = int(n_records[0])
+            if total > capacity:
+                capacity = total
+                continue
+            seg = np.empty(total, np.int32)
+            cell = np.empty(total, np.int32)
+            length = np.empty(total, np.float32)
+            if total:
+                for host, buf in zip((seg, cell, length), bufs, strict=True):
+                    cl.enqueue_copy(runtime.queue, host, buf, is_blocking=False)
+                runtime.queue.finish()
+        return seg.astype(np.int64), cell.astype(np.int64), length.astype(np.float64)
+
+
+def po_facet_fields(runtime, corner, vertices, normals, e_tx, source, points,
+                    wavenumber: float, batch: int = 1 << 18, centroids=None) -> np.ndarray:
+    """(S, 3) complex: the PO field of PEC facet-point pairs on the device, F with the
+    field at the point (lambda / 4 pi) e^{-jkL} F (kernels/maps.cl po_facet_fields;
+    :func:`clradcom.physics.po.po_transfer` times ``e_tx`` over L without e^{-jkL}).
+    ``vertices`` (S, 3, 3), lit-side unit ``normals`` (S, 3), the transmitter's field
+    ``e_tx`` (S, 3) complex at the facet, ``source`` (3,) the transmitter, ``points``
+    (S, 3), all world float64 (``centroids`` (S, 3) the vertices' means, when known),
+    sent relative to ``corner`` (3,): in double where the
+    device has fp64 (a far sidelobe is a small difference of large edge terms), else in
+    float32 (1e-3 of such a lobe)."""
+    import pyopencl as cl
+
+    vertices = np.asarray(vertices, dtype=np.float64).reshape(-1, 3, 3)
+    count = len(vertices)
+    out = np.zeros((count, 3), dtype=np.complex128)
+    if not count:
+        return out
+    corner = np.asarray(corner, dtype=np.float64)
+    double = bool(runtime.info.has_double)
+    real = np.float64 if double else np.float32
+    kernel = runtime.kernel(SOURCE, "po_facet_fields",
+                            defines={"PO_DOUBLE": 1} if double else None)
+    local = runtime.local_size(kernel)
+    src = np.zeros(4, dtype=real)
+    src[:3] = np.asarray(source, dtype=np.float64) - corner
+    src[3] = wavenumber
+    e_tx = np.asarray(e_tx, dtype=np.complex128)
+    for start in range(0, count, batch):
+        stop = min(start + batch, count)
+        v = vertices[start:stop]
+        centroid = v.mean(axis=1) if centroids is None else centroids[start:stop]
+        rows = np.empty((stop - start, 21), dtype=real)
+        rows[:, :9] = (v - centroid[:, None, :]).reshape(-1, 9)
+        rows[:, 9:12] = centroid - corner
+        rows[:, 12:15] = normals[start:stop]
+        rows[:, 15:18] = e_tx[start:stop].real
+        rows[:, 18:21] = e_tx[start:stop].imag
+        pts = np.zeros((stop - start, 4), dtype=real)
+        pts[:, :3] = np.asarray(points[start:stop], dtype=np.float64) - corner
+        field = np.empty((stop - start, 6), dtype=real)
+        with runtime.kernel_clock(), runtime.guard("radio map PO facets"):
+            buf = cl.Buffer(runtime.context, cl.mem_flags.WRITE_ONLY, size=field.nbytes)
+            runtime.launch(kernel, stop - start, local, runtime.to_device(rows),
+                           runtime.to_device(pts), src, np.int32(stop - start), buf,
+                           name="po_facet_fields")
+            cl.enqueue_copy(runtime.queue, field, buf, is_blocking=True)
+        out[start:stop] = field[:, :3] + 1j * field[:, 3:]
+    return out
 
 
 def accumulate_segments_host(slab: Slab, origins, directions, lengths, weights):
