@@ -14,8 +14,8 @@ from device_helpers import entry_device, oclgrind_reports, start_subset_runs
 from clradcom.device.runtime import ENV_DEVICE, ENV_FP64, OpenCLError, get_runtime, list_devices
 
 #: The kernel tests (issue #26): ray casting, reflection keys, image points, visibility,
-#: edges, silhouette rasters, SBR, scattering, precision, the runtime, and the whole trace
-#: against the host reference. They hold device results to the host's, so they hold on
+#: edges, silhouette rasters, SBR, scattering, precision, the radio maps' kernels, the
+#: runtime, and the whole trace against the host reference. They hold device results to the host's, so they hold on
 #: every implementation; tests/test_device_matrix.py runs them on the others.
 CONFORMANCE_MODULES = frozenset({
     "test_opencl",
@@ -36,6 +36,9 @@ CONFORMANCE_MODULES = frozenset({
     "test_golden_snapshot",
     "test_engines_whole_trace",
     "test_tiny_scenes",
+    "test_maps",
+    "test_maps_coherent",
+    "test_maps_po",
 })
 
 #: What Oclgrind runs with all its checks on (a simulator, unoptimised: ~10^4 times slower
@@ -61,6 +64,9 @@ OCLGRIND_TESTS = frozenset({
     "test_phase_precision::test_scalar_ops_within_published_bounds",
     "test_phase_precision::test_polyline_phase_within_one_degree",
     "test_scatter_device::test_sight_flags_and_lambertian_power_against_host_casts",
+    "test_maps::test_device_accumulation_matches_the_float64_reference",
+    "test_maps_coherent::test_segment_records_add_up_to_the_accumulated_cells",
+    "test_maps_po::test_device_po_fields_on_a_few_cells",
 })
 
 def pytest_addoption(parser):

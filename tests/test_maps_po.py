@@ -89,15 +89,15 @@ def test_po_facets_at_the_cell_centres_are_the_tracers_po_paths(runtime):
     assert np.median(go_err) > 3.0, np.median(go_err)
 
 
-def device_vs_host(runtime):
+def device_vs_host(runtime, grid=None):
     """(worst |device - host| of the coherent map, of the incoherent one), each over the
     incoherent power, on the car at 0.25 m cells (~10^5 facet-cell pairs, near-zone
-    pieces among them)."""
+    pieces among them), or on ``grid``."""
     tx = radar("tx", [0, 0, 0.5], role="tx", polarization="V",
                pattern={"type": "cosine", "half_power_beamwidth_deg": 90.0})
     scene = car_scene([tx, radar("rx", [5, 0, 0.5], role="rx", polarization="H",
                                  pattern="isotropic")])
-    grid = MapGrid(2, 16, -8, 8, 0.5, cell_m=0.25)
+    grid = grid or MapGrid(2, 16, -8, 8, 0.5, cell_m=0.25)
     maps = {engine: radio_map(scene, "tx", grid, rx="rx", runtime=runtime,
                               settings=MapSettings(rays=1000, max_reflections=1,
                                                    line_of_sight=False, optics="sbr",
@@ -123,6 +123,16 @@ def test_device_po_fields_match_the_float64_host_reference(runtime, no_fp64):
     assert max(device_vs_host(runtime)) < 1e-9
     coherent, incoherent = device_vs_host(no_fp64)
     assert coherent < 1e-2 and incoherent < 1e-2, (coherent, incoherent)
+
+
+@pytest.mark.filterwarnings("ignore::clradcom.errors.FresnelZoneWarning")
+def test_device_po_fields_on_a_few_cells(runtime):
+    """The same on 16 cells beside the car (a few thousand facet-cell pairs: small
+    enough for Oclgrind with its checks on), on the session's device: double where it
+    has fp64, else its float32 mode's bound."""
+    coherent, incoherent = device_vs_host(runtime, MapGrid(4, 6, -3, -1, 0.5, cell_m=0.5))
+    bound = 1e-9 if runtime.info.has_double else 1e-2
+    assert coherent < bound and incoherent < bound, (coherent, incoherent)
 
 
 BOX_SCENE = """
