@@ -15,8 +15,9 @@ from clradcom.device.runtime import ENV_DEVICE, ENV_FP64, OpenCLError, get_runti
 
 #: The kernel tests (issue #26): ray casting, reflection keys, image points, visibility,
 #: edges, silhouette rasters, SBR, scattering, precision, the radio maps' kernels, the
-#: runtime, and the whole trace against the host reference. They hold device results to the host's, so they hold on
-#: every implementation; tests/test_device_matrix.py runs them on the others.
+#: runtime, and the whole trace against the host reference. They hold device results to
+#: the host's, so they hold on every implementation; tests/test_device_matrix.py runs them
+#: on the others.
 CONFORMANCE_MODULES = frozenset({
     "test_opencl",
     "test_kernel_time",
