@@ -8,7 +8,8 @@ import csv
 
 import numpy as np
 import pytest
-from tool_helpers import CLOSING_PLATE_SCENE
+from tool_helpers import CLOSING_PLATE_SCENE, FMCW_TABLE
+from tool_helpers import FMCW_ARRAYS as ARRAYS
 
 from clradcom.cli import main
 from clradcom.commands.options import run_waveform
@@ -16,23 +17,6 @@ from clradcom.errors import ArgumentError, SceneError
 from clradcom.radar.fmcw import FmcwWaveform
 from clradcom.scene import load_scene
 from clradcom.scene.records import FmcwSpec
-
-FMCW_TABLE = """
-[waveform]
-kind = "fmcw"
-start_frequency_hz = 23.9e9
-sweep_bandwidth_hz = 200e6
-chirp_duration_s = 40e-6
-idle_duration_s = 10e-6
-chirps = 64
-adc_sample_rate_hz = 5e6
-samples_per_chirp = 128
-"""
-
-ARRAYS = """tx_array = { kind = "ula", count = 2, spacing_wavelengths = 2.0 }
-rx_array = { kind = "ula", count = 4, spacing_wavelengths = 0.5 }
-"""
-
 
 RADAR_D = """
 [[radars]]

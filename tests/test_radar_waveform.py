@@ -11,7 +11,8 @@ import csv
 import io
 
 import pytest
-from tool_helpers import CLOSING_PLATE_SCENE
+from tool_helpers import CLOSING_PLATE_SCENE, FMCW_TABLE
+from tool_helpers import FMCW_ARRAYS as ARRAYS
 
 from clradcom.cli import main
 from clradcom.commands.options import refuse_radar_waveforms, run_waveform
@@ -37,21 +38,7 @@ tx_power_w = 0.01
 noise_figure_db = 10.0
 """
 
-FMCW_OWN = """
-[radars.waveform]
-kind = "fmcw"
-start_frequency_hz = 23.9e9
-sweep_bandwidth_hz = 200e6
-chirp_duration_s = 40e-6
-idle_duration_s = 10e-6
-chirps = 64
-adc_sample_rate_hz = 5e6
-samples_per_chirp = 128
-"""
-
-ARRAYS = """tx_array = { kind = "ula", count = 2, spacing_wavelengths = 2.0 }
-rx_array = { kind = "ula", count = 4, spacing_wavelengths = 0.5 }
-"""
+FMCW_OWN = FMCW_TABLE.replace("[waveform]", "[radars.waveform]")
 
 
 class NoOptions:

@@ -37,3 +37,22 @@ pattern = "sector"
 tx_power_w = 0.01
 noise_figure_db = 10.0
 """
+
+
+#: an FMCW [waveform] table for the closing plate (tests of the FMCW scene keys)
+FMCW_TABLE = """
+[waveform]
+kind = "fmcw"
+start_frequency_hz = 23.9e9
+sweep_bandwidth_hz = 200e6
+chirp_duration_s = 40e-6
+idle_duration_s = 10e-6
+chirps = 64
+adc_sample_rate_hz = 5e6
+samples_per_chirp = 128
+"""
+
+#: a TDM-MIMO radar's arrays for FMCW_TABLE's radar
+FMCW_ARRAYS = """tx_array = { kind = "ula", count = 2, spacing_wavelengths = 2.0 }
+rx_array = { kind = "ula", count = 4, spacing_wavelengths = 0.5 }
+"""

@@ -356,13 +356,7 @@ def run(args) -> int:
                                      res.floors["clean"], args.range_max)
             rows = interference_summary(res, wf)
             print()
-            for name, val in rows:
-                if isinstance(val, int):
-                    print(f"  {name:<68} {val:10d}")
-                elif 0 < abs(val) < 1e-2:
-                    print(f"  {name:<68} {val:10.2e}")
-                else:
-                    print(f"  {name:<68} {val:10.3f}")
+            _print_rows(rows)
             write_table(stage / "interference_summary.csv", rows, ["quantity", "value"])
     if failure is not None:
         print(f"{getattr(args, 'prog', 'interference.py')}: {failure}; the traced links "
