@@ -527,31 +527,44 @@ __kernel void sbr_bounce(__global const Bvh8Node *nodes,
  * program, Intel's CPU compiler gave NaN points in sbr_bounce's records without fp64 and
  * crashed the process with fp64 (tests/test_no_fp64.py, tests/test_sbr_engines.py). */
 #ifdef SBR_PERSISTENT
-/* Every bounce of every launched tube in one work item each (sbr_bounce's steps in a
- * loop, the tube kept in private memory): bounce m's footprints into region m - 1 of
- * `footprints` (`region` footprints each), counted in counts[m - 1]. For devices that
- * run a work item as scalar code (PoCL's CPU device), where a tube that ends early costs
- * nothing and the queue between bounces only costs launches and memory traffic. */
+/* Every tube of the batch's cells from its launch through all its bounces in one work
+ * item each (sbr_launch's tube and sbr_bounce's steps in a loop, the tube kept in
+ * private memory, no queue): bounce m's footprints into region m - 1 of `footprints`
+ * (`region` footprints each), counted in counts[m - 1]. For devices that run a work item
+ * as scalar code (PoCL's CPU device), where a tube that is not owned or ends early costs
+ * nothing and a queue only costs launches and memory traffic. */
 __kernel void sbr_bounces(__global const Bvh8Node *nodes,
                           __global const float4 *tri4,
                           __global const int *slot_prim,
                           __global const pelem *tri_v,       /* T*9 */
                           __global const pelem *tri_n,       /* T*3, unit */
                           __global const uchar *tri_record,
+                          __global const real *win_f,        /* sbr_launch's windows */
+                          __global const int *win_i,
+                          __global const uchar *masks,
+                          __global const int *blocks,
+                          __global const int *overlap_first,
+                          __global const int *overlap_ids,
+                          __global const pelem *tx_and_k,
+                          const long first_block,
+                          const int n_cells,
                           const int first_bounce,
                           const int max_bounces,
-                          __global const SbrTube *queue,
-                          const int n_tubes,
                           __global SbrFootprint *footprints,
                           const int region,
                           __global volatile int *counts)     /* per bounce: footprints */
 {
     int gid = get_global_id(0);
-    __global const SbrTube *t = queue + min(gid, n_tubes - 1);
-    real3 d = load3(t->dir);
-    pvec pos = pv_load(t->pos), org = pv_load(t->org);
-    pscal L = ps_load(t->length);
-    int tube = t->tube;
+    int item = min(gid, n_cells - 1);   /* past the count: a copy of the last */
+    int cell, blk = quotient(item, SBR_CELLS, &cell);
+    CellTube c = cell_tube(win_f, win_i, blocks, first_block + blk, cell);
+    /* owned unless an earlier window whose cone meets this one holds the direction */
+    for (int o = overlap_first[c.window]; o < overlap_first[c.window + 1]; ++o)
+        if (window_covers(win_f, win_i, masks, overlap_ids[o], c.dir)) return;
+    /* sbr_launch's tube: from tx along the cell's direction */
+    real3 d = c.dir;
+    pvec pos = pv_load(tx_and_k), org = pos;
+    pscal L = ps_zero();
     int tris[SBR_TUBE_TRIS];
     for (int k = 0; k < SBR_TUBE_TRIS; ++k) tris[k] = -1;
     for (int m = 1; m <= max_bounces; ++m) {
@@ -562,12 +575,12 @@ __kernel void sbr_bounces(__global const Bvh8Node *nodes,
                            &L, &d_out, &org))
             break;
         tris[m - 1] = tri;
-        if (gid < n_tubes && m >= first_bounce && tri_record[tri]) {
+        if (gid < n_cells && m >= first_bounce && tri_record[tri]) {
             __global SbrFootprint *fp =
                 footprints + (size_t)(m - 1) * region + atomic_inc(counts + m - 1);
             pv_store(fp->point, p);
             fp->length = ps_out(L);
-            fp->tube = tube;
+            fp->tube = gid;
             for (int k = 0; k < SBR_TUBE_TRIS; ++k) fp->tri[k] = tris[k];
         }
         pos = p;

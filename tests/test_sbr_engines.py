@@ -282,10 +282,11 @@ def test_batches_and_runs_give_the_same_records(runtime):
 
 
 def test_bounces_in_one_launch_give_the_wavefront_records(runtime, monkeypatch):
-    """sbr_bounces (all bounces of a tube in one work item, for scalar CPU devices) and
-    the wavefront (one launch per bounce, the live tubes compacted between) give the same
-    records, bit for bit, whichever the device would take by itself; each mode is the one
-    that runs (checked by the kernels launched)."""
+    """sbr_bounces (a tube's launch and all its bounces in one work item, for scalar CPU
+    devices) and the wavefront (a launch into a queue, then one launch per bounce, the
+    live tubes compacted between) give the same records, bit for bit, whichever the
+    device would take by itself; each mode is the one that runs (checked by the kernels
+    launched)."""
     run, _ = trihedral_runs(runtime)
     names = launched_kernels(runtime, monkeypatch)
     records = {}
@@ -296,6 +297,7 @@ def test_bounces_in_one_launch_give_the_wavefront_records(runtime, monkeypatch):
         records[persistent] = run(4096)
         assert ("sbr_bounces (sbr.cl)" in names) == persistent
         assert ("sbr_bounce (sbr.cl)" in names) == (not persistent)
+        assert ("sbr_launch (sbr.cl)" in names) == (not persistent)
     if runtime.info.device_type == "CPU":
         assert set(records) == {True, False}
         assert len(records[True]) > 0

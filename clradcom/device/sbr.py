@@ -8,7 +8,9 @@ blocks at a time, so device and host memory stay bounded whatever the number of 
 only the records of footprints that see a receiver come back.  Per batch: ``sbr_launch``
 queues the owned tubes; per bounce ``sbr_bounce`` follows the live ones (a compacted
 queue) and lists the footprints, ``sbr_radiate`` radiates each toward each receiver,
-``sbr_reduce`` sums them per block, receiver and face sequence in work groups.  Records
+``sbr_reduce`` sums them per block, receiver and face sequence in work groups (on a
+device that runs work items as scalar code ``sbr_bounces`` launches and bounces each tube
+in one work item, no queue).  Records
 are appended with an atomic counter, so their order within a batch is the device's;
 they are sorted by block and the group's first (tube, bounce, receiver), so every run
 and batch size gives the same records in the same order.
@@ -263,9 +265,9 @@ class _Wavefront:
         max_bounces = int(defines["SBR_MAX_BOUNCES"])
         # the build decides: sbr_bounces exists only in a program built for it
         self.persistent = bool(defines.get("SBR_PERSISTENT"))
-        # per tube: two queues and a footprint (persistent: one queue and a footprint per
+        # per tube: two queues and a footprint (persistent: no queue, a footprint per
         # bounce), its illumination, per receiver a contribution and its footprint
-        per_tube = ((tube_bytes + max_bounces * footprint_bytes) if self.persistent
+        per_tube = ((max_bounces * footprint_bytes) if self.persistent
                     else (2 * tube_bytes + footprint_bytes))
         per_tube += lit_bytes + n_rx * (contribution_bytes + 4)
         self.blocks_per_batch = _batch_tubes(rt, per_tube, batch_tubes, n_rx) // cells
@@ -283,7 +285,6 @@ class _Wavefront:
             self.footprint_regions = [
                 self.footprint_area.get_sub_region(m * region_bytes, region_bytes)
                 for m in range(max_bounces)]
-            self.queues = [empty(n * tube_bytes)]
             self.bounce_counts = empty(4 * max_bounces)
         else:
             self.queues = [empty(n * tube_bytes), empty(n * tube_bytes)]
@@ -328,14 +329,14 @@ class _Wavefront:
     def shoot(self, first: int, n_blocks: int, max_bounces: int, first_bounce: int):
         """The records of blocks first .. first + n_blocks - 1 (a list of arrays)."""
         out = []
-        n_live = self._launch(first, n_blocks)
         if self.persistent:
-            n_fps = self._bounces(n_live, first_bounce, max_bounces) if n_live else []
+            n_fps = self._bounces(first, n_blocks, first_bounce, max_bounces)
             for m, n_fp in enumerate(n_fps, start=1):
                 if n_fp:
                     out += self._radiate_bounce(m, n_fp, first, n_blocks,
                                                 self.footprint_regions[m - 1])
             return out
+        n_live = self._launch(first, n_blocks)
         for m in range(1, max_bounces + 1):
             if n_live == 0:
                 break
@@ -372,14 +373,18 @@ class _Wavefront:
             self.cl.enqueue_copy(self.rt.queue, counts, self.bounce_counts, is_blocking=True)
         return int(counts[0]), int(counts[1])
 
-    def _bounces(self, n_live: int, first_bounce: int, max_bounces: int) -> list[int]:
-        """Every bounce of the n_live launched tubes in one launch (sbr_bounces): the
-        footprints per bounce, in :attr:`footprint_regions`."""
+    def _bounces(self, first: int, n_blocks: int, first_bounce: int,
+                 max_bounces: int) -> list[int]:
+        """The tubes of blocks first .. first + n_blocks - 1 launched and taken through
+        every bounce in one launch (sbr_bounces, no queue): the footprints per bounce, in
+        :attr:`footprint_regions`."""
         counts = np.zeros(max_bounces, np.int32)
         self.rt.fill(self.bounce_counts, np.int32(0), counts.nbytes)
-        self._run_bvh("sbr_bounces", n_live, *self.bounce_args, np.int32(first_bounce),
-                      np.int32(max_bounces), self.queues[0], np.int32(n_live),
-                      self.footprint_area, np.int32(self.region), self.bounce_counts)
+        n_cells = n_blocks * self.cells
+        self._run_bvh("sbr_bounces", n_cells, *self.bounce_args, *self.launch_args,
+                      np.int64(first), np.int32(n_cells), np.int32(first_bounce),
+                      np.int32(max_bounces), self.footprint_area, np.int32(self.region),
+                      self.bounce_counts)
         with self.rt.guard("SBR bounce counts"):
             self.cl.enqueue_copy(self.rt.queue, counts, self.bounce_counts, is_blocking=True)
         return [int(c) for c in counts]
