@@ -241,6 +241,9 @@ class _Wavefront:
         self.defines, self.options, self.dtype, self.n_rx = defines, options, dtype, n_rx
         self.launch_args, self.bounce_args = launch_args, bounce_args
         self.illuminate_args, self.radiate_args = illuminate_args, radiate_args
+        # what a persistent build's sbr_radiate takes in place of sbr_illuminate's output
+        (_, _, mat_f, _, win_f, win_i, blocks, tx_frame, _) = illuminate_args
+        self.lit_inputs = [mat_f, win_f, win_i, blocks, tx_frame]
         self.tri_face = tri_face
         # the kernels that do not walk the BVH come from the same program as those that do
         program_defines = {**defines, **caster.kernel_defines()}
@@ -265,11 +268,12 @@ class _Wavefront:
         max_bounces = int(defines["SBR_MAX_BOUNCES"])
         # the build decides: sbr_bounces exists only in a program built for it
         self.persistent = bool(defines.get("SBR_PERSISTENT"))
-        # per tube: two queues and a footprint (persistent: no queue, a footprint per
-        # bounce), its illumination, per receiver a contribution and its footprint
+        # per tube: two queues, a footprint and its illumination (persistent: no queue, a
+        # footprint per bounce, its illumination computed where it radiates), per receiver
+        # a contribution and its footprint
         per_tube = ((max_bounces * footprint_bytes) if self.persistent
-                    else (2 * tube_bytes + footprint_bytes))
-        per_tube += lit_bytes + n_rx * (contribution_bytes + 4)
+                    else (2 * tube_bytes + footprint_bytes + lit_bytes))
+        per_tube += n_rx * (contribution_bytes + 4)
         self.blocks_per_batch = _batch_tubes(rt, per_tube, batch_tubes, n_rx) // cells
         n = min(self.blocks_per_batch, n_blocks) * cells
         empty = rt.empty
@@ -291,7 +295,7 @@ class _Wavefront:
             self.footprints = empty(n * footprint_bytes)
             # a bounce's two counts (next tubes, footprints) in one buffer: one read
             self.bounce_counts = empty(8)
-        self.lit = empty(n * lit_bytes)
+            self.lit = empty(n * lit_bytes)
         self.contributions = empty(n * n_rx * contribution_bytes)
         self.contribution_footprint = empty(n * n_rx * 4)
         # per (block, receiver): its contributions at a bounce; those with any, listed
@@ -349,10 +353,12 @@ class _Wavefront:
 
     def _radiate_bounce(self, m: int, n_fp: int, first: int, n_blocks: int,
                         footprints) -> list:
-        """Bounce m's records from its n_fp ``footprints``: illumination, radiation
-        toward every receiver, reduction."""
-        self._illuminate(m, n_fp, first, footprints)
-        n_groups = self._radiate(m, n_fp, n_blocks, footprints)
+        """Bounce m's records from its n_fp ``footprints``: illumination (persistent: in
+        sbr_radiate, for the footprints that see a receiver), radiation toward every
+        receiver, reduction."""
+        if not self.persistent:
+            self._illuminate(m, n_fp, first, footprints)
+        n_groups = self._radiate(m, n_fp, first, n_blocks, footprints)
         return [self._reduce(m, n_groups, first, footprints)] if n_groups else []
 
     def _launch(self, first: int, n_blocks: int) -> int:
@@ -396,13 +402,14 @@ class _Wavefront:
                       np.int32(n_fp), self.lit, name="sbr_illuminate (sbr.cl)",
                       wait=False)  # sbr_radiate, next in the queue, waits for it
 
-    def _radiate(self, m: int, n_fp: int, n_blocks: int, footprints) -> int:
+    def _radiate(self, m: int, n_fp: int, first: int, n_blocks: int, footprints) -> int:
         slots = n_blocks * self.n_rx
         self.rt.fill(self.contribution_footprint, np.int32(-1), slots * self.cells * 4)
         self.rt.fill(self.group_tubes, np.int32(0), slots * 4)
         self._zero(self.n_groups)
+        lit = ([*self.lit_inputs, np.int64(first)] if self.persistent else [self.lit])
         self._run_bvh("sbr_radiate", n_fp * self.n_rx, *self.radiate_args, np.int32(m),
-                      footprints, self.lit, np.int32(n_fp), self.contributions,
+                      footprints, *lit, np.int32(n_fp), self.contributions,
                       self.contribution_footprint, self.group_tubes, self.live_groups,
                       self.n_groups)
         with self.rt.guard("SBR group count"):
