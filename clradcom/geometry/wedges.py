@@ -509,7 +509,7 @@ def _flush_pairs(wedges, faces_w, face_n, face_t, tri, tri_n, area2, usable, tol
     """(face, triangle) candidate pairs of :func:`free_wedges`: triangles (of ``usable``)
     whose plane may lie within ``tol`` of the face's edge with its normal within
     ``angle`` (either orientation) and whose box, grown by what :func:`_covered_spans`
-    allows (:func:`_cover_margins`), meets the box of the face's probe line.
+    allows (:func:`_grown_boxes`), meets the box of the face's probe line.
 
     Triangles are grouped by their exact plane (n, n.x / L), L the scene's largest
     coordinate; a k-d tree over those planes (and their reverses) finds each face's
