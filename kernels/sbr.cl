@@ -13,6 +13,9 @@
  *   sbr_illuminate  one item per footprint: the tube's cross-section and the fields of
  *                   both tx polarisations at it, replayed from the launch through its
  *                   reflections (the queues carry only what the next hit needs);
+ *                   a persistent build (SBR_PERSISTENT, scalar CPU devices) has
+ *                   sbr_bounces in place of sbr_launch and sbr_bounce, and sbr_radiate
+ *                   replays the illumination itself where a footprint sees a receiver;
  *   sbr_radiate     one item per (footprint, receiver): the sight line (float32 any-hit,
  *                   re-decided in float64 where the device has it), the antenna's near
  *                   triangles, the 2x2 polarimetric matrix in the antennas' bases, into
@@ -527,31 +530,44 @@ __kernel void sbr_bounce(__global const Bvh8Node *nodes,
  * program, Intel's CPU compiler gave NaN points in sbr_bounce's records without fp64 and
  * crashed the process with fp64 (tests/test_no_fp64.py, tests/test_sbr_engines.py). */
 #ifdef SBR_PERSISTENT
-/* Every bounce of every launched tube in one work item each (sbr_bounce's steps in a
- * loop, the tube kept in private memory): bounce m's footprints into region m - 1 of
- * `footprints` (`region` footprints each), counted in counts[m - 1]. For devices that
- * run a work item as scalar code (PoCL's CPU device), where a tube that ends early costs
- * nothing and the queue between bounces only costs launches and memory traffic. */
+/* Every tube of the batch's cells from its launch through all its bounces in one work
+ * item each (sbr_launch's tube and sbr_bounce's steps in a loop, the tube kept in
+ * private memory, no queue): bounce m's footprints into region m - 1 of `footprints`
+ * (`region` footprints each), counted in counts[m - 1]. For devices that run a work item
+ * as scalar code (PoCL's CPU device), where a tube that is not owned or ends early costs
+ * nothing and a queue only costs launches and memory traffic. */
 __kernel void sbr_bounces(__global const Bvh8Node *nodes,
                           __global const float4 *tri4,
                           __global const int *slot_prim,
                           __global const pelem *tri_v,       /* T*9 */
                           __global const pelem *tri_n,       /* T*3, unit */
                           __global const uchar *tri_record,
+                          __global const real *win_f,        /* sbr_launch's windows */
+                          __global const int *win_i,
+                          __global const uchar *masks,
+                          __global const int *blocks,
+                          __global const int *overlap_first,
+                          __global const int *overlap_ids,
+                          __global const pelem *tx_and_k,
+                          const long first_block,
+                          const int n_cells,
                           const int first_bounce,
                           const int max_bounces,
-                          __global const SbrTube *queue,
-                          const int n_tubes,
                           __global SbrFootprint *footprints,
                           const int region,
                           __global volatile int *counts)     /* per bounce: footprints */
 {
     int gid = get_global_id(0);
-    __global const SbrTube *t = queue + min(gid, n_tubes - 1);
-    real3 d = load3(t->dir);
-    pvec pos = pv_load(t->pos), org = pv_load(t->org);
-    pscal L = ps_load(t->length);
-    int tube = t->tube;
+    int item = min(gid, n_cells - 1);   /* past the count: a copy of the last */
+    int cell, blk = quotient(item, SBR_CELLS, &cell);
+    CellTube c = cell_tube(win_f, win_i, blocks, first_block + blk, cell);
+    /* owned unless an earlier window whose cone meets this one holds the direction */
+    for (int o = overlap_first[c.window]; o < overlap_first[c.window + 1]; ++o)
+        if (window_covers(win_f, win_i, masks, overlap_ids[o], c.dir)) return;
+    /* sbr_launch's tube: from tx along the cell's direction */
+    real3 d = c.dir;
+    pvec pos = pv_load(tx_and_k), org = pos;
+    pscal L = ps_zero();
     int tris[SBR_TUBE_TRIS];
     for (int k = 0; k < SBR_TUBE_TRIS; ++k) tris[k] = -1;
     for (int m = 1; m <= max_bounces; ++m) {
@@ -562,12 +578,12 @@ __kernel void sbr_bounces(__global const Bvh8Node *nodes,
                            &L, &d_out, &org))
             break;
         tris[m - 1] = tri;
-        if (gid < n_tubes && m >= first_bounce && tri_record[tri]) {
+        if (gid < n_cells && m >= first_bounce && tri_record[tri]) {
             __global SbrFootprint *fp =
                 footprints + (size_t)(m - 1) * region + atomic_inc(counts + m - 1);
             pv_store(fp->point, p);
             fp->length = ps_out(L);
-            fp->tube = tube;
+            fp->tube = gid;
             for (int k = 0; k < SBR_TUBE_TRIS; ++k) fp->tri[k] = tris[k];
         }
         pos = p;
@@ -576,30 +592,49 @@ __kernel void sbr_bounces(__global const Bvh8Node *nodes,
 }
 #endif
 
-/* One work item per footprint of bounce m: the tube's cross-section and the fields of
- * both tx polarisations at it, replayed from its launch through its m - 1 reflections
- * (the operations sbr_bounce did on its direction), the cross-section's
- * edges projected on the facet and, on a penetrable facet, the fields it reflects. */
-__kernel void sbr_illuminate(__global const pelem *tri_n,       /* T*3, unit */
-                             __global const int *tri_material,
-                             /* per material: eps re, im, sigma_h, specular share; pec,
-                              * roughness model */
-                             __global const real *mat_f,
-                             __global const int *mat_i,
-                             __global const real *win_f,
-                             __global const int *win_i,
-                             __global const int *blocks,
-                             __global const real *tx_frame,     /* 9 */
-                             __global const pelem *tx_and_k,
-                             const long first_block,
-                             const int bounce,
-                             __global const SbrFootprint *footprints,
-                             const int n_footprints,
-                             __global SbrIllumination *lit)
+/* What a footprint radiates from (an SbrIllumination, in private memory). */
+typedef struct {
+    real3 dir, normal, edge1, edge2;
+    real area;
+    cvec3 f[2];    /* the incident field per tx polarisation */
+    cvec3 Df[2];   /* ... and its reflection D f, on a penetrable facet only */
+} Lit;
+
+/* The incident direction at footprint fp of bounce m: the tube's launch direction
+ * mirrored in its m - 1 earlier triangles (footprint_lit's steps on d alone). */
+inline real3 footprint_direction(__global const SbrFootprint *fp, int bounce,
+                                 __global const pelem *tri_n, __global const real *win_f,
+                                 __global const int *win_i, __global const int *blocks,
+                                 long first_block)
 {
-    int gid = get_global_id(0);
-    /* past the count: a copy of the last */
-    __global const SbrFootprint *fp = footprints + min(gid, n_footprints - 1);
+    int cell, blk = quotient(fp->tube, SBR_CELLS, &cell);
+    real3 d = cell_tube(win_f, win_i, blocks, first_block + blk, cell).dir;
+    for (int m = 1; m < bounce; ++m) {
+        real3 n = pv_real(pv_load(tri_n + 3 * fp->tri[m - 1]));
+        d = d - 2.0 * dot(d, n) * n;
+    }
+    return d;
+}
+
+/* The lit side's unit normal of the footprint's triangle for incident direction d. */
+inline real3 lit_normal(__global const SbrFootprint *fp, int bounce,
+                        __global const pelem *tri_n, real3 d)
+{
+    real3 n = pv_real(pv_load(tri_n + 3 * fp->tri[bounce - 1]));
+    return (dot(d, n) > 0.0) ? -n : n;   /* -sign(dn) n */
+}
+
+/* Footprint fp of bounce m: the tube's cross-section and the fields of both tx
+ * polarisations at it, replayed from its launch through its m - 1 reflections (the
+ * operations sbr_bounce did on its direction), the cross-section's edges projected on
+ * the facet and, on a penetrable facet, the fields it reflects. */
+inline Lit footprint_lit(__global const SbrFootprint *fp, int bounce,
+                         __global const pelem *tri_n, __global const int *tri_material,
+                         __global const real *mat_f, __global const int *mat_i,
+                         __global const real *win_f, __global const int *win_i,
+                         __global const int *blocks, __global const real *tx_frame,
+                         __global const pelem *tx_and_k, long first_block)
+{
     int cell, blk = quotient(fp->tube, SBR_CELLS, &cell);
     CellTube c = cell_tube(win_f, win_i, blocks, first_block + blk, cell);
     real k0 = ps_real(wavenumber_of(tx_and_k));
@@ -621,27 +656,89 @@ __kernel void sbr_illuminate(__global const pelem *tri_n,       /* T*3, unit */
         e2 = e2 - 2.0 * dot(e2, n) * n;
     }
     int tri = fp->tri[bounce - 1];
-    real3 n = pv_real(pv_load(tri_n + 3 * tri));
-    real3 n_lit = (dot(d, n) > 0.0) ? -n : n;   /* -sign(dn) n */
+    real3 n_lit = lit_normal(fp, bounce, tri_n, d);
     real kn = dot(d, n_lit);
     real w_side = sqrt(c.solid_angle) * ps_real(ps_load(fp->length));
     real3 a1 = w_side * e1, a2 = w_side * e2;
     a1 -= d * (dot(n_lit, a1) / kn);
     a2 -= d * (dot(n_lit, a2) / kn);
+    Lit out;
+    out.dir = d;
+    out.normal = n_lit;
+    out.edge1 = a1;
+    out.edge2 = a2;
+    out.area = w_side * w_side / fabs(kn);
+    out.f[0] = f_t;
+    out.f[1] = f_p;
+    int mat = tri_material[tri];
+    if (mat_i[2 * mat]) {   /* PEC: sbr_radiate needs no reflected field */
+        out.Df[0] = out.Df[1] = cv_real((real3)(0.0));
+        return out;
+    }
+    Reflection refl = material_reflection(d, n_lit, mat_f + 4 * mat, mat_i + 2 * mat, k0);
+    out.Df[0] = reflect(&refl, f_t);
+    out.Df[1] = reflect(&refl, f_p);
+    return out;
+}
+
+/* One work item per footprint of bounce m: footprint_lit into `lit` (the wavefront; a
+ * persistent build's sbr_radiate computes it itself, for the footprints that see a
+ * receiver). */
+__kernel void sbr_illuminate(__global const pelem *tri_n,       /* T*3, unit */
+                             __global const int *tri_material,
+                             /* per material: eps re, im, sigma_h, specular share; pec,
+                              * roughness model */
+                             __global const real *mat_f,
+                             __global const int *mat_i,
+                             __global const real *win_f,
+                             __global const int *win_i,
+                             __global const int *blocks,
+                             __global const real *tx_frame,     /* 9 */
+                             __global const pelem *tx_and_k,
+                             const long first_block,
+                             const int bounce,
+                             __global const SbrFootprint *footprints,
+                             const int n_footprints,
+                             __global SbrIllumination *lit)
+{
+    int gid = get_global_id(0);
+    /* past the count: a copy of the last */
+    __global const SbrFootprint *fp = footprints + min(gid, n_footprints - 1);
+    Lit x = footprint_lit(fp, bounce, tri_n, tri_material, mat_f, mat_i, win_f, win_i,
+                          blocks, tx_frame, tx_and_k, first_block);
     if (gid >= n_footprints) return;
     __global SbrIllumination *out = lit + gid;
-    store3(out->dir, d);
-    store3(out->normal, n_lit);
-    store3(out->edge1, a1);
-    store3(out->edge2, a2);
-    out->area = w_side * w_side / fabs(kn);
-    cv_store(out->field, f_t);
-    cv_store(out->field + 6, f_p);
-    int mat = tri_material[tri];
-    if (mat_i[2 * mat]) return;   /* PEC: sbr_radiate needs no reflected field */
-    Reflection refl = material_reflection(d, n_lit, mat_f + 4 * mat, mat_i + 2 * mat, k0);
-    cv_store(out->field + 12, reflect(&refl, f_t));
-    cv_store(out->field + 18, reflect(&refl, f_p));
+    store3(out->dir, x.dir);
+    store3(out->normal, x.normal);
+    store3(out->edge1, x.edge1);
+    store3(out->edge2, x.edge2);
+    out->area = x.area;
+    cv_store(out->field, x.f[0]);
+    cv_store(out->field + 6, x.f[1]);
+    if (mat_i[2 * tri_material[fp->tri[bounce - 1]]]) return;   /* PEC */
+    cv_store(out->field + 12, x.Df[0]);
+    cv_store(out->field + 18, x.Df[1]);
+}
+
+/* An SbrIllumination back in private memory; the reflected fields only where `pec` is
+ * false (sbr_illuminate writes them only there). */
+inline Lit lit_load(__global const SbrIllumination *il, bool pec)
+{
+    Lit x;
+    x.dir = load3(il->dir);
+    x.normal = load3(il->normal);
+    x.edge1 = load3(il->edge1);
+    x.edge2 = load3(il->edge2);
+    x.area = il->area;
+    x.f[0] = cv_load(il->field);
+    x.f[1] = cv_load(il->field + 6);
+    if (pec) {
+        x.Df[0] = x.Df[1] = cv_real((real3)(0.0));
+    } else {
+        x.Df[0] = cv_load(il->field + 12);
+        x.Df[1] = cv_load(il->field + 18);
+    }
+    return x;
 }
 
 /* One work item per (footprint, receiver), receiver-major (neighbouring items trace
@@ -682,7 +779,17 @@ __kernel void sbr_radiate(__global const Bvh8Node *nodes,
                           const float sight_tmax,
                           const int bounce,
                           __global const SbrFootprint *footprints,
+#ifdef SBR_PERSISTENT
+                          /* sbr_illuminate's inputs: the illumination computed here */
+                          __global const real *mat_f,
+                          __global const real *win_f,
+                          __global const int *win_i,
+                          __global const int *blocks,
+                          __global const real *tx_frame,
+                          const long first_block,
+#else
                           __global const SbrIllumination *lit,
+#endif
                           const int n_footprints,
                           __global SbrContribution *contributions,
                           __global int *contribution_footprint,
@@ -694,10 +801,16 @@ __kernel void sbr_radiate(__global const Bvh8Node *nodes,
     /* past the count: a copy of the last */
     int fi, r = quotient(min(gid, n_footprints * n_rx - 1), n_footprints, &fi);
     __global const SbrFootprint *fp = footprints + fi;
-    __global const SbrIllumination *il = lit + fi;
     int tri = fp->tri[bounce - 1];
     pvec p = pv_load(fp->point);
-    real3 n_lit = load3(il->normal);
+#ifdef SBR_PERSISTENT
+    /* the lit side from the direction alone: the fields only for a footprint that sees rx */
+    real3 n_lit = lit_normal(fp, bounce, tri_n,
+                             footprint_direction(fp, bounce, tri_n, win_f, win_i, blocks,
+                                                 first_block));
+#else
+    real3 n_lit = load3(lit[fi].normal);
+#endif
 
     pvec rx = pv_load(rx_pos + 3 * r);
     pvec dr = pv_sub(rx, p);
@@ -740,14 +853,19 @@ __kernel void sbr_radiate(__global const Bvh8Node *nodes,
     real k0 = ps_real(k_p);
     /* (lambda / 4 pi) (-j k0 / 2 pi): the real factor; the -j is applied below */
     real amp = wavelength / (4.0 * M_PI) * k0 / (2.0 * M_PI);
-    real3 d = load3(il->dir);
+    int pec = mat_i[2 * tri_material[tri]];
+#ifdef SBR_PERSISTENT
+    Lit il = footprint_lit(fp, bounce, tri_n, tri_material, mat_f, mat_i, win_f, win_i,
+                           blocks, tx_frame, tx_and_k, first_block);
+#else
+    Lit il = lit_load(lit + fi, pec);
+#endif
+    real3 d = il.dir;
     real kn = dot(d, n_lit);
     pscal L = ps_load(fp->length);
     real L_in = ps_real(L);
-    int pec = mat_i[2 * tri_material[tri]];
     real3 q = k0 * (sdir - d);
-    real i_fp = il->area * sinc_(0.5 * dot(q, load3(il->edge1)))
-                * sinc_(0.5 * dot(q, load3(il->edge2)));
+    real i_fp = il.area * sinc_(0.5 * dot(q, il.edge1)) * sinc_(0.5 * dot(q, il.edge2));
     real3 rt, rp;
     antenna_basis(-sdir, rx_frame + 9 * r, &rt, &rp);
     /* g = op f for f = f_t, f_p (PEC: k_i (n.f) - kn f, the projection I - s s^T
@@ -755,10 +873,10 @@ __kernel void sbr_radiate(__global const Bvh8Node *nodes,
      * penetrable_po_operator) */
     cvec3 g[2];
     for (int c = 0; c < 2; ++c) {
-        cvec3 fc = cv_load(il->field + 6 * c);
+        cvec3 fc = il.f[c];
         cvec3 gc = cv_axpy(cv_dot_real(fc, n_lit), d, cv_scale_real(fc, -kn));
         if (!pec) {
-            cvec3 Dfc = cv_load(il->field + 12 + 6 * c);
+            cvec3 Dfc = il.Df[c];
             real3 k_r = d - 2.0 * kn * n_lit;
             /* a_r Df = k_r (n.Df) + kn Df */
             cvec3 ar = cv_axpy(cv_dot_real(Dfc, n_lit), k_r, cv_scale_real(Dfc, kn));

@@ -11,7 +11,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from clradcom.geometry.wedges import FLUSH_TOL_M, extract_wedges, free_wedges
+from clradcom.geometry import wedges as wedges_module
+from clradcom.geometry.wedges import (
+    FLUSH_PROBE_M,
+    FLUSH_TOL_M,
+    extract_wedges,
+    free_wedges,
+)
 from clradcom.mechanisms import diffraction, specular
 from clradcom.mechanisms.common import build_geometry
 from clradcom.mechanisms.diffraction import (
@@ -113,6 +119,34 @@ def test_an_overhanging_box_keeps_its_floor_edges_where_they_stand_free():
     assert spans[0] == pytest.approx([-15.0, -12.0], abs=2 * FLUSH_TOL_M)
     assert spans[1] == pytest.approx([-7.0, 15.0], abs=2 * FLUSH_TOL_M)
     assert free.stats["flush_clipped"] == 3 and free.stats["flush_dropped"] == 1
+
+
+def every_pair(wedges, faces_w, face_n, face_t, tri, tri_n, area2, usable, *rest):
+    """The brute-force candidates of free_wedges: every face with every usable triangle."""
+    faces = np.arange(len(faces_w))
+    return np.repeat(faces, len(usable)), np.tile(usable, len(faces))
+
+
+@pytest.mark.parametrize("box_x, road_half", [
+    ((-5.0, 21.0), 40.0),   # on the road: four floor edges dropped
+    ((5.0, 25.0), 15.0),    # overhanging the road's rim: clipped
+    # its floor edge FLUSH_PROBE_M - FLUSH_TOL_M / 2 before the rim: the probe line lies
+    # tol / 2 past the road's triangles, outside their boxes, and is still covered
+    ((15.0 - FLUSH_PROBE_M + 0.5 * FLUSH_TOL_M, 25.0), 15.0),
+    ((15.0 - FLUSH_PROBE_M + 1.5 * FLUSH_TOL_M, 25.0), 15.0),   # ... and here not
+])
+def test_candidate_pairs_lose_nothing_against_every_pair(monkeypatch, box_x, road_half):
+    """free_wedges' candidates (planes, centroids, grown boxes) give the wedges that every
+    (face, triangle) pair gives, bit for bit."""
+    scene = box_scene(box_x=box_x, road_half=road_half)
+    wedges = scene_wedges(scene)
+    fast = free_wedges(wedges, scene.triangles, scene.tri_object)
+    monkeypatch.setattr(wedges_module, "_flush_pairs", every_pair)
+    brute = free_wedges(wedges, scene.triangles, scene.tri_object)
+    assert fast.stats == brute.stats
+    for name in ("start", "end", "direction", "length", "object_id", "tri0", "tri1"):
+        np.testing.assert_array_equal(getattr(fast, name), getattr(brute, name))
+    assert fast.stats["flush_dropped"] + fast.stats["flush_clipped"] > 0
 
 
 def floor_paths(paths, z):

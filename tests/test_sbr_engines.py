@@ -282,11 +282,17 @@ def test_batches_and_runs_give_the_same_records(runtime):
 
 
 def test_bounces_in_one_launch_give_the_wavefront_records(runtime, monkeypatch):
-    """sbr_bounces (all bounces of a tube in one work item, for scalar CPU devices) and
-    the wavefront (one launch per bounce, the live tubes compacted between) give the same
-    records, bit for bit, whichever the device would take by itself; each mode is the one
-    that runs (checked by the kernels launched)."""
+    """sbr_bounces (a tube's launch and all its bounces in one work item, for scalar CPU
+    devices) and the wavefront (a launch into a queue, then one launch per bounce, the
+    live tubes compacted between) give the same records, bit for bit, whichever the
+    device would take by itself; each mode is the one that runs (checked by the kernels
+    launched). Where the device takes sbr_bounces by itself (PoCL) the records are the
+    same bit for bit; a device forced into it computes a footprint's illumination in
+    sbr_radiate rather than sbr_illuminate, and Intel's compiler rounds the same formulas
+    in the two kernels a last bit apart (about 3e-16 of the largest matrix): there the
+    faces, tubes, counts, points and lengths are the same and the sums within 1e-13."""
     run, _ = trihedral_runs(runtime)
+    native = device_sbr.persistent_bounces(runtime)
     names = launched_kernels(runtime, monkeypatch)
     records = {}
     for mode in ((runtime.info.vendor,), ()):
@@ -296,10 +302,22 @@ def test_bounces_in_one_launch_give_the_wavefront_records(runtime, monkeypatch):
         records[persistent] = run(4096)
         assert ("sbr_bounces (sbr.cl)" in names) == persistent
         assert ("sbr_bounce (sbr.cl)" in names) == (not persistent)
+        assert ("sbr_launch (sbr.cl)" in names) == (not persistent)
     if runtime.info.device_type == "CPU":
         assert set(records) == {True, False}
-        assert len(records[True]) > 0
-        assert records[True].tobytes() == records[False].tobytes()
+        persistent, wavefront = records[True], records[False]
+        assert len(persistent) > 0
+        if native:
+            assert persistent.tobytes() == wavefront.tobytes()
+        rounded = ("M", "weight", "weighted_length", "rep_weight")
+        for name in persistent.dtype.names:
+            if name in rounded:
+                scale = np.abs(wavefront[name]).max()
+                np.testing.assert_allclose(persistent[name], wavefront[name], rtol=0,
+                                           atol=1e-13 * scale, err_msg=name)
+            else:
+                np.testing.assert_array_equal(persistent[name], wavefront[name],
+                                              err_msg=name)
 
 
 def test_records_beyond_the_buffer_reduce_the_bounce_again(runtime, monkeypatch):

@@ -8,7 +8,9 @@ blocks at a time, so device and host memory stay bounded whatever the number of 
 only the records of footprints that see a receiver come back.  Per batch: ``sbr_launch``
 queues the owned tubes; per bounce ``sbr_bounce`` follows the live ones (a compacted
 queue) and lists the footprints, ``sbr_radiate`` radiates each toward each receiver,
-``sbr_reduce`` sums them per block, receiver and face sequence in work groups.  Records
+``sbr_reduce`` sums them per block, receiver and face sequence in work groups (on a
+device that runs work items as scalar code ``sbr_bounces`` launches and bounces each tube
+in one work item, no queue).  Records
 are appended with an atomic counter, so their order within a batch is the device's;
 they are sorted by block and the group's first (tube, bounce, receiver), so every run
 and batch size gives the same records in the same order.
@@ -239,6 +241,9 @@ class _Wavefront:
         self.defines, self.options, self.dtype, self.n_rx = defines, options, dtype, n_rx
         self.launch_args, self.bounce_args = launch_args, bounce_args
         self.illuminate_args, self.radiate_args = illuminate_args, radiate_args
+        # what a persistent build's sbr_radiate takes in place of sbr_illuminate's output
+        (_, _, mat_f, _, win_f, win_i, blocks, tx_frame, _) = illuminate_args
+        self.lit_inputs = [mat_f, win_f, win_i, blocks, tx_frame]
         self.tri_face = tri_face
         # the kernels that do not walk the BVH come from the same program as those that do
         program_defines = {**defines, **caster.kernel_defines()}
@@ -263,11 +268,12 @@ class _Wavefront:
         max_bounces = int(defines["SBR_MAX_BOUNCES"])
         # the build decides: sbr_bounces exists only in a program built for it
         self.persistent = bool(defines.get("SBR_PERSISTENT"))
-        # per tube: two queues and a footprint (persistent: one queue and a footprint per
-        # bounce), its illumination, per receiver a contribution and its footprint
-        per_tube = ((tube_bytes + max_bounces * footprint_bytes) if self.persistent
-                    else (2 * tube_bytes + footprint_bytes))
-        per_tube += lit_bytes + n_rx * (contribution_bytes + 4)
+        # per tube: two queues, a footprint and its illumination (persistent: no queue, a
+        # footprint per bounce, its illumination computed where it radiates), per receiver
+        # a contribution and its footprint
+        per_tube = ((max_bounces * footprint_bytes) if self.persistent
+                    else (2 * tube_bytes + footprint_bytes + lit_bytes))
+        per_tube += n_rx * (contribution_bytes + 4)
         self.blocks_per_batch = _batch_tubes(rt, per_tube, batch_tubes, n_rx) // cells
         n = min(self.blocks_per_batch, n_blocks) * cells
         empty = rt.empty
@@ -283,14 +289,13 @@ class _Wavefront:
             self.footprint_regions = [
                 self.footprint_area.get_sub_region(m * region_bytes, region_bytes)
                 for m in range(max_bounces)]
-            self.queues = [empty(n * tube_bytes)]
             self.bounce_counts = empty(4 * max_bounces)
         else:
             self.queues = [empty(n * tube_bytes), empty(n * tube_bytes)]
             self.footprints = empty(n * footprint_bytes)
             # a bounce's two counts (next tubes, footprints) in one buffer: one read
             self.bounce_counts = empty(8)
-        self.lit = empty(n * lit_bytes)
+            self.lit = empty(n * lit_bytes)
         self.contributions = empty(n * n_rx * contribution_bytes)
         self.contribution_footprint = empty(n * n_rx * 4)
         # per (block, receiver): its contributions at a bounce; those with any, listed
@@ -328,14 +333,14 @@ class _Wavefront:
     def shoot(self, first: int, n_blocks: int, max_bounces: int, first_bounce: int):
         """The records of blocks first .. first + n_blocks - 1 (a list of arrays)."""
         out = []
-        n_live = self._launch(first, n_blocks)
         if self.persistent:
-            n_fps = self._bounces(n_live, first_bounce, max_bounces) if n_live else []
+            n_fps = self._bounces(first, n_blocks, first_bounce, max_bounces)
             for m, n_fp in enumerate(n_fps, start=1):
                 if n_fp:
                     out += self._radiate_bounce(m, n_fp, first, n_blocks,
                                                 self.footprint_regions[m - 1])
             return out
+        n_live = self._launch(first, n_blocks)
         for m in range(1, max_bounces + 1):
             if n_live == 0:
                 break
@@ -348,10 +353,12 @@ class _Wavefront:
 
     def _radiate_bounce(self, m: int, n_fp: int, first: int, n_blocks: int,
                         footprints) -> list:
-        """Bounce m's records from its n_fp ``footprints``: illumination, radiation
-        toward every receiver, reduction."""
-        self._illuminate(m, n_fp, first, footprints)
-        n_groups = self._radiate(m, n_fp, n_blocks, footprints)
+        """Bounce m's records from its n_fp ``footprints``: illumination (persistent: in
+        sbr_radiate, for the footprints that see a receiver), radiation toward every
+        receiver, reduction."""
+        if not self.persistent:
+            self._illuminate(m, n_fp, first, footprints)
+        n_groups = self._radiate(m, n_fp, first, n_blocks, footprints)
         return [self._reduce(m, n_groups, first, footprints)] if n_groups else []
 
     def _launch(self, first: int, n_blocks: int) -> int:
@@ -372,14 +379,18 @@ class _Wavefront:
             self.cl.enqueue_copy(self.rt.queue, counts, self.bounce_counts, is_blocking=True)
         return int(counts[0]), int(counts[1])
 
-    def _bounces(self, n_live: int, first_bounce: int, max_bounces: int) -> list[int]:
-        """Every bounce of the n_live launched tubes in one launch (sbr_bounces): the
-        footprints per bounce, in :attr:`footprint_regions`."""
+    def _bounces(self, first: int, n_blocks: int, first_bounce: int,
+                 max_bounces: int) -> list[int]:
+        """The tubes of blocks first .. first + n_blocks - 1 launched and taken through
+        every bounce in one launch (sbr_bounces, no queue): the footprints per bounce, in
+        :attr:`footprint_regions`."""
         counts = np.zeros(max_bounces, np.int32)
         self.rt.fill(self.bounce_counts, np.int32(0), counts.nbytes)
-        self._run_bvh("sbr_bounces", n_live, *self.bounce_args, np.int32(first_bounce),
-                      np.int32(max_bounces), self.queues[0], np.int32(n_live),
-                      self.footprint_area, np.int32(self.region), self.bounce_counts)
+        n_cells = n_blocks * self.cells
+        self._run_bvh("sbr_bounces", n_cells, *self.bounce_args, *self.launch_args,
+                      np.int64(first), np.int32(n_cells), np.int32(first_bounce),
+                      np.int32(max_bounces), self.footprint_area, np.int32(self.region),
+                      self.bounce_counts)
         with self.rt.guard("SBR bounce counts"):
             self.cl.enqueue_copy(self.rt.queue, counts, self.bounce_counts, is_blocking=True)
         return [int(c) for c in counts]
@@ -391,13 +402,14 @@ class _Wavefront:
                       np.int32(n_fp), self.lit, name="sbr_illuminate (sbr.cl)",
                       wait=False)  # sbr_radiate, next in the queue, waits for it
 
-    def _radiate(self, m: int, n_fp: int, n_blocks: int, footprints) -> int:
+    def _radiate(self, m: int, n_fp: int, first: int, n_blocks: int, footprints) -> int:
         slots = n_blocks * self.n_rx
         self.rt.fill(self.contribution_footprint, np.int32(-1), slots * self.cells * 4)
         self.rt.fill(self.group_tubes, np.int32(0), slots * 4)
         self._zero(self.n_groups)
+        lit = ([*self.lit_inputs, np.int64(first)] if self.persistent else [self.lit])
         self._run_bvh("sbr_radiate", n_fp * self.n_rx, *self.radiate_args, np.int32(m),
-                      footprints, self.lit, np.int32(n_fp), self.contributions,
+                      footprints, *lit, np.int32(n_fp), self.contributions,
                       self.contribution_footprint, self.group_tubes, self.live_groups,
                       self.n_groups)
         with self.rt.guard("SBR group count"):

@@ -16,6 +16,7 @@ convex wedge this equals ``normalize(n0 x nn)``.
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -439,7 +440,8 @@ def free_wedges(wedges: Wedges, triangles, tri_object, tol: float = FLUSH_TOL_M,
     face_t = np.concatenate([np.cross(wedges.normal0, e),
                              np.cross(e[~wedges.half_plane],
                                       wedges.normal1[~wedges.half_plane])])
-    f, t = _flush_pairs(wedges, faces_w, face_n, tri, tri_n, usable, tol, angle, probe)
+    f, t = _flush_pairs(wedges, faces_w, face_n, face_t, tri, tri_n, area2, usable, tol,
+                        angle, probe)
     w = faces_w[f]
     keep = (tri_obj[t] != wedges.object_id[w]) & (
         np.abs(np.einsum("ij,ij->i", tri_n[t], face_n[f])) >= np.cos(angle))
@@ -452,7 +454,6 @@ def free_wedges(wedges: Wedges, triangles, tri_object, tol: float = FLUSH_TOL_M,
     w, lo, hi = w[hit], lo[hit], hi[hit]
     order = np.lexsort((lo, w))
     w, lo, hi = w[order], lo[order], hi[order]
-    rows, starts, ends = [], [], []
     bounds = np.flatnonzero(np.diff(np.concatenate([[-1], w, [W]])))
     covered = dict.fromkeys(w.tolist())
     for a, b in zip(bounds[:-1], bounds[1:], strict=True):
@@ -465,27 +466,36 @@ def free_wedges(wedges: Wedges, triangles, tri_object, tol: float = FLUSH_TOL_M,
         if wedges.length[k] - at > probe:
             free.append((at, float(wedges.length[k])))
         covered[k] = free
-    for k in range(W):
-        pieces = covered.get(k)
-        if pieces is None:
-            rows.append(k)
-            starts.append(wedges.start[k])
-            ends.append(wedges.end[k])
-            continue
+    # the free wedges' rows as they are; a covered wedge's free pieces in its place, in
+    # order along its edge
+    piece_rows, piece_lo, piece_hi = [], [], []
+    for k, pieces in covered.items():
         if not pieces:
             stats["flush_dropped"] += 1
             continue
         stats["flush_clipped"] += 1
         for s0, s1 in pieces:
-            rows.append(k)
-            starts.append(wedges.start[k] + s0 * e[k])
-            ends.append(wedges.start[k] + s1 * e[k])
-    out = {k: getattr(wedges, k)[np.asarray(rows, dtype=np.int64)] for k in _ARRAY_FIELDS}
-    if rows:
-        out["start"], out["end"] = np.array(starts), np.array(ends)
-        whole = np.asarray([k not in covered for k in rows])
+            piece_rows.append(k)
+            piece_lo.append(s0)
+            piece_hi.append(s1)
+    whole = np.ones(W, dtype=bool)
+    whole[np.fromiter(covered, dtype=np.int64, count=len(covered))] = False
+    piece_rows = np.asarray(piece_rows, dtype=np.int64)
+    rows = np.concatenate([np.flatnonzero(whole), piece_rows])
+    # rows by wedge, a wedge's pieces in the order found (the stable sort keeps it)
+    order = np.argsort(rows, kind="stable")
+    rows = rows[order]
+    out = {k: getattr(wedges, k)[rows] for k in _ARRAY_FIELDS}
+    if len(rows):
+        start_k = wedges.start[piece_rows]
+        e_k = e[piece_rows]
+        starts = np.concatenate([wedges.start[whole],
+                                 start_k + np.asarray(piece_lo)[:, None] * e_k])[order]
+        ends = np.concatenate([wedges.end[whole],
+                               start_k + np.asarray(piece_hi)[:, None] * e_k])[order]
+        out["start"], out["end"] = starts, ends
         length = _norm3(out["end"] - out["start"])
-        out["length"] = np.where(whole, out["length"], length)
+        out["length"] = np.where(whole[rows], out["length"], length)
     return Wedges(**out, stats=stats)
 
 
@@ -494,23 +504,29 @@ def free_wedges(wedges: Wedges, triangles, tri_object, tol: float = FLUSH_TOL_M,
 _FLUSH_GROUP_TREE = 64
 
 
-def _flush_pairs(wedges, faces_w, face_n, tri, tri_n, usable, tol, angle, probe):
+def _flush_pairs(wedges, faces_w, face_n, face_t, tri, tri_n, area2, usable, tol, angle,
+                 probe):
     """(face, triangle) candidate pairs of :func:`free_wedges`: triangles (of ``usable``)
     whose plane may lie within ``tol`` of the face's edge with its normal within
-    ``angle`` (either orientation) and that may reach the face's probe line.
+    ``angle`` (either orientation) and whose box, grown by what :func:`_covered_spans`
+    allows (:func:`_grown_boxes`), meets the box of the face's probe line.
 
     Triangles are grouped by their exact plane (n, n.x / L), L the scene's largest
-    coordinate; a k-d tree over those planes finds each face's groups within the radius
-    that a plane through the edge with its normal within ``angle`` can reach.  A large
-    group (a tessellated road) gives only its triangles whose centroid lies within reach
-    of the edge (half its length, the group's largest centroid-vertex distance, the
-    probe and tol, around its midpoint)."""
+    coordinate; a k-d tree over those planes (and their reverses) finds each face's
+    groups within the radius that a plane through the edge with its normal within
+    ``angle`` can reach, and a group whose grown box misses the probe line's is left
+    there.  A large group (a tessellated road) gives only its triangles whose centroid
+    lies within reach of the edge (half its length, the group's largest centroid-vertex
+    distance, the probe and tol, around its midpoint).  The boxes only drop pairs whose
+    spans would be empty: the pairs that cover anything are those the planes and
+    centroids find."""
     scale = max(float(np.abs(tri).max()), float(np.abs(wedges.start).max()),
                 float(np.abs(wedges.end).max()), 1.0)
     tri_u = tri[usable]
     keys = np.column_stack([tri_n[usable], np.einsum("ij,ij->i", tri_n[usable],
                                                       tri_u[:, 0]) / scale])
     planes, group, counts = unique_rows(keys)
+    G = len(planes)
     members = np.argsort(group, kind="stable")
     first = np.concatenate([[0], np.cumsum(counts)])
     face_key = np.column_stack([face_n, np.einsum("ij,ij->i", face_n,
@@ -520,15 +536,18 @@ def _flush_pairs(wedges, faces_w, face_n, tri, tri_n, usable, tol, angle, probe)
     turn = 2.0 * np.sin(0.5 * angle)
     radius = 1.01 * (2.0 * turn + (tol + probe + np.sin(angle) * float(wedges.length.max()))
                      / scale)
-    tree = cKDTree(planes)
-    f_g, g_g = [], []
-    for sign in (1.0, -1.0):
-        near = cKDTree(sign * face_key).sparse_distance_matrix(tree, radius,
-                                                               output_type="ndarray")
-        f_g.append(near["i"])
-        g_g.append(near["j"])
-    f_g = np.concatenate(f_g).astype(np.int64)
-    g_g = np.concatenate(g_g).astype(np.int64)
+    # |-k - p| = |k - (-p)|: the reversed planes are the faces' other orientation
+    near = cKDTree(face_key).sparse_distance_matrix(cKDTree(np.concatenate([planes, -planes])),
+                                                    radius, output_type="ndarray")
+    f_g = near["i"].astype(np.int64)
+    g_g = near["j"].astype(np.int64) % G
+    # each usable triangle's box grown by its margin, each group's box around them
+    grown_lo, grown_hi = _grown_boxes(tri_u, area2[usable], tol, scale)
+    group_lo = np.minimum.reduceat(grown_lo[members], first[:-1], axis=0)
+    group_hi = np.maximum.reduceat(grown_hi[members], first[:-1], axis=0)
+    line_lo, line_hi = _probe_line_boxes(wedges, faces_w, face_t, probe)
+    meets = ((group_lo[g_g] <= line_hi[f_g]) & (group_hi[g_g] >= line_lo[f_g])).all(axis=1)
+    f_g, g_g = f_g[meets], g_g[meets]
     big = counts[g_g] > _FLUSH_GROUP_TREE
     # small groups: every member
     fs, gs = f_g[~big], g_g[~big]
@@ -545,12 +564,44 @@ def _flush_pairs(wedges, faces_w, face_n, tri, tri_n, usable, tol, angle, probe)
         idx = members[first[g]:first[g + 1]]
         fg = f_g[big][g_g[big] == g]
         found = cKDTree(centroid[idx]).query_ball_point(
-            mid[fg], half[fg] + float(reach[idx].max()) + probe + 2.0 * tol)
+            mid[fg], half[fg] + float(reach[idx].max()) + probe + 2.0 * tol,
+            return_sorted=False)
         sizes = np.fromiter((len(x) for x in found), dtype=np.int64, count=len(found))
         f_out.append(np.repeat(fg, sizes))
-        t_out.append(idx[np.concatenate([np.asarray(x, dtype=np.int64) for x in found])]
-                     if sizes.sum() else np.zeros(0, dtype=np.int64))
-    return np.concatenate(f_out), usable[np.concatenate(t_out)]
+        t_out.append(idx[np.fromiter(itertools.chain.from_iterable(found), dtype=np.int64,
+                                     count=int(sizes.sum()))])
+    f, t = np.concatenate(f_out), np.concatenate(t_out)
+    # the boxes meet where lo_t <= hi_f and -hi_t <= -lo_f on every axis: one gather each
+    meets = (np.hstack([grown_lo, -grown_hi])[t]
+             <= np.hstack([line_hi, -line_lo])[f]).all(axis=1)
+    return f[meets], usable[t[meets]]
+
+
+def _grown_boxes(tri, area2, tol, scale):
+    """Boxes (lo, hi) (T,3) of triangles grown by the most that :func:`_covered_spans`
+    lets a covered point lie outside them, plus a rounding slack of the scene's size.
+
+    A point q it keeps is within ``tol`` of the triangle's plane and its projection
+    within ``tol`` of each edge line (inside), so within tol / sin(theta/2) of the
+    triangle at a vertex of angle theta; sin(theta) = 2A / (a b) for the sides a, b at
+    it, so 1 / sin(theta/2) <= 2 / sin(theta) <= 2 l^2 / (2A), l the longest side. The
+    margin is twice tol (1 + that)."""
+    longest2 = np.max([_norm3(tri[:, (k + 1) % 3] - tri[:, k]) for k in range(3)],
+                      axis=0) ** 2
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        margin = 2.0 * tol * (1.0 + 2.0 * longest2 / area2) + 1e-9 * scale
+    margin = np.where(np.isfinite(margin), margin, np.inf)[:, None]
+    v0, v1, v2 = tri[:, 0], tri[:, 1], tri[:, 2]
+    return (np.minimum(np.minimum(v0, v1), v2) - margin,
+            np.maximum(np.maximum(v0, v1), v2) + margin)
+
+
+def _probe_line_boxes(wedges, faces_w, face_t, probe):
+    """Boxes (lo, hi) (F,3) of the faces' probe lines (the edge moved ``probe`` into the
+    face)."""
+    start = wedges.start[faces_w] + probe * face_t
+    end = start + wedges.length[faces_w][:, None] * wedges.direction[faces_w]
+    return np.minimum(start, end), np.maximum(start, end)
 
 
 def _covered_spans(start, direction, length, inward, tri, tri_n, tol, probe):
