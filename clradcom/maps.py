@@ -377,8 +377,9 @@ def _basis(directions_world, orientation):
 
 
 def _projection(field, directions, rx: Radar | None) -> np.ndarray:
-    """The receiver's complex projection p(E) (R, 1) of field vectors E (R, 3) arriving
-    along ``directions`` (em.path_gains' bilinear form at -direction), or E itself (R, 3)
+    """The receiver's complex projection p(E) (..., R, 1) of field vectors E (..., R, 3)
+    (several fields per direction share its pattern's evaluation) arriving along
+    ``directions`` (R, 3) (em.path_gains' bilinear form at -direction), or E itself
     without a receiver: what a coherent sum adds, |p|^2 the power."""
     if rx is None:
         return np.asarray(field, dtype=np.complex128)
@@ -388,23 +389,23 @@ def _projection(field, directions, rx: Radar | None) -> np.ndarray:
     # formed (_basis's vectors, cos phi = x / rho, sin phi = y / rho)
     d = _rotate(-directions, rot)
     c = np.asarray(rx.pattern.field(d), dtype=np.complex128)
-    e = np.einsum("ij,jk->ik", np.asarray(field, dtype=np.complex128), rot)
+    e = np.einsum("...ij,jk->...ik", np.asarray(field, dtype=np.complex128), rot)
     rho = np.hypot(d[:, 0], d[:, 1])
     axis = rho == 0
     safe = np.where(axis, 1.0, rho)
     cos_p = np.where(axis, 1.0, d[:, 0] / safe)
     sin_p = np.where(axis, 0.0, d[:, 1] / safe)
-    along_x = cos_p * e[:, 0] + sin_p * e[:, 1]
-    e_theta = d[:, 2] * along_x - rho * e[:, 2]
-    e_phi = cos_p * e[:, 1] - sin_p * e[:, 0]
-    return (c[:, 0] * e_theta + c[:, 1] * e_phi)[:, None]
+    along_x = cos_p * e[..., 0] + sin_p * e[..., 1]
+    e_theta = d[:, 2] * along_x - rho * e[..., 2]
+    e_phi = cos_p * e[..., 1] - sin_p * e[..., 0]
+    return (c[:, 0] * e_theta + c[:, 1] * e_phi)[..., None]
 
 
 def _received(field, directions, rx: Radar | None) -> np.ndarray:
-    """|p(E)|^2 (R,): the power the receiver takes from field vectors E (R, 3) arriving
-    along ``directions``: the bilinear projection onto its pattern's (C_theta, C_phi) at
-    -direction (em.path_gains), or |E|^2 without a receiver."""
-    return np.sum(np.abs(_projection(field, directions, rx)) ** 2, axis=1)
+    """|p(E)|^2 (..., R): the power the receiver takes from field vectors E (..., R, 3)
+    arriving along ``directions`` (R, 3): the bilinear projection onto its pattern's
+    (C_theta, C_phi) at -direction (em.path_gains), or |E|^2 without a receiver."""
+    return np.sum(np.abs(_projection(field, directions, rx)) ** 2, axis=-1)
 
 
 def _reaches(slab: Slab, origins, directions, lengths, margin: float = 1e-3) -> np.ndarray:
@@ -575,16 +576,22 @@ class CellSums:
         return gain + self.power_only
 
 
-def _cosine_directions(normals, rng) -> np.ndarray:
+def _cosine_directions(normals, rng, frame=None) -> np.ndarray:
     """One unit direction per row, cosine-weighted over the hemisphere about ``normals``
-    (R, 3) unit (Malley's method: a uniform point of the unit disc lifted onto it)."""
+    (R, 3) unit (Malley's method: a uniform point of the unit disc lifted onto it);
+    ``frame`` the tangents (u, v) of :func:`_tangents` where the normals' are known."""
     r = np.sqrt(rng.random(len(normals)))
     phi = 2.0 * np.pi * rng.random(len(normals))
     a, b = r * np.cos(phi), r * np.sin(phi)
     c = np.sqrt(np.maximum(1.0 - r * r, 0.0))
-    u = perpendicular(normals)
-    v = np.cross(normals, u)
+    u, v = _tangents(normals) if frame is None else frame
     return a[:, None] * u + b[:, None] * v + c[:, None] * normals
+
+
+def _tangents(normals) -> tuple[np.ndarray, np.ndarray]:
+    """Unit tangents (u, v) (R, 3) completing unit ``normals`` to right-handed frames."""
+    u = perpendicular(normals)
+    return u, np.cross(normals, u)
 
 
 def _te_tm(k, n):
@@ -630,18 +637,20 @@ def _scatter(scene, geom, slab, org, dirs, field, t, prim, normals, receiver, sc
         p_in > 0, p_in, 1.0)
     share = scene.material_cross_pol_share[mat]
     m = settings.diffuse_rays
+    frame = _tangents(n)  # the same normals for every diffuse ray
     for _ in range(m):
-        out = _cosine_directions(n, rng)
-        te_s, tm_s = _te_tm(out, n)
-        co = -e_te[:, None] * te_s + e_tm[:, None] * tm_s  # R0 E
-        cross = np.cross(out, co)
+        out = _cosine_directions(n, rng, frame)
         origins = spawn_origins(point, n, out)
         lengths = geom.caster.closest_hit(_rays(origins, out))["t"].astype(np.float64)
         near = _reaches(slab, origins, out, lengths)
         if not near.any():
             continue
-        received = ((1.0 - share[near]) * _received(co[near], out[near], receiver)
-                    + share[near] * _received(cross[near], out[near], receiver))
+        # the polarisation only of the rays that reach the layer
+        te_s, tm_s = _te_tm(out[near], n[near])
+        co = -e_te[near, None] * te_s + e_tm[near, None] * tm_s  # R0 E
+        cross = np.cross(out[near], co)
+        both = _received(np.stack([co, cross]), out[near], receiver)
+        received = (1.0 - share[near]) * both[0] + share[near] * both[1]
         weights = scale * (s_coef[near] ** 2 * gamma2[near] / m) * received
         sums.add(origins[near], out[near], lengths[near], weights)
 
@@ -814,12 +823,13 @@ def _po_facets(scene, geom, grid: MapGrid, tx: Radar, receiver, objects, setting
             continue
         f += start
         toward = centres[cell] - centroid[f]
+        to_centre = np.linalg.norm(toward, axis=1)
         if receiver is not None:
             # arrivals outside the receiver's pattern take nothing (po_paths drops them):
             # no sight ray, no field (a 90-degree sector keeps a quarter of the pairs)
-            arrival = toward / np.linalg.norm(toward, axis=1)[:, None]
+            arrival = toward / to_centre[:, None]
             seen = np.asarray(receiver.pattern.gain(_rotate(-arrival, rx_rot))) > 0
-            f, cell, toward = f[seen], cell[seen], toward[seen]
+            f, cell, toward, to_centre = f[seen], cell[seen], toward[seen], to_centre[seen]
             if not len(f):
                 continue
         # one float32 sight ray per pair: a cell centre stands in free space, not on a
@@ -835,7 +845,7 @@ def _po_facets(scene, geom, grid: MapGrid, tx: Radar, receiver, objects, setting
         # pairs with tx or the centre in a facet's near zone (po.py's rule "near"): split
         # into far-field pieces, each pair its own, summed back per pair as fields, as
         # po_paths does; the others whole
-        to_centre = np.linalg.norm(toward[sees], axis=1)
+        to_centre = to_centre[sees]
         near = (np.minimum(to_centre, from_tx[f]) < NEAR_SIZE_FACTOR * size[f])
         amplitude = np.empty((len(f), 1 if receiver is not None else 3), np.complex128)
         whole = np.flatnonzero(~near)
