@@ -119,8 +119,8 @@ def test_device_po_fields_match_the_float64_host_reference(runtime, no_fp64):
     (fp64 devices) to 1e-9 of the incoherent power (measured 1.3e-11); in float32
     (devices without fp64) to 1e-2 (0.04 dB; measured 4.9e-3 on PoCL), the far
     sidelobes' edge sums losing what float32 loses of terms 500 times the lobe."""
-    assert runtime.info.has_double
-    assert max(device_vs_host(runtime)) < 1e-9
+    if runtime.info.has_double:  # not so in the device matrix's no-fp64 session
+        assert max(device_vs_host(runtime)) < 1e-9
     coherent, incoherent = device_vs_host(no_fp64)
     assert coherent < 1e-2 and incoherent < 1e-2, (coherent, incoherent)
 
