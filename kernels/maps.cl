@@ -18,14 +18,21 @@
 #define MAX_STEPS_PAD 2
 #endif
 
+/* Every access to the sum is atomic, its first read too (atomic_or with 0): a plain read
+ * beside the other work items' compare-and-swaps is a data race (Oclgrind reports it),
+ * and a failed swap hands back the value it met, the next try's starting point. */
 inline void add_float(volatile __global float *where, const float value)
 {
+    volatile __global unsigned int *bits = (volatile __global unsigned int *)where;
     union { unsigned int u; float f; } before, after;
-    do {
-        before.f = *where;
+    before.u = atomic_or(bits, 0u);
+    for (;;) {
         after.f = before.f + value;
-    } while (atomic_cmpxchg((volatile __global unsigned int *)where, before.u, after.u)
-             != before.u);
+        const unsigned int met = atomic_cmpxchg(bits, before.u, after.u);
+        if (met == before.u)
+            return;
+        before.u = met;
+    }
 }
 
 /* The parameter range [*t0, *t1] of o + t d inside lo <= x <= hi; false when empty. */
