@@ -204,19 +204,34 @@ def reflection_dyad(k_in, normal, r_te, r_tm):
         raise ArgumentError(f"k_in {k.shape} and normal {n.shape} differ in shape")
     r_te = np.broadcast_to(np.asarray(r_te, dtype=np.complex128), k.shape[:1])
     r_tm = np.broadcast_to(np.asarray(r_tm, dtype=np.complex128), k.shape[:1])
-    kn = dot(k, n)
-    n = np.where(kn[:, None] > 0, -n, n)  # face the incoming ray
-    kn = -np.abs(kn)
-    k_r = k - 2.0 * kn[:, None] * n
+    e_perp, e_par_i, e_par_r = _reflection_basis(k, n, dot(k, n))
+    return (r_te[:, None, None] * e_perp[:, :, None] * e_perp[:, None, :]
+            + r_tm[:, None, None] * e_par_r[:, :, None] * e_par_i[:, None, :])
+
+
+def _reflection_basis(k, n, kn):
+    """(e_perp, e_par,i, e_par,r) of :func:`reflection_dyad` for unit k_in and normals
+    (P, 3) with kn = k_in . n: the normal flipped to face the incoming ray, e_perp from
+    :func:`perpendicular` only at normal incidence."""
+    n = np.where(kn[:, None] > 0, -n, n)
+    k_r = k + 2.0 * np.abs(kn)[:, None] * n
     x = cross(k, n)
     sx = np.linalg.norm(x, axis=-1)
     normal_inc = sx < _NORMAL_INCIDENCE_TOL
-    e_perp = np.where(normal_inc[:, None], perpendicular(n),
-                      x / np.where(normal_inc, 1.0, sx)[:, None])
-    e_par_i = cross(e_perp, k)
-    e_par_r = cross(e_perp, k_r)
-    return (r_te[:, None, None] * e_perp[:, :, None] * e_perp[:, None, :]
-            + r_tm[:, None, None] * e_par_r[:, :, None] * e_par_i[:, None, :])
+    e_perp = x / np.where(normal_inc, 1.0, sx)[:, None]
+    if np.any(normal_inc):
+        e_perp[normal_inc] = perpendicular(n[normal_inc])
+    return e_perp, cross(e_perp, k), cross(e_perp, k_r)
+
+
+def _material_coefficients(scene, mat, cos_t):
+    """(rho r_te, rho r_tm) off scene materials ``mat`` at cos theta: Fresnel x roughness
+    factor x sqrt(1 - S^2) (the specular share of :func:`material_reflection_dyad`)."""
+    r_te, r_tm = fresnel_coefficients(scene.material_eps_r[mat], cos_t, scene.material_pec[mat])
+    rho = roughness_factor(scene.material_roughness_m[mat], cos_t, 2.0 * np.pi / scene.wavelength_m,
+                           scene.material_roughness_model[mat])
+    rho = rho * np.sqrt(1.0 - scene.material_scattering[mat] ** 2)
+    return rho * r_te, rho * r_tm
 
 
 def material_reflection_dyad(scene, material, k_in, normal):
@@ -230,11 +245,7 @@ def material_reflection_dyad(scene, material, k_in, normal):
     k_in = np.asarray(k_in, dtype=np.float64)
     n = np.asarray(normal, dtype=np.float64)
     cos_t = np.abs(dot(k_in, n) / (np.linalg.norm(k_in, axis=-1) * np.linalg.norm(n, axis=-1)))
-    r_te, r_tm = fresnel_coefficients(scene.material_eps_r[mat], cos_t, scene.material_pec[mat])
-    rho = roughness_factor(scene.material_roughness_m[mat], cos_t, 2.0 * np.pi / scene.wavelength_m,
-                           scene.material_roughness_model[mat])
-    rho = rho * np.sqrt(1.0 - scene.material_scattering[mat] ** 2)
-    return reflection_dyad(k_in, n, rho * r_te, rho * r_tm)
+    return reflection_dyad(k_in, n, *_material_coefficients(scene, mat, cos_t))
 
 
 def reflected_fields(scene, material, k_in, normal, field):
@@ -247,25 +258,11 @@ def reflected_fields(scene, material, k_in, normal, field):
     k = np.asarray(k_in, dtype=np.float64)
     n = np.asarray(normal, dtype=np.float64)
     kn = np.einsum("ij,ij->i", k, n)
-    cos_t = np.abs(kn)
-    r_te, r_tm = fresnel_coefficients(scene.material_eps_r[mat], cos_t,
-                                      scene.material_pec[mat])
-    rho = roughness_factor(scene.material_roughness_m[mat], cos_t,
-                           2.0 * np.pi / scene.wavelength_m,
-                           scene.material_roughness_model[mat])
-    rho = rho * np.sqrt(1.0 - scene.material_scattering[mat] ** 2)
-    n = np.where(kn[:, None] > 0, -n, n)  # face the incoming ray
-    k_r = k + 2.0 * cos_t[:, None] * n
-    x = cross(k, n)
-    sx = np.linalg.norm(x, axis=-1)
-    normal_inc = sx < _NORMAL_INCIDENCE_TOL
-    e_perp = np.where(normal_inc[:, None], perpendicular(n),
-                      x / np.where(normal_inc, 1.0, sx)[:, None])
-    e_par_i = cross(e_perp, k)
-    e_par_r = cross(e_perp, k_r)
+    r_perp, r_par = _material_coefficients(scene, mat, np.abs(kn))
+    e_perp, e_par_i, e_par_r = _reflection_basis(k, n, kn)
     E = np.asarray(field, dtype=np.complex128)
-    along_perp = (rho * r_te) * np.einsum("ij,ij->i", e_perp, E)
-    along_par = (rho * r_tm) * np.einsum("ij,ij->i", e_par_i, E)
+    along_perp = r_perp * np.einsum("ij,ij->i", e_perp, E)
+    along_par = r_par * np.einsum("ij,ij->i", e_par_i, E)
     return along_perp[:, None] * e_perp + along_par[:, None] * e_par_r
 
 
