@@ -50,7 +50,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from clradcom.device.maps import Slab, accumulate_segments, po_facet_fields, segment_cells
-from clradcom.device.raycast import RAY_DTYPE, spawn_origins
+from clradcom.device.raycast import pack_rays, spawn_origins
 from clradcom.device.runtime import Runtime
 from clradcom.device.visibility import surface_sees
 from clradcom.errors import ArgumentError, ArgumentTypeError
@@ -345,20 +345,6 @@ def _rotate(v, m) -> np.ndarray:
     return np.einsum("ij,jk->ik", v, m)
 
 
-def _rays(origins, directions, tmax=np.inf) -> np.ndarray:
-    """RAY_DTYPE rows (tmin 0) of the map's own rays: :func:`clradcom.device.raycast.
-    make_rays` without its finite and non-zero checks, which cost four times the
-    packing (15 of 19 ms a batch of 2^18 rays) and cannot fail here: every direction is
-    a unit lattice, reflected, cone or cosine-drawn vector or the span from a point to
-    a distinct one (t then in units of it), every origin a finite point of the scene."""
-    rays = np.empty(len(origins), dtype=RAY_DTYPE)
-    rays["org"] = origins
-    rays["dir"] = directions
-    rays["tmin"] = 0.0
-    rays["tmax"] = tmax
-    return rays
-
-
 def _basis(directions_world, orientation):
     """theta-hat, phi-hat (R, 3) world of the antenna frame ``orientation`` at unit world
     directions: those of :func:`clradcom.scene.antenna.theta_phi_unit_vectors` at the
@@ -641,7 +627,7 @@ def _scatter(scene, geom, slab, org, dirs, field, t, prim, normals, receiver, sc
     for _ in range(m):
         out = _cosine_directions(n, rng, frame)
         origins = spawn_origins(point, n, out)
-        lengths = geom.caster.closest_hit(_rays(origins, out))["t"].astype(np.float64)
+        lengths = geom.caster.closest_hit(pack_rays(origins, out))["t"].astype(np.float64)
         near = _reaches(slab, origins, out, lengths)
         if not near.any():
             continue
@@ -707,7 +693,7 @@ def _diffract(scene, geom, slab, wedges, tx: Radar, receiver, scale, settings,
     target = q + 1e-3 * away
     idx = np.flatnonzero(lit)
     if len(idx):
-        rays = _rays(np.broadcast_to(tx_pos, (len(idx), 3)), target[idx] - tx_pos, tmax=1.0)
+        rays = pack_rays(np.broadcast_to(tx_pos, (len(idx), 3)), target[idx] - tx_pos, tmax=1.0)
         lit[idx[geom.caster.occluded(rays)]] = False
     idx = np.flatnonzero(lit)
     if not len(idx):
@@ -734,7 +720,7 @@ def _diffract(scene, geom, slab, wedges, tx: Radar, receiver, scale, settings,
         radial = out - cos_b[j, None] * e[j]
         radial /= np.linalg.norm(radial, axis=1)[:, None]
         origins = q[j] + 1e-3 * radial
-        lengths = geom.caster.closest_hit(_rays(origins, out))["t"].astype(np.float64)
+        lengths = geom.caster.closest_hit(pack_rays(origins, out))["t"].astype(np.float64)
         near = _reaches(slab, origins, out, lengths)
         if not near.any():
             continue
@@ -836,7 +822,7 @@ def _po_facets(scene, geom, grid: MapGrid, tx: Radar, receiver, objects, setting
         # face, so the tracer's float64 confirmation of an antenna's last millimetres
         # (surface_sees) decides nothing here and costs 20x the cast
         origin = spawn_origins(centroid[f], normal[f], toward)
-        sees = ~geom.caster.occluded(_rays(origin, centres[cell] - origin,
+        sees = ~geom.caster.occluded(pack_rays(origin, centres[cell] - origin,
                                            tmax=1.0 - 1e-6), ignore_prim=tri[f])
         f, cell = f[sees], cell[sees]
         if not len(f):
@@ -1052,7 +1038,7 @@ def radio_map(scene: Scene, tx, grid: MapGrid, rx=None, settings: MapSettings | 
         last_prim = np.full(len(dirs), -1)
         for order in range(settings.max_reflections + 1):
             if geom.caster is not None and len(dirs):
-                hits = geom.caster.closest_hit(_rays(org, dirs))
+                hits = geom.caster.closest_hit(pack_rays(org, dirs))
                 t = hits["t"].astype(np.float64)
                 prim = hits["prim"]
             else:

@@ -74,6 +74,13 @@ def make_rays(origins, directions, tmin=0.0, tmax=np.inf) -> np.ndarray:
     zero = ~np.any(directions != 0.0, axis=1)
     if zero.any():
         raise ArgumentError(f"directions[{int(np.flatnonzero(zero)[0])}] is the zero vector")
+    return pack_rays(origins, directions, tmin, tmax)
+
+
+def pack_rays(origins, directions, tmin=0.0, tmax=np.inf) -> np.ndarray:
+    """:func:`make_rays` without its checks, for callers whose rays cannot fail them
+    (finite origins, non-zero directions by construction): the checks cost four times
+    the packing (15 of 19 ms for 2^18 rays, a radio map's batch)."""
     rays = np.empty(len(origins), dtype=RAY_DTYPE)
     rays["org"] = origins
     rays["dir"] = directions
