@@ -42,6 +42,7 @@ The estimate converges where enough segments pass through a cell: at least
 
 from __future__ import annotations
 
+import json
 import math
 import time
 from collections.abc import Callable
@@ -49,6 +50,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from clradcom.device.map_walk import (
+    LaunchLattice,
+    WalkTables,
+    accumulate_walked,
+    receive_weights,
+    walk_rays,
+)
 from clradcom.device.maps import Slab, accumulate_segments, po_facet_fields, segment_cells
 from clradcom.device.raycast import pack_rays, spawn_origins
 from clradcom.device.runtime import Runtime
@@ -145,6 +153,11 @@ class MapSettings:
     #: corner, the carrier phase in float64 on the host) or "host" (float64 numpy, the
     #: tracer's po_transfer)
     po_engine: str = "device"
+    #: where the rays stage walks the launched rays through their bounces: "device" (one
+    #: launch per batch, kernels/map_walk.cl; coherent maps stay on the host, whose image
+    #: sources need float64) or "host" (numpy, the closest hits on the device: the
+    #: reference the device walk is tested against)
+    engine: str = "device"
     batch: int = 1 << 18  #: rays traced together (host memory: BYTES_PER_RAY each)
 
     def __post_init__(self):
@@ -175,6 +188,9 @@ class MapSettings:
         if self.po_engine not in ("device", "host"):
             raise ArgumentError("must be 'device' or 'host'", argument="MapSettings.po_engine",
                                 value=self.po_engine)
+        if self.engine not in ("device", "host"):
+            raise ArgumentError("must be 'device' or 'host'", argument="MapSettings.engine",
+                                value=self.engine)
 
 
 @dataclass(frozen=True)
@@ -922,6 +938,161 @@ def _po_received(scene, v, normal, pec, material, tx_pos, points, e_tx, receiver
     return amplitude
 
 
+def _rays_host(scene, geom, slab, transmitter, receiver, launch, scale, po_objects,
+               settings, rng, sums: CellSums, steps) -> None:
+    """The rays stage in numpy (``MapSettings(engine="host")``, and coherent maps): each
+    batch's rays cast bounce by bounce on the device, their fields reflected, projected
+    and accumulated here in float64 (docs/maps.md); the reference of
+    :func:`_rays_device`."""
+    local = launch.local
+    rot = np.asarray(transmitter.orientation, dtype=np.float64)
+    origin = np.asarray(transmitter.position, dtype=np.float64)
+    normals = geom.caster.normals64() if geom.caster is not None else None
+    corners = geom.caster.triangles[:, 0] if geom.caster is not None else None
+    tri_material = np.asarray(scene.tri_material)
+    tri_object = np.asarray(scene.tri_object)
+    n_batches = -(-len(local) // settings.batch)
+    for b, start in enumerate(range(0, len(local), settings.batch)):
+        if steps is not None:
+            steps(b, n_batches)
+        loc = local[start:start + settings.batch]
+        dirs = _rotate(loc, rot.T)
+        c = launch.field[start:start + settings.batch]
+        th, ph = _basis(dirs, rot)
+        field = c[:, :1] * th + c[:, 1:] * ph
+        org = np.broadcast_to(origin, dirs.shape).copy()
+        # every segment's wavefront is a sphere about its image source: the transmitter
+        # mirrored in the planes of the faces it reflected off (float64, from the faces'
+        # own corners, so the hit points' float32 rounding does not enter)
+        image = org.copy() if settings.coherent else None
+        last_prim = np.full(len(dirs), -1)
+        for order in range(settings.max_reflections + 1):
+            if geom.caster is not None and len(dirs):
+                hits = geom.caster.closest_hit(pack_rays(org, dirs))
+                t = hits["t"].astype(np.float64)
+                prim = hits["prim"]
+            else:
+                t = np.full(len(dirs), np.inf)
+                prim = np.full(len(dirs), -1)
+            if order > 0 or settings.line_of_sight:
+                near = _reaches(slab, org, dirs, t)
+                if order == 1 and len(po_objects):
+                    near &= ~np.isin(tri_object[last_prim], po_objects)
+                polar = _projection(field[near], dirs[near], receiver)
+                weights = scale * np.sum(np.abs(polar) ** 2, axis=1)
+                wave = None
+                if settings.coherent:
+                    src = image[near]
+                    quantised = np.round(src / IMAGE_SOURCE_TOLERANCE_M).astype(np.int64)
+                    group = np.column_stack([np.zeros(len(src), np.int64),
+                                             np.full(len(src), order), quantised])
+                    wave = Wave(polar=polar, group=group,
+                                path_length=lambda rows, points, src=src: np.linalg.norm(
+                                    points - src[rows], axis=1))
+                sums.add(org[near], dirs[near], t[near], weights, wave)
+            hit = prim >= 0
+            if settings.scattering and order <= settings.scattering_reflections \
+                    and hit.any():
+                _scatter(scene, geom, slab, org[hit], dirs[hit], field[hit], t[hit],
+                         prim[hit], normals, receiver, scale, settings, rng, sums)
+            if order == settings.max_reflections or not hit.any():
+                break
+            # one index array for the five takes: a boolean mask is scanned once each
+            hit = np.flatnonzero(hit)
+            org, dirs, field, t, prim = (a[hit] for a in (org, dirs, field, t, prim))
+            if settings.coherent:
+                image = image[hit]
+            last_prim = prim
+            n = normals[prim]
+            point = org + t[:, None] * dirs
+            field = reflected_fields(scene, tri_material[prim], dirs, n, field)
+            if settings.coherent:
+                image = image - 2.0 * np.einsum("ij,ij->i", image - corners[prim],
+                                                n)[:, None] * n
+            dirs = dirs - 2.0 * np.einsum("ij,ij->i", dirs, n)[:, None] * n
+            dirs /= np.linalg.norm(dirs, axis=1)[:, None]
+            org = spawn_origins(point, n, dirs)
+
+
+def _rays_device(scene, geom, slab, transmitter, receiver, launch, scale, po_objects,
+                 settings, rng, sums: CellSums, steps) -> None:
+    """The rays stage on the device (``MapSettings(engine="device")``): one launch a batch
+    walks every ray through its bounces (:func:`clradcom.device.map_walk.walk_rays`);
+    the host projects the segments that reach the slab onto the receiver, accumulates
+    them and starts the diffuse rays at the scattering hits, in the order
+    :func:`_rays_host` does."""
+    caster = geom.caster
+    rt = caster.runtime
+    tri_object = np.asarray(scene.tri_object)
+    tables = WalkTables.of(rt, scene, caster.normals64(),
+                           np.isin(tri_object, po_objects))
+    scatter_orders = settings.scattering_reflections if settings.scattering else -1
+    device_lattice = launch.on(rt)
+    normals = caster.normals64()
+    rx_frame = None if receiver is None else receiver.orientation
+    rx_pattern = None if receiver is None else receiver.pattern
+    n = len(launch.local)
+    n_batches = -(-n // settings.batch)
+    guess = None
+    for b, start in enumerate(range(0, n, settings.batch)):
+        if steps is not None:
+            steps(b, n_batches)
+        count = min(settings.batch, n - start)
+        # the slab's box grown by _reaches' 1 mm: the accumulation's float32 clipping
+        # never sees a segment this skipped
+        segments, hits = walk_rays(
+            caster, device_lattice, tables, transmitter.orientation, transmitter.position,
+            slab, 1e-3, 2.0 * np.pi / scene.wavelength_m, start, count,
+            settings.max_reflections, settings.line_of_sight, scatter_orders,
+            rx_frame=rx_frame, capacity=guess)
+        # the next batch's room: this one's records and a margin
+        guess = (segments.count * 5 // 4 + 1024, len(hits.ray) * 5 // 4 + 1024)
+        weights = scale * receive_weights(segments, rx_pattern)
+        accumulate_walked(rt, slab, segments, weights, sums.power_only, sums.count)
+        for order in np.unique(hits.order):
+            rows = np.flatnonzero(hits.order == order)
+            _scatter(scene, geom, slab, hits.origins[rows], hits.directions[rows],
+                     hits.fields[rows], hits.lengths[rows], hits.prim[rows], normals,
+                     receiver, scale, settings, rng, sums)
+
+
+@dataclass
+class _Launch:
+    """A transmit pattern's launch lattice (:func:`launch_lattice`): ``local`` (N, 3)
+    directions, ``solid_angle`` per ray, ``field`` (N, 2) the pattern's (C_theta, C_phi)
+    at them, and its device copies per runtime."""
+
+    local: np.ndarray
+    solid_angle: float
+    field: np.ndarray
+    device: dict
+
+    def on(self, runtime) -> LaunchLattice:
+        key = id(runtime)
+        if key not in self.device:
+            self.device[key] = LaunchLattice(self.local, self.field, runtime)
+        return self.device[key]
+
+
+#: the last few launch lattices, by ray count and pattern (as the tracer keeps its own:
+#: mechanisms.specular._lattice_of): the lattice of 2e6 rays of a sector took 0.75 s of
+#: each map of the street
+_LAUNCHES: dict = {}
+
+
+def _launch_of(n_rays: int, pattern) -> _Launch:
+    key = (int(n_rays), json.dumps(pattern.params(), sort_keys=True))
+    if key not in _LAUNCHES:
+        if len(_LAUNCHES) >= 2:
+            _LAUNCHES.pop(next(iter(_LAUNCHES)))
+        local, solid_angle = launch_lattice(n_rays, pattern)
+        field = np.asarray(pattern.field(local), dtype=np.complex128)
+        for a in (local, field):
+            a.flags.writeable = False
+        _LAUNCHES[key] = _Launch(local, solid_angle, field, {})
+    return _LAUNCHES[key]
+
+
 def _edge_path_length(source, start, direction, points) -> np.ndarray:
     """The shortest length (m) from ``source`` (3,) via the infinite line through
     ``start`` along unit ``direction`` (R, 3) to ``points`` (R, 3): the unfolded length of
@@ -1004,84 +1175,23 @@ def radio_map(scene: Scene, tx, grid: MapGrid, rx=None, settings: MapSettings | 
     rt = geom.runtime
     slab = grid.slab()
     lam = C0 / float(scene.carrier_hz)
-    local, solid_angle = launch_lattice(settings.rays, transmitter.pattern)
-    rot = np.asarray(transmitter.orientation, dtype=np.float64)
-    scale = (lam / (4.0 * np.pi)) ** 2 * solid_angle / slab.cell_volume
-    origin = np.asarray(transmitter.position, dtype=np.float64)
+    launch = _launch_of(settings.rays, transmitter.pattern)
+    scale = (lam / (4.0 * np.pi)) ** 2 * launch.solid_angle / slab.cell_volume
     sums = CellSums(rt, grid, 2.0 * np.pi / lam, settings.coherent)
-    normals = geom.caster.normals64() if geom.caster is not None else None
-    corners = geom.caster.triangles[:, 0] if geom.caster is not None else None
-    tri_material = np.asarray(scene.tri_material)
-    tri_object = np.asarray(scene.tri_object)
     # physical optics as the tracer chooses it (optics.replaced_paths): an object with PO
     # facets gives no GO single reflection; one with SBR-PO keeps its later bounces'
     # exit rays (the GO limit of its tubes' footprint radiation)
     modes = np.array(object_optics(scene, settings.optics))
     po_objects = np.flatnonzero(modes != "go")
-    n_batches = -(-len(local) // settings.batch)
+    n_batches = -(-len(launch.local) // settings.batch)
     rng = np.random.default_rng(settings.seed)
     clock = time.perf_counter()
     seconds: dict[str, float] = {}
-    for b, start in enumerate(range(0, len(local), settings.batch)):
-        if steps is not None:
-            steps(b, n_batches)
-        loc = local[start:start + settings.batch]
-        dirs = _rotate(loc, rot.T)
-        c = np.asarray(transmitter.pattern.field(loc), dtype=np.complex128)
-        th, ph = _basis(dirs, rot)
-        field = c[:, :1] * th + c[:, 1:] * ph
-        org = np.broadcast_to(origin, dirs.shape).copy()
-        # every segment's wavefront is a sphere about its image source: the transmitter
-        # mirrored in the planes of the faces it reflected off (float64, from the faces'
-        # own corners, so the hit points' float32 rounding does not enter)
-        image = org.copy() if settings.coherent else None
-        last_prim = np.full(len(dirs), -1)
-        for order in range(settings.max_reflections + 1):
-            if geom.caster is not None and len(dirs):
-                hits = geom.caster.closest_hit(pack_rays(org, dirs))
-                t = hits["t"].astype(np.float64)
-                prim = hits["prim"]
-            else:
-                t = np.full(len(dirs), np.inf)
-                prim = np.full(len(dirs), -1)
-            if order > 0 or settings.line_of_sight:
-                near = _reaches(slab, org, dirs, t)
-                if order == 1 and len(po_objects):
-                    near &= ~np.isin(tri_object[last_prim], po_objects)
-                polar = _projection(field[near], dirs[near], receiver)
-                weights = scale * np.sum(np.abs(polar) ** 2, axis=1)
-                wave = None
-                if settings.coherent:
-                    src = image[near]
-                    quantised = np.round(src / IMAGE_SOURCE_TOLERANCE_M).astype(np.int64)
-                    group = np.column_stack([np.zeros(len(src), np.int64),
-                                             np.full(len(src), order), quantised])
-                    wave = Wave(polar=polar, group=group,
-                                path_length=lambda rows, points, src=src: np.linalg.norm(
-                                    points - src[rows], axis=1))
-                sums.add(org[near], dirs[near], t[near], weights, wave)
-            hit = prim >= 0
-            if settings.scattering and order <= settings.scattering_reflections \
-                    and hit.any():
-                _scatter(scene, geom, slab, org[hit], dirs[hit], field[hit], t[hit],
-                         prim[hit], normals, receiver, scale, settings, rng, sums)
-            if order == settings.max_reflections or not hit.any():
-                break
-            # one index array for the five takes: a boolean mask is scanned once each
-            hit = np.flatnonzero(hit)
-            org, dirs, field, t, prim = (a[hit] for a in (org, dirs, field, t, prim))
-            if settings.coherent:
-                image = image[hit]
-            last_prim = prim
-            n = normals[prim]
-            point = org + t[:, None] * dirs
-            field = reflected_fields(scene, tri_material[prim], dirs, n, field)
-            if settings.coherent:
-                image = image - 2.0 * np.einsum("ij,ij->i", image - corners[prim],
-                                                n)[:, None] * n
-            dirs = dirs - 2.0 * np.einsum("ij,ij->i", dirs, n)[:, None] * n
-            dirs /= np.linalg.norm(dirs, axis=1)[:, None]
-            org = spawn_origins(point, n, dirs)
+    on_device = (settings.engine == "device" and not settings.coherent
+                 and geom.caster is not None)
+    walk = _rays_device if on_device else _rays_host
+    walk(scene, geom, slab, transmitter, receiver, launch, scale, po_objects, settings, rng,
+         sums, steps)
     seconds["rays"] = time.perf_counter() - clock
     if len(po_objects) and geom.caster is not None:
         clock = time.perf_counter()
@@ -1092,7 +1202,8 @@ def radio_map(scene: Scene, tx, grid: MapGrid, rx=None, settings: MapSettings | 
         wedges = diffraction.prepare(geom, DiffractionSettings(max_diffractions=1),
                                      po_objects)
         if wedges is not None and len(wedges):
-            _diffract(scene, geom, slab, wedges, transmitter, receiver, scale / solid_angle,
+            _diffract(scene, geom, slab, wedges, transmitter, receiver,
+                      scale / launch.solid_angle,
                       settings, sums)
     if steps is not None:
         steps(n_batches, n_batches)
@@ -1102,7 +1213,8 @@ def radio_map(scene: Scene, tx, grid: MapGrid, rx=None, settings: MapSettings | 
     gain = sums.coherent_gain() if settings.coherent else incoherent
     seconds["coherent sum"] = time.perf_counter() - clock
     return RadioMap(grid=grid, gain=gain, count=sums.count, tx_name=transmitter.name,
-                    rx_name=None if receiver is None else receiver.name, rays=len(local),
+                    rx_name=None if receiver is None else receiver.name,
+                    rays=len(launch.local),
                     tx_power_w=float(transmitter.tx_power_w), coherent=settings.coherent,
                     incoherent_gain=incoherent if settings.coherent else None,
                     group_count=sums.group_count() if settings.coherent else None,

@@ -40,6 +40,7 @@ CONFORMANCE_MODULES = frozenset({
     "test_maps",
     "test_maps_coherent",
     "test_maps_po",
+    "test_map_walk",
 })
 
 #: What Oclgrind runs with all its checks on (a simulator, unoptimised: ~10^4 times slower
@@ -68,6 +69,7 @@ OCLGRIND_TESTS = frozenset({
     "test_maps::test_device_accumulation_matches_the_float64_reference",
     "test_maps_coherent::test_segment_records_add_up_to_the_accumulated_cells",
     "test_maps_po::test_device_po_fields_on_a_few_cells",
+    "test_map_walk::test_device_walk_on_a_few_rays",
 })
 
 def pytest_addoption(parser):
