@@ -1044,7 +1044,10 @@ def _rays_device(scene, geom, slab, transmitter, receiver, launch, scale, po_obj
     rx_pattern = None if receiver is None else receiver.pattern
     n = len(launch.local)
     n_batches = -(-n // settings.batch)
-    guess = None
+    # the lists' room: three segments and a quarter of a hit a ray at first, then a
+    # quarter more than the fullest batch so far (a batch that outgrows it runs again)
+    room = (3 * settings.batch, settings.batch // 4 + 64)
+    workspace: dict = {}
     for b, start in enumerate(range(0, n, settings.batch)):
         if steps is not None:
             steps(b, n_batches)
@@ -1055,9 +1058,8 @@ def _rays_device(scene, geom, slab, transmitter, receiver, launch, scale, po_obj
             caster, device_lattice, tables, transmitter.orientation, transmitter.position,
             slab, 1e-3, 2.0 * np.pi / scene.wavelength_m, start, count,
             settings.max_reflections, settings.line_of_sight, scatter_orders,
-            rx_frame=rx_frame, capacity=guess)
-        # the next batch's room: this one's records and a margin
-        guess = (segments.count * 5 // 4 + 1024, len(hits.ray) * 5 // 4 + 1024)
+            rx_frame=rx_frame, capacity=room, workspace=workspace)
+        room = (max(room[0], segments.count * 5 // 4), max(room[1], len(hits.ray) * 5 // 4))
         weights = scale * receive_weights(segments, rx_pattern)
         accumulate_walked(rt, slab, segments, weights, sums.power_only, sums.count)
         for order in np.unique(hits.order):

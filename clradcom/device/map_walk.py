@@ -184,8 +184,8 @@ def accumulate_walked(runtime, slab, segments: WalkSegments, weights, power, cou
 def walk_rays(caster: RayCaster, lattice: LaunchLattice, tables: WalkTables, frame,
               origin, slab, margin: float, wavenumber: float, first: int, count: int,
               max_reflections: int, line_of_sight: bool, scatter_orders: int,
-              rx_frame=None, capacity: tuple[int, int] | None = None
-              ) -> tuple[WalkSegments, WalkHits]:
+              rx_frame=None, capacity: tuple[int, int] | None = None,
+              workspace: dict | None = None) -> tuple[WalkSegments, WalkHits]:
     """(segments, scattering hits) of the lattice's rays
     ``first`` .. ``first + count`` from ``origin`` (3,) with the antenna's ``frame``
     (3, 3, columns its axes in the world), up to ``max_reflections`` reflections: the
@@ -194,7 +194,9 @@ def walk_rays(caster: RayCaster, lattice: LaunchLattice, tables: WalkTables, fra
     with the receive records in the frame ``rx_frame`` (None: no receiver), and the hits
     on faces with S > 0 after at most ``scatter_orders`` reflections (-1: none).
     ``capacity`` (segments, hits) is a first guess of the
-    records' room; a batch that needs more runs again with room for all."""
+    records' room; a batch that needs more runs again with room for all. ``workspace``
+    (a dict the caller keeps) holds the device buffers between batches; the segments'
+    rows returned live in it until the next call."""
     import pyopencl as cl
 
     rt = caster.runtime
@@ -216,17 +218,26 @@ def walk_rays(caster: RayCaster, lattice: LaunchLattice, tables: WalkTables, fra
     rx_buf = None if rx_frame is None else rt.to_device(
         np.asarray(rx_frame, dtype=real).reshape(9))
     lattice_buf, launch_buf = lattice.buffers()
-    seg_cap, hit_cap = capacity or (2 * count, count // 4 + 64)
-    mf = cl.mem_flags
+    seg_cap, hit_cap = capacity or (3 * count, count // 4 + 64)
+    workspace = {} if workspace is None else workspace
+
+    def buffer(name, nbytes):
+        # kept between batches, grown by half again where a batch needs more
+        held = workspace.get(name)
+        if held is None or held[0] < nbytes:
+            size = max(nbytes, 3 * (0 if held is None else held[0]) // 2)
+            workspace[name] = held = (size, rt.empty(size))
+        return held[1]
+
     while True:
         with rt.guard("radio map rays (map_walk)"):
             seg_cap, hit_cap = max(seg_cap, 1), max(hit_cap, 1)
-            seg_org, seg_dir = rt.empty(16 * seg_cap), rt.empty(16 * seg_cap)
-            seg_rx = rt.empty(RX_REALS * itemsize * seg_cap)
-            hit_rows = rt.empty(HIT_REALS * itemsize * hit_cap)
-            hit_ints = rt.empty(HIT_INTS * 4 * hit_cap)
-            counters = cl.Buffer(rt.context, mf.READ_WRITE | mf.COPY_HOST_PTR,
-                                 hostbuf=np.zeros(2, dtype=np.int32))
+            seg_org, seg_dir = buffer("org", 16 * seg_cap), buffer("dir", 16 * seg_cap)
+            seg_rx = buffer("rx", RX_REALS * itemsize * seg_cap)
+            hit_rows = buffer("hit rows", HIT_REALS * itemsize * hit_cap)
+            hit_ints = buffer("hit ints", HIT_INTS * 4 * hit_cap)
+            counters = buffer("counters", 8)
+            rt.fill(counters, np.int32(0), 8)
         caster.run_kernel(SOURCE, "map_walk", count, lattice_buf, launch_buf, frame_buf,
                           params_buf, tables.normals, tables.tri_material,
                           tables.tri_flags, tables.mat_f, tables.mat_i, np.int32(first),
