@@ -2,8 +2,10 @@
 
 Not one link per cell: rays leave the transmitter over its pattern's support, each ray
 tube carrying the solid angle dOmega of its lattice cell, and bounce specularly off the
-scene (closest hits on the device, the polarimetric Fresnel dyad of each face's material
-as the tracer applies it: :func:`clradcom.physics.em.reflected_fields`). Every
+scene (the polarimetric Fresnel dyad of each face's material as the tracer applies it:
+:func:`clradcom.physics.em.reflected_fields`), walked through all their bounces on the
+device in one launch per batch (:func:`clradcom.device.map_walk.walk_rays`;
+``MapSettings(engine="host")``: bounce by bounce in numpy, the reference). Every
 segment of every ray is then accumulated on the device into the cells of a measurement
 slab (:func:`clradcom.device.maps.accumulate_segments`): a horizontal layer of thickness
 ``thickness_m`` centred on ``height_m``, clipped to a rectangle. The estimator
@@ -94,7 +96,10 @@ MIN_SEGMENTS = 20
 #: complex field vector, the reflection's and the receive projection's temporaries, the
 #: hit record and the float32 rows sent to the device. Measured by tracemalloc on the
 #: street (batches of 2^16 rays, 3 reflections): 520 bytes a ray, 610 with diffraction
-#: (its Keller-cone rounds hold at most a batch of rays); twice that for a margin.
+#: (its Keller-cone rounds hold at most a batch of rays); twice that for a margin. The
+#: device walk holds less: its lists' room (88 bytes a segment, three segments a ray at
+#: first, 116 bytes a scattering hit) and the host's copy of the segments' 56-byte
+#: receive rows.
 BYTES_PER_RAY = 1200
 
 #: A coherent map's (segment, cell) records a launched ray makes: measured 2.6 on the
