@@ -172,7 +172,7 @@ __kernel void map_walk(__global const Bvh8Node *nodes, __global const float4 *tr
                        __global const int *tri_material,
                        __global const int *tri_flags,
                        __global const real *mat_f,     /* (M, 4) em.h material rows */
-                       __global const int *mat_i,      /* (M, 2) */
+                       __global const int *mat_i,      /* (M, 3): em.h's 2, S > 0 */
                        const int first, const int n, const int max_reflections,
                        const int line_of_sight, const int scatter_orders,
                        __global const real *rx,        /* rx orientation or 0 */
@@ -211,13 +211,13 @@ __kernel void map_walk(__global const Bvh8Node *nodes, __global const float4 *tr
                          params, rx);
         if (prim < 0) break;
         int mat = tri_material[prim];
-        if (order <= scatter_orders && mat_f[4 * mat + 3] < (real)1.0)
+        if (order <= scatter_orders && mat_i[3 * mat + 2])
             emit_hit(counters + 1, hit_capacity, hit_rows, hit_ints, org, dir, t, field, ray,
                      order, prim);
         if (order == max_reflections) break;
         real3 nrm = load_real3(normals + 3 * (size_t)prim);
         real3 point = org + t * dir;
-        Reflection refl = material_reflection(dir, nrm, mat_f + 4 * mat, mat_i + 2 * mat,
+        Reflection refl = material_reflection(dir, nrm, mat_f + 4 * mat, mat_i + 3 * mat,
                                               k0);
         field = reflect(&refl, field);
         dir = dir - (real)2.0 * dot(dir, nrm) * nrm;

@@ -67,7 +67,7 @@ class WalkTables:
     """Per-triangle and per-material device tables of one map: unit normals (float64's,
     as the host reflects off them), material ids, flags (:data:`FLAG_PO`) and the
     material rows of ``kernels/em.h`` (eps re, eps im, roughness, sqrt(1 - S^2)) and
-    (pec, roughness model)."""
+    (pec, roughness model) with whether the material scatters (S > 0)."""
 
     normals: object
     tri_material: object
@@ -86,7 +86,10 @@ class WalkTables:
         mat_f[:, 2] = scene.material_roughness_m
         mat_f[:, 3] = np.sqrt(1.0 - np.asarray(scene.material_scattering,
                                                dtype=np.float64) ** 2)
-        mat_i = np.stack([pec, np.asarray(scene.material_roughness_model)], axis=1)
+        # whether a material scatters as its own flag: sqrt(1 - S^2) rounds to 1 below
+        # S ~ 1e-8, where the host's S > 0 still starts diffuse rays
+        scatters = np.asarray(scene.material_scattering, dtype=np.float64) > 0
+        mat_i = np.stack([pec, np.asarray(scene.material_roughness_model), scatters], axis=1)
         flags = np.where(np.asarray(po_triangles, dtype=bool), FLAG_PO, 0)
         dev = runtime.to_device
         return cls(normals=dev(np.asarray(normals, dtype=real)),
