@@ -297,8 +297,9 @@ class RadioMap:
     #: coherent maps: the fewest segments of a wavefront group holding >= 1 % of a
     #: cell's power (CellSums.group_count)
     group_count: np.ndarray | None = None
-    #: wall seconds of the stages: "rays" (launch, bounces, scattering, accumulation),
-    #: "physical optics", "diffraction", "coherent sum"
+    #: wall seconds of the stages: "launch lattice" (made, or kept from an earlier map),
+    #: "rays" (launch, bounces, scattering, accumulation), "physical optics",
+    #: "diffraction", "coherent sum"
     stage_seconds: dict[str, float] | None = None
 
     @property
@@ -1197,7 +1198,9 @@ def radio_map(scene: Scene, tx, grid: MapGrid, rx=None, settings: MapSettings | 
     rt = geom.runtime
     slab = grid.slab()
     lam = C0 / float(scene.carrier_hz)
+    clock = time.perf_counter()
     launch = _launch_of(settings.rays, transmitter.pattern)
+    lattice_seconds = time.perf_counter() - clock
     scale = (lam / (4.0 * np.pi)) ** 2 * launch.solid_angle / slab.cell_volume
     sums = CellSums(rt, grid, 2.0 * np.pi / lam, settings.coherent)
     # physical optics as the tracer chooses it (optics.replaced_paths): an object with PO
@@ -1208,7 +1211,7 @@ def radio_map(scene: Scene, tx, grid: MapGrid, rx=None, settings: MapSettings | 
     n_batches = -(-len(launch.local) // settings.batch)
     rng = np.random.default_rng(settings.seed)
     clock = time.perf_counter()
-    seconds: dict[str, float] = {}
+    seconds: dict[str, float] = {"launch lattice": lattice_seconds}
     on_device = (settings.engine == "device" and not settings.coherent
                  and geom.caster is not None)
     walk = _rays_device if on_device else _rays_host
