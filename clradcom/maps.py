@@ -910,11 +910,11 @@ def _po_pairs(scene, geom, grid: MapGrid, tx_pos, receiver, lit: _LitFacets, set
 def _po_pairs_device(scene, geom, grid: MapGrid, tx_pos, receiver, lit: _LitFacets,
                      settings):
     """:func:`_po_pairs` with the pairs made, tested and the PEC fields weighed on the
-    device in one launch per round (:func:`clradcom.device.maps.po_pairs`: lit side,
+    device, one launch each (:func:`clradcom.device.maps.po_pairs`: lit side,
     the receiver's sector grown by :data:`SECTOR_MARGIN`, the sight cast, the field);
     the host then keeps the exact pattern test, adds the carrier phase in float64 and
     takes the receive projection of the pairs that passed, and weighs the near-zone
-    and penetrable ones itself. The same pairs and amplitudes, round by round."""
+    and penetrable ones itself. The same pairs and amplitudes, in the same order."""
     centres = grid.centres().reshape(-1, 3)
     corner = np.array([grid.x_min, grid.y_min, grid.height_m])
     k = 2.0 * np.pi / scene.wavelength_m
@@ -931,26 +931,25 @@ def _po_pairs_device(scene, geom, grid: MapGrid, tx_pos, receiver, lit: _LitFace
     lam = scene.wavelength_m
     for f, cell, whole, field in rounds:
         toward = centres[cell] - lit.centroid[f]
-        to_centre = np.linalg.norm(toward, axis=1)
+        to_centre = np.linalg.norm(toward, axis=1)   # the reference's rounding of L
         arrival = toward / to_centre[:, None]
         pattern = None
         if receiver is not None:
             # the pattern itself (the device's test only bounds its support): |C|^2 = G
             local, c = _rx_pattern(arrival, receiver)
-            seen = np.flatnonzero(np.sum(np.abs(c) ** 2, axis=1) > 0)
-            f, cell, whole, field, arrival, to_centre = (
-                a[seen] for a in (f, cell, whole, field, arrival, to_centre))
-            pattern = (local[seen], c[seen])
+            seen = np.flatnonzero(np.sum(c.real ** 2 + c.imag ** 2, axis=1) > 0)
+            if len(seen) < len(f):
+                f, cell, whole, field, arrival, to_centre, local, c = (
+                    a[seen] for a in (f, cell, whole, field, arrival, to_centre, local, c))
+            pattern = (local, c)
         if not len(f):
             continue
         amplitude = np.empty((len(f), 1 if receiver is not None else 3), np.complex128)
-        done = np.flatnonzero(whole)
-        if len(done):
-            # the carrier phase of the float64 lengths, then the receive projection
-            phase = np.exp(-1j * k * (lit.from_tx[f[done]] + to_centre[done]))
-            amplitude[done] = _projection(
-                field[done] * (lam / (4.0 * np.pi) * phase)[:, None], arrival[done],
-                receiver, None if pattern is None else (pattern[0][done], pattern[1][done]))
+        # the carrier phase of the float64 lengths, then the receive projection (the
+        # rows the device left to the host are overwritten below)
+        phase = np.exp(-1j * k * (lit.from_tx[f] + to_centre))
+        amplitude[:] = _projection(field * (lam / (4.0 * np.pi) * phase)[:, None], arrival,
+                                   receiver, pattern)
         rest = np.flatnonzero(~whole)
         if len(rest):
             amplitude[rest] = _po_amplitudes(scene, grid, tx_pos, receiver, lit, f[rest],
