@@ -1,10 +1,10 @@
 /* A radio map's PO facet-cell pairs in one launch (clradcom/device/maps.py: po_pairs,
  * clradcom/maps.py: _po_facets; docs/maps.md "The PO stage in one launch").
  *
- * One work item per (facet, cell) pair of a round of lit facets and every cell centre,
- * the pair made from the work item's index (no host array per pair). In the order of
- * their cost, and as the host's pair-wise reference (clradcom/maps.py: _po_pairs) takes
- * them:
+ * One work item per (facet, cell) pair of the lit facets and every cell centre, the
+ * pair start + index in facet-major order made from the work item's index (no host
+ * array per pair). In the order of their cost, and as the host's pair-wise reference
+ * (clradcom/maps.py: _po_pairs) takes them:
  *
  *   front     the centre on the facet's lit side: n . centre > n . centroid (world);
  *   sector    the arrival -(centre - centroid) inside a box in the receiver's frame
@@ -20,8 +20,8 @@
  *             po_facet.h's field without the carrier phase (double with -D PO_DOUBLE).
  *
  * Every pair that passes the first three is appended at a slot of a compact list: its
- * index in the launch (the pair start + index of the facets x cells), negated minus
- * one where the host weighs its field (near-zone pieces, penetrable materials), and its
+ * index in the launch (the work item's), negated minus one where the host weighs its
+ * field (near-zone pieces, penetrable materials), and its
  * field. A launch keeps at most capacity pairs: a pair that finds the list full (or
  * comes to its cast once it is) lowers *resume to its index instead, and the host
  * keeps the pairs under *resume and starts the next launch there. The list's order is
@@ -29,11 +29,11 @@
 #include "intersect.h"
 #include "po_facet.h"
 
-/* per facet: 0-8 vertices - centroid, 9-11 centroid, 12-14 lit unit normal, 15-20 the
- * transmitter's field re/im xyz (these about the grid's corner, as po_facet_fields takes
- * them), 21-23 the sight rays' origin (world), 24 n . centroid (world), 25 the near
- * zone's reach, 26 the distance from the transmitter, 27 unused */
-#define PO_FACET_ROWS 28
+/* PO_FACET_ROWS numbers per facet (-D from clradcom/device/maps.py): 0-8 vertices -
+ * centroid, 9-11 centroid, 12-14 lit unit normal, 15-20 the transmitter's field re/im
+ * xyz (these about the grid's corner, as po_facet_fields takes them), 21-23 the sight
+ * rays' origin (world), 24 n . centroid (world), 25 the near zone's reach, 26 the
+ * distance from the transmitter, the rest unused */
 
 __kernel void po_pairs(__global const Bvh8Node *nodes,
                        __global const float4 *tri4,

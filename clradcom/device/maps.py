@@ -26,7 +26,7 @@ __all__ = ["PO_FACET_ROWS", "Slab", "accumulate_segments", "accumulate_segments_
 
 SOURCE = "maps.cl"
 PO_SOURCE = "maps_po.cl"
-#: Numbers per facet in kernels/maps_po.cl's facet table (its PO_FACET_ROWS)
+#: Numbers per facet in kernels/maps_po.cl's facet table (-D PO_FACET_ROWS)
 PO_FACET_ROWS = 28
 
 
@@ -304,7 +304,7 @@ def po_pairs(caster, corner, wavenumber: float, source, vertices, centroids, nor
     capacity = max(1, int(capacity))
     most = max(1, min(int(pairs_per_launch), (1 << 31) - 1))
     per_launch = most
-    defines = {"PO_DOUBLE": 1} if double else None
+    defines = {"PO_FACET_ROWS": PO_FACET_ROWS, **({"PO_DOUBLE": 1} if double else {})}
     with rt.guard("radio map PO pairs"):
         facet_buf = rt.to_device(table)
         id_buf = rt.to_device(ids)
