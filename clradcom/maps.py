@@ -59,7 +59,13 @@ from clradcom.device.map_walk import (
     receive_weights,
     walk_rays,
 )
-from clradcom.device.maps import Slab, accumulate_segments, po_facet_fields, segment_cells
+from clradcom.device.maps import (
+    Slab,
+    accumulate_segments,
+    po_facet_fields,
+    po_pairs,
+    segment_cells,
+)
 from clradcom.device.raycast import pack_rays, spawn_origins
 from clradcom.device.runtime import Runtime
 from clradcom.device.visibility import surface_sees
@@ -82,6 +88,7 @@ from clradcom.physics.em import (
 )
 from clradcom.physics.po import MAX_SUBDIVISION_LEVELS, NEAR_SIZE_FACTOR, po_transfer
 from clradcom.physics.vectors import perpendicular
+from clradcom.scene.antenna import CosinePowerPattern, SectorPattern
 from clradcom.scene.records import Radar, Scene
 
 __all__ = ["MIN_SEGMENTS", "CellSums", "MapGrid", "MapSettings", "RadioMap", "Wave",
@@ -113,7 +120,9 @@ COHERENT_RECORDS_PER_RAY = 4
 BYTES_PER_RECORD = 160
 
 #: Host bytes a facet-cell pair of the PO stage holds while its round is weighed (the
-#: transfer dyads, directions, the facet integral's temporaries, the sight rays).
+#: transfer dyads, directions, the facet integral's temporaries, the sight rays): a bound
+#: for the pairs a device launch returns too (measured by tracemalloc on the street: 710
+#: to 820 bytes each, the whole facet table and launches included).
 BYTES_PER_PO_PAIR = 2000
 
 
@@ -153,11 +162,13 @@ class MapSettings:
     #: field evaluated at the cell centres instead of the GO reflection, and with "po"
     #: optics (SBR) its later bounces' exit rays run on through the cells
     optics: str = "none"
-    #: facet-cell pairs of the PO stage weighed together (host memory ~2 kB each)
+    #: facet-cell pairs of the PO stage weighed together on the host (host memory
+    #: ~2 kB each): the pairs a device launch returns at most, or the host's round
     po_batch: int = 1 << 16
-    #: where the PEC facets' PO fields are evaluated: "device" (float32 about the grid's
-    #: corner, the carrier phase in float64 on the host) or "host" (float64 numpy, the
-    #: tracer's po_transfer)
+    #: how the PO stage finds its pairs and weighs the PEC facets' fields: "device" (the
+    #: pairs made, tested and weighed in one launch each, double about the grid's corner
+    #: where the device has fp64, the carrier phase in float64 on the host) or "host"
+    #: (pair by pair, float64 numpy: the tracer's po_transfer)
     po_engine: str = "device"
     #: where the rays stage walks the launched rays through their bounces: "device" (one
     #: launch per batch, kernels/map_walk.cl; coherent maps stay on the host, whose image
@@ -287,11 +298,13 @@ class RadioMap:
     #: field evaluated at the cell centres instead of the GO reflection, and with "po"
     #: optics (SBR) its later bounces' exit rays run on through the cells
     optics: str = "none"
-    #: facet-cell pairs of the PO stage weighed together (host memory ~2 kB each)
+    #: facet-cell pairs of the PO stage weighed together on the host (host memory
+    #: ~2 kB each): the pairs a device launch returns at most, or the host's round
     po_batch: int = 1 << 16
-    #: where the PEC facets' PO fields are evaluated: "device" (float32 about the grid's
-    #: corner, the carrier phase in float64 on the host) or "host" (float64 numpy, the
-    #: tracer's po_transfer)
+    #: how the PO stage finds its pairs and weighs the PEC facets' fields: "device" (the
+    #: pairs made, tested and weighed in one launch each, double about the grid's corner
+    #: where the device has fp64, the carrier phase in float64 on the host) or "host"
+    #: (pair by pair, float64 numpy: the tracer's po_transfer)
     po_engine: str = "device"
     incoherent_gain: np.ndarray | None = None
     #: coherent maps: the fewest segments of a wavefront group holding >= 1 % of a
@@ -395,19 +408,20 @@ def _basis(directions_world, orientation):
     return _rotate(th, rot_t), _rotate(ph, rot_t)
 
 
-def _projection(field, directions, rx: Radar | None) -> np.ndarray:
+def _projection(field, directions, rx: Radar | None, pattern=None) -> np.ndarray:
     """The receiver's complex projection p(E) (..., R, 1) of field vectors E (..., R, 3)
     (several fields per direction share its pattern's evaluation) arriving along
     ``directions`` (R, 3) (em.path_gains' bilinear form at -direction), or E itself
-    without a receiver: what a coherent sum adds, |p|^2 the power."""
+    without a receiver: what a coherent sum adds, |p|^2 the power. ``pattern``: the
+    receiver's (local directions, (C_theta, C_phi)) at -directions, when known
+    (:func:`_rx_pattern`)."""
     if rx is None:
         return np.asarray(field, dtype=np.complex128)
     rot = np.asarray(rx.orientation, dtype=np.float64)
     # theta-hat . E in the antenna's frame: (th_local R^T) . E = th_local . (E R), so the
     # arrival direction and the field are rotated once and theta-hat, phi-hat never
     # formed (_basis's vectors, cos phi = x / rho, sin phi = y / rho)
-    d = _rotate(-directions, rot)
-    c = np.asarray(rx.pattern.field(d), dtype=np.complex128)
+    d, c = _rx_pattern(directions, rx) if pattern is None else pattern
     e = np.einsum("...ij,jk->...ik", np.asarray(field, dtype=np.complex128), rot)
     rho = np.hypot(d[:, 0], d[:, 1])
     axis = rho == 0
@@ -418,6 +432,13 @@ def _projection(field, directions, rx: Radar | None) -> np.ndarray:
     e_theta = d[:, 2] * along_x - rho * e[..., 2]
     e_phi = cos_p * e[..., 1] - sin_p * e[..., 0]
     return (c[:, 0] * e_theta + c[:, 1] * e_phi)[..., None]
+
+
+def _rx_pattern(directions, rx: Radar) -> tuple[np.ndarray, np.ndarray]:
+    """(local (R, 3), (C_theta, C_phi) (R, 2) complex): the receiver's frame's arrival
+    directions -directions and its pattern there."""
+    d = _rotate(-directions, np.asarray(rx.orientation, dtype=np.float64))
+    return d, np.asarray(rx.pattern.field(d), dtype=np.complex128)
 
 
 def _received(field, directions, rx: Radar | None) -> np.ndarray:
@@ -781,22 +802,41 @@ def _diffract(scene, geom, slab, wedges, tx: Radar, receiver, scale, settings,
                 points)))
 
 
-def _po_facets(scene, geom, grid: MapGrid, tx: Radar, receiver, objects, settings,
-               sums: CellSums) -> None:
-    """The PO facet returns of ``objects`` at every cell centre: the tracer's
-    :func:`clradcom.mechanisms.physical_optics.po_paths` with a receiver at each centre.
-    A facet lit from tx (front side, or either side of a two-sided object; inside tx's
-    pattern; its centroid seeing tx) radiates to the centres on its lit side that its
-    centroid sees, E = (lambda / 4 pi) T e_tx e^{-jkL} / L with T of
-    :func:`clradcom.physics.po.po_transfer` (PEC current, or a penetrable material's
-    Fresnel-weighted currents), received as the map's receiver takes a field. Pairs
-    with the centre in a facet's near zone (closer than 2 D) are split into far-field
-    pieces as the tracer's default ``split="near"`` does. The tracer's floor (facets
-    80 dB under the link's strongest dropped) is not applied: such terms add nothing
-    visible to a power."""
+#: The device's receiver test (kernels/maps_po.cl) is grown by this much (rad of azimuth,
+#: and in the arrival's components) so that its rounding never drops a pair the host's
+#: exact pattern test keeps.
+SECTOR_MARGIN = 1e-5
+
+#: Facet-cell pairs a launch of the PO stage considers: the device holds nothing per
+#: pair (they are made from the work item's index), only the ones that pass.
+PO_PAIRS_PER_LAUNCH = 1 << 22
+
+
+@dataclass
+class _LitFacets:
+    """The facets of the PO objects lit from the transmitter and what their pairs need:
+    triangle ids, vertices (F, 3, 3), lit-side unit normals, centroids, the
+    transmitter's field at them (F, 3) complex, PEC flags and materials, longest edges
+    and distances from the transmitter."""
+
+    tri: np.ndarray
+    v: np.ndarray
+    normal: np.ndarray
+    centroid: np.ndarray
+    e_tx: np.ndarray
+    pec: np.ndarray
+    material: np.ndarray
+    size: np.ndarray
+    from_tx: np.ndarray
+
+
+def _lit_facets(scene, geom, tx: Radar, objects) -> _LitFacets | None:
+    """The facets of ``objects`` lit from tx: front side (or either side of a two-sided
+    object, its normal turned to tx), inside tx's pattern, the centroid seeing tx
+    (surface_sees); None where none is."""
     tri = np.flatnonzero(np.isin(scene.tri_object, objects))
     if not len(tri):
-        return
+        return None
     v = np.asarray(scene.triangles)[tri]
     normal = triangle_normals(v)
     centroid = v.mean(axis=1)
@@ -816,32 +856,68 @@ def _po_facets(scene, geom, grid: MapGrid, tx: Radar, receiver, objects, setting
                               tri_face=geom.faces.tri_face, engine=geom.engine)]] = False
     keep = np.flatnonzero(lit)
     if not len(keep):
-        return
+        return None
     tri, v, normal, centroid, k_dep, c_tx = (a[keep] for a in (tri, v, normal, centroid,
                                                                k_dep, c_tx))
     th, ph = _basis(k_dep, rot)
-    e_tx = c_tx[:, :1] * th + c_tx[:, 1:] * ph
     material = np.asarray(scene.tri_material)[tri]
-    pec = np.asarray(scene.material_pec)[material]
+    return _LitFacets(
+        tri=tri, v=v, normal=normal, centroid=centroid,
+        e_tx=c_tx[:, :1] * th + c_tx[:, 1:] * ph, material=material,
+        pec=np.asarray(scene.material_pec)[material],
+        size=np.sqrt(np.max(np.sum((v - v[:, [1, 2, 0]]) ** 2, axis=-1), axis=1)),
+        from_tx=np.linalg.norm(centroid - tx_pos, axis=1))
+
+
+def _po_facets(scene, geom, grid: MapGrid, tx: Radar, receiver, objects, settings,
+               sums: CellSums) -> None:
+    """The PO facet returns of ``objects`` at every cell centre: the tracer's
+    :func:`clradcom.mechanisms.physical_optics.po_paths` with a receiver at each centre.
+    A facet lit from tx (front side, or either side of a two-sided object; inside tx's
+    pattern; its centroid seeing tx) radiates to the centres on its lit side that its
+    centroid sees, E = (lambda / 4 pi) T e_tx e^{-jkL} / L with T of
+    :func:`clradcom.physics.po.po_transfer` (PEC current, or a penetrable material's
+    Fresnel-weighted currents), received as the map's receiver takes a field. Pairs
+    with the centre in a facet's near zone (closer than 2 D) are split into far-field
+    pieces as the tracer's default ``split="near"`` does. The tracer's floor (facets
+    80 dB under the link's strongest dropped) is not applied: such terms add nothing
+    visible to a power. ``po_engine="device"``: the pairs found and the PEC fields
+    evaluated in one launch per round (:func:`_po_pairs_device`); "host": the
+    pair-wise float64 reference (:func:`_po_pairs`)."""
+    lit = _lit_facets(scene, geom, tx, objects)
+    if lit is None:
+        return
+    tx_pos = np.asarray(tx.position, dtype=np.float64)
+    if settings.po_engine == "host":
+        pairs = _po_pairs(scene, geom, grid, tx_pos, receiver, lit, settings, engine=None)
+    else:
+        pairs = _po_pairs_device(scene, geom, grid, tx_pos, receiver, lit, settings)
+    for _, cell, amplitude in pairs:
+        sums.add_at_centres(cell, amplitude)
+
+
+def _po_pairs(scene, geom, grid: MapGrid, tx_pos, receiver, lit: _LitFacets, settings,
+              engine=None):
+    """The pair-wise PO stage, the reference of :func:`_po_pairs_device`: per round of
+    facets the host lists every facet-cell pair on the lit side, drops the arrivals
+    outside the receiver's pattern, casts one sight ray per pair and weighs the fields
+    of those that see each other (the PEC ones on ``engine``'s device when given). Yields
+    ``(facet, cell, amplitude)`` per round: int64 rows of ``lit`` and cell indices in
+    ascending (facet, cell) order, and the receiver's complex amplitudes (P, C)."""
     centres = grid.centres().reshape(-1, 3)
     n_cells = len(centres)
-    k = 2.0 * np.pi / scene.wavelength_m
-    lam = scene.wavelength_m
     per_round = max(1, settings.po_batch // n_cells)
-    corner = np.array([grid.x_min, grid.y_min, grid.height_m])
-    offset = np.einsum("ij,ij->i", normal, centroid)
+    offset = np.einsum("ij,ij->i", lit.normal, lit.centroid)
     rx_rot = None if receiver is None else np.asarray(receiver.orientation, np.float64)
-    size = np.sqrt(np.max(np.sum((v - v[:, [1, 2, 0]]) ** 2, axis=-1), axis=1))
-    from_tx = np.linalg.norm(centroid - tx_pos, axis=1)
-    for start in range(0, len(tri), per_round):
-        block = slice(start, min(start + per_round, len(tri)))
+    for start in range(0, len(lit.tri), per_round):
+        block = slice(start, min(start + per_round, len(lit.tri)))
         # the centres on each facet's lit side: n . centre > n . centroid
-        front = np.einsum("ij,kj->ik", normal[block], centres) > offset[block, None]
+        front = np.einsum("ij,kj->ik", lit.normal[block], centres) > offset[block, None]
         f, cell = np.nonzero(front)
         if not len(f):
             continue
         f += start
-        toward = centres[cell] - centroid[f]
+        toward = centres[cell] - lit.centroid[f]
         to_centre = np.linalg.norm(toward, axis=1)
         if receiver is not None:
             # arrivals outside the receiver's pattern take nothing (po_paths drops them):
@@ -854,37 +930,113 @@ def _po_facets(scene, geom, grid: MapGrid, tx: Radar, receiver, objects, setting
         # one float32 sight ray per pair: a cell centre stands in free space, not on a
         # face, so the tracer's float64 confirmation of an antenna's last millimetres
         # (surface_sees) decides nothing here and costs 20x the cast
-        origin = spawn_origins(centroid[f], normal[f], toward)
+        origin = spawn_origins(lit.centroid[f], lit.normal[f], toward)
         sees = ~geom.caster.occluded(pack_rays(origin, centres[cell] - origin,
-                                           tmax=1.0 - 1e-6), ignore_prim=tri[f])
+                                           tmax=1.0 - 1e-6), ignore_prim=lit.tri[f])
         f, cell = f[sees], cell[sees]
         if not len(f):
             continue
-        engine = None if settings.po_engine == "host" else geom.runtime
-        # pairs with tx or the centre in a facet's near zone (po.py's rule "near"): split
-        # into far-field pieces, each pair its own, summed back per pair as fields, as
-        # po_paths does; the others whole
-        to_centre = to_centre[sees]
-        near = (np.minimum(to_centre, from_tx[f]) < NEAR_SIZE_FACTOR * size[f])
+        yield f, cell, _po_amplitudes(scene, grid, tx_pos, receiver, lit, f, cell,
+                                      to_centre[sees], engine)
+
+
+def _po_pairs_device(scene, geom, grid: MapGrid, tx_pos, receiver, lit: _LitFacets,
+                     settings):
+    """:func:`_po_pairs` with the pairs made, tested and the PEC fields weighed on the
+    device, one launch each (:func:`clradcom.device.maps.po_pairs`: lit side,
+    the receiver's sector grown by :data:`SECTOR_MARGIN`, the sight cast, the field);
+    the host then keeps the exact pattern test, adds the carrier phase in float64 and
+    takes the receive projection of the pairs that passed, and weighs the near-zone
+    and penetrable ones itself. The same pairs and amplitudes, in the same order."""
+    centres = grid.centres().reshape(-1, 3)
+    corner = np.array([grid.x_min, grid.y_min, grid.height_m])
+    k = 2.0 * np.pi / scene.wavelength_m
+    rx_rot = None if receiver is None else np.asarray(receiver.orientation, np.float64)
+    # the sight rays leave the centroids as spawn_origins pushes them toward a point on
+    # the lit side (the same for every centre the front test keeps)
+    origins = spawn_origins(lit.centroid, lit.normal, lit.normal)
+    rounds = po_pairs(
+        geom.caster, corner, k, tx_pos, lit.v, lit.centroid, lit.normal, lit.e_tx, origins,
+        NEAR_SIZE_FACTOR * lit.size, lit.from_tx, lit.tri, lit.pec, centres,
+        rx_rotation=rx_rot,
+        rx_bounds=None if receiver is None else _support_bounds(receiver.pattern),
+        capacity=settings.po_batch, pairs_per_launch=PO_PAIRS_PER_LAUNCH)
+    lam = scene.wavelength_m
+    for f, cell, whole, field in rounds:
+        toward = centres[cell] - lit.centroid[f]
+        to_centre = np.linalg.norm(toward, axis=1)   # the reference's rounding of L
+        arrival = toward / to_centre[:, None]
+        pattern = None
+        if receiver is not None:
+            # the pattern itself (the device's test only bounds its support): |C|^2 = G
+            local, c = _rx_pattern(arrival, receiver)
+            seen = np.flatnonzero(np.sum(c.real ** 2 + c.imag ** 2, axis=1) > 0)
+            if len(seen) < len(f):
+                f, cell, whole, field, arrival, to_centre, local, c = (
+                    a[seen] for a in (f, cell, whole, field, arrival, to_centre, local, c))
+            pattern = (local, c)
+        if not len(f):
+            continue
         amplitude = np.empty((len(f), 1 if receiver is not None else 3), np.complex128)
-        whole = np.flatnonzero(~near)
-        if len(whole):
-            amplitude[whole] = _po_received(
-                scene, v[f[whole]], normal[f[whole]], pec[f[whole]], material[f[whole]],
-                tx_pos, centres[cell[whole]], e_tx[f[whole]], receiver, k, lam,
-                runtime=engine, corner=corner, centroid=centroid[f[whole]])
-        split = np.flatnonzero(near)
-        if len(split):
-            pieces, parent = _near_zone_pieces(v[f[split]], tx_pos, centres[cell[split]])
-            rows = f[split][parent]
-            each = _po_received(scene, pieces, normal[rows], pec[rows], material[rows],
-                                tx_pos, centres[cell[split]][parent], e_tx[rows],
-                                receiver, k, lam, runtime=engine, corner=corner)
-            amplitude[split] = np.stack(
-                [np.bincount(parent, each[:, c].real, minlength=len(split))
-                 + 1j * np.bincount(parent, each[:, c].imag, minlength=len(split))
-                 for c in range(each.shape[1])], axis=1)
-        sums.add_at_centres(cell, amplitude)
+        # the carrier phase of the float64 lengths, then the receive projection (the
+        # rows the device left to the host are overwritten below)
+        phase = np.exp(-1j * k * (lit.from_tx[f] + to_centre))
+        amplitude[:] = _projection(field * (lam / (4.0 * np.pi) * phase)[:, None], arrival,
+                                   receiver, pattern)
+        rest = np.flatnonzero(~whole)
+        if len(rest):
+            amplitude[rest] = _po_amplitudes(scene, grid, tx_pos, receiver, lit, f[rest],
+                                             cell[rest], to_centre[rest], geom.runtime)
+        yield f, cell, amplitude
+
+
+def _support_bounds(pattern) -> np.ndarray:
+    """(cos of the half azimuth width, largest |z|, least x) of the unit directions in
+    the antenna's frame where ``pattern`` may have gain, each widened by
+    :data:`SECTOR_MARGIN`: a sector's box, a cosine pattern's front half, else every
+    direction."""
+    half_azimuth, z_max, x_min = np.pi, 1.0, -1.0
+    if isinstance(pattern, SectorPattern):
+        half_azimuth = math.radians(pattern.azimuth_width_deg) / 2.0
+        z_max = math.sin(math.radians(pattern.elevation_width_deg) / 2.0)
+    elif isinstance(pattern, CosinePowerPattern):
+        x_min = 0.0
+    return np.array([math.cos(min(half_azimuth + SECTOR_MARGIN, np.pi)),
+                     z_max + SECTOR_MARGIN, x_min - SECTOR_MARGIN])
+
+
+def _po_amplitudes(scene, grid: MapGrid, tx_pos, receiver, lit: _LitFacets, f, cell,
+                   to_centre, engine) -> np.ndarray:
+    """The receiver's amplitudes (P, C) of facet-cell pairs (rows ``f`` of ``lit``, cells
+    ``cell``, ``to_centre`` their distances) that see each other: pairs with tx or the
+    centre in a facet's near zone (po.py's rule "near") split into far-field pieces,
+    each pair its own, summed back per pair as fields, as po_paths does; the others
+    whole (the PEC fields on ``engine``'s device when given)."""
+    centres = grid.centres().reshape(-1, 3)
+    corner = np.array([grid.x_min, grid.y_min, grid.height_m])
+    k = 2.0 * np.pi / scene.wavelength_m
+    lam = scene.wavelength_m
+    near = np.minimum(to_centre, lit.from_tx[f]) < NEAR_SIZE_FACTOR * lit.size[f]
+    amplitude = np.empty((len(f), 1 if receiver is not None else 3), np.complex128)
+    whole = np.flatnonzero(~near)
+    if len(whole):
+        rows = f[whole]
+        amplitude[whole] = _po_received(
+            scene, lit.v[rows], lit.normal[rows], lit.pec[rows], lit.material[rows],
+            tx_pos, centres[cell[whole]], lit.e_tx[rows], receiver, k, lam,
+            runtime=engine, corner=corner, centroid=lit.centroid[rows])
+    split = np.flatnonzero(near)
+    if len(split):
+        pieces, parent = _near_zone_pieces(lit.v[f[split]], tx_pos, centres[cell[split]])
+        rows = f[split][parent]
+        each = _po_received(scene, pieces, lit.normal[rows], lit.pec[rows],
+                            lit.material[rows], tx_pos, centres[cell[split]][parent],
+                            lit.e_tx[rows], receiver, k, lam, runtime=engine, corner=corner)
+        amplitude[split] = np.stack(
+            [np.bincount(parent, each[:, c].real, minlength=len(split))
+             + 1j * np.bincount(parent, each[:, c].imag, minlength=len(split))
+             for c in range(each.shape[1])], axis=1)
+    return amplitude
 
 
 def _near_zone_pieces(v, source, points) -> tuple[np.ndarray, np.ndarray]:
@@ -933,13 +1085,9 @@ def _po_received(scene, v, normal, pec, material, tx_pos, points, e_tx, receiver
         if metal and runtime is not None:
             # the PEC facets on the device, the carrier phase of the float64 length here
             mid = v[rows].mean(axis=1) if centroid is None else centroid[rows]
-            r_t = np.linalg.norm(mid - tx_pos, axis=1)
-            to_point = points[rows] - mid
-            r_r = np.linalg.norm(to_point, axis=1)
-            k_arr = to_point / r_r[:, None]
             field = po_facet_fields(runtime, corner, v[rows], normal[rows], e_tx[rows],
                                     tx_pos, points[rows], k, centroids=mid)
-            field *= (lam / (4.0 * np.pi) * np.exp(-1j * k * (r_t + r_r)))[:, None]
+            p = _pec_received(field, mid, points[rows], tx_pos, receiver, k, lam)
         else:
             reflection = None if metal else (
                 lambda k_in, n, m=material[rows]: material_reflection_dyad(scene, m, k_in,
@@ -948,7 +1096,7 @@ def _po_received(scene, v, normal, pec, material, tx_pos, points, e_tx, receiver
                                             scene.carrier_hz, reflection)
             field = (np.einsum("rij,rj->ri", T, e_tx[rows])
                      * (lam / (4.0 * np.pi) * np.exp(-1j * k * L) / L)[:, None])
-        p = _projection(field, k_arr, receiver)
+            p = _projection(field, k_arr, receiver)
         if amplitude is None:
             amplitude = np.zeros((len(v), p.shape[1]), dtype=np.complex128)
         amplitude[rows] = p
@@ -1114,6 +1262,18 @@ def _launch_of(n_rays: int, pattern) -> _Launch:
             a.flags.writeable = False
         _LAUNCHES[key] = _Launch(local, solid_angle, field, {})
     return _LAUNCHES[key]
+
+
+def _pec_received(field, centroid, points, tx_pos, receiver, k, lam) -> np.ndarray:
+    """The receiver's amplitudes (S, C) of the device's PEC facet fields ``field`` (S, 3)
+    (:func:`clradcom.device.maps.po_facet_fields`: without the carrier phase) from
+    facets about ``centroid`` at ``points``: (lambda / 4 pi) e^{-jk(R_t + R_r)} times
+    the field, the lengths in float64, taken by the receiver along R_r's direction."""
+    r_t = np.linalg.norm(centroid - tx_pos, axis=1)
+    to_point = points - centroid
+    r_r = np.linalg.norm(to_point, axis=1)
+    field = field * (lam / (4.0 * np.pi) * np.exp(-1j * k * (r_t + r_r)))[:, None]
+    return _projection(field, to_point / r_r[:, None], receiver)
 
 
 def _edge_path_length(source, start, direction, points) -> np.ndarray:

@@ -8,7 +8,9 @@ float sums by 32-bit compare-and-swap, so a device without 64-bit atomics runs i
 :func:`segment_cells` walks the same cells and returns each segment's length in each
 cell apart, for the coherent sum, whose phases the host weighs in float64.
 :func:`po_facet_fields` evaluates PEC facets' physical-optics fields at points (the cell
-centres), without the carrier phase, which the host adds in float64.
+centres), without the carrier phase, which the host adds in float64. :func:`po_pairs`
+finds a map's PO facet-cell pairs and their fields in one launch per round of facets
+(kernels/maps_po.cl: lit side, the receiver's sector, the sight cast, the field).
 """
 
 from __future__ import annotations
@@ -19,10 +21,13 @@ import numpy as np
 
 from clradcom.errors import ArgumentError
 
-__all__ = ["Slab", "accumulate_segments", "accumulate_segments_host", "po_facet_fields",
-           "segment_cells"]
+__all__ = ["PO_FACET_ROWS", "Slab", "accumulate_segments", "accumulate_segments_host",
+           "po_facet_fields", "po_pairs", "segment_cells"]
 
 SOURCE = "maps.cl"
+PO_SOURCE = "maps_po.cl"
+#: Numbers per facet in kernels/maps_po.cl's facet table (-D PO_FACET_ROWS)
+PO_FACET_ROWS = 28
 
 
 @dataclass(frozen=True)
@@ -230,6 +235,121 @@ def po_facet_fields(runtime, corner, vertices, normals, e_tx, source, points,
             cl.enqueue_copy(runtime.queue, field, buf, is_blocking=True)
         out[start:stop] = field[:, :3] + 1j * field[:, 3:]
     return out
+
+
+def po_pairs(caster, corner, wavenumber: float, source, vertices, centroids, normals, e_tx,
+             origins, reach, from_tx, prims, pec, centres, rx_rotation=None,
+             rx_bounds=None, sight_tmax: float = 1.0 - 1e-6, capacity: int = 1 << 16,
+             pairs_per_launch: int = 1 << 22):
+    """A radio map's PO facet-cell pairs on ``caster``'s device, every facet against every
+    centre, the pairs made, tested and weighed in one launch each (kernels/maps_po.cl;
+    a launch takes up to ``pairs_per_launch`` of them in facet-major order and returns
+    at most ``capacity``; the next starts after the last pair whose turn came before
+    its list was full): the pairs with the
+    centre on the facet's lit side, the arrival inside ``rx_bounds`` (the cosine of the
+    largest |azimuth|, the largest |z| and the least x of the arrival direction in the
+    receiver's frame ``rx_rotation``, local = world @ R; None: no receiver), and nothing
+    between them (the float32 cast from ``origins``, the facets' centroids pushed off
+    them, to the centre, up to ``sight_tmax``, the facet's triangle ``prims`` ignored).
+    Yields per launch ``(facet, cell, whole, field)``: int64 facet rows and cell indices
+    in ascending (facet, cell) order, bool ``whole`` where the device gave the field
+    (PEC facets with neither end closer than ``reach`` (F,), ``from_tx`` (F,) the
+    transmitter's distance), and the (P, 3) complex field without the carrier phase as
+    :func:`po_facet_fields` gives it (zero where not ``whole``: the host weighs those).
+
+    Facets: ``vertices`` (F, 3, 3), ``centroids`` (F, 3), lit-side unit ``normals``
+    (F, 3), ``e_tx`` (F, 3) complex, ``origins`` (F, 3), ``pec`` (F,) bool; ``centres``
+    (C, 3); all world float64, the field's positions sent about ``corner`` (3,), in
+    double where the device has fp64."""
+    import pyopencl as cl
+
+    rt = caster.runtime
+    centres = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
+    n_facets, n_cells = len(vertices), len(centres)
+    if not n_facets or not n_cells:
+        return
+    if n_cells >= 1 << 31:
+        raise ArgumentError("too many cells for one launch's int indices",
+                            argument="centres", value=n_cells)
+    double = bool(rt.info.has_double)
+    real = np.float64 if double else np.float32
+    corner = np.asarray(corner, dtype=np.float64)
+    centroids = np.asarray(centroids, dtype=np.float64)
+    normals = np.asarray(normals, dtype=np.float64)
+    e_tx = np.asarray(e_tx, dtype=np.complex128)
+    table = np.zeros((n_facets, PO_FACET_ROWS), dtype=real)
+    table[:, :9] = (np.asarray(vertices, np.float64) - centroids[:, None, :]).reshape(-1, 9)
+    table[:, 9:12] = centroids - corner
+    table[:, 12:15] = normals
+    table[:, 15:18] = e_tx.real
+    table[:, 18:21] = e_tx.imag
+    table[:, 21:24] = origins
+    table[:, 24] = np.einsum("ij,ij->i", normals, centroids)
+    table[:, 25] = reach
+    table[:, 26] = from_tx
+    ids = np.zeros((n_facets, 2), dtype=np.int32)
+    ids[:, 0] = prims
+    ids[:, 1] = np.asarray(pec, dtype=bool)
+    points = np.zeros((n_cells, 4), dtype=real)
+    points[:, :3] = centres
+    corner4 = np.zeros(4, dtype=real)
+    corner4[:3] = corner
+    corner4[3] = wavenumber
+    src = np.zeros(4, dtype=real)
+    src[:3] = np.asarray(source, dtype=np.float64) - corner
+    rx = np.zeros(12, dtype=real)
+    if rx_rotation is not None:
+        rx[:9] = np.asarray(rx_rotation, dtype=np.float64).reshape(9)
+        rx[9:] = rx_bounds
+    capacity = max(1, int(capacity))
+    most = max(1, min(int(pairs_per_launch), (1 << 31) - 1))
+    per_launch = most
+    defines = {"PO_FACET_ROWS": PO_FACET_ROWS, **({"PO_DOUBLE": 1} if double else {})}
+    with rt.guard("radio map PO pairs"):
+        facet_buf = rt.to_device(table)
+        id_buf = rt.to_device(ids)
+        centre_buf = rt.to_device(points)
+        rx_buf = rt.to_device(rx)
+        pair_buf = cl.Buffer(rt.context, cl.mem_flags.WRITE_ONLY, size=4 * capacity)
+        field_buf = cl.Buffer(rt.context, cl.mem_flags.WRITE_ONLY,
+                              size=6 * np.dtype(real).itemsize * capacity)
+        count_buf = cl.Buffer(rt.context, cl.mem_flags.READ_WRITE, size=4)
+        resume_buf = cl.Buffer(rt.context, cl.mem_flags.READ_WRITE, size=4)
+    start, n_pairs = 0, n_facets * n_cells
+    while start < n_pairs:
+        n = min(per_launch, n_pairs - start)
+        found = np.zeros(1, dtype=np.int32)
+        resume = np.array([n], dtype=np.int32)
+        with rt.guard("radio map PO pairs"):
+            cl.enqueue_copy(rt.queue, count_buf, found)
+            cl.enqueue_copy(rt.queue, resume_buf, resume)
+            caster.run_kernel(PO_SOURCE, "po_pairs", n, facet_buf, id_buf, centre_buf,
+                              corner4, src, rx_buf, np.int32(rx_rotation is not None),
+                              np.float32(sight_tmax), np.int64(start), np.int32(n),
+                              np.int32(n_cells), pair_buf, field_buf, count_buf,
+                              np.int32(capacity), resume_buf, defines=defines)
+            cl.enqueue_copy(rt.queue, found, count_buf, is_blocking=False)
+            cl.enqueue_copy(rt.queue, resume, resume_buf, is_blocking=True)
+            total, done = min(int(found[0]), capacity), int(resume[0])
+            pair = np.empty(total, dtype=np.int32)
+            field = np.empty((total, 6), dtype=real)
+            if total:
+                cl.enqueue_copy(rt.queue, pair, pair_buf, is_blocking=False)
+                cl.enqueue_copy(rt.queue, field, field_buf, is_blocking=True)
+        # the next launch about twice what this one got through (those after a full
+        # list did little but their tests); a launch of capacity pairs cannot fill it,
+        # so every launch gets somewhere even where work-groups run in any order
+        per_launch = max(capacity, min(most, 2 * done))
+        if done == 0:
+            continue
+        whole = pair >= 0
+        index = np.where(whole, pair, -1 - pair)
+        keep = np.flatnonzero(index < done)
+        order = keep[np.argsort(index[keep], kind="stable")]
+        index = start + index[order].astype(np.int64)
+        yield (index // n_cells, index % n_cells, whole[order],
+               field[order, :3] + 1j * field[order, 3:])
+        start += done
 
 
 def accumulate_segments_host(slab: Slab, origins, directions, lengths, weights):
