@@ -23,8 +23,10 @@ from clradcom.evaluation.peer import distinct_paths, match_paths, sequences_of
 from clradcom.mechanisms.specular import (
     SpecularSettings,
     _rows_not_in,
+    _TriedSequences,
     both_ways,
     expansion_candidates,
+    key_base,
 )
 from clradcom.physics.em import C0
 from clradcom.scene.antenna import IsotropicPattern
@@ -62,6 +64,31 @@ def test_rows_not_in():
     rows = np.array([[3, 4], [5, 6], [1, 3]], np.int32)
     assert _rows_not_in(rows, known).tolist() == [[5, 6], [1, 3]]
     assert _rows_not_in(rows, None).tolist() == rows.tolist()
+
+
+def distinct_rows_without_repeats(rng, n, k, n_faces):
+    rows = rng.integers(0, n_faces, size=(n, k)).astype(np.int32)
+    rows = rows[np.all(rows[:, 1:] != rows[:, :-1], axis=1)]
+    return np.unique(rows, axis=0)
+
+
+@pytest.mark.parametrize("keyed", [True, False])
+def test_tried_sequences_hand_out_each_sequence_once(keyed):
+    """Exact int64 keys (where the faces fit one) and rows per order (where not) both
+    hand out exactly the rows not tried before: the launch's, then earlier proposals'."""
+    rng = np.random.default_rng(3)
+    n_faces, max_order = 40, 5
+    launch = {k: distinct_rows_without_repeats(rng, 300, k, n_faces)
+              for k in range(1, max_order + 1)}
+    tried = _TriedSequences(launch, key_base(n_faces, max_order) if keyed else None)
+    seen = {tuple(r) for rows in launch.values() for r in rows.tolist()}
+    for _ in range(3):
+        for k in range(1, max_order + 1):
+            rows = distinct_rows_without_repeats(rng, 200, k, n_faces)
+            expect = [r for r in rows.tolist() if tuple(r) not in seen]
+            assert tried.add_new(k, rows).tolist() == expect
+            seen.update(map(tuple, rows.tolist()))
+            assert not len(tried.add_new(k, rows))  # now all tried
 
 
 def test_both_ways_reverses_the_receivers_sequences():
