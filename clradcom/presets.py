@@ -8,11 +8,15 @@ which is also what ``clradcom trace`` and ``tools/trace.py`` use when no option 
 it.
 
 =========  ==================================================================================
-paper      the paper's street as published: 1e6 rays per transmitter, up to 5 specular
-           reflections, 1 UTD edge diffraction, physical optics with SBR-PO for
-           conductors and bodies (PEC, metals of any conductivity, skin: |Gamma(0)|^2 >=
-           -4 dB, docs/po.md; multi-bounce corner returns), single Lambertian scattering
-           from the trees. Finds cars B, C and D of the street (Table III).
+paper      the paper's street as published: up to 5 specular reflections from 3e5 rays
+           per transmitter and 4 rounds of candidate expansion (every specular path of
+           the street's four links that a 1e6-ray launch finds, and any it misses that
+           1e7 rays find, in 0.4 of the time: docs/performance.md, "The main job's
+           specular paths from 3e5 rays"), 1 UTD edge diffraction, physical optics
+           with SBR-PO for conductors and bodies (PEC, metals of any conductivity,
+           skin: |Gamma(0)|^2 >= -4 dB, docs/po.md; multi-bounce corner returns),
+           single Lambertian scattering from the trees. Finds cars B, C and D of the
+           street (Table III).
 fast       a quick look: 1e5 rays, up to 3 reflections, 1 diffraction, PO facets without
            SBR, no scattering. Misses multi-bounce returns (car D on the street).
 accurate   more than the paper: 4e6 rays, 5 reflections, up to 2 diffractions with one
@@ -40,9 +44,11 @@ class Preset:
 
 
 PRESETS: dict[str, Preset] = {p.name: p for p in (
-    Preset("paper", "the paper's physics: 1e6 rays, 5 reflections, 1 diffraction, "
+    Preset("paper", "the paper's physics: 5 reflections (3e5 rays + 4 rounds of "
+                    "candidate expansion: the paths of 1e6 rays or more), 1 diffraction, "
                     "PO + SBR for conductors and bodies, scattering from the trees",
-           {"specular__rays": 1_000_000, "specular__max_reflections": 5,
+           {"specular__rays": 300_000, "specular__expand_rounds": 4,
+            "specular__max_reflections": 5,
             "diffraction__max_diffractions": 1, "diffraction__max_reflections": 0,
             "optics__mode": "sbr", "scattering__enabled": True,
             "scattering__max_reflections": 0}),
