@@ -9,10 +9,11 @@ it.
 
 =========  ==================================================================================
 paper      the paper's street as published: up to 5 specular reflections from 3e5 rays
-           per transmitter and 4 rounds of candidate expansion (every specular path of
-           the street's four links that a 1e6-ray launch finds, and any it misses that
-           1e7 rays find, in 0.4 of the time: docs/performance.md, "The main job's
-           specular paths from 3e5 rays"), 1 UTD edge diffraction, physical optics
+           per transmitter and 4 rounds of candidate expansion (on the street's four
+           links at 21 instants every specular path a 1e6-ray launch finds, and two of
+           the three it misses that 1e7 rays find, in about half the time:
+           docs/performance.md, "The main job's specular paths from 3e5 rays"), 1 UTD
+           edge diffraction, physical optics
            with SBR-PO for conductors and bodies (PEC, metals of any conductivity,
            skin: |Gamma(0)|^2 >= -4 dB, docs/po.md; multi-bounce corner returns),
            single Lambertian scattering from the trees. Finds cars B, C and D of the
@@ -45,7 +46,8 @@ class Preset:
 
 PRESETS: dict[str, Preset] = {p.name: p for p in (
     Preset("paper", "the paper's physics: 5 reflections (3e5 rays + 4 rounds of "
-                    "candidate expansion: the paths of 1e6 rays or more), 1 diffraction, "
+                    "candidate expansion: on the street, the paths of 1e6 rays and more), "
+                    "1 diffraction, "
                     "PO + SBR for conductors and bodies, scattering from the trees",
            {"specular__rays": 300_000, "specular__expand_rounds": 4,
             "specular__max_reflections": 5,
