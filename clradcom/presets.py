@@ -8,11 +8,16 @@ which is also what ``clradcom trace`` and ``tools/trace.py`` use when no option 
 it.
 
 =========  ==================================================================================
-paper      the paper's street as published: 1e6 rays per transmitter, up to 5 specular
-           reflections, 1 UTD edge diffraction, physical optics with SBR-PO for
-           conductors and bodies (PEC, metals of any conductivity, skin: |Gamma(0)|^2 >=
-           -4 dB, docs/po.md; multi-bounce corner returns), single Lambertian scattering
-           from the trees. Finds cars B, C and D of the street (Table III).
+paper      the paper's street as published: up to 5 specular reflections from 3e5 rays
+           per transmitter and 4 rounds of candidate expansion (on the street's four
+           links at 21 instants every specular path a 1e6-ray launch finds, and two of
+           the three it misses that 1e7 rays find, in about half the time:
+           docs/performance.md, "The main job's specular paths from 3e5 rays"), 1 UTD
+           edge diffraction, physical optics
+           with SBR-PO for conductors and bodies (PEC, metals of any conductivity,
+           skin: |Gamma(0)|^2 >= -4 dB, docs/po.md; multi-bounce corner returns),
+           single Lambertian scattering from the trees. Finds cars B, C and D of the
+           street (Table III).
 fast       a quick look: 1e5 rays, up to 3 reflections, 1 diffraction, PO facets without
            SBR, no scattering. Misses multi-bounce returns (car D on the street).
 accurate   more than the paper: 4e6 rays, 5 reflections, up to 2 diffractions with one
@@ -40,9 +45,12 @@ class Preset:
 
 
 PRESETS: dict[str, Preset] = {p.name: p for p in (
-    Preset("paper", "the paper's physics: 1e6 rays, 5 reflections, 1 diffraction, "
+    Preset("paper", "the paper's physics: 5 reflections (3e5 rays + 4 rounds of "
+                    "candidate expansion: on the street, the paths of 1e6 rays and more), "
+                    "1 diffraction, "
                     "PO + SBR for conductors and bodies, scattering from the trees",
-           {"specular__rays": 1_000_000, "specular__max_reflections": 5,
+           {"specular__rays": 300_000, "specular__expand_rounds": 4,
+            "specular__max_reflections": 5,
             "diffraction__max_diffractions": 1, "diffraction__max_reflections": 0,
             "optics__mode": "sbr", "scattering__enabled": True,
             "scattering__max_reflections": 0}),

@@ -218,7 +218,8 @@ def trace_scene(scene: Scene, settings: TraceSettings | None = None,
     """Trace the links of a scene (default: every transmitter to every receiver).
 
     ``settings`` None traces with the ``paper`` preset (``TraceSettings.preset()``: PO +
-    SBR, scattering, 1e6 rays, 5 reflections, 1 diffraction), the same physics as
+    SBR, scattering, 5 reflections from 3e5 rays and candidate expansion, 1
+    diffraction), the same physics as
     ``clradcom trace`` without options; ``TraceSettings()`` is pure GO with diffraction.
     ``progress(message)`` hears each stage as it starts; ``steps(done, total, label)``
     is called before every mechanism of every link (``done`` links of ``total``

@@ -37,9 +37,12 @@ def test_paper_preset_is_the_trace_commands_default():
     assert DEFAULT_PRESET == "paper"
     assert from_tool == TraceSettings.preset("paper") == TraceSettings.preset()
     assert tool.settings_from_args(from_cli) == from_tool
-    # what tools/trace.py traced before presets existed
+    # what tools/trace.py traced before presets existed, but for the specular search:
+    # 3e5 rays and candidate expansion in place of 1e6 rays, a superset of their paths
+    # (tests/test_specular_expand.py)
     p = TraceSettings.preset("paper")
-    assert (p.specular.rays, p.specular.max_reflections) == (1_000_000, 5)
+    assert (p.specular.rays, p.specular.expand_rounds, p.specular.max_reflections) == (
+        300_000, 4, 5)
     assert (p.diffraction.max_diffractions, p.diffraction.max_reflections) == (1, 0)
     assert p.optics.mode == "sbr" and p.scattering.enabled
     assert p.scattering.max_reflections == 0
@@ -84,6 +87,10 @@ def test_a_preset_option_with_a_knob_on_top():
                                            "--no-sbr-mirrors"])
     s = tool.settings_from_args(args)
     assert s == TraceSettings.preset("fast", specular__rays=5000, optics__sbr_mirrors=False)
+    args = tool.build_parser().parse_args(["s.toml", "--rays", "1000000", "--expand-rounds",
+                                           "0"])
+    assert tool.settings_from_args(args) == TraceSettings.preset(
+        "paper", specular__rays=1_000_000, specular__expand_rounds=0)
 
 
 def test_interference_traces_the_same_preset():

@@ -50,16 +50,17 @@ def test_trace_tool_refuses_a_bad_scene_with_a_message(tmp_path, capsys):
 def test_settings_from_args_maps_every_flag_to_its_mechanism(capsys):
     tool = load_trace_tool()
     default = tool.settings_from_args(tool.build_parser().parse_args(["s.toml"]))
-    assert (default.specular.max_reflections, default.specular.rays) == (5, 1_000_000)
+    assert (default.specular.max_reflections, default.specular.rays,
+            default.specular.expand_rounds) == (5, 300_000, 4)
     assert default.diffraction.max_diffractions == 1
     assert default.diffraction.max_reflections == 0
     assert default.optics.mode == "sbr"
     assert default.scattering.enabled and default.scattering.max_reflections == 0
     s = tool.settings_from_args(tool.build_parser().parse_args([
-        "s.toml", "--rays", "1000", "--reflections", "2", "--diffractions", "3",
-        "--diffraction-reflections", "1", "--physical-optics", "none", "--no-scattering",
-        "--scattering-reflections", "2"]))
-    assert s.specular == SpecularSettings(max_reflections=2, rays=1000)
+        "s.toml", "--rays", "1000", "--expand-rounds", "0", "--reflections", "2",
+        "--diffractions", "3", "--diffraction-reflections", "1", "--physical-optics", "none",
+        "--no-scattering", "--scattering-reflections", "2"]))
+    assert s.specular == SpecularSettings(max_reflections=2, rays=1000, expand_rounds=0)
     assert (s.diffraction.max_diffractions, s.diffraction.max_reflections) == (3, 1)
     assert s.optics.mode == "none"
     assert not s.scattering.enabled and s.scattering.max_reflections == 2

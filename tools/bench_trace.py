@@ -9,8 +9,9 @@ and the scenes that the old SBR-PO could not trace.
     python tools/bench_trace.py --device pocl,intel --repeats 5 --extra none
 
 1. The street (scenes/street/street.toml) at the main job's settings: the very
-   TraceSettings tools/trace.py builds from its defaults (1e6 rays, 5 reflections, one
-   diffraction, SBR-PO, scattering), with --rays and --sbr-spacing passed on to it. One
+   TraceSettings tools/trace.py builds from its defaults (the paper preset: 5
+   reflections from 3e5 rays and candidate expansion, one diffraction, SBR-PO,
+   scattering), with --rays and --sbr-spacing passed on to it. One
    untimed warm-up trace per engine (kernel builds), then the device and host engines
    take turns --repeats times in this process; printed are the medians per stage
    (clradcom.trace.StageTimes), the whole trace, the ratio host/device and the share of
@@ -134,7 +135,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--repeats", type=positive_int, default=3,
                     help="timed street traces per engine; medians are printed (default 3)")
     ap.add_argument("--rays", type=positive_int, default=None,
-                    help="rays per transmitter (default: tools/trace.py's, 1e6)")
+                    help="rays per transmitter (default: tools/trace.py's, 3e5)")
     ap.add_argument("--sbr-spacing", type=float_in(*SBR_SPACING_WAVELENGTHS), default=None,
                     metavar="WAVELENGTHS",
                     help="SBR ray-tube pitch in wavelengths (default: tools/trace.py's)")

@@ -4,7 +4,8 @@
     clradcom trace scenes/street/street.toml --preset fast --out out/quick
 
 (``python tools/trace.py ...`` runs the same.) The physics is the preset's (--preset,
-default "paper": 1e6 rays per transmitter, up to 5 reflections, 1 diffraction, PO + SBR
+default "paper": 3e5 rays per transmitter with candidate expansion (the specular
+paths of 1e6 rays or more), up to 5 reflections, 1 diffraction, PO + SBR
 for conductors and bodies (|Gamma(0)|^2 >= -4 dB: metals of any conductivity, skin),
 scattering from the trees; the same as trace_scene(scene) in Python); each option below
 changes one knob of it.
@@ -164,7 +165,12 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
                     help=f"the tracer's physics (default {DEFAULT_PRESET}); the options "
                          f"below change one knob of it. {preset_help()}")
     ap.add_argument("--rays", type=positive_int, default=None,
-                    help="rays launched per transmitter over its pattern (paper: 1e6)")
+                    help="rays launched per transmitter over its pattern (paper: 3e5, then "
+                         "candidate expansion)")
+    ap.add_argument("--expand-rounds", type=int_in(0, 16), default=None,
+                    help="rounds of specular candidate expansion after the launch: paths "
+                         "one reflection away from those found, confirmed exactly (paper: "
+                         "4; 0: the launch's candidates only; docs/performance.md)")
     ap.add_argument("--reflections", type=int_in(0, 16), default=None,
                     help="maximum specular reflections per path (paper: 5)")
     ap.add_argument("--diffractions", type=int, choices=(0, 1, 2, 3), default=None,
@@ -218,7 +224,8 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
 
 #: option -> TraceSettings field it sets (None: the preset's value stands)
 SETTING_OPTIONS = {
-    "rays": "specular__rays", "reflections": "specular__max_reflections",
+    "rays": "specular__rays", "expand_rounds": "specular__expand_rounds",
+    "reflections": "specular__max_reflections",
     "diffractions": "diffraction__max_diffractions",
     "diffraction_reflections": "diffraction__max_reflections",
     "physical_optics": "optics__mode", "sbr_spacing": "optics__sbr_spacing_wavelengths",
