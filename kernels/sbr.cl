@@ -922,10 +922,8 @@ __kernel void sbr_radiate(__global const Bvh8Node *nodes,
         }
         pscal Ltot = ps_add(L, R_rp);
         real ph = phase_of(k_p, Ltot);
-        /* -j e^{-j k L} = (-sin kL, -cos kL); sincos shares one argument reduction
-         * (PoCL's sincos gives sin's and cos's bits: docs/performance.md, #32) */
-        real cos_ph, sin_ph = sincos(ph, &cos_ph);
-        cplx rot = (cplx)(-sin_ph, -cos_ph);
+        /* -j e^{-j k L} = (-sin kL, -cos kL) */
+        cplx rot = (cplx)(-sin(ph), -cos(ph));
         real mag = amp * i_fp / (L_in * R_r);
         real M[8];
         real wsum = 0.0;
