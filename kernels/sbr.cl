@@ -14,9 +14,11 @@
  *                   both tx polarisations at it, replayed from the launch through its
  *                   reflections (the queues carry only what the next hit needs);
  *                   a persistent build (SBR_PERSISTENT, scalar CPU devices) has
- *                   sbr_bounces in place of sbr_launch and sbr_bounce, and sbr_radiate
- *                   replays the illumination itself where a footprint sees a receiver;
- *   sbr_radiate     one item per (footprint, receiver): the sight line (float32 any-hit,
+ *                   sbr_bounces in place of sbr_launch and sbr_bounce (its last bounce
+ *                   cast only where the ray meets a recorded triangle in their own
+ *                   tree), and sbr_radiate, one item per footprint, replays the
+ *                   illumination itself where the footprint sees a receiver;
+ *   sbr_radiate     per (footprint, receiver): the sight line (float32 any-hit,
  *                   re-decided in float64 where the device has it), the antenna's near
  *                   triangles, the 2x2 polarimetric matrix in the antennas' bases, into
  *                   the slot of its (block, receiver, cell);

@@ -10,7 +10,8 @@ queues the owned tubes; per bounce ``sbr_bounce`` follows the live ones (a compa
 queue) and lists the footprints, ``sbr_radiate`` radiates each toward each receiver,
 ``sbr_reduce`` sums them per block, receiver and face sequence in work groups (on a
 device that runs work items as scalar code ``sbr_bounces`` launches and bounces each tube
-in one work item, no queue).  Records
+in one work item, no queue, its last bounce cast only where :func:`recorded_tree` has a
+hit).  Records
 are appended with an atomic counter, so their order within a batch is the device's;
 they are sorted by block and the group's first (tube, bounce, receiver), so every run
 and batch size gives the same records in the same order.
@@ -43,7 +44,7 @@ from clradcom.errors import ArgumentError
 from clradcom.geometry.silhouette import BLOCK
 
 __all__ = ["BATCH_TUBES", "PRECISIONS", "engine_precision", "record_dtype", "record_size",
-           "shoot_and_radiate"]
+           "recorded_tree", "shoot_and_radiate"]
 
 #: Tubes per batch at most (whole blocks): about 1 M.
 BATCH_TUBES = 1 << 20
