@@ -14,9 +14,11 @@
  *                   both tx polarisations at it, replayed from the launch through its
  *                   reflections (the queues carry only what the next hit needs);
  *                   a persistent build (SBR_PERSISTENT, scalar CPU devices) has
- *                   sbr_bounces in place of sbr_launch and sbr_bounce, and sbr_radiate
- *                   replays the illumination itself where a footprint sees a receiver;
- *   sbr_radiate     one item per (footprint, receiver): the sight line (float32 any-hit,
+ *                   sbr_bounces in place of sbr_launch and sbr_bounce (its last bounce
+ *                   cast only where the ray meets a recorded triangle in their own
+ *                   tree), and sbr_radiate, one item per footprint, replays the
+ *                   illumination itself where the footprint sees a receiver;
+ *   sbr_radiate     per (footprint, receiver): the sight line (float32 any-hit,
  *                   re-decided in float64 where the device has it), the antenna's near
  *                   triangles, the 2x2 polarimetric matrix in the antennas' bases, into
  *                   the slot of its (block, receiver, cell);
@@ -555,7 +557,13 @@ __kernel void sbr_bounces(__global const Bvh8Node *nodes,
                           const int max_bounces,
                           __global SbrFootprint *footprints,
                           const int region,
-                          __global volatile int *counts)     /* per bounce: footprints */
+                          __global volatile int *counts,     /* per bounce: footprints */
+                          /* the recorded triangles' own tree, in the layout of the
+                           * scene's (a single-level tree); last_filter 0: none */
+                          __global const Bvh8Node *rec_nodes,
+                          __global const float4 *rec_tri4,
+                          __global const int *rec_slot_prim,
+                          const int last_filter)
 {
     int gid = get_global_id(0);
     int item = min(gid, n_cells - 1);   /* past the count: a copy of the last */
@@ -571,6 +579,16 @@ __kernel void sbr_bounces(__global const Bvh8Node *nodes,
     int tris[SBR_TUBE_TRIS];
     for (int k = 0; k < SBR_TUBE_TRIS; ++k) tris[k] = -1;
     for (int m = 1; m <= max_bounces; ++m) {
+        /* The last bounce leaves nothing but a footprint on a recorded triangle. Where
+         * the ray meets none of them (any hit over their own tree) the scene's closest
+         * hit is not one: the same ray and triangle test find every hit in either tree
+         * (the boxes never cull one: intersect.h), so the full cast is skipped without
+         * changing a footprint. */
+        if (m == max_bounces && last_filter && m >= first_bounce) {
+            PreparedRay pr = prepare_ray(pv_float3(org), to_float3(d));
+            if (!blas_any(rec_nodes, rec_tri4, rec_slot_prim, &pr, 0, 0.0f, INFINITY, -1, -1))
+                break;
+        }
         int tri;
         pvec p;
         real3 d_out;
@@ -741,11 +759,15 @@ inline Lit lit_load(__global const SbrIllumination *il, bool pec)
     return x;
 }
 
-/* One work item per (footprint, receiver), receiver-major (neighbouring items trace
- * sight lines toward the same antenna): the footprint's PO radiation toward the
- * receiver where it sees it, as a polarimetric matrix in the antennas' bases, into
- * slot (block, receiver, cell) of this bounce, the (block, receiver) listed for the
- * reduction with its first contribution. */
+/* The footprints' PO radiation toward each receiver that sees them, as a polarimetric
+ * matrix in the antennas' bases, into slot (block, receiver, cell) of this bounce, the
+ * (block, receiver) listed for the reduction with its first contribution. The wavefront
+ * build: one work item per (footprint, receiver), receiver-major (neighbouring items
+ * trace sight lines toward the same antenna). A persistent build: one work item per
+ * footprint, its receivers in turn, so that the illumination replayed from the launch
+ * (footprint_lit, most of the kernel's arithmetic) is computed once per footprint, at
+ * the first receiver that sees it, not once per receiver; each (footprint, receiver)
+ * does the same operations either way. */
 __kernel void sbr_radiate(__global const Bvh8Node *nodes,
                           __global const float4 *tri4,
                           __global const int *slot_prim,
@@ -798,8 +820,15 @@ __kernel void sbr_radiate(__global const Bvh8Node *nodes,
                           __global volatile int *n_live_groups)
 {
     int gid = get_global_id(0);
-    /* past the count: a copy of the last */
-    int fi, r = quotient(min(gid, n_footprints * n_rx - 1), n_footprints, &fi);
+    /* past the count: a copy of the last, dropped before its first write */
+#ifdef SBR_PERSISTENT
+    int fi = min(gid, n_footprints - 1), r_first = 0, r_end = n_rx;
+    bool past = gid >= n_footprints;
+#else
+    int fi, r_first = quotient(min(gid, n_footprints * n_rx - 1), n_footprints, &fi);
+    int r_end = r_first + 1;
+    bool past = gid >= n_footprints * n_rx;
+#endif
     __global const SbrFootprint *fp = footprints + fi;
     int tri = fp->tri[bounce - 1];
     pvec p = pv_load(fp->point);
@@ -811,109 +840,115 @@ __kernel void sbr_radiate(__global const Bvh8Node *nodes,
 #else
     real3 n_lit = load3(lit[fi].normal);
 #endif
-
-    pvec rx = pv_load(rx_pos + 3 * r);
-    pvec dr = pv_sub(rx, p);
-    pscal R_rp = pv_len(dr);
-    real R_r = ps_real(R_rp);
-    if (!(R_r > 0.0)) return;
-    real3 sdir = pv_real(dr) / R_r;
-    if (!(dot(sdir, n_lit) > 0.0)) return;
-    /* visibility.py: surface_sees - the sight line from just off the facet, stopping
-     * SIGHT_STOP short of the antenna, the facet ignored */
-    pvec sorg = spawn(p, n_lit, sdir);
-    pvec sseg = pv_sub(rx, sorg);
-    PreparedRay sr = prepare_ray(pv_float3(sorg), to_float3(pv_real(sseg)));
-    if (bvh_any(nodes, tri4, slot_prim, &sr, 0.0f, sight_tmax, tri, -1)) {
-#if PRECISE_MODE >= 1
-        /* visibility.py: blocked_in_float64, the facet skipped first */
-        Scene64 s64;
-        s64.vert = tri_v; s64.normal = tri_n; s64.tri_face = tri_face; s64.seam = seam;
-        s64.face_first = face_first; s64.face_tris = face_tris; s64.face_box = face_box;
-        s64.n_faces = n_faces; s64.inside_tol = pr_from_float(inside_tol_rel);
-        if (blocked_in_float64(nodes, tri4, slot_prim, &s64, &sr, sight_tmax,
-                               sorg.x, sorg.y, sorg.z, sseg.x, sseg.y, sseg.z,
-                               PR_CONST(0.0), pr_of(sight_hi), tri, rescue_rounds,
-                               pr_of(look_past)))
-            return;
-#else
-        return;
-#endif
-    }
-    int n_near = near_first[r + 1] - near_first[r];
-    if (n_near > 0) {
-        real3 ar = fabs(pv_real(rx));
-        real radius = 2.0 * (confirm_tol_m + 1e-6 * fmax(fmax(ar.x, ar.y), ar.z));
-        if (antenna_end_blocked(rx, sorg, radius, near_tri + near_first[r], n_near,
-                                tri_v, tri_n, on_face_tol_rel, inside_tol_rel))
-            return;
-    }
-
     pscal k_p = wavenumber_of(tx_and_k);
     real k0 = ps_real(k_p);
     /* (lambda / 4 pi) (-j k0 / 2 pi): the real factor; the -j is applied below */
     real amp = wavelength / (4.0 * M_PI) * k0 / (2.0 * M_PI);
     int pec = mat_i[2 * tri_material[tri]];
-#ifdef SBR_PERSISTENT
-    Lit il = footprint_lit(fp, bounce, tri_n, tri_material, mat_f, mat_i, win_f, win_i,
-                           blocks, tx_frame, tx_and_k, first_block);
-#else
-    Lit il = lit_load(lit + fi, pec);
-#endif
-    real3 d = il.dir;
-    real kn = dot(d, n_lit);
     pscal L = ps_load(fp->length);
     real L_in = ps_real(L);
-    real3 q = k0 * (sdir - d);
-    real i_fp = il.area * sinc_(0.5 * dot(q, il.edge1)) * sinc_(0.5 * dot(q, il.edge2));
-    real3 rt, rp;
-    antenna_basis(-sdir, rx_frame + 9 * r, &rt, &rp);
-    /* g = op f for f = f_t, f_p (PEC: k_i (n.f) - kn f, the projection I - s s^T
-     * dropped as b_rx is transverse to s; penetrable: half of po.py:
-     * penetrable_po_operator) */
-    cvec3 g[2];
-    for (int c = 0; c < 2; ++c) {
-        cvec3 fc = il.f[c];
-        cvec3 gc = cv_axpy(cv_dot_real(fc, n_lit), d, cv_scale_real(fc, -kn));
-        if (!pec) {
-            cvec3 Dfc = il.Df[c];
-            real3 k_r = d - 2.0 * kn * n_lit;
-            /* a_r Df = k_r (n.Df) + kn Df */
-            cvec3 ar = cv_axpy(cv_dot_real(Dfc, n_lit), k_r, cv_scale_real(Dfc, kn));
-            /* [s]x[n]x (f + Df) = n (s.(f+Df)) - (f+Df)(s.n) */
-            cvec3 y = cv_add(fc, Dfc);
-            cvec3 sn = cv_axpy(cv_dot_real(y, sdir), n_lit, cv_scale_real(y, -dot(sdir, n_lit)));
-            /* P (a_i f + a_r Df): P drops against b_rx as well */
-            gc = cv_scale_real(cv_add(cv_add(gc, ar), sn), 0.5);
+    Lit il;
+    bool have_lit = false;
+    for (int r = r_first; r < r_end; ++r) {
+        pvec rx = pv_load(rx_pos + 3 * r);
+        pvec dr = pv_sub(rx, p);
+        pscal R_rp = pv_len(dr);
+        real R_r = ps_real(R_rp);
+        if (!(R_r > 0.0)) continue;
+        real3 sdir = pv_real(dr) / R_r;
+        if (!(dot(sdir, n_lit) > 0.0)) continue;
+        /* visibility.py: surface_sees - the sight line from just off the facet, stopping
+         * SIGHT_STOP short of the antenna, the facet ignored */
+        pvec sorg = spawn(p, n_lit, sdir);
+        pvec sseg = pv_sub(rx, sorg);
+        PreparedRay sr = prepare_ray(pv_float3(sorg), to_float3(pv_real(sseg)));
+        if (bvh_any(nodes, tri4, slot_prim, &sr, 0.0f, sight_tmax, tri, -1)) {
+#if PRECISE_MODE >= 1
+            /* visibility.py: blocked_in_float64, the facet skipped first */
+            Scene64 s64;
+            s64.vert = tri_v; s64.normal = tri_n; s64.tri_face = tri_face; s64.seam = seam;
+            s64.face_first = face_first; s64.face_tris = face_tris; s64.face_box = face_box;
+            s64.n_faces = n_faces; s64.inside_tol = pr_from_float(inside_tol_rel);
+            if (blocked_in_float64(nodes, tri4, slot_prim, &s64, &sr, sight_tmax,
+                                   sorg.x, sorg.y, sorg.z, sseg.x, sseg.y, sseg.z,
+                                   PR_CONST(0.0), pr_of(sight_hi), tri, rescue_rounds,
+                                   pr_of(look_past)))
+                continue;
+#else
+            continue;
+#endif
         }
-        g[c] = gc;
-    }
-    pscal Ltot = ps_add(L, R_rp);
-    real ph = phase_of(k_p, Ltot);
-    /* -j e^{-j k L} = (-sin kL, -cos kL) */
-    cplx rot = (cplx)(-sin(ph), -cos(ph));
-    real mag = amp * i_fp / (L_in * R_r);
-    real M[8];
-    real wsum = 0.0;
-    for (int a = 0; a < 2; ++a)
+        int n_near = near_first[r + 1] - near_first[r];
+        if (n_near > 0) {
+            real3 ar = fabs(pv_real(rx));
+            real radius = 2.0 * (confirm_tol_m + 1e-6 * fmax(fmax(ar.x, ar.y), ar.z));
+            if (antenna_end_blocked(rx, sorg, radius, near_tri + near_first[r], n_near,
+                                    tri_v, tri_n, on_face_tol_rel, inside_tol_rel))
+                continue;
+        }
+
+        if (!have_lit) {
+#ifdef SBR_PERSISTENT
+            il = footprint_lit(fp, bounce, tri_n, tri_material, mat_f, mat_i, win_f, win_i,
+                               blocks, tx_frame, tx_and_k, first_block);
+#else
+            il = lit_load(lit + fi, pec);
+#endif
+            have_lit = true;
+        }
+        real3 d = il.dir;
+        real kn = dot(d, n_lit);
+        real3 q = k0 * (sdir - d);
+        real i_fp = il.area * sinc_(0.5 * dot(q, il.edge1)) * sinc_(0.5 * dot(q, il.edge2));
+        real3 rt, rp;
+        antenna_basis(-sdir, rx_frame + 9 * r, &rt, &rp);
+        /* g = op f for f = f_t, f_p (PEC: k_i (n.f) - kn f, the projection I - s s^T
+         * dropped as b_rx is transverse to s; penetrable: half of po.py:
+         * penetrable_po_operator) */
+        cvec3 g[2];
         for (int c = 0; c < 2; ++c) {
-            cplx val = c_scale(c_mul(rot, cv_dot_real(g[c], (a == 0) ? rt : rp)), mag);
-            M[4 * a + 2 * c] = val.x;
-            M[4 * a + 2 * c + 1] = val.y;
-            wsum += val.x * val.x + val.y * val.y;
+            cvec3 fc = il.f[c];
+            cvec3 gc = cv_axpy(cv_dot_real(fc, n_lit), d, cv_scale_real(fc, -kn));
+            if (!pec) {
+                cvec3 Dfc = il.Df[c];
+                real3 k_r = d - 2.0 * kn * n_lit;
+                /* a_r Df = k_r (n.Df) + kn Df */
+                cvec3 ar = cv_axpy(cv_dot_real(Dfc, n_lit), k_r, cv_scale_real(Dfc, kn));
+                /* [s]x[n]x (f + Df) = n (s.(f+Df)) - (f+Df)(s.n) */
+                cvec3 y = cv_add(fc, Dfc);
+                cvec3 sn = cv_axpy(cv_dot_real(y, sdir), n_lit, cv_scale_real(y, -dot(sdir, n_lit)));
+                /* P (a_i f + a_r Df): P drops against b_rx as well */
+                gc = cv_scale_real(cv_add(cv_add(gc, ar), sn), 0.5);
+            }
+            g[c] = gc;
         }
-    if (gid >= n_footprints * n_rx) return;
-    int cell, group = quotient(fp->tube, SBR_CELLS, &cell) * n_rx + r;
-    int slot = group * SBR_CELLS + cell;
-    __global SbrContribution *out = contributions + slot;
-    for (int k = 0; k < 8; ++k) out->M[k] = M[k];
-    out->weight = sqrt(wsum);
-    out->length = ps_out(Ltot);
-    out->pad_real = 0.0;
-    contribution_footprint[slot] = fi;
-    /* the first contribution of its (block, receiver) lists the group for sbr_reduce */
-    if (atomic_inc(group_tubes + group) == 0)
-        live_groups[atomic_inc(n_live_groups)] = group;
+        pscal Ltot = ps_add(L, R_rp);
+        real ph = phase_of(k_p, Ltot);
+        /* -j e^{-j k L} = (-sin kL, -cos kL) */
+        cplx rot = (cplx)(-sin(ph), -cos(ph));
+        real mag = amp * i_fp / (L_in * R_r);
+        real M[8];
+        real wsum = 0.0;
+        for (int a = 0; a < 2; ++a)
+            for (int c = 0; c < 2; ++c) {
+                cplx val = c_scale(c_mul(rot, cv_dot_real(g[c], (a == 0) ? rt : rp)), mag);
+                M[4 * a + 2 * c] = val.x;
+                M[4 * a + 2 * c + 1] = val.y;
+                wsum += val.x * val.x + val.y * val.y;
+            }
+        if (past) continue;
+        int cell, group = quotient(fp->tube, SBR_CELLS, &cell) * n_rx + r;
+        int slot = group * SBR_CELLS + cell;
+        __global SbrContribution *out = contributions + slot;
+        for (int k = 0; k < 8; ++k) out->M[k] = M[k];
+        out->weight = sqrt(wsum);
+        out->length = ps_out(Ltot);
+        out->pad_real = 0.0;
+        contribution_footprint[slot] = fi;
+        /* the first contribution of its (block, receiver) lists the group for sbr_reduce */
+        if (atomic_inc(group_tubes + group) == 0)
+            live_groups[atomic_inc(n_live_groups)] = group;
+    }
 }
 
 /* One work group of SBR_CELLS items per (block, receiver) listed by sbr_radiate at this

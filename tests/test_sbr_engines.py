@@ -24,6 +24,7 @@ from mode_helpers import (
 from test_po_sbr import LAM, dihedral, scene_of, sigma, trihedral
 
 from clradcom.device import sbr as device_sbr
+from clradcom.device.raycast import InstancedCaster
 from clradcom.geometry.silhouette import BLOCK, block_coverage
 from clradcom.mechanisms import sbr
 from clradcom.mechanisms.common import build_geometry
@@ -318,6 +319,48 @@ def test_bounces_in_one_launch_give_the_wavefront_records(runtime, monkeypatch):
             else:
                 np.testing.assert_array_equal(persistent[name], wavefront[name],
                                               err_msg=name)
+
+
+def test_last_bounce_test_leaves_the_records_as_the_full_cast_makes_them(runtime,
+                                                                        monkeypatch):
+    """sbr_bounces skips a tube's last cast where its ray meets no recorded triangle in
+    their own tree (device_sbr.recorded_tree): the records are the full cast's, bit for
+    bit, last-bounce footprints among them. A trihedral with two of its three plates
+    recorded: third bounces off the unrecorded plate, and those that leave the corner,
+    meet no recorded triangle; every device runs the one-launch bounces here."""
+    scene = scene_of([trihedral(0.1)], [(2.0, 1.5, 1.0)])
+    geom = build_geometry(scene, runtime)
+    r = scene.radars[0]
+    windows = sbr.launch_windows(geom, r.position, [0], 0.05 * LAM)
+    record = np.zeros(len(scene.triangles), bool)
+    record[len(record) // 3:] = True
+    monkeypatch.setattr(device_sbr, "PERSISTENT_BOUNCE_VENDORS", (runtime.info.vendor,))
+
+    def run():
+        return device_sbr.shoot_and_radiate(
+            geom.caster, scene, geom.faces.tri_face, windows, r.orientation, [r.position],
+            [r.orientation], wavenumber=2 * np.pi / LAM, wavelength=LAM, max_bounces=3,
+            first_bounce=2, record_triangles=record)
+
+    tree = device_sbr.recorded_tree(geom.caster, record)
+    assert tree is not None and len(tree.triangles) == record.sum()
+    assert device_sbr.recorded_tree(geom.caster, record) is tree   # kept per caster, mask
+    tested = run()
+    monkeypatch.setattr(device_sbr, "recorded_tree", lambda caster, record_triangles: None)
+    full = run()
+    assert (full["bounce"] == 3).sum() > 0 and (full["bounce"] == 2).sum() > 0
+    assert tested.tobytes() == full.tobytes()
+
+
+def test_recorded_tree_only_for_a_single_level_caster(runtime):
+    """No last-bounce tree where it could round apart from the scene's (a two-level
+    caster) or where nothing is recorded."""
+    scene = scene_of([trihedral(0.1)], [(2.0, 1.5, 1.0)])
+    caster = build_geometry(scene, runtime).caster
+    assert device_sbr.recorded_tree(caster, np.zeros(len(scene.triangles), bool)) is None
+    instanced = InstancedCaster([(scene.triangles, np.arange(len(scene.triangles)))],
+                                runtime=runtime)
+    assert device_sbr.recorded_tree(instanced, np.ones(len(scene.triangles), bool)) is None
 
 
 def test_records_beyond_the_buffer_reduce_the_bounce_again(runtime, monkeypatch):

@@ -10,7 +10,8 @@ queues the owned tubes; per bounce ``sbr_bounce`` follows the live ones (a compa
 queue) and lists the footprints, ``sbr_radiate`` radiates each toward each receiver,
 ``sbr_reduce`` sums them per block, receiver and face sequence in work groups (on a
 device that runs work items as scalar code ``sbr_bounces`` launches and bounces each tube
-in one work item, no queue).  Records
+in one work item, no queue, its last bounce cast only where :func:`recorded_tree` has a
+hit).  Records
 are appended with an atomic counter, so their order within a batch is the device's;
 they are sorted by block and the group's first (tube, bounce, receiver), so every run
 and batch size gives the same records in the same order.
@@ -18,7 +19,9 @@ and batch size gives the same records in the same order.
 
 from __future__ import annotations
 
+import hashlib
 import math
+import weakref
 
 import numpy as np
 
@@ -41,7 +44,7 @@ from clradcom.errors import ArgumentError
 from clradcom.geometry.silhouette import BLOCK
 
 __all__ = ["BATCH_TUBES", "PRECISIONS", "engine_precision", "record_dtype", "record_size",
-           "shoot_and_radiate"]
+           "recorded_tree", "shoot_and_radiate"]
 
 #: Tubes per batch at most (whole blocks): about 1 M.
 BATCH_TUBES = 1 << 20
@@ -197,6 +200,33 @@ def near_triangles(caster: RayCaster, antennas) -> tuple[np.ndarray, np.ndarray]
             np.concatenate(tris).astype(np.int32) if tris else np.zeros(0, np.int32))
 
 
+# per caster: {digest of a record mask: the recorded triangles' own RayCaster, or None}
+_RECORDED_TREES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def recorded_tree(caster: RayCaster, record_triangles) -> RayCaster | None:
+    """A tree over the triangles ``record_triangles`` (bool per scene triangle) marks,
+    for sbr_bounces' last-bounce test: a single-level :class:`RayCaster` on the same
+    device, built once per caster and mask. None where the test cannot stand in for the
+    scene's tree: a two-level caster (its instances' triangles are tested in their own
+    frames, so a hit there and in a world-space tree can round apart), a tree that needs
+    a deeper traversal stack than the scene's (the kernel is built with the scene's), or
+    no recorded triangle."""
+    if caster.EXTRA_DEFINES:
+        return None
+    record = np.asarray(record_triangles, dtype=bool).reshape(-1)
+    key = hashlib.blake2b(np.packbits(record).tobytes(), digest_size=16).digest()
+    trees = _RECORDED_TREES.setdefault(caster, {})
+    if key not in trees:
+        tree = None
+        if record.any():
+            tree = RayCaster(caster.triangles[record], runtime=caster.runtime)
+            if tree.stack_size > caster.stack_size:
+                tree = None
+        trees[key] = tree
+    return trees[key]
+
+
 def _batch_tubes(rt, per_tube_bytes: int, batch_tubes: int, n_rx: int) -> int:
     """Tubes per batch (whole blocks): ``batch_tubes`` at most, the batch's buffers
     (``per_tube_bytes`` a tube) within 1/MEMORY_SHARE of the device's largest allocation,
@@ -233,13 +263,17 @@ class _Wavefront:
 
     def __init__(self, caster: RayCaster, defines: dict, options: tuple, dtype: np.dtype,
                  n_rx: int, n_blocks: int, batch_tubes: int, *, launch_args, bounce_args,
-                 illuminate_args, radiate_args, tri_face):
+                 illuminate_args, radiate_args, tri_face, recorded=None):
         import pyopencl as cl
 
         rt = caster.runtime
         self.cl, self.caster, self.rt = cl, caster, rt
         self.defines, self.options, self.dtype, self.n_rx = defines, options, dtype, n_rx
         self.launch_args, self.bounce_args = launch_args, bounce_args
+        # sbr_bounces' last-bounce test: the recorded triangles' own tree (recorded_tree),
+        # or the scene's buffers and 0 where there is none
+        self.last_filter_args = ([*recorded.bvh_buffers(), np.int32(1)] if recorded is not None
+                                 else [*caster.bvh_buffers(), np.int32(0)])
         self.illuminate_args, self.radiate_args = illuminate_args, radiate_args
         # what a persistent build's sbr_radiate takes in place of sbr_illuminate's output
         (_, _, mat_f, _, win_f, win_i, blocks, tx_frame, _) = illuminate_args
@@ -390,7 +424,7 @@ class _Wavefront:
         self._run_bvh("sbr_bounces", n_cells, *self.bounce_args, *self.launch_args,
                       np.int64(first), np.int32(n_cells), np.int32(first_bounce),
                       np.int32(max_bounces), self.footprint_area, np.int32(self.region),
-                      self.bounce_counts)
+                      self.bounce_counts, *self.last_filter_args)
         with self.rt.guard("SBR bounce counts"):
             self.cl.enqueue_copy(self.rt.queue, counts, self.bounce_counts, is_blocking=True)
         return [int(c) for c in counts]
@@ -408,7 +442,9 @@ class _Wavefront:
         self.rt.fill(self.group_tubes, np.int32(0), slots * 4)
         self._zero(self.n_groups)
         lit = ([*self.lit_inputs, np.int64(first)] if self.persistent else [self.lit])
-        self._run_bvh("sbr_radiate", n_fp * self.n_rx, *self.radiate_args, np.int32(m),
+        # a persistent build radiates a footprint toward every receiver in one work item
+        items = n_fp if self.persistent else n_fp * self.n_rx
+        self._run_bvh("sbr_radiate", items, *self.radiate_args, np.int32(m),
                       footprints, *lit, np.int32(n_fp), self.contributions,
                       self.contribution_footprint, self.group_tubes, self.live_groups,
                       self.n_groups)
@@ -522,9 +558,10 @@ def shoot_and_radiate(caster: RayCaster, scene, tri_face, windows, tx_frame, rec
     radiate_args += [real(ON_FACE_TOL_REL), real(INSIDE_TOL_REL), real(CONFIRM_TOL_M),
                      np.int32(n_rx), real(wavelength), np.float32(1.0 - SIGHT_STOP)]
     window_bufs = [dev(win_f, real), dev(win_i, np.int32), dev(blocks, np.int32)]
+    persistent = persistent_bounces(rt)
     wave = _Wavefront(
         caster, {**_defines(max_bounces, precision),
-                 **({"SBR_PERSISTENT": 1} if persistent_bounces(rt) else {})},
+                 **({"SBR_PERSISTENT": 1} if persistent else {})},
         _options(precision), dtype, n_rx,
         len(blocks), batch_tubes,
         launch_args=[*window_bufs[:2], dev(windows.masks, np.uint8), window_bufs[2],
@@ -533,7 +570,8 @@ def shoot_and_radiate(caster: RayCaster, scene, tri_face, windows, tx_frame, rec
         bounce_args=[tri_v, tri_n, dev(record_triangles, np.uint8)],
         illuminate_args=[tri_n, tri_material, *materials, *window_bufs,
                          dev(np.asarray(tx_frame, np.float64).reshape(9), real), tx_and_k],
-        radiate_args=radiate_args, tri_face=dev(tri_face, np.int32))
+        radiate_args=radiate_args, tri_face=dev(tri_face, np.int32),
+        recorded=recorded_tree(caster, record_triangles) if persistent else None)
     parts = []
     for first in range(0, len(blocks), wave.blocks_per_batch):
         parts += wave.shoot(first, min(wave.blocks_per_batch, len(blocks) - first),
