@@ -70,14 +70,14 @@ from clradcom.device.raycast import pack_rays, spawn_origins
 from clradcom.device.runtime import Runtime
 from clradcom.device.visibility import surface_sees
 from clradcom.errors import ArgumentError, ArgumentTypeError
-from clradcom.geometry.ray_order import coherent_order
+from clradcom.geometry.ray_order import MORTON_BITS, morton_codes, octahedral_coordinates
 from clradcom.geometry.triangles import triangle_normals
 from clradcom.mechanisms import diffraction
 from clradcom.mechanisms.common import Geometry, build_geometry, check_number
 from clradcom.mechanisms.diffraction import DiffractionSettings
 from clradcom.mechanisms.optics import MODES as OPTICS_MODES
 from clradcom.mechanisms.optics import object_optics
-from clradcom.mechanisms.specular import fibonacci_cap, fibonacci_sphere
+from clradcom.mechanisms.specular import fibonacci_cap_polar, fibonacci_sphere
 from clradcom.memory import check_memory
 from clradcom.physics import utd
 from clradcom.physics.em import (
@@ -349,6 +349,21 @@ def _lattice_with_field(n_rays: int, pattern):
     """:func:`launch_lattice` of a pattern with the pattern's (C_theta, C_phi) (R, 2) at
     its directions: the field evaluated once over the cap, its zero-gain directions
     (|C|^2 = G = 0) dropped."""
+    local, solid_angle, field, _, kept = _cap_with_field(n_rays, pattern)
+    return np.take(local, kept, axis=0), solid_angle, np.take(field, kept, axis=0)
+
+
+def _cap_with_field(n_rays: int, pattern):
+    """(directions (M, 3), solid angle per ray, field (M, 2), Morton codes (M,), kept (R,)
+    row indices): the directions of the pattern's cap lattice that may radiate, in
+    lattice order, with the pattern's (C_theta, C_phi) and the Morton codes of
+    :func:`clradcom.geometry.ray_order.coherent_order` at them, and which of them
+    radiate (|C|^2 > 0). The lattice is
+    laid over the cap around boresight (+x) that holds the support as seen on a probe
+    lattice, at the density that puts about ``n_rays`` inside; the field is evaluated
+    only where :func:`_support_bounds` says the pattern may have gain (a superset by
+    SECTOR_MARGIN of a sector's box: the exact test is the pattern's), so a sector
+    pays for its own share of the cap, not all of it."""
     probe = fibonacci_sphere(1 << 16)
     inside = np.asarray(pattern.gain(probe)) > 0
     if not inside.any():
@@ -359,11 +374,45 @@ def _lattice_with_field(n_rays: int, pattern):
     in_cap = probe[:, 0] >= np.cos(half_angle)
     share = float(inside[in_cap].mean())
     n_cap = int(np.ceil(n_rays / share))
-    local = fibonacci_cap(n_cap, half_angle)
     solid_angle = 2.0 * np.pi * (1.0 - np.cos(half_angle)) / n_cap
-    field = np.asarray(pattern.field(local), dtype=np.complex128)
-    keep = (np.abs(field[:, 0]) ** 2 + np.abs(field[:, 1]) ** 2) > 0
-    return local[keep], solid_angle, field[keep]
+    cos_azimuth, z_max, x_min = _support_bounds(pattern)
+    # a piece at a time (their temporaries stay in the core's cache), into arrays that
+    # can hold the whole cap but are written (paged in) only as far as the rows reach
+    local = np.empty((n_cap, 3))
+    field = np.empty((n_cap, 2), dtype=np.complex128)
+    codes = np.empty(n_cap, dtype=np.uint16 if MORTON_BITS <= 8 else np.uint32)
+    rows = 0
+    for start in range(0, n_cap, _LATTICE_PIECE):
+        x, r, phi = fibonacci_cap_polar(n_cap, half_angle, start, start + _LATTICE_PIECE)
+        y = np.cos(phi)
+        y *= r
+        maybe = np.ones(len(x), dtype=bool)
+        if x_min > -1.0:
+            maybe &= x >= x_min
+        if cos_azimuth > -1.0:
+            # cos(azimuth) = x / hypot(x, y) >= the bound; the pole (x = y = 0) is in
+            maybe &= x >= cos_azimuth * np.hypot(x, y)
+        z = np.sin(phi)
+        z *= r
+        if z_max < 1.0:
+            maybe &= np.abs(z) <= z_max
+        m = int(np.count_nonzero(maybe))
+        piece = local[rows:rows + m]
+        piece[:, 0] = x[maybe]
+        piece[:, 1] = y[maybe]
+        piece[:, 2] = z[maybe]
+        field[rows:rows + m] = pattern.field(piece)
+        codes[rows:rows + m] = morton_codes(*octahedral_coordinates(piece))
+        rows += m
+    local, field, codes = local[:rows], field[:rows], codes[:rows]
+    kept = np.flatnonzero((np.abs(field[:, 0]) ** 2 + np.abs(field[:, 1]) ** 2) > 0)
+    return local, solid_angle, field, codes, kept
+
+
+#: rows of a launch lattice made at once: the temporaries of its per-row stages (the
+#: pattern's field, the Morton codes) stay in the core's cache
+_LATTICE_PIECE = 1 << 16
+
 
 
 def map_memory_bytes(settings: MapSettings, grid: MapGrid) -> int:
@@ -1252,12 +1301,14 @@ def _launch_of(n_rays: int, pattern) -> _Launch:
     if key not in _LAUNCHES:
         if len(_LAUNCHES) >= 2:
             _LAUNCHES.pop(next(iter(_LAUNCHES)))
-        local, solid_angle, field = _lattice_with_field(n_rays, pattern)
+        local, solid_angle, field, codes, kept = _cap_with_field(n_rays, pattern)
         # in coherent order (geometry.ray_order: along a Morton curve of the directions'
         # octahedral map): a work-group's rays leave in a narrow cone and meet the same
-        # nodes and faces; the device walk of the street's 2e6 rays took 40 % less time
-        order = coherent_order(local)
-        local, field = local[order], field[order]
+        # nodes and faces; the device walk of the street's 2e6 rays took 40 % less time.
+        # The codes are per row, so the kept rows' order is coherent_order(local[kept]);
+        # one take of each array (not a copy of the kept rows, then another in order)
+        rows = kept[np.argsort(codes[kept], kind="stable")]
+        local, field = np.take(local, rows, axis=0), np.take(field, rows, axis=0)
         for a in (local, field):
             a.flags.writeable = False
         _LAUNCHES[key] = _Launch(local, solid_angle, field, {})
