@@ -62,3 +62,4 @@ def test_cap_in_pieces_is_the_whole_cap(n, half_angle):
               for x, r, phi in (fibonacci_cap_polar(n, half_angle, s, s + 4096)
                                 for s in range(0, n, 4096))]
     np.testing.assert_array_equal(np.concatenate(pieces), whole)
+
