@@ -349,21 +349,20 @@ def _lattice_with_field(n_rays: int, pattern):
     """:func:`launch_lattice` of a pattern with the pattern's (C_theta, C_phi) (R, 2) at
     its directions: the field evaluated once over the cap, its zero-gain directions
     (|C|^2 = G = 0) dropped."""
-    local, solid_angle, field, _, kept = _cap_with_field(n_rays, pattern)
-    return np.take(local, kept, axis=0), solid_angle, np.take(field, kept, axis=0)
+    local, solid_angle, field, _ = _cap_with_field(n_rays, pattern)
+    return local, solid_angle, field
 
 
 def _cap_with_field(n_rays: int, pattern):
-    """(directions (M, 3), solid angle per ray, field (M, 2), Morton codes (M,), kept (R,)
-    row indices): the directions of the pattern's cap lattice that may radiate, in
-    lattice order, with the pattern's (C_theta, C_phi) and the Morton codes of
-    :func:`clradcom.geometry.ray_order.coherent_order` at them, and which of them
-    radiate (|C|^2 > 0). The lattice is
-    laid over the cap around boresight (+x) that holds the support as seen on a probe
-    lattice, at the density that puts about ``n_rays`` inside; the field is evaluated
-    only where :func:`_support_bounds` says the pattern may have gain (a superset by
-    SECTOR_MARGIN of a sector's box: the exact test is the pattern's), so a sector
-    pays for its own share of the cap, not all of it."""
+    """(directions (R, 3), solid angle per ray, field (R, 2), Morton codes (R,)): the
+    directions of the pattern's cap lattice where it radiates (|C|^2 > 0), in lattice
+    order, with the pattern's (C_theta, C_phi) and the Morton codes of
+    :func:`clradcom.geometry.ray_order.coherent_order` at them. The lattice is laid over
+    the cap around boresight (+x) that holds the support as seen on a probe lattice, at
+    the density that puts about ``n_rays`` inside; the field is evaluated only where
+    :func:`_support_bounds` says the pattern may have gain (a superset by SECTOR_MARGIN
+    of a sector's box: the exact test is the pattern's), so a sector pays for its own
+    share of the cap, not all of it."""
     probe = fibonacci_sphere(1 << 16)
     inside = np.asarray(pattern.gain(probe)) > 0
     if not inside.any():
@@ -392,21 +391,25 @@ def _cap_with_field(n_rays: int, pattern):
         if cos_azimuth > -1.0:
             # cos(azimuth) = x / hypot(x, y) >= the bound; the pole (x = y = 0) is in
             maybe &= x >= cos_azimuth * np.hypot(x, y)
-        z = np.sin(phi)
-        z *= r
         if z_max < 1.0:
+            z = np.sin(phi)
+            z *= r
             maybe &= np.abs(z) <= z_max
-        m = int(np.count_nonzero(maybe))
-        piece = local[rows:rows + m]
-        piece[:, 0] = x[maybe]
-        piece[:, 1] = y[maybe]
-        piece[:, 2] = z[maybe]
-        field[rows:rows + m] = pattern.field(piece)
+            z = z[maybe]
+        else:
+            z = np.sin(phi[maybe])
+            z *= r[maybe]
+        piece = np.stack([x[maybe], y[maybe], z], axis=1)
+        c = np.asarray(pattern.field(piece), dtype=np.complex128)
+        radiates = (np.abs(c[:, 0]) ** 2 + np.abs(c[:, 1]) ** 2) > 0
+        if not radiates.all():
+            piece, c = piece[radiates], c[radiates]
+        m = len(piece)
+        local[rows:rows + m] = piece
+        field[rows:rows + m] = c
         codes[rows:rows + m] = morton_codes(*octahedral_coordinates(piece))
         rows += m
-    local, field, codes = local[:rows], field[:rows], codes[:rows]
-    kept = np.flatnonzero((np.abs(field[:, 0]) ** 2 + np.abs(field[:, 1]) ** 2) > 0)
-    return local, solid_angle, field, codes, kept
+    return local[:rows], solid_angle, field[:rows], codes[:rows]
 
 
 #: rows of a launch lattice made at once: the temporaries of its per-row stages (the
@@ -1329,14 +1332,14 @@ def _launch_of(n_rays: int, pattern) -> _Launch:
     if key not in _LAUNCHES:
         if len(_LAUNCHES) >= 2:
             _LAUNCHES.pop(next(iter(_LAUNCHES)))
-        local, solid_angle, field, codes, kept = _cap_with_field(n_rays, pattern)
+        local, solid_angle, field, codes = _cap_with_field(n_rays, pattern)
         # in coherent order (geometry.ray_order: along a Morton curve of the directions'
         # octahedral map): a work-group's rays leave in a narrow cone and meet the same
         # nodes and faces; the device walk of the street's 2e6 rays took 40 % less time.
-        # The codes are per row, so the kept rows' order is coherent_order(local[kept]);
-        # one take of each array (not a copy of the kept rows, then another in order)
-        rows = kept[np.argsort(codes[kept], kind="stable")]
-        local, field = np.take(local, rows, axis=0), np.take(field, rows, axis=0)
+        # (the codes are per row, so this is coherent_order(local); one take of each
+        # array, not fancy indexing: 3x faster)
+        order = np.argsort(codes, kind="stable")
+        local, field = np.take(local, order, axis=0), np.take(field, order, axis=0)
         for a in (local, field):
             a.flags.writeable = False
         _LAUNCHES[key] = _Launch(local, solid_angle, field, {})
