@@ -820,16 +820,17 @@ def _diffract(scene, geom, slab, wedges, tx: Radar, receiver, scale, settings,
         dphi = n_w[part] * np.pi / n_phi
         phi = (np.arange(len(rows)) - first[rows] + 0.5) * dphi[rows]
         j = part[rows]
+        cb, sb, cos_phi, sin_phi = cos_b[j], sin_b[j], np.cos(phi), np.sin(phi)
         # the ray's z first (the cone rays' third column, the same operations): one
         # that cannot turn toward the layer is not made
-        rise = (cos_b[j] * e[j, 2] + sin_b[j]
-                * (np.cos(phi) * t0[j, 2] + np.sin(phi) * n0[j, 2]))
+        rise = cb * e[j, 2] + sb * (cos_phi * t0[j, 2] + sin_phi * n0[j, 2])
         can = _may_turn_to(slab, q[j, 2], rise)
-        rows, j, phi = rows[can], j[can], phi[can]
-        out = (cos_b[j, None] * e[j] + sin_b[j, None]
-               * (np.cos(phi)[:, None] * t0[j] + np.sin(phi)[:, None] * n0[j]))
+        rows, j, phi, cb, sb, cos_phi, sin_phi = (
+            a[can] for a in (rows, j, phi, cb, sb, cos_phi, sin_phi))
+        along = cb[:, None] * e[j]
+        out = along + sb[:, None] * (cos_phi[:, None] * t0[j] + sin_phi[:, None] * n0[j])
         out /= np.linalg.norm(out, axis=1)[:, None]
-        radial = out - cos_b[j, None] * e[j]
+        radial = out - along
         radial /= np.linalg.norm(radial, axis=1)[:, None]
         origins = q[j] + 1e-3 * radial
         may = _may_reach_unblocked(slab, origins, out)
