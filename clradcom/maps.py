@@ -399,6 +399,8 @@ def _cap_with_field(n_rays: int, pattern):
         else:
             z = np.sin(phi[maybe])
             z *= r[maybe]
+        if not len(z):   # the piece is outside the support (a pattern may fail on none)
+            continue
         piece = np.stack([x[maybe], y[maybe], z], axis=1)
         c = np.asarray(pattern.field(piece), dtype=np.complex128)
         radiates = (np.abs(c[:, 0]) ** 2 + np.abs(c[:, 1]) ** 2) > 0

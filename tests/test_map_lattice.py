@@ -10,7 +10,12 @@ import pytest
 from clradcom import maps
 from clradcom.geometry.ray_order import coherent_order
 from clradcom.mechanisms.specular import fibonacci_cap, fibonacci_cap_polar, fibonacci_sphere
-from clradcom.scene.antenna import CosinePowerPattern, IsotropicPattern, SectorPattern
+from clradcom.scene.antenna import (
+    CosinePowerPattern,
+    IsotropicPattern,
+    SectorPattern,
+    TabulatedPattern,
+)
 
 
 def _reference_launch(n_rays, pattern):
@@ -28,6 +33,15 @@ def _reference_launch(n_rays, pattern):
     return local[order], 2.0 * np.pi * (1.0 - np.cos(half_angle)) / n_cap, field[order]
 
 
+def _front_table():
+    """A complex table pattern that is zero behind (x < 0) and over part of the front."""
+    th, ph = np.arange(0.0, 181.0, 5.0), np.arange(-180.0, 180.0, 5.0)
+    t, p = np.meshgrid(np.radians(th), np.radians(ph), indexing="ij")
+    front = np.clip(np.sin(t) * np.cos(p), 0.0, None) * (np.abs(ph) < 70.0)[None, :]
+    return TabulatedPattern(theta_deg=th, phi_deg=ph, c_theta=front * np.exp(1j * p),
+                            c_phi=0.3j * front * np.cos(t), normalize=False)
+
+
 PATTERNS = {
     "street sector": SectorPattern(azimuth_width_deg=90.0, elevation_width_deg=180.0),
     "narrow sector": SectorPattern(azimuth_width_deg=30.0, elevation_width_deg=20.0,
@@ -36,6 +50,7 @@ PATTERNS = {
     "omni sector": SectorPattern(azimuth_width_deg=360.0, elevation_width_deg=180.0),
     "cosine": CosinePowerPattern(q=3.0),
     "isotropic": IsotropicPattern(),
+    "complex table": _front_table(),
 }
 
 
@@ -63,3 +78,25 @@ def test_cap_in_pieces_is_the_whole_cap(n, half_angle):
                                 for s in range(0, n, 4096))]
     np.testing.assert_array_equal(np.concatenate(pieces), whole)
 
+
+
+class _NeverEmpty(CosinePowerPattern):
+    """A cosine pattern that refuses to be evaluated at no direction (as a table's
+    interpolator might)."""
+
+    def field(self, directions_local):
+        assert len(directions_local), "evaluated at no direction"
+        return super().field(directions_local)
+
+
+def test_pieces_outside_the_support_are_skipped(monkeypatch):
+    # pieces of 64 directions: the cap's rim behind a cosine pattern (x < 0, kept by the
+    # cap's two-spacing margin) fills whole pieces that the support test empties
+    pattern = _NeverEmpty(q=1.0)
+    local, solid_angle, field = _reference_launch(20_000, pattern)
+    monkeypatch.setattr(maps, "_LATTICE_PIECE", 64)
+    maps._LAUNCHES.clear()
+    launch = maps._launch_of(20_000, pattern)
+    maps._LAUNCHES.clear()
+    np.testing.assert_array_equal(launch.local, local)
+    np.testing.assert_array_equal(launch.field, field)
