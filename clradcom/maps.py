@@ -347,8 +347,8 @@ def launch_lattice(n_rays: int, pattern) -> tuple[np.ndarray, float]:
 
 def _lattice_with_field(n_rays: int, pattern):
     """:func:`launch_lattice` of a pattern with the pattern's (C_theta, C_phi) (R, 2) at
-    its directions: the field evaluated once over the cap, its zero-gain directions
-    (|C|^2 = G = 0) dropped."""
+    its directions: the field evaluated once where the pattern may radiate, its zero-gain
+    directions (|C|^2 = G = 0) dropped."""
     local, solid_angle, field, _ = _cap_with_field(n_rays, pattern)
     return local, solid_angle, field
 
@@ -417,7 +417,6 @@ def _cap_with_field(n_rays: int, pattern):
 #: rows of a launch lattice made at once: the temporaries of its per-row stages (the
 #: pattern's field, the Morton codes) stay in the core's cache
 _LATTICE_PIECE = 1 << 16
-
 
 
 def map_memory_bytes(settings: MapSettings, grid: MapGrid) -> int:
@@ -872,7 +871,7 @@ def _may_turn_to(slab: Slab, z, rise) -> np.ndarray:
     component ``rise`` (of any length: its sign is the unit vector's) that may reach
     the slab's box as :func:`_reaches` grows it; a ray from above the box that does not
     go down, or from below it that does not go up, cannot (its origin is at most 1 mm
-    from the edge point). Half of the street's cone rays leave roof edges upward."""
+    from the edge point). It drops 61 % of the street's 870,921 cone rays."""
     above = z - 2e-3 > slab.z_hi + 1e-3
     below = z + 2e-3 < slab.z_lo - 1e-3
     return ~((above & (rise >= 0.0)) | (below & (rise <= 0.0)))
@@ -881,7 +880,7 @@ def _may_turn_to(slab: Slab, z, rise) -> np.ndarray:
 def _may_reach_unblocked(slab: Slab, origins, directions) -> np.ndarray:
     """:func:`_reaches` of rays of unbounded length: those that the layer's box is not
     even in front of need no cast (the test is monotone in the length, so the cast ones
-    reach it as before; the street: 71 % of the cone rays are not cast)."""
+    reach it as before; the street: 88,322 more of its cone rays, 71 % not cast in all)."""
     return _reaches(slab, origins, directions, np.full(len(origins), np.inf))
 
 
@@ -1326,7 +1325,7 @@ class _Launch:
 
 #: the last few launch lattices, by ray count and pattern (as the tracer keeps its own:
 #: mechanisms.specular._lattice_of): the lattice of 2e6 rays of a sector and its field
-#: took 0.75 s of each map of the street
+#: took 0.75 s of each map of the street (0.4 s since it is made a piece at a time)
 _LAUNCHES: dict = {}
 
 
