@@ -70,14 +70,14 @@ from clradcom.device.raycast import pack_rays, spawn_origins
 from clradcom.device.runtime import Runtime
 from clradcom.device.visibility import surface_sees
 from clradcom.errors import ArgumentError, ArgumentTypeError
-from clradcom.geometry.ray_order import coherent_order
+from clradcom.geometry.ray_order import MORTON_BITS, morton_codes, octahedral_coordinates
 from clradcom.geometry.triangles import triangle_normals
 from clradcom.mechanisms import diffraction
 from clradcom.mechanisms.common import Geometry, build_geometry, check_number
 from clradcom.mechanisms.diffraction import DiffractionSettings
 from clradcom.mechanisms.optics import MODES as OPTICS_MODES
 from clradcom.mechanisms.optics import object_optics
-from clradcom.mechanisms.specular import fibonacci_cap, fibonacci_sphere
+from clradcom.mechanisms.specular import fibonacci_cap_polar, fibonacci_sphere
 from clradcom.memory import check_memory
 from clradcom.physics import utd
 from clradcom.physics.em import (
@@ -347,8 +347,22 @@ def launch_lattice(n_rays: int, pattern) -> tuple[np.ndarray, float]:
 
 def _lattice_with_field(n_rays: int, pattern):
     """:func:`launch_lattice` of a pattern with the pattern's (C_theta, C_phi) (R, 2) at
-    its directions: the field evaluated once over the cap, its zero-gain directions
-    (|C|^2 = G = 0) dropped."""
+    its directions: the field evaluated once where the pattern may radiate, its zero-gain
+    directions (|C|^2 = G = 0) dropped."""
+    local, solid_angle, field, _ = _cap_with_field(n_rays, pattern)
+    return local, solid_angle, field
+
+
+def _cap_with_field(n_rays: int, pattern):
+    """(directions (R, 3), solid angle per ray, field (R, 2), Morton codes (R,)): the
+    directions of the pattern's cap lattice where it radiates (|C|^2 > 0), in lattice
+    order, with the pattern's (C_theta, C_phi) and the Morton codes of
+    :func:`clradcom.geometry.ray_order.coherent_order` at them. The lattice is laid over
+    the cap around boresight (+x) that holds the support as seen on a probe lattice, at
+    the density that puts about ``n_rays`` inside; the field is evaluated only where
+    :func:`_support_bounds` says the pattern may have gain (a superset by SECTOR_MARGIN
+    of a sector's box: the exact test is the pattern's), so a sector pays for its own
+    share of the cap, not all of it."""
     probe = fibonacci_sphere(1 << 16)
     inside = np.asarray(pattern.gain(probe)) > 0
     if not inside.any():
@@ -359,11 +373,50 @@ def _lattice_with_field(n_rays: int, pattern):
     in_cap = probe[:, 0] >= np.cos(half_angle)
     share = float(inside[in_cap].mean())
     n_cap = int(np.ceil(n_rays / share))
-    local = fibonacci_cap(n_cap, half_angle)
     solid_angle = 2.0 * np.pi * (1.0 - np.cos(half_angle)) / n_cap
-    field = np.asarray(pattern.field(local), dtype=np.complex128)
-    keep = (np.abs(field[:, 0]) ** 2 + np.abs(field[:, 1]) ** 2) > 0
-    return local[keep], solid_angle, field[keep]
+    cos_azimuth, z_max, x_min = _support_bounds(pattern)
+    # a piece at a time (their temporaries stay in the core's cache), into arrays that
+    # can hold the whole cap but are written (paged in) only as far as the rows reach
+    local = np.empty((n_cap, 3))
+    field = np.empty((n_cap, 2), dtype=np.complex128)
+    codes = np.empty(n_cap, dtype=np.uint16 if MORTON_BITS <= 8 else np.uint32)
+    rows = 0
+    for start in range(0, n_cap, _LATTICE_PIECE):
+        x, r, phi = fibonacci_cap_polar(n_cap, half_angle, start, start + _LATTICE_PIECE)
+        y = np.cos(phi)
+        y *= r
+        maybe = np.ones(len(x), dtype=bool)
+        if x_min > -1.0:
+            maybe &= x >= x_min
+        if cos_azimuth > -1.0:
+            # cos(azimuth) = x / hypot(x, y) >= the bound; the pole (x = y = 0) is in
+            maybe &= x >= cos_azimuth * np.hypot(x, y)
+        if z_max < 1.0:
+            z = np.sin(phi)
+            z *= r
+            maybe &= np.abs(z) <= z_max
+            z = z[maybe]
+        else:
+            z = np.sin(phi[maybe])
+            z *= r[maybe]
+        if not len(z):   # the piece is outside the support (a pattern may fail on none)
+            continue
+        piece = np.stack([x[maybe], y[maybe], z], axis=1)
+        c = np.asarray(pattern.field(piece), dtype=np.complex128)
+        radiates = (np.abs(c[:, 0]) ** 2 + np.abs(c[:, 1]) ** 2) > 0
+        if not radiates.all():
+            piece, c = piece[radiates], c[radiates]
+        m = len(piece)
+        local[rows:rows + m] = piece
+        field[rows:rows + m] = c
+        codes[rows:rows + m] = morton_codes(*octahedral_coordinates(piece))
+        rows += m
+    return local[:rows], solid_angle, field[:rows], codes[:rows]
+
+
+#: rows of a launch lattice made at once: the temporaries of its per-row stages (the
+#: pattern's field, the Morton codes) stay in the core's cache
+_LATTICE_PIECE = 1 << 16
 
 
 def map_memory_bytes(settings: MapSettings, grid: MapGrid) -> int:
@@ -768,12 +821,23 @@ def _diffract(scene, geom, slab, wedges, tx: Radar, receiver, scale, settings,
         dphi = n_w[part] * np.pi / n_phi
         phi = (np.arange(len(rows)) - first[rows] + 0.5) * dphi[rows]
         j = part[rows]
-        out = (cos_b[j, None] * e[j] + sin_b[j, None]
-               * (np.cos(phi)[:, None] * t0[j] + np.sin(phi)[:, None] * n0[j]))
+        cb, sb, cos_phi, sin_phi = cos_b[j], sin_b[j], np.cos(phi), np.sin(phi)
+        # the ray's z first (the cone rays' third column, the same operations): one
+        # that cannot turn toward the layer is not made
+        rise = cb * e[j, 2] + sb * (cos_phi * t0[j, 2] + sin_phi * n0[j, 2])
+        can = _may_turn_to(slab, q[j, 2], rise)
+        rows, j, phi, cb, sb, cos_phi, sin_phi = (
+            a[can] for a in (rows, j, phi, cb, sb, cos_phi, sin_phi))
+        along = cb[:, None] * e[j]
+        out = along + sb[:, None] * (cos_phi[:, None] * t0[j] + sin_phi[:, None] * n0[j])
         out /= np.linalg.norm(out, axis=1)[:, None]
-        radial = out - cos_b[j, None] * e[j]
+        radial = out - along
         radial /= np.linalg.norm(radial, axis=1)[:, None]
         origins = q[j] + 1e-3 * radial
+        may = _may_reach_unblocked(slab, origins, out)
+        if not may.any():
+            continue
+        rows, j, out, origins, phi = (a[may] for a in (rows, j, out, origins, phi))
         lengths = geom.caster.closest_hit(pack_rays(origins, out))["t"].astype(np.float64)
         near = _reaches(slab, origins, out, lengths)
         if not near.any():
@@ -800,6 +864,24 @@ def _diffract(scene, geom, slab, wedges, tx: Radar, receiver, scale, settings,
             path_length=lambda rows, points, wedge=wedge: _edge_path_length(
                 tx_pos, wedges.start[wedge[rows]], wedges.direction[wedge[rows]],
                 points)))
+
+
+def _may_turn_to(slab: Slab, z, rise) -> np.ndarray:
+    """(R,) bool: rays from edge points at height ``z`` whose direction has the z
+    component ``rise`` (of any length: its sign is the unit vector's) that may reach
+    the slab's box as :func:`_reaches` grows it; a ray from above the box that does not
+    go down, or from below it that does not go up, cannot (its origin is at most 1 mm
+    from the edge point). It drops 61 % of the street's 870,921 cone rays."""
+    above = z - 2e-3 > slab.z_hi + 1e-3
+    below = z + 2e-3 < slab.z_lo - 1e-3
+    return ~((above & (rise >= 0.0)) | (below & (rise <= 0.0)))
+
+
+def _may_reach_unblocked(slab: Slab, origins, directions) -> np.ndarray:
+    """:func:`_reaches` of rays of unbounded length: those that the layer's box is not
+    even in front of need no cast (the test is monotone in the length, so the cast ones
+    reach it as before; the street: 88,322 more of its cone rays, 71 % not cast in all)."""
+    return _reaches(slab, origins, directions, np.full(len(origins), np.inf))
 
 
 #: The device's receiver test (kernels/maps_po.cl) is grown by this much (rad of azimuth,
@@ -1243,7 +1325,7 @@ class _Launch:
 
 #: the last few launch lattices, by ray count and pattern (as the tracer keeps its own:
 #: mechanisms.specular._lattice_of): the lattice of 2e6 rays of a sector and its field
-#: took 0.75 s of each map of the street
+#: took 0.75 s of each map of the street (0.4 s since it is made a piece at a time)
 _LAUNCHES: dict = {}
 
 
@@ -1252,12 +1334,14 @@ def _launch_of(n_rays: int, pattern) -> _Launch:
     if key not in _LAUNCHES:
         if len(_LAUNCHES) >= 2:
             _LAUNCHES.pop(next(iter(_LAUNCHES)))
-        local, solid_angle, field = _lattice_with_field(n_rays, pattern)
+        local, solid_angle, field, codes = _cap_with_field(n_rays, pattern)
         # in coherent order (geometry.ray_order: along a Morton curve of the directions'
         # octahedral map): a work-group's rays leave in a narrow cone and meet the same
-        # nodes and faces; the device walk of the street's 2e6 rays took 40 % less time
-        order = coherent_order(local)
-        local, field = local[order], field[order]
+        # nodes and faces; the device walk of the street's 2e6 rays took 40 % less time.
+        # (the codes are per row, so this is coherent_order(local); one take of each
+        # array, not fancy indexing: 3x faster)
+        order = np.argsort(codes, kind="stable")
+        local, field = np.take(local, order, axis=0), np.take(field, order, axis=0)
         for a in (local, field):
             a.flags.writeable = False
         _LAUNCHES[key] = _Launch(local, solid_angle, field, {})

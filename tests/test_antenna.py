@@ -237,3 +237,18 @@ def test_malformed_npz_pattern_refused(tmp_path):
     h.write_bytes(b"not a zip")
     with pytest.raises(SceneError, match="junk.npz"):
         load_pattern_file(h)
+
+
+def test_directions_to_angles_equal_the_plain_expressions_bit_for_bit():
+    # the norm is summed left to right as np.linalg.norm(d, axis=1) sums a row (a radio
+    # map's launch lattice must not move); directions of every scale, signed zeros, poles
+    rng = np.random.default_rng(11)
+    d = rng.standard_normal((200_000, 3)) * np.exp(30.0 * rng.standard_normal((200_000, 1)))
+    d[:5] = [[0.0, 0.0, 1.0], [-0.0, 0.0, -3.0], [-1.0, -0.0, 0.0], [-1.0, 0.0, 0.0],
+             [1e-150, -1e-150, 0.0]]
+    unit = d / np.linalg.norm(d, axis=1)[:, None]
+    theta = np.arccos(np.clip(unit[:, 2], -1.0, 1.0))
+    phi = np.arctan2(unit[:, 1], unit[:, 0])
+    got = directions_to_angles(d)
+    np.testing.assert_array_equal(got[0].view(np.int64), theta.view(np.int64))
+    np.testing.assert_array_equal(got[1].view(np.int64), phi.view(np.int64))

@@ -94,3 +94,18 @@ def test_bad_directions_are_refused_by_name(bad):
 def test_bad_bits_are_refused(bits):
     with pytest.raises(ArgumentError, match="bits"):
         morton_codes([0.0], [0.0], bits)
+
+
+def test_octahedral_coordinates_equal_the_plain_expressions_bit_for_bit():
+    # the L1 norm is added left to right as np.abs(d).sum(axis=1) adds a row (the launch
+    # lattice's order must not move); directions of every scale, signed zeros included
+    rng = np.random.default_rng(5)
+    d = rng.standard_normal((200_000, 3)) * np.exp(20.0 * rng.standard_normal((200_000, 1)))
+    d[:4] = [[0.0, 0.0, -1.0], [-0.0, 0.0, -1.0], [0.0, -0.0, -2.0], [-1.0, -0.0, 0.0]]
+    norm1 = np.abs(d).sum(axis=1)
+    x, y, z = (d[:, k] / norm1 for k in range(3))
+    u = np.where(z < 0, (1.0 - np.abs(y)) * np.where(x < 0, -1.0, 1.0), x)
+    v = np.where(z < 0, (1.0 - np.abs(x)) * np.where(y < 0, -1.0, 1.0), y)
+    got = octahedral_coordinates(d)
+    np.testing.assert_array_equal(got[0].view(np.int64), u.view(np.int64))
+    np.testing.assert_array_equal(got[1].view(np.int64), v.view(np.int64))

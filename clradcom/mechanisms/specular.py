@@ -53,13 +53,33 @@ def fibonacci_cap(n: int, half_angle: float = np.pi) -> np.ndarray:
     half_angle = pi covers the whole sphere. Uniform steps in x = cos(angle
     from +x) give equal areas, so the lattice density is the same everywhere.
     """
+    x, r, phi = fibonacci_cap_polar(n, half_angle)
+    return np.stack([x, r * np.cos(phi), r * np.sin(phi)], axis=1)
+
+
+def fibonacci_cap_polar(n: int, half_angle: float = np.pi, start: int = 0,
+                        stop: int | None = None):
+    """(x, r, phi) (n,) each of :func:`fibonacci_cap`'s lattice: direction k is
+    (x_k, r_k cos phi_k, r_k sin phi_k) bit for bit, so a caller can test x and the
+    azimuth before it pays for the rest (radio maps' launch lattice). Computed in place,
+    each operation as the plain expressions 1 - (1 - cos h)(k + 1/2)/n,
+    sqrt(max(1 - x^2, 0)) and (k pi)(3 - sqrt 5) round it. ``start``, ``stop``: only
+    the directions k in [start, stop) of the n (a piece at a time)."""
     if n < 1:
         raise ArgumentError(f"need at least one direction, got n={n}")
-    k = np.arange(n, dtype=np.float64)
-    x = 1.0 - (1.0 - np.cos(half_angle)) * (k + 0.5) / n
-    r = np.sqrt(np.maximum(1.0 - x * x, 0.0))
-    phi = k * np.pi * (3.0 - np.sqrt(5.0))
-    return np.stack([x, r * np.cos(phi), r * np.sin(phi)], axis=1)
+    k = np.arange(start, n if stop is None else min(stop, n), dtype=np.float64)
+    phi = np.multiply(k, np.pi)
+    phi *= 3.0 - np.sqrt(5.0)
+    x = k
+    x += 0.5
+    x *= 1.0 - np.cos(half_angle)
+    x /= n
+    np.subtract(1.0, x, out=x)
+    r = np.multiply(x, x)
+    np.subtract(1.0, r, out=r)
+    np.maximum(r, 0.0, out=r)
+    np.sqrt(r, out=r)
+    return x, r, phi
 
 
 def fibonacci_sphere(n: int) -> np.ndarray:

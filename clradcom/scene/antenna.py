@@ -97,12 +97,17 @@ def directions_to_angles(directions) -> tuple[np.ndarray, np.ndarray]:
     """(theta, phi) in radians of (K,3) directions (normalised here): theta from +z
     in [0, pi], phi = atan2(y, x) in (-pi, pi]."""
     d = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
-    n = np.linalg.norm(d, axis=1)
+    # np.linalg.norm(d, axis=1) bit for bit (its row sum adds left to right;
+    # tests/test_antenna.py), without its slow reduction over 3 columns: a radio map's
+    # launch lattice evaluates its pattern at millions of directions
+    squares = d * d
+    n = squares[:, 0] + squares[:, 1]
+    n += squares[:, 2]
+    np.sqrt(n, out=n)
     if np.any(~np.isfinite(n)) or np.any(n == 0):
         raise ValueError("directions must be finite and non-zero")
-    d = d / n[:, None]
-    theta = np.arccos(np.clip(d[:, 2], -1.0, 1.0))
-    phi = np.arctan2(d[:, 1], d[:, 0])
+    theta = np.arccos(np.clip(d[:, 2] / n, -1.0, 1.0))
+    phi = np.arctan2(d[:, 1] / n, d[:, 0] / n)
     return theta, phi
 
 
