@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from clradcom.device.raycast import RayCaster
+from clradcom.device.sbr import material_tables
 from clradcom.errors import ArgumentError
 
 __all__ = ["LaunchLattice", "WalkHits", "WalkSegments", "WalkTables", "accumulate_walked",
@@ -78,23 +79,16 @@ class WalkTables:
     @classmethod
     def of(cls, runtime, scene, normals, po_triangles) -> WalkTables:
         real = _real(runtime)
-        eps = np.asarray(scene.material_eps_r, dtype=np.complex128)
-        pec = np.asarray(scene.material_pec, dtype=bool) | ~np.isfinite(eps)
-        mat_f = np.zeros((len(eps), 4))
-        mat_f[:, 0] = np.where(pec, 0.0, eps.real)
-        mat_f[:, 1] = np.where(pec, 0.0, eps.imag)
-        mat_f[:, 2] = scene.material_roughness_m
-        mat_f[:, 3] = np.sqrt(1.0 - np.asarray(scene.material_scattering,
-                                               dtype=np.float64) ** 2)
+        em_f, em_i = material_tables(scene)
         # whether a material scatters as its own flag: sqrt(1 - S^2) rounds to 1 below
         # S ~ 1e-8, where the host's S > 0 still starts diffuse rays
         scatters = np.asarray(scene.material_scattering, dtype=np.float64) > 0
-        mat_i = np.stack([pec, np.asarray(scene.material_roughness_model), scatters], axis=1)
+        mat_i = np.column_stack([em_i, scatters])
         flags = np.where(np.asarray(po_triangles, dtype=bool), FLAG_PO, 0)
         dev = runtime.to_device
         return cls(normals=dev(np.asarray(normals, dtype=real)),
                    tri_material=dev(np.asarray(scene.tri_material, dtype=np.int32)),
-                   tri_flags=dev(flags.astype(np.int32)), mat_f=dev(mat_f.astype(real)),
+                   tri_flags=dev(flags.astype(np.int32)), mat_f=dev(em_f.astype(real)),
                    mat_i=dev(mat_i.astype(np.int32)))
 
 

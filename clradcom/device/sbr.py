@@ -149,9 +149,10 @@ def _overlap_lists(n_windows: int, earlier) -> tuple[np.ndarray, np.ndarray]:
     return first, cols.astype(np.int32)
 
 
-def _tables(scene):
-    """Per-material constants for the kernel: (eps re, eps im, roughness, sqrt(1 - S^2))
-    and (pec, roughness model)."""
+def material_tables(scene):
+    """Per-material constants of ``kernels/em.h``'s reflection, as the SBR and radio-map
+    kernels read them: (eps re, eps im, roughness, sqrt(1 - S^2)) float64 and (pec,
+    roughness model) int32."""
     eps = np.asarray(scene.material_eps_r, dtype=np.complex128)
     pec = np.asarray(scene.material_pec, dtype=bool) | ~np.isfinite(eps)
     mat_f = np.zeros((len(eps), 4))
@@ -521,7 +522,7 @@ def shoot_and_radiate(caster: RayCaster, scene, tri_face, windows, tx_frame, rec
                             value=n_rx)
     dtype = record_dtype(max_bounces, precision)
     real = np.float64 if fp64 else np.float32
-    mat_f, mat_i = _tables(scene)
+    mat_f, mat_i = material_tables(scene)
     win_f, win_i, blocks = _windows(windows)
     near_first, near_tri = near_triangles(caster, receivers)
 
