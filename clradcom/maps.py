@@ -55,12 +55,12 @@ import numpy as np
 from clradcom.device.map_walk import (
     LaunchLattice,
     WalkTables,
-    accumulate_walked,
     receive_weights,
     walk_rays,
 )
 from clradcom.device.maps import (
     Slab,
+    accumulate_rows,
     accumulate_segments,
     po_facet_fields,
     po_pairs,
@@ -88,7 +88,6 @@ from clradcom.physics.em import (
 )
 from clradcom.physics.po import MAX_SUBDIVISION_LEVELS, NEAR_SIZE_FACTOR, po_transfer
 from clradcom.physics.vectors import perpendicular
-from clradcom.scene.antenna import CosinePowerPattern, SectorPattern
 from clradcom.scene.records import Radar, Scene
 
 __all__ = ["MIN_SEGMENTS", "CellSums", "MapGrid", "MapSettings", "RadioMap", "Wave",
@@ -341,16 +340,8 @@ def launch_lattice(n_rays: int, pattern) -> tuple[np.ndarray, float]:
     it), the directions of zero gain dropped."""
     if pattern is None:
         return fibonacci_sphere(n_rays), 4.0 * np.pi / n_rays
-    local, solid_angle, _ = _lattice_with_field(n_rays, pattern)
+    local, solid_angle, _, _ = _cap_with_field(n_rays, pattern)
     return local, solid_angle
-
-
-def _lattice_with_field(n_rays: int, pattern):
-    """:func:`launch_lattice` of a pattern with the pattern's (C_theta, C_phi) (R, 2) at
-    its directions: the field evaluated once where the pattern may radiate, its zero-gain
-    directions (|C|^2 = G = 0) dropped."""
-    local, solid_angle, field, _ = _cap_with_field(n_rays, pattern)
-    return local, solid_angle, field
 
 
 def _cap_with_field(n_rays: int, pattern):
@@ -1059,12 +1050,10 @@ def _po_pairs_device(scene, geom, grid: MapGrid, tx_pos, receiver, lit: _LitFace
             pattern = (local, c)
         if not len(f):
             continue
-        amplitude = np.empty((len(f), 1 if receiver is not None else 3), np.complex128)
         # the carrier phase of the float64 lengths, then the receive projection (the
         # rows the device left to the host are overwritten below)
-        phase = np.exp(-1j * k * (lit.from_tx[f] + to_centre))
-        amplitude[:] = _projection(field * (lam / (4.0 * np.pi) * phase)[:, None], arrival,
-                                   receiver, pattern)
+        amplitude = _pec_received(field, lit.from_tx[f], to_centre, arrival, receiver, k,
+                                  lam, pattern)
         rest = np.flatnonzero(~whole)
         if len(rest):
             amplitude[rest] = _po_amplitudes(scene, grid, tx_pos, receiver, lit, f[rest],
@@ -1074,15 +1063,9 @@ def _po_pairs_device(scene, geom, grid: MapGrid, tx_pos, receiver, lit: _LitFace
 
 def _support_bounds(pattern) -> np.ndarray:
     """(cos of the half azimuth width, largest |z|, least x) of the unit directions in
-    the antenna's frame where ``pattern`` may have gain, each widened by
-    :data:`SECTOR_MARGIN`: a sector's box, a cosine pattern's front half, else every
-    direction."""
-    half_azimuth, z_max, x_min = np.pi, 1.0, -1.0
-    if isinstance(pattern, SectorPattern):
-        half_azimuth = math.radians(pattern.azimuth_width_deg) / 2.0
-        z_max = math.sin(math.radians(pattern.elevation_width_deg) / 2.0)
-    elif isinstance(pattern, CosinePowerPattern):
-        x_min = 0.0
+    the antenna's frame where ``pattern`` may have gain (its ``support_box``), each
+    widened by :data:`SECTOR_MARGIN`."""
+    half_azimuth, z_max, x_min = pattern.support_box()
     return np.array([math.cos(min(half_azimuth + SECTOR_MARGIN, np.pi)),
                      z_max + SECTOR_MARGIN, x_min - SECTOR_MARGIN])
 
@@ -1169,7 +1152,10 @@ def _po_received(scene, v, normal, pec, material, tx_pos, points, e_tx, receiver
             mid = v[rows].mean(axis=1) if centroid is None else centroid[rows]
             field = po_facet_fields(runtime, corner, v[rows], normal[rows], e_tx[rows],
                                     tx_pos, points[rows], k, centroids=mid)
-            p = _pec_received(field, mid, points[rows], tx_pos, receiver, k, lam)
+            to_point = points[rows] - mid
+            r_r = np.linalg.norm(to_point, axis=1)
+            p = _pec_received(field, np.linalg.norm(mid - tx_pos, axis=1), r_r,
+                              to_point / r_r[:, None], receiver, k, lam)
         else:
             reflection = None if metal else (
                 lambda k_in, n, m=material[rows]: material_reflection_dyad(scene, m, k_in,
@@ -1271,11 +1257,10 @@ def _rays_device(scene, geom, slab, transmitter, receiver, launch, scale, po_obj
     caster = geom.caster
     rt = caster.runtime
     tri_object = np.asarray(scene.tri_object)
-    tables = WalkTables.of(rt, scene, caster.normals64(),
-                           np.isin(tri_object, po_objects))
+    normals = caster.normals64()
+    tables = WalkTables.of(rt, scene, normals, np.isin(tri_object, po_objects))
     scatter_orders = settings.scattering_reflections if settings.scattering else -1
     device_lattice = launch.on(rt)
-    normals = caster.normals64()
     rx_frame = None if receiver is None else receiver.orientation
     rx_pattern = None if receiver is None else receiver.pattern
     n = len(launch.local)
@@ -1297,7 +1282,8 @@ def _rays_device(scene, geom, slab, transmitter, receiver, launch, scale, po_obj
             rx_frame=rx_frame, capacity=room, workspace=workspace)
         room = (max(room[0], segments.count * 5 // 4), max(room[1], len(hits.ray) * 5 // 4))
         weights = scale * receive_weights(segments, rx_pattern)
-        accumulate_walked(rt, slab, segments, weights, sums.power_only, sums.count)
+        accumulate_rows(rt, slab, segments.org, segments.dir, segments.count, weights,
+                        sums.power_only, sums.count)
         for order in np.unique(hits.order):
             rows = np.flatnonzero(hits.order == order)
             _scatter(scene, geom, slab, hits.origins[rows], hits.directions[rows],
@@ -1348,16 +1334,14 @@ def _launch_of(n_rays: int, pattern) -> _Launch:
     return _LAUNCHES[key]
 
 
-def _pec_received(field, centroid, points, tx_pos, receiver, k, lam) -> np.ndarray:
+def _pec_received(field, r_t, r_r, arrival, receiver, k, lam, pattern=None) -> np.ndarray:
     """The receiver's amplitudes (S, C) of the device's PEC facet fields ``field`` (S, 3)
-    (:func:`clradcom.device.maps.po_facet_fields`: without the carrier phase) from
-    facets about ``centroid`` at ``points``: (lambda / 4 pi) e^{-jk(R_t + R_r)} times
-    the field, the lengths in float64, taken by the receiver along R_r's direction."""
-    r_t = np.linalg.norm(centroid - tx_pos, axis=1)
-    to_point = points - centroid
-    r_r = np.linalg.norm(to_point, axis=1)
+    (:func:`clradcom.device.maps.po_facet_fields`: without the carrier phase) at float64
+    lengths ``r_t`` from tx to the facet and ``r_r`` on to the point:
+    (lambda / 4 pi) e^{-jk(r_t + r_r)} times the field, taken by the receiver along the
+    unit ``arrival`` direction (``pattern``: as :func:`_projection` takes it)."""
     field = field * (lam / (4.0 * np.pi) * np.exp(-1j * k * (r_t + r_r)))[:, None]
-    return _projection(field, to_point / r_r[:, None], receiver)
+    return _projection(field, arrival, receiver, pattern)
 
 
 def _edge_path_length(source, start, direction, points) -> np.ndarray:

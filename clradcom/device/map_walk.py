@@ -6,7 +6,7 @@ material's Fresnel dyad with roughness and specular share as ``kernels/em.h`` ap
 it, the mirror direction and spawn offset of
 :func:`clradcom.device.raycast.spawn_origins`) and returns two compact lists: the
 segments that may reach the map's slab (for the host's receive projection and
-:func:`clradcom.device.maps.accumulate_segments`) and the hits on scattering faces (where
+:func:`clradcom.device.maps.accumulate_rows`) and the hits on scattering faces (where
 :mod:`clradcom.maps`' diffuse rays start). Both lists come back sorted by (order, ray),
 the order the numpy walk of :mod:`clradcom.maps` (``MapSettings(engine="host")``, the
 reference it is tested against) makes them in. Geometry and fields are float64 where the
@@ -23,11 +23,10 @@ from clradcom.device.raycast import RayCaster
 from clradcom.device.sbr import material_tables
 from clradcom.errors import ArgumentError
 
-__all__ = ["LaunchLattice", "WalkHits", "WalkSegments", "WalkTables", "accumulate_walked",
-           "receive_weights", "walk_rays"]
+__all__ = ["LaunchLattice", "WalkHits", "WalkSegments", "WalkTables", "receive_weights",
+           "walk_rays"]
 
 SOURCE = "map_walk.cl"
-MAPS_SOURCE = "maps.cl"
 #: a scattering hit's reals and ints, a segment's receive reals (kernels/map_walk.cl)
 HIT_REALS = 13
 HIT_INTS = 3
@@ -120,7 +119,7 @@ class WalkHits:
 @dataclass
 class WalkSegments:
     """A batch's segments that may reach the slab, left on the device: ``org``, ``dir``
-    the float4 buffers of kernels/maps.cl's accumulate_segments (origin relative to the
+    the float4 buffers of :func:`clradcom.device.maps.accumulate_rows` (origin relative to the
     slab's corner; unit direction and length), ``count`` of them, and ``receive``
     (count, 7) float64 on the host: the arrival direction in the receiver's frame and
     the field's theta and phi components there (re, im), or without a receiver |E|^2 in
@@ -144,38 +143,6 @@ def receive_weights(segments: WalkSegments, rx_pattern) -> np.ndarray:
     c = np.asarray(rx_pattern.field(r[:, 0:3]), dtype=np.complex128)
     p = c[:, 0] * (r[:, 3] + 1j * r[:, 4]) + c[:, 1] * (r[:, 5] + 1j * r[:, 6])
     return p.real ** 2 + p.imag ** 2
-
-
-def accumulate_walked(runtime, slab, segments: WalkSegments, weights, power, count) -> None:
-    """Add the segments, weighed by ``weights`` (S,) per metre, into ``power`` (ny, nx)
-    float64 and their numbers into ``count`` (int64), with kernels/maps.cl's
-    accumulate_segments reading the rows the walk left on the device (weights scaled to
-    the batch's largest for the float32 sums, as clradcom.device.maps.accumulate_segments
-    does)."""
-    import pyopencl as cl
-
-    weights = np.asarray(weights, dtype=np.float64)
-    scale = float(weights.max(initial=0.0))
-    if segments.count == 0 or scale == 0.0:
-        return
-    shape = (slab.ny, slab.nx)
-    sums = np.zeros(shape, dtype=np.float32)
-    hits = np.zeros(shape, dtype=np.int32)
-    kernel = runtime.kernel(MAPS_SOURCE, "accumulate_segments")
-    mf = cl.mem_flags
-    with runtime.kernel_clock(), runtime.guard("radio map accumulation (walked rays)"):
-        sums_buf = cl.Buffer(runtime.context, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=sums)
-        hits_buf = cl.Buffer(runtime.context, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=hits)
-        runtime.launch(kernel, segments.count, runtime.local_size(kernel), segments.org,
-                       segments.dir, runtime.to_device((weights / scale).astype(np.float32)),
-                       np.float32(0.0), np.float32(slab.z_hi - slab.z_lo),
-                       np.float32(slab.cell_x), np.float32(slab.cell_y), np.int32(slab.nx),
-                       np.int32(slab.ny), np.int32(segments.count), sums_buf, hits_buf,
-                       name="accumulate_segments")
-        cl.enqueue_copy(runtime.queue, sums, sums_buf)
-        cl.enqueue_copy(runtime.queue, hits, hits_buf, is_blocking=True)
-    power += sums.astype(np.float64) * scale
-    count += hits
 
 
 def walk_rays(caster: RayCaster, lattice: LaunchLattice, tables: WalkTables, frame,

@@ -21,8 +21,8 @@ import numpy as np
 
 from clradcom.errors import ArgumentError
 
-__all__ = ["PO_FACET_ROWS", "Slab", "accumulate_segments", "accumulate_segments_host",
-           "po_facet_fields", "po_pairs", "segment_cells"]
+__all__ = ["PO_FACET_ROWS", "Slab", "accumulate_rows", "accumulate_segments",
+           "accumulate_segments_host", "po_facet_fields", "po_pairs", "segment_cells"]
 
 SOURCE = "maps.cl"
 PO_SOURCE = "maps_po.cl"
@@ -87,8 +87,6 @@ def accumulate_segments(runtime, slab: Slab, origins, directions, lengths, weigh
     int64 numbers of segments through it, added to ``power``/``count`` when given.
     Weights are scaled to the batch's largest before the float32 sums and back after, so
     no dynamic range is lost to float32's exponent."""
-    import pyopencl as cl
-
     origins = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
     directions = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
     lengths = np.asarray(lengths, dtype=np.float64).reshape(-1)
@@ -103,36 +101,50 @@ def accumulate_segments(runtime, slab: Slab, origins, directions, lengths, weigh
     shape = (slab.ny, slab.nx)
     power = np.zeros(shape) if power is None else power
     count = np.zeros(shape, dtype=np.int64) if count is None else count
-    kernel = runtime.kernel(SOURCE, "accumulate_segments")
-    local = runtime.local_size(kernel)
     for start in range(0, len(origins), batch):
         stop = min(start + batch, len(origins))
         w = weights[start:stop]
-        scale = float(w.max(initial=0.0))
-        if scale == 0.0:
+        if not w.max(initial=0.0) > 0.0:
             continue
         o, d = _relative(slab, origins[start:stop], directions[start:stop],
                          lengths[start:stop])
-        sums = np.zeros(shape, dtype=np.float32)
-        hits = np.zeros(shape, dtype=np.int32)
-        mf = cl.mem_flags
-        with runtime.kernel_clock(), runtime.guard("radio map accumulation"):
-            sums_buf = cl.Buffer(runtime.context, mf.READ_WRITE | mf.COPY_HOST_PTR,
-                                 hostbuf=sums)
-            hits_buf = cl.Buffer(runtime.context, mf.READ_WRITE | mf.COPY_HOST_PTR,
-                                 hostbuf=hits)
-            runtime.launch(kernel, len(o), local, runtime.to_device(o),
-                           runtime.to_device(d),
-                           runtime.to_device((w / scale).astype(np.float32)),
-                           np.float32(0.0), np.float32(slab.z_hi - slab.z_lo),
-                           np.float32(slab.cell_x), np.float32(slab.cell_y),
-                           np.int32(slab.nx), np.int32(slab.ny), np.int32(len(o)),
-                           sums_buf, hits_buf, name="accumulate_segments")
-            cl.enqueue_copy(runtime.queue, sums, sums_buf)
-            cl.enqueue_copy(runtime.queue, hits, hits_buf, is_blocking=True)
-        power += sums.astype(np.float64) * scale
-        count += hits
+        accumulate_rows(runtime, slab, runtime.to_device(o), runtime.to_device(d), len(o),
+                        w, power, count)
     return power, count
+
+
+def accumulate_rows(runtime, slab: Slab, origins, directions, n: int, weights, power,
+                    count) -> None:
+    """kernels/maps.cl's accumulate_segments over ``n`` segments already on the device:
+    ``origins``, ``directions`` float4 buffers as :func:`_relative` lays them out (origin
+    relative to the slab's corner; unit direction and length), ``weights`` (n,) float64
+    per metre, added into ``power`` (ny, nx) float64 and ``count`` (int64). The weights
+    are scaled to their largest before the float32 sums and back after, so no dynamic
+    range is lost to float32's exponent."""
+    import pyopencl as cl
+
+    weights = np.asarray(weights, dtype=np.float64)
+    scale = float(weights.max(initial=0.0))
+    if n == 0 or scale == 0.0:
+        return
+    shape = (slab.ny, slab.nx)
+    sums = np.zeros(shape, dtype=np.float32)
+    hits = np.zeros(shape, dtype=np.int32)
+    kernel = runtime.kernel(SOURCE, "accumulate_segments")
+    mf = cl.mem_flags
+    with runtime.kernel_clock(), runtime.guard("radio map accumulation"):
+        sums_buf = cl.Buffer(runtime.context, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=sums)
+        hits_buf = cl.Buffer(runtime.context, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=hits)
+        runtime.launch(kernel, n, runtime.local_size(kernel), origins, directions,
+                       runtime.to_device((weights / scale).astype(np.float32)),
+                       np.float32(0.0), np.float32(slab.z_hi - slab.z_lo),
+                       np.float32(slab.cell_x), np.float32(slab.cell_y), np.int32(slab.nx),
+                       np.int32(slab.ny), np.int32(n), sums_buf, hits_buf,
+                       name="accumulate_segments")
+        cl.enqueue_copy(runtime.queue, sums, sums_buf)
+        cl.enqueue_copy(runtime.queue, hits, hits_buf, is_blocking=True)
+    power += sums.astype(np.float64) * scale
+    count += hits
 
 
 def segment_cells(runtime, slab: Slab, origins, directions, lengths,

@@ -134,6 +134,13 @@ class Pattern:
         """Linear directivity G (K,) for (K,3) local directions."""
         raise NotImplementedError
 
+    def support_box(self) -> tuple[float, float, float]:
+        """(half azimuth width rad, largest |z|, least x) of the unit local directions
+        where the pattern may have gain: a box that holds its support, for tests that
+        skip the pattern where it cannot radiate; every direction unless a subclass
+        knows better."""
+        return math.pi, 1.0, -1.0
+
     def field(self, directions_local) -> np.ndarray:
         """(K,2) complex128 ``(C_theta, C_phi)`` with ``|C|^2 = G``."""
         g = self.gain(directions_local)
@@ -211,6 +218,10 @@ class SectorPattern(Pattern):
         inside = (np.abs(phi) <= half_az + tol) & (np.abs(np.pi / 2 - theta) <= half_el + tol)
         return np.where(inside, self.inside_gain, 0.0)
 
+    def support_box(self) -> tuple[float, float, float]:
+        return (math.radians(self.azimuth_width_deg) / 2.0,
+                math.sin(math.radians(self.elevation_width_deg) / 2.0), -1.0)
+
     def params(self) -> dict:
         p = super().params()
         p.update(azimuth_width_deg=repr(float(self.azimuth_width_deg)),
@@ -234,6 +245,9 @@ class CosinePowerPattern(Pattern):
             raise ValueError(f"q must be <= {MAX_DIRECTIVITY / 2 - 1:g}: the peak directivity "
                              f"2 (q + 1) would exceed {MAX_DIRECTIVITY:g} (120 dBi), beyond "
                              "any antenna")
+
+    def support_box(self) -> tuple[float, float, float]:
+        return math.pi, 1.0, 0.0   # the front half
 
     @staticmethod
     def q_from_beamwidth(hpbw_deg: float) -> float:
