@@ -62,6 +62,7 @@ from clradcom.device.maps import (
     Slab,
     accumulate_rows,
     accumulate_segments,
+    accumulation_copies,
     po_facet_fields,
     po_pairs,
     segment_cells,
@@ -412,14 +413,15 @@ _LATTICE_PIECE = 1 << 16
 
 def map_memory_bytes(settings: MapSettings, grid: MapGrid) -> int:
     """Host memory a map holds at its peak: a batch of rays (:data:`BYTES_PER_RAY` each),
-    the launch lattice (24 bytes a ray), and the grid's float64 sums, int64 counts and
-    float32/int32 device copies (24 bytes a cell); a coherent map adds its records
-    (:data:`COHERENT_RECORDS_PER_RAY` a launched ray, :data:`BYTES_PER_RECORD` each while
-    a batch's are weighed, 40 bytes each kept as a (cell, group) sum); physical optics
-    a round of :attr:`MapSettings.po_batch` facet-cell pairs (:data:`BYTES_PER_PO_PAIR`
-    each)."""
+    the launch lattice (24 bytes a ray), and the grid's float64 sums and int64 counts (16
+    bytes a cell) with the accumulation's float32/int32 copies of them
+    (:func:`clradcom.device.maps.accumulation_copies`, 8 bytes a cell each); a coherent
+    map adds its records (:data:`COHERENT_RECORDS_PER_RAY` a launched ray,
+    :data:`BYTES_PER_RECORD` each while a batch's are weighed, 40 bytes each kept as a
+    (cell, group) sum); physical optics a round of :attr:`MapSettings.po_batch`
+    facet-cell pairs (:data:`BYTES_PER_PO_PAIR` each)."""
     need = (min(settings.batch, settings.rays) * BYTES_PER_RAY + 24 * settings.rays
-            + 24 * grid.n_cells)
+            + (16 + 8 * accumulation_copies(grid.n_cells)) * grid.n_cells)
     if settings.optics != "none":
         need += settings.po_batch * BYTES_PER_PO_PAIR
     if settings.coherent:

@@ -12,20 +12,32 @@
  *
  * Only 32-bit atomics (core since OpenCL 1.1): float sums by compare-and-swap on their
  * bits, so devices without 64-bit atomics run it. The order of the additions within a
- * cell is the device's: sums agree between runs to float32 rounding (~1e-7 relative). */
+ * cell is the device's: sums agree between runs to float32 rounding (~1e-7 relative).
+ *
+ * Each work group adds into its own copy of the sums (group id modulo the copies; the
+ * host adds the copies up in float64): the rays of a batch leave the transmitter
+ * together, so without copies the cores fight over the same cells' cache lines near it,
+ * and on the street's map the accumulation took 2.6x as long (docs/maps.md). */
 
 #ifndef MAX_STEPS_PAD
 #define MAX_STEPS_PAD 2
 #endif
 
-/* Every access to the sum is atomic, its first read too (atomic_or with 0): a plain read
- * beside the other work items' compare-and-swaps is a data race (Oclgrind reports it),
- * and a failed swap hands back the value it met, the next try's starting point. */
+/* The first read of the sum is a plain one, the compare-and-swap deciding: a stale or
+ * torn value only fails the swap, which hands back the value it met for the next try
+ * (CUDA's documented double atomicAdd starts the same way). An atomic first read
+ * (atomic_or with 0) cost as much as the swap itself. Oclgrind's data-race check counts
+ * the plain read beside other work items' swaps as a race, so its builds read atomically
+ * (CLR_ATOMIC_FIRST_READ, clradcom/device/runtime.py: SIMULATOR_BUILD_OPTIONS). */
 inline void add_float(volatile __global float *where, const float value)
 {
     volatile __global unsigned int *bits = (volatile __global unsigned int *)where;
     union { unsigned int u; float f; } before, after;
+#ifdef CLR_ATOMIC_FIRST_READ
     before.u = atomic_or(bits, 0u);
+#else
+    before.u = *bits;
+#endif
     for (;;) {
         after.f = before.f + value;
         const unsigned int met = atomic_cmpxchg(bits, before.u, after.u);
@@ -114,13 +126,17 @@ __kernel void accumulate_segments(__global const float4 *origin,    /* xyz, w un
                                   const float z_lo, const float z_hi,
                                   const float cell_x, const float cell_y,
                                   const int nx, const int ny, const int n,
-                                  __global float *power,            /* (ny, nx) */
-                                  __global int *count)              /* (ny, nx) */
+                                  const int copies,
+                                  __global float *power,            /* (copies, ny, nx) */
+                                  __global int *count)              /* (copies, ny, nx) */
 {
     int gid = get_global_id(0);
     if (gid >= n) return;
     float w = weight[gid];
     if (!(w > 0.0f)) return;
+    const size_t copy = (size_t)(get_group_id(0) % (size_t)copies) * (size_t)(nx * ny);
+    power += copy;
+    count += copy;
     walk_segment(gid, w, origin[gid], direction[gid], z_lo, z_hi, cell_x, cell_y, nx, ny,
                  power, count, 0, 0, 0, 0, 0);
 }

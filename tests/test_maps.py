@@ -15,6 +15,7 @@ import pytest
 from matplotlib import colormaps
 from test_paths import ETA_ROAD, LAM, ROAD, box, fresnel, plane, radar, scene_dict
 
+import clradcom.device.maps as device_maps
 from clradcom import cli
 from clradcom.device.maps import Slab, accumulate_segments, accumulate_segments_host
 from clradcom.errors import ArgumentError, MemoryBudgetError
@@ -76,6 +77,39 @@ def test_device_accumulation_matches_the_float64_reference(runtime):
     assert np.allclose(got, ref, rtol=2e-5, atol=2e-6 * ref.max())
     # a piece shorter than float32 resolves may be counted on one side only
     assert np.abs(count - ref_count).sum() <= 0.01 * ref_count.sum()
+
+
+def test_accumulation_copies_add_up_where_every_segment_shares_the_cells(runtime,
+                                                                        monkeypatch):
+    """20,000 segments fanning out from one point inside the slab, as a transmitter's
+    rays do, in hundreds of work groups that take the sums' copies in turn and race for
+    the same cells near the point: the copies add up to what one shared sum gets, cell
+    by cell (counts exactly), and their total is every segment's weight x the length it
+    runs inside the slab's box, nothing lost to a failed compare-and-swap or counted twice.
+    """
+    rng = np.random.default_rng(11)
+    slab = Slab(x0=0.0, y0=0.0, cell_x=0.5, cell_y=0.5, nx=8, ny=8, z_lo=0.0, z_hi=1.0)
+    n = 20_000
+    centre = np.array([2.1, 1.9, 0.5])
+    azimuth = rng.uniform(0.0, 2.0 * np.pi, n)
+    dirs = np.stack([np.cos(azimuth), np.sin(azimuth), np.zeros(n)], axis=1)
+    weights = rng.uniform(0.5, 2.0, n)
+    assert device_maps.accumulation_copies(slab.nx * slab.ny) == 16
+    shared = accumulate_segments(runtime, slab, np.tile(centre, (n, 1)), dirs,
+                                 np.full(n, 10.0), weights)
+    monkeypatch.setattr(device_maps, "ACCUMULATION_COPIES", 1)
+    single = accumulate_segments(runtime, slab, np.tile(centre, (n, 1)), dirs,
+                                 np.full(n, 10.0), weights)
+    assert np.array_equal(shared[1], single[1])
+    assert np.allclose(shared[0], single[0], rtol=1e-5)
+    # the length from the point to the box's side along each direction
+    with np.errstate(divide="ignore"):
+        to_x = np.where(dirs[:, 0] > 0, 4.0 - centre[0], -centre[0]) / dirs[:, 0]
+        to_y = np.where(dirs[:, 1] > 0, 4.0 - centre[1], -centre[1]) / dirs[:, 1]
+    inside = np.minimum(np.where(to_x > 0, to_x, np.inf), np.where(to_y > 0, to_y, np.inf))
+    assert shared[0].sum() == pytest.approx(float(weights @ inside), rel=1e-5)
+    # every segment starts in the same cell
+    assert shared[1][3, 4] == n
 
 
 def test_free_space_plane_holds_friis_in_every_converged_cell(runtime):

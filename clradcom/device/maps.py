@@ -22,7 +22,8 @@ import numpy as np
 from clradcom.errors import ArgumentError
 
 __all__ = ["PO_FACET_ROWS", "Slab", "accumulate_rows", "accumulate_segments",
-           "accumulate_segments_host", "po_facet_fields", "po_pairs", "segment_cells"]
+           "accumulate_segments_host", "accumulation_copies", "po_facet_fields", "po_pairs",
+           "segment_cells"]
 
 SOURCE = "maps.cl"
 PO_SOURCE = "maps_po.cl"
@@ -113,6 +114,19 @@ def accumulate_segments(runtime, slab: Slab, origins, directions, lengths, weigh
     return power, count
 
 
+#: copies of a slab's sums that the accumulation's work groups add into in turn (group id
+#: modulo the copies), so that the cores do not share the cells' cache lines near the
+#: transmitter, where every ray of a batch passes: at most 16, and at most
+#: :data:`COPY_CELLS` cells in all of them
+ACCUMULATION_COPIES = 16
+COPY_CELLS = 1 << 22
+
+
+def accumulation_copies(n_cells: int) -> int:
+    """The copies of ``n_cells`` cells' sums one accumulation launch adds into."""
+    return max(1, min(ACCUMULATION_COPIES, COPY_CELLS // max(int(n_cells), 1)))
+
+
 def accumulate_rows(runtime, slab: Slab, origins, directions, n: int, weights, power,
                     count) -> None:
     """kernels/maps.cl's accumulate_segments over ``n`` segments already on the device:
@@ -120,7 +134,8 @@ def accumulate_rows(runtime, slab: Slab, origins, directions, n: int, weights, p
     relative to the slab's corner; unit direction and length), ``weights`` (n,) float64
     per metre, added into ``power`` (ny, nx) float64 and ``count`` (int64). The weights
     are scaled to their largest before the float32 sums and back after, so no dynamic
-    range is lost to float32's exponent."""
+    range is lost to float32's exponent; the work groups' copies of the sums
+    (:func:`accumulation_copies`) are added up in float64."""
     import pyopencl as cl
 
     weights = np.asarray(weights, dtype=np.float64)
@@ -128,8 +143,9 @@ def accumulate_rows(runtime, slab: Slab, origins, directions, n: int, weights, p
     if n == 0 or scale == 0.0:
         return
     shape = (slab.ny, slab.nx)
-    sums = np.zeros(shape, dtype=np.float32)
-    hits = np.zeros(shape, dtype=np.int32)
+    copies = accumulation_copies(slab.nx * slab.ny)
+    sums = np.zeros((copies, *shape), dtype=np.float32)
+    hits = np.zeros((copies, *shape), dtype=np.int32)
     kernel = runtime.kernel(SOURCE, "accumulate_segments")
     mf = cl.mem_flags
     with runtime.kernel_clock(), runtime.guard("radio map accumulation"):
@@ -139,12 +155,12 @@ def accumulate_rows(runtime, slab: Slab, origins, directions, n: int, weights, p
                        runtime.to_device((weights / scale).astype(np.float32)),
                        np.float32(0.0), np.float32(slab.z_hi - slab.z_lo),
                        np.float32(slab.cell_x), np.float32(slab.cell_y), np.int32(slab.nx),
-                       np.int32(slab.ny), np.int32(n), sums_buf, hits_buf,
-                       name="accumulate_segments")
+                       np.int32(slab.ny), np.int32(n), np.int32(copies), sums_buf,
+                       hits_buf, name="accumulate_segments")
         cl.enqueue_copy(runtime.queue, sums, sums_buf)
         cl.enqueue_copy(runtime.queue, hits, hits_buf, is_blocking=True)
-    power += sums.astype(np.float64) * scale
-    count += hits
+    power += sums.sum(axis=0, dtype=np.float64) * scale
+    count += hits.sum(axis=0, dtype=np.int64)
 
 
 def segment_cells(runtime, slab: Slab, origins, directions, lengths,
