@@ -80,6 +80,7 @@ from clradcom.mechanisms.optics import MODES as OPTICS_MODES
 from clradcom.mechanisms.optics import object_optics
 from clradcom.mechanisms.specular import fibonacci_cap_polar, fibonacci_sphere
 from clradcom.memory import check_memory
+from clradcom.parallel import map_in_order, take_rows
 from clradcom.physics import utd
 from clradcom.physics.em import (
     C0,
@@ -366,44 +367,58 @@ def _cap_with_field(n_rays: int, pattern):
     share = float(inside[in_cap].mean())
     n_cap = int(np.ceil(n_rays / share))
     solid_angle = 2.0 * np.pi * (1.0 - np.cos(half_angle)) / n_cap
-    cos_azimuth, z_max, x_min = _support_bounds(pattern)
-    # a piece at a time (their temporaries stay in the core's cache), into arrays that
-    # can hold the whole cap but are written (paged in) only as far as the rows reach
+    bounds = _support_bounds(pattern)
+    # a piece at a time (their temporaries stay in the core's cache), the pieces on the
+    # host's cores (numpy lets go of the GIL in its loops), into arrays that can hold the
+    # whole cap but are written (paged in) only as far as the rows reach
     local = np.empty((n_cap, 3))
     field = np.empty((n_cap, 2), dtype=np.complex128)
     codes = np.empty(n_cap, dtype=np.uint16 if MORTON_BITS <= 8 else np.uint32)
     rows = 0
-    for start in range(0, n_cap, _LATTICE_PIECE):
-        x, r, phi = fibonacci_cap_polar(n_cap, half_angle, start, start + _LATTICE_PIECE)
-        y = np.cos(phi)
-        y *= r
-        maybe = np.ones(len(x), dtype=bool)
-        if x_min > -1.0:
-            maybe &= x >= x_min
-        if cos_azimuth > -1.0:
-            # cos(azimuth) = x / hypot(x, y) >= the bound; the pole (x = y = 0) is in
-            maybe &= x >= cos_azimuth * np.hypot(x, y)
-        if z_max < 1.0:
-            z = np.sin(phi)
-            z *= r
-            maybe &= np.abs(z) <= z_max
-            z = z[maybe]
-        else:
-            z = np.sin(phi[maybe])
-            z *= r[maybe]
-        if not len(z):   # the piece is outside the support (a pattern may fail on none)
+    pieces = range(0, n_cap, _LATTICE_PIECE)
+    for got in map_in_order(
+            lambda start: _lattice_piece(pattern, n_cap, half_angle, bounds, start), pieces):
+        if got is None:
             continue
-        piece = np.stack([x[maybe], y[maybe], z], axis=1)
-        c = np.asarray(pattern.field(piece), dtype=np.complex128)
-        radiates = (np.abs(c[:, 0]) ** 2 + np.abs(c[:, 1]) ** 2) > 0
-        if not radiates.all():
-            piece, c = piece[radiates], c[radiates]
+        piece, c, piece_codes = got
         m = len(piece)
         local[rows:rows + m] = piece
         field[rows:rows + m] = c
-        codes[rows:rows + m] = morton_codes(*octahedral_coordinates(piece))
+        codes[rows:rows + m] = piece_codes
         rows += m
     return local[:rows], solid_angle, field[:rows], codes[:rows]
+
+
+def _lattice_piece(pattern, n_cap: int, half_angle: float, bounds, start: int):
+    """(directions, field, Morton codes) of rows ``start`` .. ``start + _LATTICE_PIECE``
+    of the cap lattice where ``pattern`` radiates (:func:`_cap_with_field`), None where
+    none of them lies inside its support ``bounds`` (:func:`_support_bounds`)."""
+    cos_azimuth, z_max, x_min = bounds
+    x, r, phi = fibonacci_cap_polar(n_cap, half_angle, start, start + _LATTICE_PIECE)
+    y = np.cos(phi)
+    y *= r
+    maybe = np.ones(len(x), dtype=bool)
+    if x_min > -1.0:
+        maybe &= x >= x_min
+    if cos_azimuth > -1.0:
+        # cos(azimuth) = x / hypot(x, y) >= the bound; the pole (x = y = 0) is in
+        maybe &= x >= cos_azimuth * np.hypot(x, y)
+    if z_max < 1.0:
+        z = np.sin(phi)
+        z *= r
+        maybe &= np.abs(z) <= z_max
+        z = z[maybe]
+    else:
+        z = np.sin(phi[maybe])
+        z *= r[maybe]
+    if not len(z):   # the piece is outside the support (a pattern may fail on none)
+        return None
+    piece = np.stack([x[maybe], y[maybe], z], axis=1)
+    c = np.asarray(pattern.field(piece), dtype=np.complex128)
+    radiates = (np.abs(c[:, 0]) ** 2 + np.abs(c[:, 1]) ** 2) > 0
+    if not radiates.all():
+        piece, c = piece[radiates], c[radiates]
+    return piece, c, morton_codes(*octahedral_coordinates(piece))
 
 
 #: rows of a launch lattice made at once: the temporaries of its per-row stages (the
@@ -1327,9 +1342,9 @@ def _launch_of(n_rays: int, pattern) -> _Launch:
         # octahedral map): a work-group's rays leave in a narrow cone and meet the same
         # nodes and faces; the device walk of the street's 2e6 rays took 40 % less time.
         # (the codes are per row, so this is coherent_order(local); one take of each
-        # array, not fancy indexing: 3x faster)
+        # array, not fancy indexing: 3x faster; on the host's threads)
         order = np.argsort(codes, kind="stable")
-        local, field = np.take(local, order, axis=0), np.take(field, order, axis=0)
+        local, field = take_rows(local, order), take_rows(field, order)
         for a in (local, field):
             a.flags.writeable = False
         _LAUNCHES[key] = _Launch(local, solid_angle, field, {})

@@ -22,6 +22,7 @@ import numpy as np
 from clradcom.device.raycast import RayCaster
 from clradcom.device.sbr import material_tables
 from clradcom.errors import ArgumentError
+from clradcom.parallel import in_pieces
 
 __all__ = ["LaunchLattice", "WalkHits", "WalkSegments", "WalkTables", "receive_weights",
            "walk_rays"]
@@ -140,9 +141,13 @@ def receive_weights(segments: WalkSegments, rx_pattern) -> np.ndarray:
         return r[:, 0].copy()
     if not len(r):
         return np.zeros(0)
-    c = np.asarray(rx_pattern.field(r[:, 0:3]), dtype=np.complex128)
-    p = c[:, 0] * (r[:, 3] + 1j * r[:, 4]) + c[:, 1] * (r[:, 5] + 1j * r[:, 6])
-    return p.real ** 2 + p.imag ** 2
+
+    def projected(rows):
+        c = np.asarray(rx_pattern.field(rows[:, 0:3]), dtype=np.complex128)
+        p = c[:, 0] * (rows[:, 3] + 1j * rows[:, 4]) + c[:, 1] * (rows[:, 5] + 1j * rows[:, 6])
+        return p.real ** 2 + p.imag ** 2
+
+    return in_pieces(projected, r)
 
 
 def walk_rays(caster: RayCaster, lattice: LaunchLattice, tables: WalkTables, frame,

@@ -1,0 +1,70 @@
+"""Host-side work split over the machine's cores.
+
+numpy lets go of the GIL inside its loops, so row-wise pure functions of large arrays
+(a launch lattice's pattern field, the receive weights of a batch of segments) run on
+several threads at once, in pieces whose results are put back in order: the same rows,
+bit for bit, as one call over all of them. On a 2-core machine the OpenCL device (PoCL)
+uses both cores while a kernel runs and the host's numpy one, so the host's share of a
+radio map left one core idle.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+
+__all__ = ["MAX_HOST_THREADS", "host_threads", "in_pieces", "map_in_order", "take_rows"]
+
+#: threads at most, whatever the machine: numpy's loops are memory-bound well before
+MAX_HOST_THREADS = 8
+
+
+def host_threads() -> int:
+    """The cores this process may run on (its affinity where the OS tells it), at most
+    :data:`MAX_HOST_THREADS`."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        cores = os.cpu_count() or 1
+    return max(1, min(MAX_HOST_THREADS, cores))
+
+
+def map_in_order(fn: Callable, items: Iterable) -> Iterator:
+    """``fn(item)`` for each item, on :func:`host_threads` threads, yielded in the items'
+    order."""
+    threads = host_threads()
+    if threads == 1:
+        yield from map(fn, items)
+        return
+    with ThreadPoolExecutor(threads) as pool:
+        yield from pool.map(fn, items)
+
+
+def in_pieces(fn: Callable, *arrays, piece: int = 1 << 16) -> np.ndarray:
+    """``fn(*rows)`` over the arrays' first axis a ``piece`` of rows at a time on the
+    host's threads, the pieces' results concatenated: for a function that maps each
+    row on its own, the rows of ``fn(*arrays)``."""
+    n = len(arrays[0])
+    if n <= piece or host_threads() == 1:
+        return fn(*arrays)
+    starts = range(0, n, piece)
+    return np.concatenate(list(map_in_order(
+        lambda start: fn(*(a[start:start + piece] for a in arrays)), starts)))
+
+
+def take_rows(a: np.ndarray, order: np.ndarray, piece: int = 1 << 18) -> np.ndarray:
+    """``np.take(a, order, axis=0)`` filled a ``piece`` of rows at a time on the host's
+    threads (a few million rows' gather is bound by paging in the new array)."""
+    out = np.empty((len(order), *a.shape[1:]), dtype=a.dtype)
+    if len(order) <= piece or host_threads() == 1:
+        return np.take(a, order, axis=0, out=out)
+
+    def fill(start):
+        np.take(a, order[start:start + piece], axis=0, out=out[start:start + piece])
+
+    for _ in map_in_order(fill, range(0, len(order), piece)):
+        pass
+    return out
