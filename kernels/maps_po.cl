@@ -78,8 +78,17 @@ __kernel void po_pairs(__global const Bvh8Node *nodes,
             return;
     }
 
-    /* the list is full: the next launch starts at or before this pair */
-    if (atomic_or(n_out, 0) >= capacity) {
+    /* the list is full: the next launch starts at or before this pair. The count only
+     * grows, so a plain read's stale value only lets a pair on to the atomic_inc below,
+     * which decides; an atomic read of the counter every work item shares cost a fifth
+     * of the launch (its cache line passed between the cores). Oclgrind's race check
+     * counts the plain read, so its builds read atomically (kernels/maps.cl). */
+#ifdef CLR_ATOMIC_FIRST_READ
+    const int listed = atomic_or(n_out, 0);
+#else
+    const int listed = *n_out;
+#endif
+    if (listed >= capacity) {
         atomic_min(resume, gid);
         return;
     }
