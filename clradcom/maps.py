@@ -739,13 +739,16 @@ def _scatter(scene, geom, slab, org, dirs, field, t, prim, normals, receiver, sc
     share = scene.material_cross_pol_share[mat]
     m = settings.diffuse_rays
     frame = _tangents(n)  # the same normals for every diffuse ray
-    for _ in range(m):
-        out = _cosine_directions(n, rng, frame)
+    # the random directions drawn here in the serial order, the rounds two at a time on
+    # the host's threads (one's numpy beside the other's cast), added in their order
+    rounds = [_cosine_directions(n, rng, frame) for _ in range(m)]
+
+    def diffuse(out):
         origins = spawn_origins(point, n, out)
         lengths = geom.caster.closest_hit(pack_rays(origins, out))["t"].astype(np.float64)
         near = _reaches(slab, origins, out, lengths)
         if not near.any():
-            continue
+            return None
         # the polarisation only of the rays that reach the layer
         te_s, tm_s = _te_tm(out[near], n[near])
         co = -e_te[near, None] * te_s + e_tm[near, None] * tm_s  # R0 E
@@ -753,7 +756,11 @@ def _scatter(scene, geom, slab, org, dirs, field, t, prim, normals, receiver, sc
         both = _received(np.stack([co, cross]), out[near], receiver)
         received = (1.0 - share[near]) * both[0] + share[near] * both[1]
         weights = scale * (s_coef[near] ** 2 * gamma2[near] / m) * received
-        sums.add(origins[near], out[near], lengths[near], weights)
+        return origins[near], out[near], lengths[near], weights
+
+    for got in map_in_order(diffuse, rounds, threads=2):
+        if got is not None:
+            sums.add(*got)
 
 
 def _edge_samples(wedges, step: float):
@@ -820,7 +827,10 @@ def _diffract(scene, geom, slab, wedges, tx: Radar, receiver, scale, settings,
     # pieces per round: at most a batch of rays (n <= 2: 2 pi / step rays a piece), so the
     # memory bound of map_memory_bytes holds
     chunk = max(1, settings.batch // int(np.ceil(2.0 * np.pi / step)))
-    for start in range(0, len(idx), chunk):
+
+    def cone_rays(start):
+        """The segments of the chunk's cone rays that reach the layer, with their weights
+        and wave; None where none does."""
         part = idx[start:start + chunk]
         ei = e_inc[start:start + chunk]
         n_phi = np.maximum(1, np.ceil(n_w[part] * np.pi / step).astype(np.int64))
@@ -844,12 +854,12 @@ def _diffract(scene, geom, slab, wedges, tx: Radar, receiver, scale, settings,
         origins = q[j] + 1e-3 * radial
         may = _may_reach_unblocked(slab, origins, out)
         if not may.any():
-            continue
+            return None
         rows, j, out, origins, phi = (a[may] for a in (rows, j, out, origins, phi))
         lengths = geom.caster.closest_hit(pack_rays(origins, out))["t"].astype(np.float64)
         near = _reaches(slab, origins, out, lengths)
         if not near.any():
-            continue
+            return None
         rows, j, out, origins, lengths, phi = (a[near] for a in (rows, j, out, origins,
                                                                  lengths, phi))
         # the distance parameter where the ray runs through the layer
@@ -867,11 +877,17 @@ def _diffract(scene, geom, slab, wedges, tx: Radar, receiver, scale, settings,
         weights = (scale * sin_b[j] ** 2 * dphi[rows] * dl[j]
                    * np.sum(np.abs(polar) ** 2, axis=1))
         wedge = w[j]
-        sums.add(origins, out, lengths, weights, Wave(
+        return origins, out, lengths, weights, Wave(
             polar=polar, group=np.stack([np.ones_like(wedge), wedge], axis=1),
             path_length=lambda rows, points, wedge=wedge: _edge_path_length(
                 tx_pos, wedges.start[wedge[rows]], wedges.direction[wedge[rows]],
-                points)))
+                points))
+
+    # two chunks at a time on the host's threads (one's numpy beside the other's cast,
+    # which takes the caster's lock), their sums added here in the chunks' order
+    for got in map_in_order(cone_rays, range(0, len(idx), chunk), threads=2):
+        if got is not None:
+            sums.add(*got)
 
 
 def _may_turn_to(slab: Slab, z, rise) -> np.ndarray:

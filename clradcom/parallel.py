@@ -11,6 +11,7 @@ radio map left one core idle.
 from __future__ import annotations
 
 import os
+from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 
@@ -32,15 +33,23 @@ def host_threads() -> int:
     return max(1, min(MAX_HOST_THREADS, cores))
 
 
-def map_in_order(fn: Callable, items: Iterable) -> Iterator:
-    """``fn(item)`` for each item, on :func:`host_threads` threads, yielded in the items'
-    order."""
-    threads = host_threads()
+def map_in_order(fn: Callable, items: Iterable, threads: int | None = None) -> Iterator:
+    """``fn(item)`` for each item on ``threads`` threads (None: :func:`host_threads`),
+    yielded in the items' order, with at most ``threads`` items begun and not yet
+    yielded (so at most that many results are held at once)."""
+    threads = host_threads() if threads is None else max(1, min(int(threads),
+                                                                host_threads()))
     if threads == 1:
         yield from map(fn, items)
         return
     with ThreadPoolExecutor(threads) as pool:
-        yield from pool.map(fn, items)
+        pending: deque = deque()
+        for item in items:
+            if len(pending) == threads:
+                yield pending.popleft().result()
+            pending.append(pool.submit(fn, item))
+        while pending:
+            yield pending.popleft().result()
 
 
 def in_pieces(fn: Callable, *arrays, piece: int = 1 << 16) -> np.ndarray:

@@ -45,3 +45,41 @@ def test_cone_rays_that_cannot_reach_the_layer_are_dropped_without_changing_the_
     cells = every.converged & (every.gain > 0)
     assert cells.sum() > 500
     np.testing.assert_allclose(fast.gain[cells], every.gain[cells], rtol=1e-5)
+
+
+def test_the_diffraction_chunks_on_threads_add_up_to_the_serial_map(runtime, monkeypatch):
+    """The diffraction stage's chunks of cone rays run two at a time on the host's
+    threads (clradcom.parallel.map_in_order) and add their sums in the chunks' order:
+    small batches make many chunks, and the map, incoherent and coherent, is the one of
+    a single thread, counts exactly and gains up to the device's float32 accumulation
+    order."""
+    import clradcom.parallel as parallel
+
+    objects = [box("block", "itu_concrete", (4.0, 8.0, 3.0), (12.0, -6.0, 1.5))]
+    kw = dict(pattern="isotropic", polarization="V")
+    scene = scene_from_dict(scene_dict(objects=objects, radars=[
+        radar("tx", [0, 0, H], role="tx", **kw), radar("rx", [5, 0, H], role="rx", **kw)]))
+    grid = MapGrid(-2, 25, -9, 9, H, cell_m=0.5)
+    chunks = []
+    real_map = parallel.map_in_order
+
+    def counting(fn, items, threads=None):
+        items = list(items)
+        chunks.append(len(items))
+        return real_map(fn, items, threads)
+
+    monkeypatch.setattr(maps, "map_in_order", counting)
+    for coherent in (False, True):
+        settings = MapSettings(rays=2000, max_reflections=0, diffraction=True,
+                               batch=1 << 12, coherent=coherent)
+        monkeypatch.setattr(parallel, "host_threads", lambda: 4)
+        threaded = maps.radio_map(scene, "tx", grid, rx="rx", runtime=runtime,
+                                  settings=settings)
+        monkeypatch.setattr(parallel, "host_threads", lambda: 1)
+        serial = maps.radio_map(scene, "tx", grid, rx="rx", runtime=runtime,
+                                settings=settings)
+        np.testing.assert_array_equal(threaded.count, serial.count)
+        cells = serial.gain > 0
+        assert cells.sum() > 500
+        np.testing.assert_allclose(threaded.gain[cells], serial.gain[cells], rtol=1e-6)
+    assert max(chunks) > 4

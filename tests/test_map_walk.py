@@ -187,3 +187,28 @@ def test_walk_runs_a_batch_again_when_its_records_overflow(runtime):
     assert np.array_equal(tight_hits.ray, roomy_hits.ray)
     assert np.array_equal(tight_hits.fields, roomy_hits.fields)
     assert np.all(np.diff(roomy_hits.order * len(launch.local) + roomy_hits.ray) > 0)
+
+
+def test_diffuse_rounds_on_threads_add_up_to_the_serial_map(runtime, monkeypatch):
+    """The diffuse rays' rounds run two at a time on the host's threads
+    (clradcom.parallel.map_in_order), their directions drawn beforehand in the serial
+    order: the scattering map is the one of a single thread, counts exactly and gains up
+    to the device's float32 accumulation order, on both walks."""
+    import clradcom.parallel as parallel
+
+    scene = small_scene()
+    grid = MapGrid(-4, 16, -10, 10, 1.0, cell_m=0.5)
+    for engine in ("host", "device"):
+        settings = MapSettings(rays=20_000, max_reflections=2, scattering=True,
+                               scattering_reflections=1, diffuse_rays=4, batch=1 << 13,
+                               engine=engine)
+        runs = []
+        for threads in (4, 1):
+            monkeypatch.setattr(parallel, "host_threads", lambda threads=threads: threads)
+            runs.append(radio_map(scene, "tx", grid, rx="rx", runtime=runtime,
+                                  settings=settings))
+        threaded, serial = runs
+        np.testing.assert_array_equal(threaded.count, serial.count)
+        reached = serial.count > 0
+        assert reached.sum() > 300
+        np.testing.assert_allclose(threaded.gain[reached], serial.gain[reached], rtol=1e-5)
