@@ -80,7 +80,7 @@ from clradcom.mechanisms.optics import MODES as OPTICS_MODES
 from clradcom.mechanisms.optics import object_optics
 from clradcom.mechanisms.specular import fibonacci_cap_polar, fibonacci_sphere
 from clradcom.memory import check_memory
-from clradcom.parallel import map_in_order, take_rows
+from clradcom.parallel import map_in_order, prefetch, take_rows
 from clradcom.physics import utd
 from clradcom.physics.em import (
     C0,
@@ -1068,7 +1068,8 @@ def _po_pairs_device(scene, geom, grid: MapGrid, tx_pos, receiver, lit: _LitFace
         rx_bounds=None if receiver is None else _support_bounds(receiver.pattern),
         capacity=settings.po_batch, pairs_per_launch=PO_PAIRS_PER_LAUNCH)
     lam = scene.wavelength_m
-    for f, cell, whole, field in rounds:
+    # the next launch runs on the device while the host weighs this one's pairs
+    for f, cell, whole, field in prefetch(rounds):
         toward = centres[cell] - lit.centroid[f]
         to_centre = np.linalg.norm(toward, axis=1)   # the reference's rounding of L
         arrival = toward / to_centre[:, None]

@@ -11,13 +11,16 @@ radio map left one core idle.
 from __future__ import annotations
 
 import os
+import queue
+import threading
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-__all__ = ["MAX_HOST_THREADS", "host_threads", "in_pieces", "map_in_order", "take_rows"]
+__all__ = ["MAX_HOST_THREADS", "host_threads", "in_pieces", "map_in_order", "prefetch",
+           "take_rows"]
 
 #: threads at most, whatever the machine: numpy's loops are memory-bound well before
 MAX_HOST_THREADS = 8
@@ -77,3 +80,53 @@ def take_rows(a: np.ndarray, order: np.ndarray, piece: int = 1 << 18) -> np.ndar
     for _ in map_in_order(fill, range(0, len(order), piece)):
         pass
     return out
+
+
+_DONE = object()
+
+
+def prefetch(iterable: Iterable, depth: int = 1) -> Iterator:
+    """The items of ``iterable``, produced on a thread of their own up to ``depth`` items
+    ahead of the one the caller works on: a device's next launch runs while the host
+    weighs the last one's results. Items come in order; an exception raised by the
+    iterable is raised here, at the item it stopped; closing this generator early stops
+    the producer at its next item."""
+    if host_threads() == 1:
+        yield from iterable
+        return
+    items: queue.Queue = queue.Queue(maxsize=max(1, int(depth)))
+    stop = threading.Event()
+
+    def produce():
+        try:
+            for item in iterable:
+                while not stop.is_set():
+                    try:
+                        items.put((item, None), timeout=0.1)
+                        break
+                    except queue.Full:
+                        continue
+                if stop.is_set():
+                    return
+            items.put((_DONE, None))
+        except BaseException as error:  # handed to the consumer, raised there
+            items.put((_DONE, error))
+
+    producer = threading.Thread(target=produce, name="clradcom-prefetch", daemon=True)
+    producer.start()
+    try:
+        while True:
+            item, error = items.get()
+            if error is not None:
+                raise error
+            if item is _DONE:
+                return
+            yield item
+    finally:
+        stop.set()
+        while producer.is_alive():
+            try:   # let a producer blocked on a full queue see the stop
+                items.get_nowait()
+            except queue.Empty:
+                pass
+            producer.join(timeout=0.05)

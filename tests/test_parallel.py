@@ -46,3 +46,31 @@ def test_a_launch_lattice_is_the_same_on_any_number_of_threads(monkeypatch):
 
 def test_host_threads_is_bounded():
     assert 1 <= parallel.host_threads() <= parallel.MAX_HOST_THREADS
+
+
+def test_prefetch_keeps_order_raises_where_the_producer_failed_and_stops_early(threads):
+    assert list(parallel.prefetch(iter(range(100)), depth=2)) == list(range(100))
+
+    def failing():
+        yield 1
+        yield 2
+        raise ValueError("the producer's own error")
+
+    got = []
+    with pytest.raises(ValueError, match="the producer's own error"):
+        for item in parallel.prefetch(failing()):
+            got.append(item)
+    assert got == [1, 2]
+
+    made = []
+
+    def endless():
+        for i in range(10_000):
+            made.append(i)
+            yield i
+
+    stream = parallel.prefetch(endless(), depth=1)
+    assert [next(stream) for _ in range(3)] == [0, 1, 2]
+    stream.close()
+    # the producer stopped within its depth and the item it was making
+    assert len(made) <= 6
