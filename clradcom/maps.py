@@ -740,7 +740,8 @@ def _scatter(scene, geom, slab, org, dirs, field, t, prim, normals, receiver, sc
     m = settings.diffuse_rays
     frame = _tangents(n)  # the same normals for every diffuse ray
     # the random directions drawn here in the serial order, the rounds two at a time on
-    # the host's threads (one's numpy beside the other's cast), added in their order
+    # the host's threads (one's numpy beside the other's cast) where the device takes
+    # calls from two threads at once, added in their order
     rounds = [_cosine_directions(n, rng, frame) for _ in range(m)]
 
     def diffuse(out):
@@ -758,7 +759,8 @@ def _scatter(scene, geom, slab, org, dirs, field, t, prim, normals, receiver, sc
         weights = scale * (s_coef[near] ** 2 * gamma2[near] / m) * received
         return origins[near], out[near], lengths[near], weights
 
-    for got in map_in_order(diffuse, rounds, threads=2):
+    for got in map_in_order(diffuse, rounds,
+                            threads=2 if geom.runtime.concurrent_calls else 1):
         if got is not None:
             sums.add(*got)
 
@@ -883,9 +885,11 @@ def _diffract(scene, geom, slab, wedges, tx: Radar, receiver, scale, settings,
                 tx_pos, wedges.start[wedge[rows]], wedges.direction[wedge[rows]],
                 points))
 
-    # two chunks at a time on the host's threads (one's numpy beside the other's cast,
-    # which takes the caster's lock), their sums added here in the chunks' order
-    for got in map_in_order(cone_rays, range(0, len(idx), chunk), threads=2):
+    # two chunks at a time on the host's threads where the device takes calls from two
+    # threads at once (one's numpy beside the other's cast, which takes the caster's
+    # lock), their sums added here in the chunks' order
+    for got in map_in_order(cone_rays, range(0, len(idx), chunk),
+                            threads=2 if geom.runtime.concurrent_calls else 1):
         if got is not None:
             sums.add(*got)
 
@@ -1068,8 +1072,11 @@ def _po_pairs_device(scene, geom, grid: MapGrid, tx_pos, receiver, lit: _LitFace
         rx_bounds=None if receiver is None else _support_bounds(receiver.pattern),
         capacity=settings.po_batch, pairs_per_launch=PO_PAIRS_PER_LAUNCH)
     lam = scene.wavelength_m
-    # the next launch runs on the device while the host weighs this one's pairs
-    for f, cell, whole, field in prefetch(rounds):
+    # the next launch runs on the device while the host weighs this one's pairs (where the
+    # device takes calls from two threads at once)
+    if geom.runtime.concurrent_calls:
+        rounds = prefetch(rounds)
+    for f, cell, whole, field in rounds:
         toward = centres[cell] - lit.centroid[f]
         to_centre = np.linalg.norm(toward, axis=1)   # the reference's rounding of L
         arrival = toward / to_centre[:, None]

@@ -540,6 +540,14 @@ class Runtime:
     def has_double(self) -> bool:
         return self.info.has_double
 
+    @property
+    def concurrent_calls(self) -> bool:
+        """Whether host threads may call this device at once (OpenCL makes every call
+        but clSetKernelArg thread-safe, and clradcom never shares a kernel object between
+        threads). Not Oclgrind: two threads' calls at once abort it (21.10; a radio map's
+        PO stage, its next launch prefetched while the host weighed the last)."""
+        return not self.info.simulator
+
     def program(self, name: str, options: tuple[str, ...] = (),
                 defines: Mapping[str, int] | None = None):
         """Built program for ``kernels/<name>``, compiled once per runtime, options and
