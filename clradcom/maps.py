@@ -677,6 +677,13 @@ class CellSums:
         return gain + self.power_only
 
 
+def _beside_the_device(runtime) -> int:
+    """Threads for rounds that each cast on the device and then weigh on the host: two
+    (one's numpy beside the other's cast) where the device takes calls from two threads at
+    once (:attr:`Runtime.concurrent_calls`), else one."""
+    return 2 if runtime.concurrent_calls else 1
+
+
 def _cosine_directions(normals, rng, frame=None) -> np.ndarray:
     """One unit direction per row, cosine-weighted over the hemisphere about ``normals``
     (R, 3) unit (Malley's method: a uniform point of the unit disc lifted onto it);
@@ -759,8 +766,7 @@ def _scatter(scene, geom, slab, org, dirs, field, t, prim, normals, receiver, sc
         weights = scale * (s_coef[near] ** 2 * gamma2[near] / m) * received
         return origins[near], out[near], lengths[near], weights
 
-    for got in map_in_order(diffuse, rounds,
-                            threads=2 if geom.runtime.concurrent_calls else 1):
+    for got in map_in_order(diffuse, rounds, threads=_beside_the_device(geom.runtime)):
         if got is not None:
             sums.add(*got)
 
@@ -889,7 +895,7 @@ def _diffract(scene, geom, slab, wedges, tx: Radar, receiver, scale, settings,
     # threads at once (one's numpy beside the other's cast, which takes the caster's
     # lock), their sums added here in the chunks' order
     for got in map_in_order(cone_rays, range(0, len(idx), chunk),
-                            threads=2 if geom.runtime.concurrent_calls else 1):
+                            threads=_beside_the_device(geom.runtime)):
         if got is not None:
             sums.add(*got)
 
