@@ -39,7 +39,9 @@ under the paper preset) return their PO facets' fields evaluated at the cell cen
 instead of their GO single reflections (:func:`_po_facets`).
 
 The estimate converges where enough segments pass through a cell: at least
-:data:`MIN_SEGMENTS` (``RadioMap.converged``; docs/maps.md, tests/test_maps.py).
+:data:`MIN_SEGMENTS`, and :data:`MIN_EFFECTIVE_SEGMENTS` of them effective where their
+weights differ (``RadioMap.converged``, ``RadioMap.effective_count``; docs/maps.md,
+tests/test_maps.py).
 """
 
 from __future__ import annotations
@@ -92,13 +94,18 @@ from clradcom.physics.po import MAX_SUBDIVISION_LEVELS, NEAR_SIZE_FACTOR, po_tra
 from clradcom.physics.vectors import perpendicular
 from clradcom.scene.records import Radar, Scene
 
-__all__ = ["MIN_SEGMENTS", "CellSums", "MapGrid", "MapSettings", "RadioMap", "Wave",
-           "find_radar",
-           "launch_lattice", "map_memory_bytes", "radio_map"]
+__all__ = ["MIN_EFFECTIVE_SEGMENTS", "MIN_SEGMENTS", "CellSums", "MapGrid", "MapSettings",
+           "RadioMap", "Wave", "find_radar", "launch_lattice", "map_memory_bytes",
+           "radio_map"]
 
 #: The convergence rule: a cell's value is trusted where at least this many ray segments
 #: ran through it (within 1 dB of the per-link tracer there; docs/maps.md).
 MIN_SEGMENTS = 20
+
+#: ... and carried by as many effective segments (RadioMap.effective_count): the count
+#: alone passes a cell where a few heavy rays among many light ones set the value (UTD
+#: cone rays near a shadow boundary; docs/maps.md, "The convergence rule").
+MIN_EFFECTIVE_SEGMENTS = MIN_SEGMENTS
 
 #: Host bytes one ray of a batch holds at its peak: float64 origin and direction, the
 #: complex field vector, the reflection's and the receive projection's temporaries, the
@@ -315,15 +322,35 @@ class RadioMap:
     #: "rays" (launch, bounces, scattering, accumulation), "physical optics",
     #: "diffraction", "coherent sum"
     stage_seconds: dict[str, float] | None = None
+    #: (ny, nx) the sum of the squares of the segments' terms (weight x length inside
+    #: the cell, in gain units): what :attr:`effective_count` compares the cell's power to
+    square: np.ndarray | None = None
+
+    @property
+    def effective_count(self) -> np.ndarray:
+        """(ny, nx) the number of equal segments that would carry the cell's power with
+        the spread its own terms have: (incoherent power)^2 / sum of the squared terms.
+        The segment count where all terms are equal; far fewer where a few heavy
+        segments carry the cell (UTD cone rays near a shadow boundary). Power evaluated
+        at the centre (the PO facets) adds to the numerator alone, being exact. 0 where
+        no term's square is known (no segment, or every square 190 dB under its batch's
+        largest term and lost to float32)."""
+        if self.square is None:
+            return self.count.astype(np.float64)
+        power = self.gain if self.incoherent_gain is None else self.incoherent_gain
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(self.square > 0, power * power / self.square, 0.0)
 
     @property
     def converged(self) -> np.ndarray:
-        """(ny, nx) bool: cells that satisfy the convergence rule (:data:`MIN_SEGMENTS`
-        segments; for a coherent map in each wavefront group that holds 1 % of the
-        cell's power or more)."""
+        """(ny, nx) bool: cells that satisfy the convergence rule: :data:`MIN_SEGMENTS`
+        segments, :data:`MIN_EFFECTIVE_SEGMENTS` of them effective
+        (:attr:`effective_count`), and for a coherent map :data:`MIN_SEGMENTS` in each
+        wavefront group that holds 1 % of the cell's power or more."""
+        ok = (self.count >= MIN_SEGMENTS) & (self.effective_count >= MIN_EFFECTIVE_SEGMENTS)
         if self.coherent and self.group_count is not None:
-            return (self.count >= MIN_SEGMENTS) & (self.group_count >= MIN_SEGMENTS)
-        return self.count >= MIN_SEGMENTS
+            ok &= self.group_count >= MIN_SEGMENTS
+        return ok
 
     def gain_db(self, floor_db: float = -300.0) -> np.ndarray:
         with np.errstate(divide="ignore"):
@@ -428,15 +455,15 @@ _LATTICE_PIECE = 1 << 16
 
 def map_memory_bytes(settings: MapSettings, grid: MapGrid) -> int:
     """Host memory a map holds at its peak: a batch of rays (:data:`BYTES_PER_RAY` each),
-    the launch lattice (24 bytes a ray), and the grid's float64 sums and int64 counts (16
-    bytes a cell) with the accumulation's float32/int32 copies of them
-    (:func:`clradcom.device.maps.accumulation_copies`, 8 bytes a cell each); a coherent
+    the launch lattice (24 bytes a ray), and the grid's float64 sums and squares and
+    int64 counts (24 bytes a cell) with the accumulation's float32/int32 copies of them
+    (:func:`clradcom.device.maps.accumulation_copies`, 12 bytes a cell each); a coherent
     map adds its records (:data:`COHERENT_RECORDS_PER_RAY` a launched ray,
     :data:`BYTES_PER_RECORD` each while a batch's are weighed, 40 bytes each kept as a
     (cell, group) sum); physical optics a round of :attr:`MapSettings.po_batch`
     facet-cell pairs (:data:`BYTES_PER_PO_PAIR` each)."""
     need = (min(settings.batch, settings.rays) * BYTES_PER_RAY + 24 * settings.rays
-            + (16 + 8 * accumulation_copies(grid.n_cells)) * grid.n_cells)
+            + (24 + 12 * accumulation_copies(grid.n_cells)) * grid.n_cells)
     if settings.optics != "none":
         need += settings.po_batch * BYTES_PER_PO_PAIR
     if settings.coherent:
@@ -569,6 +596,7 @@ class CellSums:
         shape = (grid.ny, grid.nx)
         self.power = np.zeros(shape)
         self.count = np.zeros(shape, dtype=np.int64)
+        self.square = np.zeros(shape)  # the segments' weight x length terms squared
         self.power_only = np.zeros(shape) if coherent else self.power
         self._groups: dict[tuple, int] = {}
         self._keys = np.zeros(0, dtype=np.int64)
@@ -582,7 +610,7 @@ class CellSums:
         """Segments (origin, unit direction, length to their end, weight per metre)."""
         if not self.coherent or wave is None:
             accumulate_segments(self.runtime, self.slab, origins, directions, lengths,
-                                weights, self.power_only, self.count)
+                                weights, self.power_only, self.count, self.square)
             return
         seg, cell, length = segment_cells(self.runtime, self.slab, origins, directions,
                                           lengths)
@@ -592,6 +620,7 @@ class CellSums:
         n_cells = self.grid.n_cells
         self.power += np.bincount(cell, wl, minlength=n_cells).reshape(self.power.shape)
         self.count += np.bincount(cell, minlength=n_cells).reshape(self.count.shape)
+        self.square += np.bincount(cell, wl * wl, minlength=n_cells).reshape(self.square.shape)
         if not len(seg):
             return
         polar = np.asarray(wave.polar, dtype=np.complex128)
@@ -1330,7 +1359,7 @@ def _rays_device(scene, geom, slab, transmitter, receiver, launch, scale, po_obj
         room = (max(room[0], segments.count * 5 // 4), max(room[1], len(hits.ray) * 5 // 4))
         weights = scale * receive_weights(segments, rx_pattern)
         accumulate_rows(rt, slab, segments.org, segments.dir, segments.count, weights,
-                        sums.power_only, sums.count)
+                        sums.power_only, sums.count, sums.square)
         for order in np.unique(hits.order):
             rows = np.flatnonzero(hits.order == order)
             _scatter(scene, geom, slab, hits.origins[rows], hits.directions[rows],
@@ -1512,7 +1541,8 @@ def radio_map(scene: Scene, tx, grid: MapGrid, rx=None, settings: MapSettings | 
     incoherent = sums.incoherent()
     gain = sums.coherent_gain() if settings.coherent else incoherent
     seconds["coherent sum"] = time.perf_counter() - clock
-    return RadioMap(grid=grid, gain=gain, count=sums.count, tx_name=transmitter.name,
+    return RadioMap(grid=grid, gain=gain, count=sums.count, square=sums.square,
+                    tx_name=transmitter.name,
                     rx_name=None if receiver is None else receiver.name,
                     rays=len(launch.local),
                     tx_power_w=float(transmitter.tx_power_w), coherent=settings.coherent,

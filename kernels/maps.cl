@@ -6,7 +6,9 @@
  * relative to the grid's corner, so float32 keeps them to ~1e-5 m over a street), then
  * walked cell by cell (Amanatides-Woo in x and y); each cell it passes through gets
  * weight x (length of the segment inside that cell's box): the track-length estimator of
- * the mean power density over the cell's volume. Its thin-slab limit is the crossing
+ * the mean power density over the cell's volume. Each cell also sums the squares of its
+ * terms, whose ratio to the squared sum tells how many segments carry the cell's value
+ * (the convergence rule's effective count, docs/maps.md). Its thin-slab limit is the crossing
  * estimator Sionna RT's radio maps use (weight / |cos theta| per crossing), and unlike it
  * a ray that runs along the slab counts.
  *
@@ -60,14 +62,14 @@ inline bool clip_axis(const float o, const float d, const float lo, const float 
 }
 
 /* Walks one segment through the slab's cells. With power != 0 each cell it crosses gets
- * w x (length inside) and a count; else the (segment, cell, length) records are appended
+ * w x (length inside), its square and a count; else the (segment, cell, length) records are appended
  * to rec_* at slots taken from *n_records (those past capacity are counted, not
  * written, so the host can size the buffer and run again). */
 inline void walk_segment(const int gid, const float w, const float4 o, const float4 d,
                          const float z_lo, const float z_hi,
                          const float cell_x, const float cell_y, const int nx, const int ny,
-                         __global float *power, __global int *count,
-                         __global int *rec_segment, __global int *rec_cell,
+                         __global float *power, __global float *square,
+                         __global int *count, __global int *rec_segment, __global int *rec_cell,
                          __global float *rec_length, volatile __global int *n_records,
                          const int capacity)
 {
@@ -96,7 +98,9 @@ inline void walk_segment(const int gid, const float w, const float4 o, const flo
         if (inside > 0.0f) {
             int cell = iy * nx + ix;
             if (power) {
-                add_float(power + cell, w * inside);
+                const float term = w * inside;
+                add_float(power + cell, term);
+                add_float(square + cell, term * term);
                 atomic_inc(count + cell);
             } else {
                 int slot = atomic_inc(n_records);
@@ -128,6 +132,7 @@ __kernel void accumulate_segments(__global const float4 *origin,    /* xyz, w un
                                   const int nx, const int ny, const int n,
                                   const int copies,
                                   __global float *power,            /* (copies, ny, nx) */
+                                  __global float *square,           /* (copies, ny, nx) */
                                   __global int *count)              /* (copies, ny, nx) */
 {
     int gid = get_global_id(0);
@@ -136,9 +141,10 @@ __kernel void accumulate_segments(__global const float4 *origin,    /* xyz, w un
     if (!(w > 0.0f)) return;
     const size_t copy = (size_t)(get_group_id(0) % (size_t)copies) * (size_t)(nx * ny);
     power += copy;
+    square += copy;
     count += copy;
     walk_segment(gid, w, origin[gid], direction[gid], z_lo, z_hi, cell_x, cell_y, nx, ny,
-                 power, count, 0, 0, 0, 0, 0);
+                 power, square, count, 0, 0, 0, 0, 0);
 }
 
 /* The cells each segment crosses, as records: the coherent sum (docs/maps.md) needs each
@@ -156,7 +162,7 @@ __kernel void segment_cells(__global const float4 *origin,
     int gid = get_global_id(0);
     if (gid >= n) return;
     walk_segment(gid, 1.0f, origin[gid], direction[gid], z_lo, z_hi, cell_x, cell_y, nx,
-                 ny, 0, 0, rec_segment, rec_cell, rec_length, n_records, capacity);
+                 ny, 0, 0, 0, rec_segment, rec_cell, rec_length, n_records, capacity);
 }
 
 /* ---- physical-optics facet fields at cell centres (clradcom/maps.py: _po_facets) ----

@@ -42,7 +42,7 @@ def test_segment_records_add_up_to_the_accumulated_cells(runtime):
     lengths = rng.uniform(0.1, 8.0, size=n)
     lengths[::7] = np.inf
     weights = rng.uniform(0.5, 2.0, size=n)
-    ref, ref_count = accumulate_segments_host(slab, origins, dirs, lengths, weights)
+    ref, ref_count, _ = accumulate_segments_host(slab, origins, dirs, lengths, weights)
     seg, cell, length = segment_cells(runtime, slab, origins, dirs, lengths, capacity=10)
     assert len(seg) > 10  # the guess was too small
     got = np.bincount(cell, weights[seg] * length, minlength=slab.nx * slab.ny)
@@ -92,6 +92,11 @@ def test_two_ray_ground_holds_the_coherent_closed_form_cell_by_cell(runtime, rx)
     assert np.median(err) <= 0.05 and np.percentile(err, 95) <= 0.15, np.sort(err)[-5:]
     flat = m.incoherent_gain / incoherent
     assert np.abs(10 * np.log10(flat[ok])).max() < 0.75
+    # the squares the host's records sum are the device accumulation's of the same rays
+    plain = radio_map(two_ray_scene("H"), "tx", grid, rx=rx, runtime=runtime,
+                      settings=MapSettings(rays=2_000_000, max_reflections=1))
+    assert np.allclose(m.effective_count[ok], plain.effective_count[ok], rtol=1e-3)
+    assert np.median(m.effective_count[ok] / m.count[ok]) < 0.9
 
 
 def test_coherent_map_is_the_traced_coherent_sum_at_sample_cells(runtime):

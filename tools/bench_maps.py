@@ -2,7 +2,7 @@
 """A radio map of the street against tracing its cells one link at a time, same run.
 
     python tools/bench_maps.py scenes/street/street.toml [--rays 2000000] [--samples 48]
-        [--refine 6]
+        [--refine 6] [--out FOLDER]
 
 The map: radar A's frame received with D's antenna over x in [-40, 160] m,
 y in [-20, 20] m at D's height, 0.5 m cells (32,000 cells; --area, --cell), line of sight,
@@ -27,7 +27,10 @@ cells gave a 95th percentile of 1.30 dB against the cell means where 200 gave 2.
 shadow or a small facet's reflected beam cuts (one street cell's mean over 8 points was
 4.9 dB, over 64 points 3.1 dB, from its mean over 512): where a cell's 8 points span
 more than 3 dB, its mean is taken again over --refine^3 points (6: 216), and the
-agreement printed against that as well.
+agreement printed against that as well. Every sample cell goes to
+<out>/bench_maps.csv (its centre, segments, effective segments, the map's dB and the
+traces' at the centre, over 8 points and refined; --out defaults to a new temporary
+folder, never the repository).
 """
 
 from __future__ import annotations
@@ -35,13 +38,17 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import os
+import tempfile
 import time
 import warnings
+from pathlib import Path
 
 import numpy as np
 
+from clradcom.cli import output_folder
 from clradcom.device.runtime import get_runtime
 from clradcom.errors import FresnelZoneWarning
+from clradcom.files import write_csv
 from clradcom.maps import MapGrid, MapSettings, radio_map
 from clradcom.mechanisms.common import build_geometry
 from clradcom.scene import load_scene
@@ -96,6 +103,12 @@ def points_power(scene, tx, receivers, offsets, settings, runtime,
     return np.concatenate(rows)
 
 
+def decibels(power) -> np.ndarray:
+    """10 log10 of ``power``, -inf where it is 0."""
+    with np.errstate(divide="ignore"):
+        return 10.0 * np.log10(np.asarray(power, dtype=np.float64))
+
+
 def agreement(mapped, traced) -> str:
     """Median and 95th percentile of |dB| where the trace has power, and how many cells
     it has none at (a centre inside a building, in a tree: the map's cell is partly out)."""
@@ -128,6 +141,8 @@ def main(argv=None) -> int:
                     help="physical optics of the map and its own-physics trace (default "
                          "sbr, the paper preset's; --go-only: none)")
     ap.add_argument("--device", default=None)
+    ap.add_argument("--out", type=output_folder, default=None,
+                    help="folder for bench_maps.csv (default: a new temporary folder)")
     args = ap.parse_args(argv)
     # the per-link PO of the cars warns of facets in a radar's Fresnel zone once a link
     warnings.simplefilter("ignore", FresnelZoneWarning)
@@ -180,6 +195,11 @@ def main(argv=None) -> int:
     # so the reference is also the mean over 2 x 2 x 2 points inside the cell, and over
     # --refine^3 points in the cells where those 8 span more than 3 dB (an edge inside)
     offsets = cell_offsets(grid, 2)
+    columns = {"x_m": centres[pick[:, 0], pick[:, 1], 0],
+               "y_m": centres[pick[:, 0], pick[:, 1], 1],
+               "segments": m.count[pick[:, 0], pick[:, 1]],
+               "effective_segments": m.effective_count[pick[:, 0], pick[:, 1]],
+               "map_db": decibels(mapped)}
     for label, trace_settings in (("the map's physics", go),
                                   ("paper preset (every mechanism)", TraceSettings.preset())):
         first, median, power = per_link_seconds(scene, tx, receivers, trace_settings,
@@ -188,11 +208,14 @@ def main(argv=None) -> int:
         print(f"per-link, {label}: first link {first:.2f} s, then {median:.3f} s a link; "
               f"all {grid.n_cells} cells {every:.0f} s = {every / map_s:.0f}x the map")
         print(f"  map vs trace at {len(pick)} cell centres: {agreement(mapped, power)}")
+        columns["own_centre_db" if trace_settings is go else "paper_centre_db"] = (
+            decibels(power))
         if trace_settings is go:
             inner = points_power(scene, tx, receivers, offsets, go, runtime)
             mean = inner.mean(axis=1)
             print(f"  map vs the mean of {len(offsets)} traced points in each cell: "
                   f"{agreement(mapped, mean)}")
+            columns["own_mean8_db"] = decibels(mean)
             if args.refine > 2:
                 edge = ~(inner.min(axis=1) * 10 ** 0.3 >= inner.max(axis=1))
                 dense = cell_offsets(grid, args.refine)
@@ -204,6 +227,12 @@ def main(argv=None) -> int:
                 print(f"  map vs the mean of {len(offsets)} traced points, of {len(dense)} "
                       f"in the {int(edge.sum())} cells where those span more than 3 dB: "
                       f"{agreement(mapped, refined)}")
+                columns["own_refined_db"] = decibels(refined)
+    out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="bench_maps-"))
+    out.mkdir(parents=True, exist_ok=True)
+    csv_path = write_csv(out / "bench_maps.csv", zip(*columns.values(), strict=True),
+                         list(columns))
+    print(f"cells in {csv_path}")
     return 0
 
 

@@ -56,7 +56,13 @@ from clradcom.device.runtime import get_runtime
 from clradcom.errors import ArgumentError
 from clradcom.export import save_map_csv, save_map_npz
 from clradcom.files import staged_folder
-from clradcom.maps import MIN_SEGMENTS, MapGrid, MapSettings, map_memory_bytes
+from clradcom.maps import (
+    MIN_EFFECTIVE_SEGMENTS,
+    MIN_SEGMENTS,
+    MapGrid,
+    MapSettings,
+    map_memory_bytes,
+)
 from clradcom.mechanisms.common import build_geometry
 from clradcom.memory import check_memory, parse_bytes
 from clradcom.plots import plot_radio_map
@@ -239,7 +245,8 @@ def run(args) -> int:
         else:
             out = inr_map(scene, args.tx, args.interferer, grid, wf, **common)
     layers = {"value_db": out.value_db, "converged": out.converged.astype(np.uint8),
-              "segments": np.minimum.reduce([m.count for m in out.maps])}
+              "segments": np.minimum.reduce([m.count for m in out.maps]),
+              "effective_segments": np.minimum.reduce([m.effective_count for m in out.maps])}
     if "ber" in out.extra:
         layers["ber"] = out.extra["ber"]
     meta = {"kind": out.kind, "quantity": out.quantity, "scene": scene.name,
@@ -247,7 +254,7 @@ def run(args) -> int:
             "rays": args.rays, "reflections": args.reflections,
             "scattering": args.scattering, "diffraction": args.diffraction,
             "coherent": args.coherent, "optics": args.optics,
-            "min_segments": MIN_SEGMENTS}
+            "min_segments": MIN_SEGMENTS, "min_effective_segments": MIN_EFFECTIVE_SEGMENTS}
     sources = scene.input_files
     target = Path(args.out)
     with staged_folder(target, inputs=sources, owned=OUTPUTS) as stage:
@@ -263,7 +270,8 @@ def run(args) -> int:
     share = float(out.converged.mean())
     print(f"{out.quantity}: {np.nanmin(out.value_db[finite]) if finite.any() else np.nan:.1f} "
           f"to {np.nanmax(out.value_db[finite]) if finite.any() else np.nan:.1f}; "
-          f"{share:.0%} of the cells hold >= {MIN_SEGMENTS} ray segments (the convergence "
-          f"rule; more --rays converge more)")
+          f"{share:.0%} of the cells hold >= {MIN_SEGMENTS} ray segments, >= "
+          f"{MIN_EFFECTIVE_SEGMENTS} of them effective (the convergence rule; more --rays "
+          f"converge more)")
     print(f"[{time.perf_counter() - t0:6.1f} s] wrote {target}/map.png, map.html, map.npz, map.csv")
     return 0

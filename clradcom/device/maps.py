@@ -79,13 +79,14 @@ def _relative(slab: Slab, origins, directions, lengths):
 
 
 def accumulate_segments(runtime, slab: Slab, origins, directions, lengths, weights,
-                        power=None, count=None, batch: int = 1 << 20):
+                        power=None, count=None, square=None, batch: int = 1 << 20):
     """Add ray segments into the slab's cells on ``runtime``'s device.
 
     ``origins`` (S, 3) and unit ``directions`` (S, 3) world float64, ``lengths`` (S,) m
     (inf: the ray escapes), ``weights`` (S,) >= 0 per metre inside a cell. Returns
-    ``(power, count)``: (ny, nx) float64 sums of weight x length inside each cell and
-    int64 numbers of segments through it, added to ``power``/``count`` when given.
+    ``(power, count, square)``: (ny, nx) float64 sums of weight x length inside each
+    cell, int64 numbers of segments through it and float64 sums of the squares of the
+    weight x length terms, added to ``power``/``count``/``square`` when given.
     Weights are scaled to the batch's largest before the float32 sums and back after, so
     no dynamic range is lost to float32's exponent."""
     origins = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
@@ -102,6 +103,7 @@ def accumulate_segments(runtime, slab: Slab, origins, directions, lengths, weigh
     shape = (slab.ny, slab.nx)
     power = np.zeros(shape) if power is None else power
     count = np.zeros(shape, dtype=np.int64) if count is None else count
+    square = np.zeros(shape) if square is None else square
     for start in range(0, len(origins), batch):
         stop = min(start + batch, len(origins))
         w = weights[start:stop]
@@ -110,8 +112,8 @@ def accumulate_segments(runtime, slab: Slab, origins, directions, lengths, weigh
         o, d = _relative(slab, origins[start:stop], directions[start:stop],
                          lengths[start:stop])
         accumulate_rows(runtime, slab, runtime.to_device(o), runtime.to_device(d), len(o),
-                        w, power, count)
-    return power, count
+                        w, power, count, square)
+    return power, count, square
 
 
 #: copies of a slab's sums that the accumulation's work groups add into in turn (group id
@@ -128,14 +130,15 @@ def accumulation_copies(n_cells: int) -> int:
 
 
 def accumulate_rows(runtime, slab: Slab, origins, directions, n: int, weights, power,
-                    count) -> None:
+                    count, square) -> None:
     """kernels/maps.cl's accumulate_segments over ``n`` segments already on the device:
     ``origins``, ``directions`` float4 buffers as :func:`_relative` lays them out (origin
     relative to the slab's corner; unit direction and length), ``weights`` (n,) float64
-    per metre, added into ``power`` (ny, nx) float64 and ``count`` (int64). The weights
-    are scaled to their largest before the float32 sums and back after, so no dynamic
-    range is lost to float32's exponent; the work groups' copies of the sums
-    (:func:`accumulation_copies`) are added up in float64."""
+    per metre, added into ``power`` (ny, nx) float64, ``count`` (int64) and ``square``
+    (float64, the terms' squares). The weights are scaled to their largest before the
+    float32 sums and back after, so no dynamic range is lost to float32's exponent (a
+    square underflows only for a term 190 dB under the batch's largest); the work groups'
+    copies of the sums (:func:`accumulation_copies`) are added up in float64."""
     import pyopencl as cl
 
     weights = np.asarray(weights, dtype=np.float64)
@@ -145,21 +148,26 @@ def accumulate_rows(runtime, slab: Slab, origins, directions, n: int, weights, p
     shape = (slab.ny, slab.nx)
     copies = accumulation_copies(slab.nx * slab.ny)
     sums = np.zeros((copies, *shape), dtype=np.float32)
+    squares = np.zeros((copies, *shape), dtype=np.float32)
     hits = np.zeros((copies, *shape), dtype=np.int32)
     kernel = runtime.kernel(SOURCE, "accumulate_segments")
     mf = cl.mem_flags
     with runtime.kernel_clock(), runtime.guard("radio map accumulation"):
         sums_buf = cl.Buffer(runtime.context, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=sums)
+        squares_buf = cl.Buffer(runtime.context, mf.READ_WRITE | mf.COPY_HOST_PTR,
+                                hostbuf=squares)
         hits_buf = cl.Buffer(runtime.context, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=hits)
         runtime.launch(kernel, n, runtime.local_size(kernel), origins, directions,
                        runtime.to_device((weights / scale).astype(np.float32)),
                        np.float32(0.0), np.float32(slab.z_hi - slab.z_lo),
                        np.float32(slab.cell_x), np.float32(slab.cell_y), np.int32(slab.nx),
                        np.int32(slab.ny), np.int32(n), np.int32(copies), sums_buf,
-                       hits_buf, name="accumulate_segments")
+                       squares_buf, hits_buf, name="accumulate_segments")
         cl.enqueue_copy(runtime.queue, sums, sums_buf)
+        cl.enqueue_copy(runtime.queue, squares, squares_buf)
         cl.enqueue_copy(runtime.queue, hits, hits_buf, is_blocking=True)
     power += sums.sum(axis=0, dtype=np.float64) * scale
+    square += squares.sum(axis=0, dtype=np.float64) * (scale * scale)
     count += hits.sum(axis=0, dtype=np.int64)
 
 
@@ -387,6 +395,7 @@ def accumulate_segments_host(slab: Slab, origins, directions, lengths, weights):
     shape = (slab.ny, slab.nx)
     power = np.zeros(shape)
     count = np.zeros(shape, dtype=np.int64)
+    square = np.zeros(shape)
     lo = np.array([slab.x0, slab.y0, slab.z_lo])
     hi = np.array([slab.x0 + slab.nx * slab.cell_x, slab.y0 + slab.ny * slab.cell_y,
                    slab.z_hi])
@@ -419,5 +428,6 @@ def accumulate_segments_host(slab: Slab, origins, directions, lengths, weights):
             ix = min(max(int(np.floor((mid[0] - slab.x0) / slab.cell_x)), 0), slab.nx - 1)
             iy = min(max(int(np.floor((mid[1] - slab.y0) / slab.cell_y)), 0), slab.ny - 1)
             power[iy, ix] += w * (b - a)
+            square[iy, ix] += (w * (b - a)) ** 2
             count[iy, ix] += 1
-    return power, count
+    return power, count, square
