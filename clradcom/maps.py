@@ -334,7 +334,8 @@ class RadioMap:
         segments carry the cell (UTD cone rays near a shadow boundary). Power evaluated
         at the centre (the PO facets) adds to the numerator alone, being exact. 0 where
         no term's square is known (no segment, or every square 190 dB under its batch's
-        largest term and lost to float32)."""
+        largest term and lost to float32); the count for a map made without the squares
+        (``square`` None)."""
         if self.square is None:
             return self.count.astype(np.float64)
         power = self.gain if self.incoherent_gain is None else self.incoherent_gain
