@@ -93,9 +93,12 @@ def test_two_ray_ground_holds_the_coherent_closed_form_cell_by_cell(runtime, rx)
     flat = m.incoherent_gain / incoherent
     assert np.abs(10 * np.log10(flat[ok])).max() < 0.75
     # the squares the host's records sum are the device accumulation's of the same rays
+    # (the host's walk and the device's: without fp64 a segment's end may fall in the next
+    # cell on one of them, which moves a cell's effective count by up to 3 %)
     plain = radio_map(two_ray_scene("H"), "tx", grid, rx=rx, runtime=runtime,
                       settings=MapSettings(rays=2_000_000, max_reflections=1))
-    assert np.allclose(m.effective_count[ok], plain.effective_count[ok], rtol=1e-3)
+    rel = np.abs(m.effective_count[ok] / plain.effective_count[ok] - 1.0)
+    assert np.median(rel) < 1e-4 and rel.max() < 0.05, (np.median(rel), rel.max())
     assert np.median(m.effective_count[ok] / m.count[ok]) < 0.9
 
 
