@@ -6,11 +6,11 @@
  * relative to the grid's corner, so float32 keeps them to ~1e-5 m over a street), then
  * walked cell by cell (Amanatides-Woo in x and y); each cell it passes through gets
  * weight x (length of the segment inside that cell's box): the track-length estimator of
- * the mean power density over the cell's volume. Each cell also sums the squares of its
- * terms, whose ratio to the squared sum tells how many segments carry the cell's value
- * (the convergence rule's effective count, docs/maps.md). Its thin-slab limit is the crossing
+ * the mean power density over the cell's volume. Its thin-slab limit is the crossing
  * estimator Sionna RT's radio maps use (weight / |cos theta| per crossing), and unlike it
- * a ray that runs along the slab counts.
+ * a ray that runs along the slab counts. Each cell also sums the squares of its terms,
+ * whose ratio to the squared sum tells how many segments carry the cell's value (the
+ * convergence rule's effective count, docs/maps.md).
  *
  * Only 32-bit atomics (core since OpenCL 1.1): float sums by compare-and-swap on their
  * bits, so devices without 64-bit atomics run it. The order of the additions within a
@@ -62,15 +62,16 @@ inline bool clip_axis(const float o, const float d, const float lo, const float 
 }
 
 /* Walks one segment through the slab's cells. With power != 0 each cell it crosses gets
- * w x (length inside), its square and a count; else the (segment, cell, length) records are appended
- * to rec_* at slots taken from *n_records (those past capacity are counted, not
- * written, so the host can size the buffer and run again). */
+ * w x (length inside), its square and a count; else the (segment, cell, length) records
+ * are appended to rec_* at slots taken from *n_records (those past capacity are counted,
+ * not written, so the host can size the buffer and run again). */
 inline void walk_segment(const int gid, const float w, const float4 o, const float4 d,
                          const float z_lo, const float z_hi,
                          const float cell_x, const float cell_y, const int nx, const int ny,
                          __global float *power, __global float *square,
-                         __global int *count, __global int *rec_segment, __global int *rec_cell,
-                         __global float *rec_length, volatile __global int *n_records,
+                         __global int *count, __global int *rec_segment,
+                         __global int *rec_cell, __global float *rec_length,
+                         volatile __global int *n_records,
                          const int capacity)
 {
     float t0 = 0.0f, t1 = d.w;
