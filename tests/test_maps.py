@@ -287,6 +287,19 @@ def test_diffuse_scattering_agrees_with_the_tracers_tiles(runtime):
     assert plain.gain.max() == 0.0  # nothing but the scattering reaches the layer
 
 
+def diffraction_links(objects, tx, points, runtime, **radar_keys):
+    """trace_scene's first-order diffraction alone (no line of sight, no reflection)
+    from the radar record ``tx`` among ``objects`` to a receiver at each of ``points``
+    (``radar_keys`` their pattern and polarisation): the links' gains, in order."""
+    sample = scene_from_dict(scene_dict(objects=objects, radars=[
+        tx, *(radar(f"r{i}", p, role="rx", **radar_keys) for i, p in enumerate(points))]))
+    settings = TraceSettings(
+        specular=SpecularSettings(max_reflections=0, line_of_sight=False),
+        diffraction=DiffractionSettings(max_diffractions=1))
+    snap = trace_scene(sample, settings, runtime=runtime)
+    return [link.paths.gain for link in snap.links]
+
+
 def block_diffraction(runtime, pol, edge_step_m, cone_step_deg):
     """A concrete block in free space, only its first-order edge diffraction: the map's
     Keller-cone rays, the cells more than 1 m from the corners' shadow and reflection
@@ -310,14 +323,9 @@ def block_diffraction(runtime, pol, edge_step_m, cone_step_deg):
         clear &= np.abs(y - a - b * x) / np.hypot(1.0, b) > 1.0
 
     def traced(cells):
-        sample = scene_from_dict(scene_dict(objects=objects, radars=[
-            tx, *(radar(f"r{i}", centres[iy, ix], role="rx", **kw)
-                  for i, (iy, ix) in enumerate(cells))]))
-        settings = TraceSettings(
-            specular=SpecularSettings(max_reflections=0, line_of_sight=False),
-            diffraction=DiffractionSettings(max_diffractions=1))
-        snap = trace_scene(sample, settings, runtime=runtime)
-        return np.array([np.sum(np.abs(link.paths.gain) ** 2) for link in snap.links])
+        gains = diffraction_links(objects, tx, centres[cells[:, 0], cells[:, 1]], runtime,
+                                  **kw)
+        return np.array([np.sum(np.abs(g) ** 2) for g in gains])
 
     return m, clear, traced
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_maps import MAP_SCENE
+from test_maps import MAP_SCENE, diffraction_links
 from test_paths import ETA_ROAD, K0, LAM, ROAD, box, fresnel, plane, radar, scene_dict
 
 from clradcom import cli
@@ -162,17 +162,11 @@ def test_coherent_edge_diffraction_is_the_traced_coherent_sum(runtime):
     cells = np.argwhere(m.converged & (m.gain > 0))
     assert len(cells) > 200
     pick = cells[np.random.default_rng(2).choice(len(cells), 30, replace=False)]
-    centres = grid.centres()
-    sample = scene_from_dict(scene_dict(objects=objects, radars=[
-        tx, *(radar(f"r{i}", centres[iy, ix], role="rx", **kw)
-              for i, (iy, ix) in enumerate(pick))]))
-    settings = TraceSettings(
-        specular=SpecularSettings(max_reflections=0, line_of_sight=False),
-        diffraction=DiffractionSettings(max_diffractions=1))
-    snap = trace_scene(sample, settings, runtime=runtime)
-    coherent = np.array([abs(np.sum(link.paths.gain)) ** 2 for link in snap.links])
-    incoherent = np.array([np.sum(np.abs(link.paths.gain) ** 2) for link in snap.links])
-    assert all(len(link.paths.gain) >= 2 for link in snap.links)
+    gains = diffraction_links(objects, tx, grid.centres()[pick[:, 0], pick[:, 1]], runtime,
+                              **kw)
+    coherent = np.array([abs(np.sum(g)) ** 2 for g in gains])
+    incoherent = np.array([np.sum(np.abs(g) ** 2) for g in gains])
+    assert all(len(g) >= 2 for g in gains)
     err = np.abs(m.gain[pick[:, 0], pick[:, 1]] - coherent) / incoherent
     assert np.median(err) <= 0.08 and np.percentile(err, 95) <= 0.25, np.sort(err)[-5:]
     blind = np.abs(incoherent - coherent) / incoherent
