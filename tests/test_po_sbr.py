@@ -412,3 +412,55 @@ def test_rcs_aspect_tool_go_mirror_and_outputs(tmp_path, capsys):
     assert (tmp_path / "rcs_aspect.png").stat().st_size > 10_000
     out = capsys.readouterr().out
     assert "time GO" in out and "time PO+SBR" in out
+
+
+def ground_then_plate(runtime, plate_optics, mirrors):
+    """tx 0.2 m and rx 1 m above a 6 x 6 m concrete road, a 0.4 m PEC plate facing them
+    2 m away: the path tx -> ground -> plate -> rx meets the plate 0.4 m up."""
+    ground = tri_object("ground", [quad(np.array([-3.0, -3.0, 0.0]), np.array([6.0, 0.0, 0.0]),
+                                       np.array([0.0, 6.0, 0.0]), 1, 1,
+                                       np.array([0.0, 0.0, 1.0]))],
+                        material="concrete_road")
+    plate = tri_object("plate", [quad(np.array([2.0, -0.05, 0.2]), np.array([0.0, 0.4, 0.0]),
+                                      np.array([0.0, 0.0, 0.4]), 2, 2,
+                                      np.array([-1.0, 0.0, 0.0]))], optics=plate_optics)
+    scene = scene_from_dict({
+        "scene": {"name": "mirror", "carrier_hz": F_C}, "objects": [ground, plate],
+        "radars": [{"name": "tx", "position": [0.0, 0.0, 0.2], "role": "tx"},
+                   {"name": "rx", "position": [0.0, 0.3, 1.0], "role": "rx"}]})
+    st = TraceSettings(
+        specular=SpecularSettings(max_reflections=2, rays=200_000, line_of_sight=False),
+        diffraction=DiffractionSettings(max_diffractions=0),
+        optics=OpticsSettings(mode="none", sbr_spacing_wavelengths=0.5, sbr_mirrors=mirrors))
+    return trace_scene(scene, st, runtime=runtime).links[0].paths
+
+
+def test_a_multi_bounce_path_no_tube_was_shot_along_stays_go(runtime):
+    """SBR-PO replaces a GO path ending on its object only where its tubes were shot:
+    with the ground's mirror window (sbr_mirrors) the ground -> plate path is the SBR
+    tubes'; without it no tube leaves toward the ground, so the GO reflection stays, with
+    the pure GO trace's gain and delay (before, it was dropped and the path lost)."""
+    go = ground_then_plate(runtime, "go", True)
+    via_ground = [i for i in range(go.n_paths)
+                  if go.object_id[i, :go.n_interactions[i]].tolist() == [0, 1]]
+    assert len(via_ground) == 1
+    g = via_ground[0]
+
+    def sequence(paths, kind):
+        return [i for i in range(paths.n_paths)
+                if paths.object_id[i, :paths.n_interactions[i]].tolist() == [0, 1]
+                and np.all(paths.interaction[i, :2] == kind)]
+
+    mirrored = ground_then_plate(runtime, "po", True)
+    assert sequence(mirrored, InteractionType.REFLECTION) == []
+    assert len(sequence(mirrored, InteractionType.SBR)) >= 1
+    plain = ground_then_plate(runtime, "po", False)
+    assert sequence(plain, InteractionType.SBR) == []
+    kept = sequence(plain, InteractionType.REFLECTION)
+    assert len(kept) == 1
+    np.testing.assert_allclose(plain.gain[kept[0]], go.gain[g], rtol=1e-12)
+    np.testing.assert_allclose(plain.delay_s[kept[0]], go.delay_s[g], rtol=1e-12)
+    # the SBR tubes' return along the same path is the GO one's, to the plate's PO
+    # (a 0.4 m plate at 2 m: its aperture, not an infinite mirror)
+    sbr_gain = mirrored.gain[sequence(mirrored, InteractionType.SBR)].sum()
+    assert abs(20 * np.log10(abs(sbr_gain) / abs(go.gain[g]))) < 3.0

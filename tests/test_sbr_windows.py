@@ -257,3 +257,35 @@ def test_blocks_in_pattern_keep_the_blocks_seen_at_a_corner_or_the_centre(runtim
     assert 0 < keep.sum() < len(keep)
     for key in ("block_window", "block_i", "block_j"):
         np.testing.assert_array_equal(getattr(got, key), getattr(w, key)[keep])
+
+
+def test_launched_holds_the_shot_tubes_and_not_the_blocks_the_pattern_cut(runtime):
+    """sbr.launched says which directions SBR shoots a tube in: every owned tube of the
+    street's windows (radar A, its 90 degree sector) is launched; a tube of a block that
+    blocks_in_pattern cut is not, nor the reverse of a launched direction; a later
+    window's tube that an earlier window owns is launched (by the earlier one)."""
+    scene = load_scene(STREET)
+    geom = build_geometry(scene, runtime, engine="device")
+    tx = scene.radars[scene.radar_index("A")]
+    cars = [i for i, o in enumerate(scene.objects) if o.name.startswith("car")]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        every = sbr.launch_windows(geom, tx.position, cars, 4 * scene.wavelength_m)
+    kept = sbr.blocks_in_pattern(every, tx)
+    assert 0 < len(kept.block_window) < len(every.block_window)
+    grid, owned = sbr.window_tubes(every, np.arange(every.n_tubes))
+    in_kept = np.zeros(len(every.block_window), dtype=bool)
+    key = (every.block_window.astype(np.int64) << 40) | (every.block_i.astype(np.int64) << 20) \
+        | every.block_j.astype(np.int64)
+    key_kept = (kept.block_window.astype(np.int64) << 40) \
+        | (kept.block_i.astype(np.int64) << 20) | kept.block_j.astype(np.int64)
+    in_kept[np.isin(key, key_kept)] = True
+    tube_kept = np.repeat(in_kept, BLOCK * BLOCK)
+    got = sbr.launched(kept, grid.directions)
+    shot = owned & tube_kept
+    assert shot.sum() > 1000 and (~tube_kept).sum() > 1000 and (~owned).sum() > 0
+    assert got[shot].all()
+    # a cut block's own tube, where no earlier window owns the direction: never shot
+    assert not got[owned & ~tube_kept].any()
+    assert not sbr.launched(kept, -grid.directions[shot]).any()
+    assert not sbr.launched(sbr.TubeWindows.empty(tx.position), grid.directions[:5]).any()

@@ -30,7 +30,7 @@ import numpy as np
 from clradcom.errors import ArgumentError, ArgumentTypeError
 from clradcom.mechanisms.common import Geometry, check_number
 from clradcom.mechanisms.physical_optics import po_paths
-from clradcom.mechanisms.sbr import ACCURACY_DB_RANGE, SbrTubes, sbr_paths, shoot_sbr
+from clradcom.mechanisms.sbr import ACCURACY_DB_RANGE, SbrTubes, launched, sbr_paths, shoot_sbr
 from clradcom.paths import InteractionType, Paths
 from clradcom.physics.em import fresnel_coefficients
 from clradcom.physics.po import SPLIT_RULES
@@ -205,7 +205,11 @@ def prepare(geom: Geometry, tx: Radar, settings: OpticsSettings,
 
 def replaced_paths(paths: Paths, shot: SbrShot) -> np.ndarray:
     """Mask of the GO reflection paths that physical optics replaces: single reflections
-    ending on a PO object, and multi-bounce ones ending on an SBR object."""
+    ending on a PO object, and multi-bounce ones ending on an SBR object that leave the
+    transmitter in a direction the SBR tubes were shot in (:func:`~clradcom.mechanisms.
+    sbr.launched`). A multi-bounce path outside every window (a facade, then the road,
+    then a car: two mirrors before it, where the windows hold one) has no tube to stand
+    for it, so its GO reflection stays."""
     drop = np.zeros(paths.n_paths, dtype=bool)
     if not (paths.k_max and paths.n_paths and len(shot.po_objects)):
         return drop
@@ -217,7 +221,10 @@ def replaced_paths(paths: Paths, shot: SbrShot) -> np.ndarray:
                       | (np.arange(paths.k_max)[None, :] >= nk[:, None]), axis=1)
     ends_on = np.where(nk > 0, paths.object_id[rows, last], -1)
     drop = (nk == 1) & np.isin(ends_on, shot.po_objects)
-    drop |= (nk > 1) & np.isin(ends_on, shot.sbr_objects)
+    multi = np.flatnonzero((nk > 1) & np.isin(ends_on, shot.sbr_objects) & all_refl)
+    if len(multi) and shot.tubes is not None:
+        leave = paths.points[multi, 1] - paths.points[multi, 0]
+        drop[multi] = launched(shot.tubes.windows, leave)
     return drop & all_refl
 
 

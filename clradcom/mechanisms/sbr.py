@@ -724,6 +724,12 @@ def earlier_overlaps(windows: TubeWindows) -> np.ndarray:
 
 def _covers(windows: TubeWindows, k: int, d) -> np.ndarray:
     """Whether window k launches a tube whose cell holds each direction d (N,3)."""
+    return _covering_block(windows, k, d)[0]
+
+
+def _covering_block(windows: TubeWindows, k: int, d) -> tuple[np.ndarray, np.ndarray]:
+    """For each direction d (N,3): whether window k's mask covers it, and the index into
+    ``windows.masks`` of the block that holds it (0 where not covered)."""
     depth = d @ windows.axis[k]
     ok = depth > 0
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -737,7 +743,32 @@ def _covers(windows: TubeWindows, k: int, d) -> np.ndarray:
     nx, ny = windows.shape[k]
     ok &= (bi >= 0) & (bi < nx) & (bj >= 0) & (bj < ny)
     flat = windows.mask_offset[k] + np.where(ok, bi * ny + bj, 0)
-    return ok & (windows.masks[flat] != 0)
+    ok &= windows.masks[flat] != 0
+    return ok, np.where(ok, flat, 0)
+
+
+def launched(windows: TubeWindows, directions) -> np.ndarray:
+    """Whether the tubes of ``windows`` were shot in each direction (N,3) from tx: the
+    first window whose mask covers it owns it (the kernels' ownership test), and its
+    block there is one of those launched (not cut by :func:`blocks_in_pattern`).  A
+    direction outside every launched tube's cell is one SBR-PO never follows."""
+    d = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
+    out = np.zeros(len(d), dtype=bool)
+    if len(windows.block_window) == 0 or len(d) == 0:
+        return out
+    w = windows.block_window.astype(np.int64)
+    kept = np.unique(windows.mask_offset[w] + windows.block_i.astype(np.int64)
+                     * windows.shape[w, 1] + windows.block_j)
+    open_rows = np.arange(len(d))
+    for k in range(windows.n_windows):
+        ok, flat = _covering_block(windows, k, d[open_rows])
+        owned = open_rows[ok]
+        out[owned] = np.isin(flat[ok], kept)
+        open_rows = open_rows[~ok]
+        if len(open_rows) == 0:
+            break
+    return out
+
 
 @dataclass
 class TubeHits:
