@@ -75,7 +75,7 @@ from clradcom.device.visibility import surface_sees
 from clradcom.errors import ArgumentError, ArgumentTypeError
 from clradcom.geometry.ray_order import MORTON_BITS, morton_codes, octahedral_coordinates
 from clradcom.geometry.triangles import triangle_normals
-from clradcom.mechanisms import diffraction
+from clradcom.mechanisms import diffraction, sbr
 from clradcom.mechanisms.common import Geometry, build_geometry, check_number
 from clradcom.mechanisms.diffraction import DiffractionSettings
 from clradcom.mechanisms.optics import MODES as OPTICS_MODES
@@ -90,7 +90,7 @@ from clradcom.physics.em import (
     material_reflection_dyad,
     reflected_fields,
 )
-from clradcom.physics.po import MAX_SUBDIVISION_LEVELS, NEAR_SIZE_FACTOR, po_transfer
+from clradcom.physics.po import MAX_SUBDIVISION_LEVELS, NEAR_SIZE_FACTOR, po_transfer, sinc
 from clradcom.physics.vectors import perpendicular
 from clradcom.scene.records import Radar, Scene
 
@@ -133,6 +133,14 @@ BYTES_PER_RECORD = 160
 #: to 820 bytes each, the whole facet table and launches included).
 BYTES_PER_PO_PAIR = 2000
 
+#: how a map carries SBR objects' later bounces (MapSettings.sbr)
+SBR_MODES = ("exit-rays", "footprints")
+#: footprint-cell terms of the SBR footprint stage weighed together per PO pair of
+#: MapSettings.po_batch, and the host bytes each holds meanwhile (its vectors, the
+#: sight ray, the PO integral's temporaries)
+FOOTPRINT_TERMS_PER_PO_PAIR = 2
+BYTES_PER_FOOTPRINT_TERM = 1000
+
 
 @dataclass(frozen=True)
 class MapSettings:
@@ -168,11 +176,24 @@ class MapSettings:
     #: paper preset's) chooses it per object (objects' own ``optics`` keys first,
     #: docs/po.md): the first bounce off an object with PO optics is its PO facets'
     #: field evaluated at the cell centres instead of the GO reflection, and with "po"
-    #: optics (SBR) its later bounces' exit rays run on through the cells
+    #: optics (SBR) its later bounces are as ``sbr`` says
     optics: str = "none"
     #: facet-cell pairs of the PO stage weighed together on the host (host memory
     #: ~2 kB each): the pairs a device launch returns at most, or the host's round
     po_batch: int = 1 << 16
+    #: SBR objects' later bounces (optics "po"): "exit-rays" carries the rays' GO exit
+    #: segments on through the cells (the GO limit of the tubes' radiation, fast);
+    #: "footprints" radiates the tracer's SBR-PO tubes' footprints to the cell centres
+    #: (its windows and PO integrals; a face sequence's footprints summed as fields), and
+    #: drops the exit segments of the directions its tubes were shot in
+    sbr: str = "exit-rays"
+    #: pitch of the footprint tubes (wavelengths) where an object has no
+    #: ``sbr_spacing_wavelengths`` key of its own (the tracer's key)
+    sbr_spacing_wavelengths: float = 4.0
+    #: None: a face sequence's footprints radiate to every centre on their face's lit
+    #: side; a number: only into its beam widened by that many diffraction lobes (lambda
+    #: over the sequence's size) each side, faster but without the far sidelobes
+    sbr_lobe_widths: float | None = None
     #: how the PO stage finds its pairs and weighs the PEC facets' fields: "device" (the
     #: pairs made, tested and weighed in one launch each, double about the grid's corner
     #: where the device has fp64, the carrier phase in float64 on the host) or "host"
@@ -210,6 +231,14 @@ class MapSettings:
                                 "(OpticsSettings.mode)", argument="MapSettings.optics",
                                 value=self.optics)
         check_number("MapSettings", "po_batch", self.po_batch, low=1, integer=True)
+        check_number("MapSettings", "sbr_spacing_wavelengths", self.sbr_spacing_wavelengths,
+                     low=0.01, high=100.0)
+        if self.sbr not in SBR_MODES:
+            raise ArgumentError(f"must be one of {', '.join(map(repr, SBR_MODES))}",
+                                argument="MapSettings.sbr", value=self.sbr)
+        if self.sbr_lobe_widths is not None:
+            check_number("MapSettings", "sbr_lobe_widths", self.sbr_lobe_widths, low=0.0,
+                         low_open=True, high=100.0)
         if self.po_engine not in ("device", "host"):
             raise ArgumentError("must be 'device' or 'host'", argument="MapSettings.po_engine",
                                 value=self.po_engine)
@@ -300,27 +329,13 @@ class RadioMap:
     #: True where ``gain`` is the coherent sum (MapSettings.coherent); the incoherent one
     #: is then ``incoherent_gain``
     coherent: bool = False
-    #: physical optics as the tracer's OpticsSettings.mode ("none", "pec", "sbr": the
-    #: paper preset's) chooses it per object (objects' own ``optics`` keys first,
-    #: docs/po.md): the first bounce off an object with PO optics is its PO facets'
-    #: field evaluated at the cell centres instead of the GO reflection, and with "po"
-    #: optics (SBR) its later bounces' exit rays run on through the cells
-    optics: str = "none"
-    #: facet-cell pairs of the PO stage weighed together on the host (host memory
-    #: ~2 kB each): the pairs a device launch returns at most, or the host's round
-    po_batch: int = 1 << 16
-    #: how the PO stage finds its pairs and weighs the PEC facets' fields: "device" (the
-    #: pairs made, tested and weighed in one launch each, double about the grid's corner
-    #: where the device has fp64, the carrier phase in float64 on the host) or "host"
-    #: (pair by pair, float64 numpy: the tracer's po_transfer)
-    po_engine: str = "device"
     incoherent_gain: np.ndarray | None = None
     #: coherent maps: the fewest segments of a wavefront group holding >= 1 % of a
     #: cell's power (CellSums.group_count)
     group_count: np.ndarray | None = None
     #: wall seconds of the stages: "launch lattice" (made, or kept from an earlier map),
     #: "rays" (launch, bounces, scattering, accumulation), "physical optics",
-    #: "diffraction", "coherent sum"
+    #: "sbr" (footprints), "diffraction", "coherent sum"
     stage_seconds: dict[str, float] | None = None
     #: (ny, nx) the sum of the squares of the segments' terms (weight x length inside
     #: the cell, in gain units): what :attr:`effective_count` compares the cell's power to
@@ -462,11 +477,16 @@ def map_memory_bytes(settings: MapSettings, grid: MapGrid) -> int:
     map adds its records (:data:`COHERENT_RECORDS_PER_RAY` a launched ray,
     :data:`BYTES_PER_RECORD` each while a batch's are weighed, 40 bytes each kept as a
     (cell, group) sum); physical optics a round of :attr:`MapSettings.po_batch`
-    facet-cell pairs (:data:`BYTES_PER_PO_PAIR` each)."""
+    facet-cell pairs (:data:`BYTES_PER_PO_PAIR` each) and, with SBR footprints, a round
+    of their terms (:data:`FOOTPRINT_TERMS_PER_PO_PAIR` per pair,
+    :data:`BYTES_PER_FOOTPRINT_TERM` each)."""
     need = (min(settings.batch, settings.rays) * BYTES_PER_RAY + 24 * settings.rays
             + (24 + 12 * accumulation_copies(grid.n_cells)) * grid.n_cells)
     if settings.optics != "none":
         need += settings.po_batch * BYTES_PER_PO_PAIR
+        if settings.sbr == "footprints":
+            need += (settings.po_batch * FOOTPRINT_TERMS_PER_PO_PAIR
+                     * BYTES_PER_FOOTPRINT_TERM)
     if settings.coherent:
         need += COHERENT_RECORDS_PER_RAY * (
             min(settings.batch, settings.rays) * BYTES_PER_RECORD + 40 * settings.rays)
@@ -1248,7 +1268,230 @@ def _po_received(scene, v, normal, pec, material, tx_pos, points, e_tx, receiver
     return amplitude
 
 
-def _rays_host(scene, geom, slab, transmitter, receiver, launch, scale, po_objects,
+@dataclass
+class _Optics:
+    """A map's physical optics as the tracer chooses it per object: ``po_objects`` (PO
+    facets for the first bounce), ``sbr_objects`` (SBR-PO for the later ones) and the
+    transmitter's SBR ``windows`` (None without SBR objects)."""
+
+    po_objects: np.ndarray
+    sbr_objects: np.ndarray
+    windows: sbr.TubeWindows | None
+
+    def radiated(self, launch: _Launch, rotation, rays) -> np.ndarray:
+        """Which lattice ``rays`` (indices) leave the transmitter along a direction the
+        SBR tubes were shot in (:func:`clradcom.mechanisms.sbr.launched`): their exit
+        segments off an SBR object after a second or later bounce are the footprint
+        stage's (:func:`_sbr_footprints`), the others stay GO, as in the tracer
+        (optics.replaced_paths)."""
+        rays = np.asarray(rays, dtype=np.int64)
+        if self.windows is None or not len(rays):
+            return np.zeros(len(rays), dtype=bool)
+        return sbr.launched(self.windows, _rotate(launch.local[rays], rotation.T))
+
+
+def _optics_of(scene, geom, tx: Radar, settings: MapSettings) -> _Optics:
+    modes = np.array(object_optics(scene, settings.optics))
+    po_objects = np.flatnonzero(modes != "go")
+    sbr_objects = np.flatnonzero(modes == "po")
+    windows = None
+    if (settings.sbr == "footprints" and len(sbr_objects) and settings.max_reflections >= 2
+            and geom.caster is not None):
+        windows = sbr.blocks_in_pattern(sbr.launch_windows(
+            geom, tx.position, sbr_objects,
+            sbr.object_spacing_m(geom, sbr_objects, settings.sbr_spacing_wavelengths),
+            tx_name=tx.name), tx)
+    return _Optics(po_objects=po_objects, sbr_objects=sbr_objects, windows=windows)
+
+
+@dataclass
+class _Footprints:
+    """SBR-PO footprints (H rows) and what their radiation needs: ``point``, lit-side
+    ``normal``, incidence ``k_in``, unfolded ``length`` from tx, the footprint's two
+    projected edges ``edge1``/``edge2`` (H, 3) and ``area``; the current vectors ``a``,
+    ``b`` (H, 3) complex of the field 0.5 [(I - s s^T) a + s x b] it radiates per
+    unit of the PO integral; ``group`` (H,) its sequence of planar faces; ``triangle``."""
+
+    point: np.ndarray
+    normal: np.ndarray
+    k_in: np.ndarray
+    length: np.ndarray
+    edge1: np.ndarray
+    edge2: np.ndarray
+    area: np.ndarray
+    a: np.ndarray
+    b: np.ndarray
+    group: np.ndarray
+    triangle: np.ndarray
+
+
+def _footprints(scene, geom, tx: Radar, optics: _Optics, max_bounces: int) -> _Footprints | None:
+    """The footprints of tx's SBR tubes (the tracer's windows, :func:`sbr.shoot_tubes`) at
+    their second and later bounces on SBR objects, each with the currents the tube's
+    field drives there (the tracer's :func:`sbr._radiate`, docs/po.md: the PEC current,
+    or a penetrable facet's Fresnel-weighted electric and magnetic currents)."""
+    windows = optics.windows
+    if windows is None or windows.n_tubes == 0:
+        return None
+    tubes, owned = sbr.window_tubes(windows, np.arange(windows.n_tubes))
+    keep = np.flatnonzero(owned)
+    tubes = sbr.TubeGrid(directions=tubes.directions[keep],
+                         solid_angle=tubes.solid_angle[keep], edge1=tubes.edge1[keep],
+                         edge2=tubes.edge2[keep])
+    hits = sbr.shoot_tubes(geom, tx.position, tubes, max_bounces, 2,
+                           np.isin(scene.tri_object, optics.sbr_objects))
+    if not len(hits.tube):
+        return None
+    rot = np.asarray(tx.orientation, dtype=np.float64)
+    k0 = tubes.directions[hits.tube]
+    c_tx = np.asarray(tx.pattern.field(_rotate(k0, rot)), dtype=np.complex128)
+    th, ph = _basis(k0, rot)
+    e_tx = c_tx[:, :1] * th + c_tx[:, 1:] * ph
+    e_in = np.einsum("hij,hj->hi", hits.chain, e_tx)
+    n, k_in = hits.normal, hits.k_in
+    width = np.sqrt(tubes.solid_angle[hits.tube]) * hits.length
+    kn = np.einsum("ij,ij->i", k_in, n)
+    edges = []
+    for e in (hits.edge1, hits.edge2):
+        e = width[:, None] * e
+        edges.append(e - k_in * (np.einsum("ij,ij->i", n, e) / kn)[:, None])
+    # the currents: PEC 2 n x (k_i x E); penetrable n x (k_i x E) + n x (k_r x D E) and,
+    # magnetic, n x ((I + D) E) (physics.po.penetrable_po_operator, applied to E)
+    a = 2.0 * np.cross(n, np.cross(k_in, e_in))
+    b = np.zeros_like(a)
+    material = np.asarray(scene.tri_material)[hits.triangle]
+    pen = np.flatnonzero(~np.asarray(scene.material_pec)[material])
+    if len(pen):
+        dyad = material_reflection_dyad(scene, material[pen], k_in[pen], n[pen])
+        reflected = np.einsum("hij,hj->hi", dyad, e_in[pen])
+        k_r = k_in[pen] - 2.0 * kn[pen, None] * n[pen]
+        a[pen] = (np.cross(n[pen], np.cross(k_in[pen], e_in[pen]))
+                  + np.cross(n[pen], np.cross(k_r, reflected)))
+        b[pen] = np.cross(n[pen], e_in[pen] + reflected)
+    face = np.where(hits.tri_history >= 0,
+                    geom.faces.tri_face[np.maximum(hits.tri_history, 0)], -1)
+    _, group = np.unique(face, axis=0, return_inverse=True)
+    return _Footprints(point=hits.point, normal=n, k_in=k_in, length=hits.length,
+                       edge1=edges[0], edge2=edges[1], area=width * width / np.abs(kn),
+                       a=a, b=b, group=group.reshape(-1), triangle=hits.triangle)
+
+
+def _sbr_footprints(scene, geom, grid: MapGrid, tx: Radar, receiver, optics: _Optics,
+                    settings, sums: CellSums) -> None:
+    """SBR-PO's later bounces at every cell centre: each footprint's PO integral
+    (docs/po.md, "Multi-bounce"), the footprints of one sequence of planar faces summed
+    as fields (one path of the tracer's), the sequences in power. A sequence radiates
+    to the centres on its face's lit side (inside its lobe, :func:`_lobe_cells`, where
+    ``sbr_lobe_widths`` is a number), each footprint to those it sees."""
+    fp = _footprints(scene, geom, tx, optics, settings.max_reflections)
+    if fp is None:
+        return
+    centres = grid.centres().reshape(-1, 3)
+    k = 2.0 * np.pi / scene.wavelength_m
+    lam = scene.wavelength_m
+    order = np.argsort(fp.group, kind="stable")
+    starts = np.searchsorted(fp.group[order], np.arange(fp.group.max() + 2))
+    members = [order[starts[g]:starts[g + 1]] for g in range(len(starts) - 1)]
+    group_cells = _lobe_cells(fp, members, centres, lam, settings.sbr_lobe_widths)
+    rx_rot = None if receiver is None else np.asarray(receiver.orientation, np.float64)
+    pairs_g, pairs_c = [], []
+    for g, cells in enumerate(group_cells):
+        if len(cells):
+            pairs_g.append(np.full(len(cells), g))
+            pairs_c.append(cells)
+    if not pairs_g:
+        return
+    pair_g, pair_c = np.concatenate(pairs_g), np.concatenate(pairs_c)
+    size = np.array([len(m) for m in members])
+    # the footprint-cell terms a few at a time, summed per pair
+    per_pair = size[pair_g]
+    ends = np.cumsum(per_pair)
+    limit = max(1, settings.po_batch * FOOTPRINT_TERMS_PER_PO_PAIR)
+    start = 0
+    while start < len(pair_g):
+        stop = int(np.searchsorted(ends, (ends[start - 1] if start else 0) + limit,
+                                   side="right"))
+        stop = max(stop, start + 1)
+        rows = np.arange(start, stop)
+        counts = per_pair[rows]
+        pair = np.repeat(rows, counts)
+        foot = np.concatenate([members[g] for g in pair_g[rows]])
+        points = centres[pair_c[pair]]
+        if receiver is not None:
+            # arrivals outside the receiver's pattern take nothing: no sight ray
+            toward = points - fp.point[foot]
+            arrival = toward / np.linalg.norm(toward, axis=1)[:, None]
+            seen = np.asarray(receiver.pattern.gain(_rotate(-arrival, rx_rot))) > 0
+            pair, foot, points = pair[seen], foot[seen], points[seen]
+        # each footprint's own sight line, as the tracer's (a float32 cast: a centre
+        # stands in free space, see _po_pairs)
+        origin = spawn_origins(fp.point[foot], fp.normal[foot], points - fp.point[foot])
+        sees = np.flatnonzero(~geom.caster.occluded(
+            pack_rays(origin, points - origin, tmax=1.0 - 1e-6),
+            ignore_prim=fp.triangle[foot]))
+        amplitude = _footprint_amplitudes(fp, foot[sees], points[sees], receiver, k, lam)
+        pair = pair[sees]
+        summed = np.stack([np.bincount(pair - start, amplitude[:, c].real,
+                                       minlength=len(rows))
+                           + 1j * np.bincount(pair - start, amplitude[:, c].imag,
+                                              minlength=len(rows))
+                           for c in range(amplitude.shape[1])], axis=1)
+        sums.add_at_centres(pair_c[rows], summed)
+        start = stop
+
+
+def _lobe_cells(fp: _Footprints, members, centres, lam: float,
+                widths: float | None) -> list:
+    """Per face sequence, the cells its footprints may radiate into: those on its face's
+    lit side and, where ``widths`` is a number, inside the cone from its image source
+    (each footprint's point less its unfolded length along its mirror direction) around
+    the mean mirror direction, as wide as the footprints' own spread plus ``widths``
+    times lambda over the sequence's size (its aperture's, or one footprint's where
+    larger): its beam, diffraction-widened ``widths`` lobes each side."""
+    out = []
+    norm2 = np.einsum("ij,ij->i", centres, centres)
+    for m in members:
+        kn = np.einsum("ij,ij->i", fp.k_in[m], fp.normal[m])
+        mirror = fp.k_in[m] - 2.0 * kn[:, None] * fp.normal[m]
+        axis = mirror.mean(axis=0)
+        axis /= np.linalg.norm(axis)
+        apex = (fp.point[m] - fp.length[m, None] * mirror).mean(axis=0)
+        spread = float(np.arccos(np.clip(mirror @ axis, -1.0, 1.0)).max())
+        extent = fp.point[m].max(axis=0) - fp.point[m].min(axis=0)
+        size = max(float(np.linalg.norm(extent)),
+                   float(np.sqrt(np.max(fp.area[m]))))
+        n0 = fp.normal[m[0]]
+        inside = centres @ n0 > float(np.max(fp.point[m] @ n0))
+        if widths is not None:
+            half = min(spread + widths * lam / size, 0.5 * np.pi)
+            along = centres @ axis - apex @ axis
+            dist = np.sqrt(np.maximum(norm2 - 2.0 * (centres @ apex) + apex @ apex, 0.0))
+            inside &= along >= np.cos(half) * dist
+        out.append(np.flatnonzero(inside))
+    return out
+
+
+def _footprint_amplitudes(fp: _Footprints, foot, points, receiver, k: float,
+                          lam: float) -> np.ndarray:
+    """The receiver's amplitude (S, C) of footprints ``foot`` (S,) at ``points`` (S, 3):
+    (lambda / 4 pi) (-j k / 2 pi) I_fp e^{-jk(L_in + R)} / (L_in R) times the field
+    0.5 [(I - s s^T) a + s x b], I_fp the footprint's parallelogram integral
+    |e1' x e2'| sinc(q.e1'/2) sinc(q.e2'/2), q = k (s - k_in) (docs/po.md)."""
+    toward = points - fp.point[foot]
+    r = np.linalg.norm(toward, axis=1)
+    s = toward / r[:, None]
+    q = k * (s - fp.k_in[foot])
+    i_fp = fp.area[foot] * sinc(0.5 * np.einsum("ij,ij->i", q, fp.edge1[foot])) * sinc(
+        0.5 * np.einsum("ij,ij->i", q, fp.edge2[foot]))
+    a, b = fp.a[foot], fp.b[foot]
+    field = 0.5 * (a - s * np.einsum("ij,ij->i", s, a)[:, None] + np.cross(s, b))
+    length = fp.length[foot]
+    scale = (lam / (4.0 * np.pi) * (-1j * k / (2.0 * np.pi)) * i_fp
+             * np.exp(-1j * k * (length + r)) / (length * r))
+    return _projection(field * scale[:, None], s, receiver)
+
+
+def _rays_host(scene, geom, slab, transmitter, receiver, launch, scale, optics: _Optics,
                settings, rng, sums: CellSums, steps) -> None:
     """The rays stage in numpy (``MapSettings(engine="host")``, and coherent maps): each
     batch's rays cast bounce by bounce on the device, their fields reflected, projected
@@ -1267,6 +1510,7 @@ def _rays_host(scene, geom, slab, transmitter, receiver, launch, scale, po_objec
             steps(b, n_batches)
         loc = local[start:start + settings.batch]
         dirs = _rotate(loc, rot.T)
+        ray = np.arange(start, start + len(loc))
         c = launch.field[start:start + settings.batch]
         th, ph = _basis(dirs, rot)
         field = c[:, :1] * th + c[:, 1:] * ph
@@ -1286,8 +1530,12 @@ def _rays_host(scene, geom, slab, transmitter, receiver, launch, scale, po_objec
                 prim = np.full(len(dirs), -1)
             if order > 0 or settings.line_of_sight:
                 near = _reaches(slab, org, dirs, t)
-                if order == 1 and len(po_objects):
-                    near &= ~np.isin(tri_object[last_prim], po_objects)
+                if order == 1 and len(optics.po_objects):
+                    near &= ~np.isin(tri_object[last_prim], optics.po_objects)
+                if order >= 2:
+                    exits = np.flatnonzero(near & np.isin(tri_object[last_prim],
+                                                          optics.sbr_objects))
+                    near[exits[optics.radiated(launch, rot, ray[exits])]] = False
                 polar = _projection(field[near], dirs[near], receiver)
                 weights = scale * np.sum(np.abs(polar) ** 2, axis=1)
                 wave = None
@@ -1309,7 +1557,8 @@ def _rays_host(scene, geom, slab, transmitter, receiver, launch, scale, po_objec
                 break
             # one index array for the five takes: a boolean mask is scanned once each
             hit = np.flatnonzero(hit)
-            org, dirs, field, t, prim = (a[hit] for a in (org, dirs, field, t, prim))
+            org, dirs, field, t, prim, ray = (a[hit] for a in (org, dirs, field, t, prim,
+                                                               ray))
             if settings.coherent:
                 image = image[hit]
             last_prim = prim
@@ -1324,7 +1573,7 @@ def _rays_host(scene, geom, slab, transmitter, receiver, launch, scale, po_objec
             org = spawn_origins(point, n, dirs)
 
 
-def _rays_device(scene, geom, slab, transmitter, receiver, launch, scale, po_objects,
+def _rays_device(scene, geom, slab, transmitter, receiver, launch, scale, optics: _Optics,
                  settings, rng, sums: CellSums, steps) -> None:
     """The rays stage on the device (``MapSettings(engine="device")``): one launch a batch
     walks every ray through its bounces (:func:`clradcom.device.map_walk.walk_rays`);
@@ -1335,7 +1584,9 @@ def _rays_device(scene, geom, slab, transmitter, receiver, launch, scale, po_obj
     rt = caster.runtime
     tri_object = np.asarray(scene.tri_object)
     normals = caster.normals64()
-    tables = WalkTables.of(rt, scene, normals, np.isin(tri_object, po_objects))
+    tables = WalkTables.of(rt, scene, normals, np.isin(tri_object, optics.po_objects),
+                           np.isin(tri_object, optics.sbr_objects))
+    rot = np.asarray(transmitter.orientation, dtype=np.float64)
     scatter_orders = settings.scattering_reflections if settings.scattering else -1
     device_lattice = launch.on(rt)
     rx_frame = None if receiver is None else receiver.orientation
@@ -1359,6 +1610,9 @@ def _rays_device(scene, geom, slab, transmitter, receiver, launch, scale, po_obj
             rx_frame=rx_frame, capacity=room, workspace=workspace)
         room = (max(room[0], segments.count * 5 // 4), max(room[1], len(hits.ray) * 5 // 4))
         weights = scale * receive_weights(segments, rx_pattern)
+        exits = segments.exit_ray
+        exits = np.flatnonzero(exits >= 0) if len(optics.sbr_objects) else exits[:0]
+        weights[exits[optics.radiated(launch, rot, segments.exit_ray[exits])]] = 0.0
         accumulate_rows(rt, slab, segments.org, segments.dir, segments.count, weights,
                         sums.power_only, sums.count, sums.square)
         for order in np.unique(hits.order):
@@ -1509,10 +1763,10 @@ def radio_map(scene: Scene, tx, grid: MapGrid, rx=None, settings: MapSettings | 
     scale = (lam / (4.0 * np.pi)) ** 2 * launch.solid_angle / slab.cell_volume
     sums = CellSums(rt, grid, 2.0 * np.pi / lam, settings.coherent)
     # physical optics as the tracer chooses it (optics.replaced_paths): an object with PO
-    # facets gives no GO single reflection; one with SBR-PO keeps its later bounces'
-    # exit rays (the GO limit of its tubes' footprint radiation)
-    modes = np.array(object_optics(scene, settings.optics))
-    po_objects = np.flatnonzero(modes != "go")
+    # facets gives no GO single reflection; one with SBR-PO no GO exit segment after a
+    # later bounce where its tubes were shot (their footprints radiate instead)
+    optics = _optics_of(scene, geom, transmitter, settings)
+    po_objects = optics.po_objects
     n_batches = -(-len(launch.local) // settings.batch)
     rng = np.random.default_rng(settings.seed)
     clock = time.perf_counter()
@@ -1520,13 +1774,17 @@ def radio_map(scene: Scene, tx, grid: MapGrid, rx=None, settings: MapSettings | 
     on_device = (settings.engine == "device" and not settings.coherent
                  and geom.caster is not None)
     walk = _rays_device if on_device else _rays_host
-    walk(scene, geom, slab, transmitter, receiver, launch, scale, po_objects, settings, rng,
+    walk(scene, geom, slab, transmitter, receiver, launch, scale, optics, settings, rng,
          sums, steps)
     seconds["rays"] = time.perf_counter() - clock
     if len(po_objects) and geom.caster is not None:
         clock = time.perf_counter()
         _po_facets(scene, geom, grid, transmitter, receiver, po_objects, settings, sums)
         seconds["physical optics"] = time.perf_counter() - clock
+    if optics.windows is not None:
+        clock = time.perf_counter()
+        _sbr_footprints(scene, geom, grid, transmitter, receiver, optics, settings, sums)
+        seconds["sbr"] = time.perf_counter() - clock
     clock = time.perf_counter()
     if settings.diffraction and geom.caster is not None:
         wedges = diffraction.prepare(geom, DiffractionSettings(max_diffractions=1),

@@ -50,8 +50,10 @@ typedef float3 real3;
 #define HIT_INTS 3
 /* reals of a segment's receive record: the arrival direction in the receiver's frame
  * (3), the field's theta and phi components there (re, im each); without a receiver
- * |E|^2 first */
-#define RX_REALS 7
+ * |E|^2 first; then, for a segment leaving an SBR object's triangle after its second or
+ * later bounce, the ray's index as two 16-bit halves (exact in float), else -1, -1: the
+ * host drops it where SBR-PO's tubes radiate that bounce (maps.py) */
+#define RX_REALS 9
 
 /* params: tx xyz, slab box lo xyz and hi xyz (grown by the margin), wavenumber, the
  * slab's corner (x0, y0, z_lo) that the segments' float32 rows are relative to */
@@ -63,6 +65,8 @@ typedef float3 real3;
 
 /* PO objects' triangles (tri_flags): their first reflections are the PO stage's */
 #define FLAG_PO 1
+/* SBR objects' triangles: a later bounce's exit segment may be SBR-PO's footprints' */
+#define FLAG_SBR 2
 
 inline real3 load_real3(__global const real *p) { return (real3)(p[0], p[1], p[2]); }
 
@@ -129,7 +133,7 @@ inline void emit_segment(volatile __global int *counter, const int capacity,
                          __global float4 *seg_org, __global float4 *seg_dir,
                          __global real *seg_rx, const real3 o, const real3 d,
                          const real len, const cvec3 e, __global const real *params,
-                         __global const real *rx)
+                         __global const real *rx, const int exit_ray)
 {
     int slot = atomic_inc(counter);
     if (slot >= capacity) return;
@@ -138,6 +142,8 @@ inline void emit_segment(volatile __global int *counter, const int capacity,
     seg_dir[slot] = (float4)((float)d.x, (float)d.y, (float)d.z,
                              (float)fmin(len, (real)1e30));
     __global real *r = seg_rx + (size_t)RX_REALS * slot;
+    r[7] = exit_ray < 0 ? (real)-1.0 : (real)(exit_ray & 0xffff);
+    r[8] = exit_ray < 0 ? (real)-1.0 : (real)(exit_ray >> 16);
     if (!rx) {
         real power = e.x.x * e.x.x + e.x.y * e.x.y + e.y.x * e.y.x + e.y.y * e.y.y
                      + e.z.x * e.z.x + e.z.y * e.z.y;
@@ -208,7 +214,8 @@ __kernel void map_walk(__global const Bvh8Node *nodes, __global const float4 *tr
                 && !(order == 1 && (tri_flags[last] & FLAG_PO))
                 && reaches_box(org, dir, t, params))
             emit_segment(counters, seg_capacity, seg_org, seg_dir, seg_rx, org, dir, t, field,
-                         params, rx);
+                         params, rx,
+                         (order >= 2 && (tri_flags[last] & FLAG_SBR)) ? ray : -1);
         if (prim < 0) break;
         int mat = tri_material[prim];
         if (order <= scatter_orders && mat_i[3 * mat + 2])

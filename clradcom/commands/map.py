@@ -59,6 +59,7 @@ from clradcom.files import staged_folder
 from clradcom.maps import (
     MIN_EFFECTIVE_SEGMENTS,
     MIN_SEGMENTS,
+    SBR_MODES,
     MapGrid,
     MapSettings,
     map_memory_bytes,
@@ -127,6 +128,10 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
                     help="physical optics as the tracer's --physical-optics chooses it per "
                          "object (sbr: the paper preset's; the cars' first bounce becomes "
                          "their PO facets' field at the cell centres; default none: GO)")
+    ap.add_argument("--sbr", choices=SBR_MODES, default="exit-rays",
+                    help="with --optics sbr, the cars' later bounces: exit-rays (default: "
+                         "the rays' GO exit segments, the tubes' GO limit) or footprints "
+                         "(the tracer's SBR-PO tubes radiated to the cell centres; slower)")
     ap.add_argument("--coherent", action="store_true",
                     help="the coherent sum at the carrier: each wavefront's power per cell "
                          "with its phase at the cell's centre, added as fields (for cells "
@@ -205,7 +210,7 @@ def run(args) -> int:
                            scattering=args.scattering, diffuse_rays=args.diffuse_rays,
                            diffraction=args.diffraction, edge_step_m=args.edge_step,
                            cone_step_deg=args.cone_step, coherent=args.coherent,
-                           optics=args.optics)
+                           optics=args.optics, sbr=args.sbr)
     budget = None if args.memory_budget is None else parse_bytes(args.memory_budget,
                                                                  "--memory-budget")
     need = map_memory_bytes(settings, grid)
@@ -253,7 +258,7 @@ def run(args) -> int:
             "tx": args.tx, "rx": args.rx, "interferer": args.interferer,
             "rays": args.rays, "reflections": args.reflections,
             "scattering": args.scattering, "diffraction": args.diffraction,
-            "coherent": args.coherent, "optics": args.optics,
+            "coherent": args.coherent, "optics": args.optics, "sbr": args.sbr,
             "min_segments": MIN_SEGMENTS, "min_effective_segments": MIN_EFFECTIVE_SEGMENTS}
     sources = scene.input_files
     target = Path(args.out)

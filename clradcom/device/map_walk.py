@@ -31,9 +31,11 @@ SOURCE = "map_walk.cl"
 #: a scattering hit's reals and ints, a segment's receive reals (kernels/map_walk.cl)
 HIT_REALS = 13
 HIT_INTS = 3
-RX_REALS = 7
-#: PO objects' triangles in ``tri_flags`` (kernels/map_walk.cl: FLAG_PO)
+RX_REALS = 9
+#: PO objects' triangles in ``tri_flags`` (kernels/map_walk.cl: FLAG_PO), and SBR
+#: objects' (FLAG_SBR: a later bounce's exit segment is marked with its ray)
 FLAG_PO = 1
+FLAG_SBR = 2
 
 
 def _real(runtime) -> type:
@@ -66,7 +68,8 @@ class LaunchLattice:
 @dataclass
 class WalkTables:
     """Per-triangle and per-material device tables of one map: unit normals (float64's,
-    as the host reflects off them), material ids, flags (:data:`FLAG_PO`) and the
+    as the host reflects off them), material ids, flags (:data:`FLAG_PO`,
+    :data:`FLAG_SBR`) and the
     material rows of ``kernels/em.h`` (eps re, eps im, roughness, sqrt(1 - S^2)) and
     (pec, roughness model) with whether the material scatters (S > 0)."""
 
@@ -77,7 +80,7 @@ class WalkTables:
     mat_i: object
 
     @classmethod
-    def of(cls, runtime, scene, normals, po_triangles) -> WalkTables:
+    def of(cls, runtime, scene, normals, po_triangles, sbr_triangles=None) -> WalkTables:
         real = _real(runtime)
         em_f, em_i = material_tables(scene)
         # whether a material scatters as its own flag: sqrt(1 - S^2) rounds to 1 below
@@ -85,6 +88,8 @@ class WalkTables:
         scatters = np.asarray(scene.material_scattering, dtype=np.float64) > 0
         mat_i = np.column_stack([em_i, scatters])
         flags = np.where(np.asarray(po_triangles, dtype=bool), FLAG_PO, 0)
+        if sbr_triangles is not None:
+            flags |= np.where(np.asarray(sbr_triangles, dtype=bool), FLAG_SBR, 0)
         dev = runtime.to_device
         return cls(normals=dev(np.asarray(normals, dtype=real)),
                    tri_material=dev(np.asarray(scene.tri_material, dtype=np.int32)),
@@ -122,14 +127,23 @@ class WalkSegments:
     """A batch's segments that may reach the slab, left on the device: ``org``, ``dir``
     the float4 buffers of :func:`clradcom.device.maps.accumulate_rows` (origin relative to the
     slab's corner; unit direction and length), ``count`` of them, and ``receive``
-    (count, 7) float64 on the host: the arrival direction in the receiver's frame and
+    (count, 9) float64 on the host: the arrival direction in the receiver's frame and
     the field's theta and phi components there (re, im), or without a receiver |E|^2 in
-    column 0 (:func:`receive_weights`)."""
+    column 0 (:func:`receive_weights`); then the ray's index in two halves where the
+    segment leaves a :data:`FLAG_SBR` triangle after the ray's second or later bounce
+    (:attr:`exit_ray`)."""
 
     org: object
     dir: object
     count: int
     receive: np.ndarray
+
+    @property
+    def exit_ray(self) -> np.ndarray:
+        """(count,) int64: the lattice ray of each segment that leaves an SBR object's
+        triangle after its second or later bounce, -1 for the others."""
+        lo, hi = self.receive[:, 7], self.receive[:, 8]
+        return np.where(lo < 0, -1, hi.astype(np.int64) * 65536 + lo.astype(np.int64))
 
 
 def receive_weights(segments: WalkSegments, rx_pattern) -> np.ndarray:

@@ -712,11 +712,7 @@ def earlier_overlaps(windows: TubeWindows) -> np.ndarray:
     directions (axis, and the half-angle of the grid extent's farthest corner) meet.
     Only those need the ownership test; the others never hold each other's directions."""
     W = windows.n_windows
-    lo = windows.cell0 * windows.spacing[:, None]
-    hi = (windows.cell0 + windows.shape * BLOCK) * windows.spacing[:, None]
-    reach = np.hypot(np.maximum(np.abs(lo[:, 0]), np.abs(hi[:, 0])),
-                     np.maximum(np.abs(lo[:, 1]), np.abs(hi[:, 1])))
-    half = np.arctan2(reach, windows.distance)
+    half = _window_half_angles(windows)
     between = np.arccos(np.clip(windows.axis @ windows.axis.T, -1.0, 1.0))
     meet = between <= half[:, None] + half[None, :] + 1e-9
     return meet & np.tri(W, k=-1, dtype=bool)
@@ -748,7 +744,7 @@ def _covering_block(windows: TubeWindows, k: int, d) -> tuple[np.ndarray, np.nda
 
 
 def launched(windows: TubeWindows, directions) -> np.ndarray:
-    """Whether the tubes of ``windows`` were shot in each direction (N,3) from tx: the
+    """Whether the tubes of ``windows`` were shot along each direction (N,3) from tx: the
     first window whose mask covers it owns it (the kernels' ownership test), and its
     block there is one of those launched (not cut by :func:`blocks_in_pattern`).  A
     direction outside every launched tube's cell is one SBR-PO never follows."""
@@ -756,18 +752,42 @@ def launched(windows: TubeWindows, directions) -> np.ndarray:
     out = np.zeros(len(d), dtype=bool)
     if len(windows.block_window) == 0 or len(d) == 0:
         return out
+    d = d / np.linalg.norm(d, axis=1, keepdims=True)
     w = windows.block_window.astype(np.int64)
     kept = np.unique(windows.mask_offset[w] + windows.block_i.astype(np.int64)
                      * windows.shape[w, 1] + windows.block_j)
-    open_rows = np.arange(len(d))
+    # each window's cone of directions (earlier_overlaps' half-angle, widened a little)
+    # first: most directions lie in none, and one product tests them against all
+    cos_half = np.cos(np.minimum(_window_half_angles(windows) + 1e-6, np.pi))
+    rows, cones = [], []
+    for start in range(0, len(d), 1 << 16):
+        r, k = np.nonzero(d[start:start + (1 << 16)] @ windows.axis.T >= cos_half)
+        rows.append(r + start)
+        cones.append(k)
+    rows, cones = np.concatenate(rows), np.concatenate(cones)
+    order = np.argsort(cones, kind="stable")
+    rows, cones = rows[order], cones[order]
+    bounds = np.searchsorted(cones, np.arange(windows.n_windows + 1))
+    decided = np.zeros(len(d), dtype=bool)
     for k in range(windows.n_windows):
-        ok, flat = _covering_block(windows, k, d[open_rows])
-        owned = open_rows[ok]
-        out[owned] = np.isin(flat[ok], kept)
-        open_rows = open_rows[~ok]
-        if len(open_rows) == 0:
-            break
+        mine = rows[bounds[k]:bounds[k + 1]]
+        mine = mine[~decided[mine]]
+        if not len(mine):
+            continue
+        ok, flat = _covering_block(windows, k, d[mine])
+        out[mine[ok]] = np.isin(flat[ok], kept)
+        decided[mine[ok]] = True
     return out
+
+
+def _window_half_angles(windows: TubeWindows) -> np.ndarray:
+    """(W,) the half-angle of each window's cone of directions: its axis to the
+    farthest corner of its grid's extent."""
+    lo = windows.cell0 * windows.spacing[:, None]
+    hi = (windows.cell0 + windows.shape * BLOCK) * windows.spacing[:, None]
+    reach = np.hypot(np.maximum(np.abs(lo[:, 0]), np.abs(hi[:, 0])),
+                     np.maximum(np.abs(lo[:, 1]), np.abs(hi[:, 1])))
+    return np.arctan2(reach, windows.distance)
 
 
 @dataclass
