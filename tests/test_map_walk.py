@@ -219,14 +219,14 @@ def test_both_walks_drop_the_exit_segments_the_sbr_footprints_stand_for(runtime)
     after a second or later bounce along a direction its tubes were shot in are left out,
     by the device walk (the ray marked in the segment's record) as by the host's: the
     two maps agree as above, and hold fewer segments than with the exit rays kept, cell
-    by cell and in all."""
+    by cell and in all (each walk against itself: without fp64 the two walks differ
+    slightly, the docstring's bound)."""
     scene = small_scene()
     grid = MapGrid(-4, 16, -10, 10, 1.0, cell_m=0.5)
     kw = dict(rays=60_000, max_reflections=3, optics="sbr", batch=1 << 14)
     host, device = both(scene, grid, runtime, sbr="footprints", **kw)
     check_agreement(host, device, runtime.info.has_double)
-    kept = radio_map(scene, "tx", grid, rx="rx", runtime=runtime,
-                     settings=MapSettings(sbr="exit-rays", **kw))
-    assert (device.count <= kept.count).all()
-    assert device.count.sum() < kept.count.sum()
-    assert (host.count <= kept.count).all()
+    for dropped, kept in zip((host, device), both(scene, grid, runtime, sbr="exit-rays", **kw),
+                             strict=True):
+        assert (dropped.count <= kept.count).all()
+        assert dropped.count.sum() < kept.count.sum()
