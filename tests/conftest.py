@@ -70,6 +70,7 @@ OCLGRIND_TESTS = frozenset({
     "test_maps_coherent::test_segment_records_add_up_to_the_accumulated_cells",
     "test_maps_po::test_device_po_fields_on_a_few_cells",
     "test_map_walk::test_device_walk_on_a_few_rays",
+    "test_map_walk::test_device_walk_drops_sbr_exits_on_a_few_rays",
     "test_maps_po::test_one_launch_po_stage_on_a_few_cells",
 })
 

@@ -164,6 +164,31 @@ def test_device_walk_on_a_few_rays(runtime):
         assert np.isclose(device.gain.sum(), host.gain.sum(), rtol=0.2)
 
 
+def test_device_walk_drops_sbr_exits_on_a_few_rays(runtime):
+    """Oclgrind's size for the SBR exit marks: a metal box on the ground under the paper
+    preset's optics, 1500 rays, two reflections, 8 x 8 cells: the footprint map's walks
+    agree and hold fewer segments than the exit rays' (the road -> box exits dropped)."""
+    objects = [plane("ground", "road", (30.0, 30.0)),
+               box("van", "metal", (2.0, 2.0, 1.5), (5.13, 0.13, 0.75))]
+    tx = radar("tx", [0, 0, 1.0], role="tx", polarization="V",
+               pattern={"type": "cosine", "half_power_beamwidth_deg": 40.0})
+    rx = radar("rx", [3, 0, 1.0], role="rx", polarization="V", pattern="isotropic")
+    scene = scene_from_dict(scene_dict(objects=objects, materials=MATERIALS,
+                                       radars=[tx, rx]))
+    grid = MapGrid(-4, 4, -4, 4, 1.0, cell_m=1.0)
+    kw = dict(rays=1500, max_reflections=2, optics="sbr", batch=512)
+    host, device = both(scene, grid, runtime, sbr="footprints", **kw)
+    kept = both(scene, grid, runtime, sbr="exit-rays", **kw)
+    assert host.count.sum() < kept[0].count.sum()
+    if runtime.info.has_double:
+        assert np.array_equal(device.count, host.count)
+        assert np.array_equal(kept[1].count, kept[0].count)
+        reached = host.count > 0
+        assert np.allclose(device.gain[reached], host.gain[reached], rtol=1e-4)
+    else:
+        assert device.count.sum() < kept[1].count.sum()
+
+
 def test_walk_runs_a_batch_again_when_its_records_overflow(runtime):
     """Room for one segment and one hit: the walk counts what did not fit, runs the
     batch again with room for all, and returns the records a roomy first run returns."""

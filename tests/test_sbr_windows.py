@@ -234,17 +234,24 @@ def test_projection_kernel_is_numpys_bit_for_bit(runtime):
     np.testing.assert_allclose(xy[win == 2][..., 0], x, rtol=1e-12, atol=1e-12)
 
 
-def test_blocks_in_pattern_keep_the_blocks_seen_at_a_corner_or_the_centre(runtime):
-    """blocks_in_pattern (each lattice corner once, then the centres) against its
-    definition evaluated block by block: a block stays where tx's pattern has gain at one
-    of its four corners or its centre."""
+def street_car_windows(runtime, pitch_wavelengths: float):
+    """Radar A of the street and its SBR windows over the four cars, every block (no
+    pattern cut) at this pitch."""
     scene = load_scene(STREET)
     geom = build_geometry(scene, runtime, engine="device")
     tx = scene.radars[scene.radar_index("A")]
     cars = [i for i, o in enumerate(scene.objects) if o.name.startswith("car")]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        w = sbr.launch_windows(geom, tx.position, cars, 2 * scene.wavelength_m)
+        return tx, sbr.launch_windows(geom, tx.position, cars,
+                                      pitch_wavelengths * scene.wavelength_m)
+
+
+def test_blocks_in_pattern_keep_the_blocks_seen_at_a_corner_or_the_centre(runtime):
+    """blocks_in_pattern (each lattice corner once, then the centres) against its
+    definition evaluated block by block: a block stays where tx's pattern has gain at one
+    of its four corners or its centre."""
+    tx, w = street_car_windows(runtime, 2.0)
     got = sbr.blocks_in_pattern(w, tx)
     g = w.block_window.astype(np.int64)
     keep = np.zeros(len(g), dtype=bool)
@@ -263,14 +270,8 @@ def test_launched_holds_the_shot_tubes_and_not_the_blocks_the_pattern_cut(runtim
     """sbr.launched says which directions SBR shoots a tube in: every owned tube of the
     street's windows (radar A, its 90 degree sector) is launched; a tube of a block that
     blocks_in_pattern cut is not, nor the reverse of a launched direction; a later
-    window's tube that an earlier window owns is launched (by the earlier one)."""
-    scene = load_scene(STREET)
-    geom = build_geometry(scene, runtime, engine="device")
-    tx = scene.radars[scene.radar_index("A")]
-    cars = [i for i, o in enumerate(scene.objects) if o.name.startswith("car")]
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        every = sbr.launch_windows(geom, tx.position, cars, 4 * scene.wavelength_m)
+    window's tube that an earlier window owns may be launched (by the earlier one)."""
+    tx, every = street_car_windows(runtime, 4.0)
     kept = sbr.blocks_in_pattern(every, tx)
     assert 0 < len(kept.block_window) < len(every.block_window)
     grid, owned = sbr.window_tubes(every, np.arange(every.n_tubes))
@@ -287,5 +288,6 @@ def test_launched_holds_the_shot_tubes_and_not_the_blocks_the_pattern_cut(runtim
     assert got[shot].all()
     # a cut block's own tube, where no earlier window owns the direction: never shot
     assert not got[owned & ~tube_kept].any()
+    assert got[~owned].any()
     assert not sbr.launched(kept, -grid.directions[shot]).any()
     assert not sbr.launched(sbr.TubeWindows.empty(tx.position), grid.directions[:5]).any()
