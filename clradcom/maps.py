@@ -1272,7 +1272,8 @@ def _po_received(scene, v, normal, pec, material, tx_pos, points, e_tx, receiver
 class _Optics:
     """A map's physical optics as the tracer chooses it per object: ``po_objects`` (PO
     facets for the first bounce), ``sbr_objects`` (SBR-PO for the later ones) and the
-    transmitter's SBR ``windows`` (None without SBR objects)."""
+    transmitter's SBR ``windows`` (None unless its SBR footprints are asked for:
+    MapSettings(sbr="footprints"))."""
 
     po_objects: np.ndarray
     sbr_objects: np.ndarray
