@@ -36,7 +36,9 @@ complex fields; diffuse scattering adds in power.
 
 With ``MapSettings(optics=...)`` the objects the tracer gives physical optics (the cars
 under the paper preset) return their PO facets' fields evaluated at the cell centres
-instead of their GO single reflections (:func:`_po_facets`).
+instead of their GO single reflections (:func:`_po_facets`); their later bounces are
+the rays' GO exit segments or, with ``MapSettings(sbr="footprints")``, the tracer's
+SBR-PO tubes' footprints radiated to the centres (:func:`_sbr_footprints`).
 
 The estimate converges where enough segments pass through a cell: at least
 :data:`MIN_SEGMENTS`, and :data:`MIN_EFFECTIVE_SEGMENTS` of them effective where their
