@@ -1535,7 +1535,7 @@ def _rays_host(scene, geom, slab, transmitter, receiver, launch, scale, optics: 
                 near = _reaches(slab, org, dirs, t)
                 if order == 1 and len(optics.po_objects):
                     near &= ~np.isin(tri_object[last_prim], optics.po_objects)
-                if order >= 2:
+                if order >= 2 and optics.windows is not None:
                     exits = np.flatnonzero(near & np.isin(tri_object[last_prim],
                                                           optics.sbr_objects))
                     near[exits[optics.radiated(launch, rot, ray[exits])]] = False
@@ -1588,7 +1588,8 @@ def _rays_device(scene, geom, slab, transmitter, receiver, launch, scale, optics
     tri_object = np.asarray(scene.tri_object)
     normals = caster.normals64()
     tables = WalkTables.of(rt, scene, normals, np.isin(tri_object, optics.po_objects),
-                           np.isin(tri_object, optics.sbr_objects))
+                           None if optics.windows is None
+                           else np.isin(tri_object, optics.sbr_objects))
     rot = np.asarray(transmitter.orientation, dtype=np.float64)
     scatter_orders = settings.scattering_reflections if settings.scattering else -1
     device_lattice = launch.on(rt)
@@ -1613,9 +1614,10 @@ def _rays_device(scene, geom, slab, transmitter, receiver, launch, scale, optics
             rx_frame=rx_frame, capacity=room, workspace=workspace)
         room = (max(room[0], segments.count * 5 // 4), max(room[1], len(hits.ray) * 5 // 4))
         weights = scale * receive_weights(segments, rx_pattern)
-        exits = segments.exit_ray
-        exits = np.flatnonzero(exits >= 0) if len(optics.sbr_objects) else exits[:0]
-        weights[exits[optics.radiated(launch, rot, segments.exit_ray[exits])]] = 0.0
+        if optics.windows is not None:
+            ray = segments.exit_ray
+            exits = np.flatnonzero(ray >= 0)
+            weights[exits[optics.radiated(launch, rot, ray[exits])]] = 0.0
         accumulate_rows(rt, slab, segments.org, segments.dir, segments.count, weights,
                         sums.power_only, sums.count, sums.square)
         for order in np.unique(hits.order):
