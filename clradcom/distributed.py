@@ -65,6 +65,7 @@ try:  # a hard dependency (pyproject.toml); imported here so the error can say s
     import dask
     import distributed
     from distributed.diagnostics.plugin import WorkerPlugin
+    from tornado.iostream import StreamClosedError
 except ImportError as _exc:  # pragma: no cover - installed with clradcom
     raise ImportError(f"clradcom.distributed needs dask.distributed ({_exc}): "
                       "pip install distributed") from _exc
@@ -108,17 +109,27 @@ def _not_a_hang_up(record: logging.LogRecord) -> bool:
     cluster stopping while a worker still sends a result to a client or worker that is
     gone): a logging filter that drops those."""
     exc = record.exc_info[1] if record.exc_info else None
-    return not isinstance(exc, (distributed.comm.CommClosedError, BrokenPipeError,
-                                ConnectionResetError))
+    return not isinstance(exc, (distributed.comm.CommClosedError, StreamClosedError,
+                                BrokenPipeError, ConnectionResetError))
+
+
+#: the logger tornado reports an exception in an event-loop callback to ("Exception in
+#: callback ...", with its traceback): a comm's callback that meets a closed peer while
+#: the cluster stops logs there, not under ``distributed``
+TORNADO_CALLBACKS = "tornado.application"
 
 
 def _drop_hang_ups() -> None:
     """Hang-ups (:func:`_not_a_hang_up`) kept off the handlers of Dask's ``distributed`` logger
     in this process (a filter on the handlers: a logger's own filter would miss the
-    records of its children, ``distributed.worker`` among them)."""
+    records of its children, ``distributed.worker`` among them), and off tornado's
+    callback logger (its own filter: tornado logs those records to it directly)."""
     for handler in logging.getLogger("distributed").handlers:
         if _not_a_hang_up not in handler.filters:
             handler.addFilter(_not_a_hang_up)
+    callbacks = logging.getLogger(TORNADO_CALLBACKS)
+    if _not_a_hang_up not in callbacks.filters:
+        callbacks.addFilter(_not_a_hang_up)
 
 
 class QuietHangUps(WorkerPlugin):

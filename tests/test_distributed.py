@@ -227,8 +227,10 @@ def test_an_unreachable_scheduler_is_refused_in_seconds():
 
 def test_quiet_logs_drop_a_peer_hang_up_but_keep_other_errors():
     """At Ctrl-C a worker still sending data to a client or worker that is gone logs
-    "failed during get data" with a traceback; the commands' quiet logging drops it (on
-    the workers through QuietHangUps) and keeps every other error."""
+    "failed during get data" with a traceback, and a comm's event-loop callback that
+    meets the closed peer makes tornado log "Exception in callback" with one; the
+    commands' quiet logging drops both (on the workers through QuietHangUps) and keeps
+    every other error."""
     import subprocess
     import sys
 
@@ -247,12 +249,24 @@ for exc in (BrokenPipeError(32, "Broken pipe"), ConnectionResetError(104, "reset
         log.exception("failed during get data with %s", type(exc).__name__)
 log.error("an error without an exception")
 print(sum(len(h.filters) for h in logging.getLogger("distributed").handlers))
+from tornado.iostream import StreamClosedError
+app = logging.getLogger("tornado.application")
+for exc in (StreamClosedError(), CommClosedError("Stream is closed"), KeyError("own fault")):
+    try:
+        raise exc
+    except Exception:
+        app.error("Exception in callback %s", type(exc).__name__, exc_info=True)
+print(len(app.filters))
 """
     proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
                           timeout=120)
     assert proc.returncode == 0, proc.stderr
-    assert proc.stdout.split() == ["1"]
+    assert proc.stdout.split() == ["1", "1"]
     assert "failed during get data with ValueError" in proc.stderr
+    # tornado's "Exception in callback" of a comm that met a closed peer: the same
+    assert "Exception in callback KeyError" in proc.stderr
+    for dropped in ("callback StreamClosedError", "callback CommClosedError"):
+        assert dropped not in proc.stderr, proc.stderr
     assert "ValueError: a real fault" in proc.stderr
     assert "an error without an exception" in proc.stderr
     for dropped in ("BrokenPipeError", "ConnectionResetError", "CommClosedError"):
