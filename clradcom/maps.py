@@ -92,7 +92,12 @@ from clradcom.physics.em import (
     material_reflection_dyad,
     reflected_fields,
 )
-from clradcom.physics.po import MAX_SUBDIVISION_LEVELS, NEAR_SIZE_FACTOR, po_transfer, sinc
+from clradcom.physics.po import (
+    MAX_SUBDIVISION_LEVELS,
+    NEAR_SIZE_FACTOR,
+    po_currents,
+    po_transfer,
+)
 from clradcom.physics.vectors import perpendicular
 from clradcom.scene.records import Radar, Scene
 
@@ -1352,31 +1357,19 @@ def _footprints(scene, geom, tx: Radar, optics: _Optics, max_bounces: int) -> _F
     e_tx = c_tx[:, :1] * th + c_tx[:, 1:] * ph
     e_in = np.einsum("hij,hj->hi", hits.chain, e_tx)
     n, k_in = hits.normal, hits.k_in
-    width = np.sqrt(tubes.solid_angle[hits.tube]) * hits.length
-    kn = np.einsum("ij,ij->i", k_in, n)
-    edges = []
-    for e in (hits.edge1, hits.edge2):
-        e = width[:, None] * e
-        edges.append(e - k_in * (np.einsum("ij,ij->i", n, e) / kn)[:, None])
-    # the currents: PEC 2 n x (k_i x E); penetrable n x (k_i x E) + n x (k_r x D E) and,
-    # magnetic, n x ((I + D) E) (physics.po.penetrable_po_operator, applied to E)
-    a = 2.0 * np.cross(n, np.cross(k_in, e_in))
-    b = np.zeros_like(a)
+    edge1, edge2, area = sbr.footprint_shape(hits, tubes)
+    a, b = po_currents(n, k_in, e_in)
     material = np.asarray(scene.tri_material)[hits.triangle]
     pen = np.flatnonzero(~np.asarray(scene.material_pec)[material])
     if len(pen):
-        dyad = material_reflection_dyad(scene, material[pen], k_in[pen], n[pen])
-        reflected = np.einsum("hij,hj->hi", dyad, e_in[pen])
-        k_r = k_in[pen] - 2.0 * kn[pen, None] * n[pen]
-        a[pen] = (np.cross(n[pen], np.cross(k_in[pen], e_in[pen]))
-                  + np.cross(n[pen], np.cross(k_r, reflected)))
-        b[pen] = np.cross(n[pen], e_in[pen] + reflected)
+        a[pen], b[pen] = po_currents(n[pen], k_in[pen], e_in[pen], material_reflection_dyad(
+            scene, material[pen], k_in[pen], n[pen]))
     face = np.where(hits.tri_history >= 0,
                     geom.faces.tri_face[np.maximum(hits.tri_history, 0)], -1)
     _, group = np.unique(face, axis=0, return_inverse=True)
     return _Footprints(point=hits.point, normal=n, k_in=k_in, length=hits.length,
-                       edge1=edges[0], edge2=edges[1], area=width * width / np.abs(kn),
-                       a=a, b=b, group=group.reshape(-1), triangle=hits.triangle)
+                       edge1=edge1, edge2=edge2, area=area, a=a, b=b,
+                       group=group.reshape(-1), triangle=hits.triangle)
 
 
 def _sbr_footprints(scene, geom, grid: MapGrid, tx: Radar, receiver, optics: _Optics,
@@ -1454,24 +1447,29 @@ def _lobe_cells(fp: _Footprints, members, centres, lam: float,
     out = []
     norm2 = np.einsum("ij,ij->i", centres, centres)
     for m in members:
-        kn = np.einsum("ij,ij->i", fp.k_in[m], fp.normal[m])
-        mirror = fp.k_in[m] - 2.0 * kn[:, None] * fp.normal[m]
-        axis = mirror.mean(axis=0)
-        axis /= np.linalg.norm(axis)
-        apex = (fp.point[m] - fp.length[m, None] * mirror).mean(axis=0)
-        spread = float(np.arccos(np.clip(mirror @ axis, -1.0, 1.0)).max())
-        extent = fp.point[m].max(axis=0) - fp.point[m].min(axis=0)
-        size = max(float(np.linalg.norm(extent)),
-                   float(np.sqrt(np.max(fp.area[m]))))
         n0 = fp.normal[m[0]]
         inside = centres @ n0 > float(np.max(fp.point[m] @ n0))
         if widths is not None:
-            half = min(spread + widths * lam / size, 0.5 * np.pi)
-            along = centres @ axis - apex @ axis
-            dist = np.sqrt(np.maximum(norm2 - 2.0 * (centres @ apex) + apex @ apex, 0.0))
-            inside &= along >= np.cos(half) * dist
+            inside &= _in_beam(fp, m, centres, norm2, lam, widths)
         out.append(np.flatnonzero(inside))
     return out
+
+
+def _in_beam(fp: _Footprints, m, centres, norm2, lam: float, widths: float) -> np.ndarray:
+    """Whether each centre lies in the beam of the face sequence of footprints ``m``
+    (:func:`_lobe_cells`); ``norm2`` the centres' squared norms."""
+    kn = np.einsum("ij,ij->i", fp.k_in[m], fp.normal[m])
+    mirror = fp.k_in[m] - 2.0 * kn[:, None] * fp.normal[m]
+    axis = mirror.mean(axis=0)
+    axis /= np.linalg.norm(axis)
+    apex = (fp.point[m] - fp.length[m, None] * mirror).mean(axis=0)
+    spread = float(np.arccos(np.clip(mirror @ axis, -1.0, 1.0)).max())
+    extent = fp.point[m].max(axis=0) - fp.point[m].min(axis=0)
+    size = max(float(np.linalg.norm(extent)), float(np.sqrt(np.max(fp.area[m]))))
+    half = min(spread + widths * lam / size, 0.5 * np.pi)
+    along = centres @ axis - apex @ axis
+    dist = np.sqrt(np.maximum(norm2 - 2.0 * (centres @ apex) + apex @ apex, 0.0))
+    return along >= np.cos(half) * dist
 
 
 def _footprint_amplitudes(fp: _Footprints, foot, points, receiver, k: float,
@@ -1483,9 +1481,8 @@ def _footprint_amplitudes(fp: _Footprints, foot, points, receiver, k: float,
     toward = points - fp.point[foot]
     r = np.linalg.norm(toward, axis=1)
     s = toward / r[:, None]
-    q = k * (s - fp.k_in[foot])
-    i_fp = fp.area[foot] * sinc(0.5 * np.einsum("ij,ij->i", q, fp.edge1[foot])) * sinc(
-        0.5 * np.einsum("ij,ij->i", q, fp.edge2[foot]))
+    i_fp = sbr.footprint_integral(k * (s - fp.k_in[foot]), fp.edge1[foot], fp.edge2[foot],
+                                  fp.area[foot])
     a, b = fp.a[foot], fp.b[foot]
     field = 0.5 * (a - s * np.einsum("ij,ij->i", s, a)[:, None] + np.cross(s, b))
     length = fp.length[foot]

@@ -27,7 +27,7 @@ from clradcom.mechanisms.physical_optics import po_paths
 from clradcom.mechanisms.sbr import sbr_paths
 from clradcom.paths import InteractionType
 from clradcom.physics import em
-from clradcom.physics.po import penetrable_po_operator, po_transfer
+from clradcom.physics.po import penetrable_po_operator, po_currents, po_transfer
 from clradcom.scene.reader import scene_from_dict
 from clradcom.trace import SpecularSettings, TraceSettings, trace_scene
 
@@ -112,6 +112,26 @@ def test_operator_pec_limit_and_specular_identity():
     D = em.reflection_dyad(ki, nrm, r_te, r_tm)
     K = penetrable_po_operator(nrm, ki, kr, D)
     assert np.abs(K @ transverse + 2 * np.abs(kn)[:, None, None] * D).max() < 1e-14
+
+
+def test_currents_radiate_the_operators_field_toward_every_direction():
+    """po_currents (the radio maps' SBR footprints: one pair of currents per footprint,
+    many directions): (I - s s^T) a + s x b is penetrable_po_operator's K E for random
+    geometry, reflection dyads and fields, and for a PEC (no dyad) its PEC current."""
+    rng = np.random.default_rng(11)
+    nrm, ki, s = random_geometry(rng, 400)
+    r_te = rng.normal(size=400) + 1j * rng.normal(size=400)
+    r_tm = rng.normal(size=400) + 1j * rng.normal(size=400)
+    field = rng.normal(size=(400, 3)) + 1j * rng.normal(size=(400, 3))
+    proj = np.eye(3) - s[:, :, None] * s[:, None, :]
+    # the PEC's K holds on transverse fields (the operator's own test above)
+    transverse = field - ki * np.sum(ki * field, axis=1)[:, None]
+    for D, e, dyad in ((em.reflection_dyad(ki, nrm, r_te, r_tm), field, None),
+                       (None, transverse, em.reflection_dyad(ki, nrm, -1.0, 1.0))):
+        a, b = po_currents(nrm, ki, e, D)
+        got = np.einsum("fij,fj->fi", proj, a) + np.cross(s, b)
+        K = penetrable_po_operator(nrm, ki, s, D if dyad is None else dyad)
+        assert np.abs(got - np.einsum("fij,fj->fi", K, e)).max() < 1e-12
 
 
 def test_po_transfer_with_a_pec_dyad_equals_the_pec_transfer():

@@ -922,6 +922,27 @@ def bounding_sphere(points):
     return c, float(np.linalg.norm(pts - c, axis=1).max())
 
 
+def footprint_shape(hits: TubeHits, grid: TubeGrid, rows=slice(None)):
+    """(edge1, edge2, area) of recorded hits ``rows``: the tube's square cross-section,
+    of side sqrt(dOmega) L_in, projected along k_in onto the hit's plane (two (H,3)
+    edges), and the area |e1' x e2'| = side^2 / |k_in . n|."""
+    k_in, n = hits.k_in[rows], hits.normal[rows]
+    side = np.sqrt(grid.solid_angle[hits.tube[rows]]) * hits.length[rows]
+    kn = np.einsum("ij,ij->i", k_in, n)
+    edges = []
+    for e in (hits.edge1[rows], hits.edge2[rows]):
+        e = side[:, None] * e
+        edges.append(e - k_in * (np.einsum("ij,ij->i", n, e) / kn)[:, None])
+    return edges[0], edges[1], side * side / np.abs(kn)
+
+
+def footprint_integral(q, edge1, edge2, area):
+    """I_fp (H,): the radiation integral of parallelograms (``area``, edges ``edge1``,
+    ``edge2``) with the linear phase q (H,3): area sinc(q.e1/2) sinc(q.e2/2)."""
+    return area * sinc(0.5 * np.einsum("ij,ij->i", q, edge1)) * sinc(
+        0.5 * np.einsum("ij,ij->i", q, edge2))
+
+
 def _radiate(geom, hits: TubeHits, grid: TubeGrid, rx_pos):
     """Per recorded hit that sees rx: T (H,3,3), L (H,), k_arr and the hits kept
     (side, shadowing).  See the module docstring for T."""
@@ -941,17 +962,9 @@ def _radiate(geom, hits: TubeHits, grid: TubeGrid, rx_pos):
                                  engine=geom.engine)]
     p, n, s, R_r = p[keep], n[keep], s[keep], R_r[keep]
     k_in, L_in = hits.k_in[keep], hits.length[keep]
-    dom = grid.solid_angle[hits.tube[keep]]
-    w = np.sqrt(dom) * L_in
     kn = np.einsum("ij,ij->i", k_in, n)
-    q = k0 * (s - k_in)
-    edges = []
-    for e in (hits.edge1[keep], hits.edge2[keep]):
-        e = w[:, None] * e
-        edges.append(e - k_in * (np.einsum("ij,ij->i", n, e) / kn)[:, None])
-    area = w * w / np.abs(kn)
-    i_fp = area * sinc(0.5 * np.einsum("ij,ij->i", q, edges[0])) * sinc(
-        0.5 * np.einsum("ij,ij->i", q, edges[1]))
+    edge1, edge2, area = footprint_shape(hits, grid, keep)
+    i_fp = footprint_integral(k0 * (s - k_in), edge1, edge2, area)
     mat = scene.tri_material[hits.triangle[keep]]
     pec = scene.material_pec[mat]
     eye = np.eye(3)

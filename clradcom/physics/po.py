@@ -265,6 +265,24 @@ def penetrable_po_operator(normal, k_in, s, reflection):
     return proj @ (a_i + a_r @ D) + _cross_matrix(s) @ _cross_matrix(n) @ (eye + D)
 
 
+def po_currents(normal, k_in, field, reflection=None):
+    """The currents (a, b), each (F,3) complex, that an incident ``field`` (F,3) drives on
+    facets of lit-side ``normal`` along ``k_in``, written so that the far field toward
+    any s is K E = (I - s s^T) a + s x b (:func:`penetrable_po_operator`'s K applied to
+    E, for evaluating one facet toward many s without a 3 x 3 product each): a = n x
+    (k_i x E) + n x (k_r x D E), b = n x ((I + D) E); ``reflection`` None is a PEC's
+    (a = 2 n x (k_i x E), b = 0)."""
+    n = np.asarray(normal, dtype=np.float64).reshape(-1, 3)
+    ki = np.asarray(k_in, dtype=np.float64).reshape(-1, 3)
+    e = np.asarray(field, dtype=np.complex128).reshape(-1, 3)
+    if reflection is None:
+        return 2.0 * np.cross(n, np.cross(ki, e)), np.zeros_like(e)
+    reflected = np.einsum("fij,fj->fi", np.asarray(reflection, dtype=np.complex128), e)
+    kr = ki - 2.0 * np.einsum("fi,fi->f", ki, n)[:, None] * n
+    return (np.cross(n, np.cross(ki, e)) + np.cross(n, np.cross(kr, reflected)),
+            np.cross(n, e + reflected))
+
+
 def _cross_matrix(v):
     """[v]_x (F,3,3): [v]_x e = v x e."""
     z = np.zeros(len(v))
