@@ -7,7 +7,8 @@ enumeration), the launch's paths stay bit for bit, and on the street (isotropic 
 A -> D) a 3e4-ray launch with expansion finds paths it missed, among them one that even
 a 1e6-ray launch misses; every added path obeys the law of reflection on its triangles
 and its delay is its length over c (independent closed forms, from the scene's own
-triangles)."""
+triangles). And where expansion cannot reach: a path off a face that no confirmed path
+touches, which only more rays find."""
 
 from __future__ import annotations
 
@@ -28,10 +29,11 @@ from clradcom.mechanisms.specular import (
     expansion_candidates,
     key_base,
 )
+from clradcom.paths import InteractionType
 from clradcom.physics.em import C0
 from clradcom.scene.antenna import IsotropicPattern
 from clradcom.scene.motion import scene_at
-from clradcom.scene.reader import load_scene
+from clradcom.scene.reader import load_scene, scene_from_dict
 from clradcom.trace import TraceSettings, trace_scene
 
 STREET = Path(__file__).resolve().parents[1] / "scenes" / "street" / "street.toml"
@@ -229,3 +231,49 @@ def test_the_main_jobs_specular_paths_hold_every_path_of_a_1e6_ray_launch(t, run
         check_real(p, seq, m.only_b, scene.triangles)
         extra += len(m.only_b)
     assert extra >= (1 if t == 0.9 else 0)
+
+
+def blind_spot_scene():
+    """Radars A at the origin and B 4 m along y, both isotropic; a 10 m wall at x = 10
+    facing them, and a 0.3 m metal plate at x = -20 facing +x, centred on the specular
+    point of A -> plate -> B, (-20, 2, 0). From A the plate subtends about 2e-4 sr: a
+    launch of 2e3 rays over the sphere puts none on it, one of 2e6 some 40."""
+    def plane(name, size, position, rotation_deg):
+        return {"name": name, "material": "metal", "shape": "plane", "size": [size, size],
+                "position": position, "rotation_deg": rotation_deg}
+    return scene_from_dict({
+        "scene": {"carrier_hz": 24e9, "name": "blind_spot"},
+        "objects": [plane("wall", 10.0, [10.0, 2.0, 0.0], [0.0, -90.0, 0.0]),
+                    plane("plate", 0.3, [-20.0, 2.0, 0.0], [0.0, 90.0, 0.0])],
+        "radars": [{"name": "A", "position": [0.0, 0.0, 0.0]},
+                   {"name": "B", "position": [0.0, 4.0, 0.0]}]}, file="blind_spot.toml")
+
+
+def test_expansion_cannot_reach_a_face_no_confirmed_path_touches(runtime):
+    """Where expansion can still miss (docs/performance.md): the plate's reflection is
+    a real path, but no ray of a sparse launch reaches the plate, and the only confirmed
+    reflection is off the wall, so no candidate of any round holds the plate. A dense
+    launch finds the path, at the image method's closed-form delay."""
+    scene = blind_spot_scene()
+
+    def found(rays, expand=None):
+        settings = TraceSettings.preset(
+            "go", specular__rays=rays, specular__max_reflections=2,
+            diffraction__max_diffractions=0, specular__expand_rounds=expand)
+        p = trace_scene(scene, settings, runtime=runtime, links=[(0, 1)]).links[0].paths
+        names = [o.name for o in scene.objects]
+        return p, sequences_of(p.interaction, p.n_interactions, p.object_id, names)
+
+    wall_path, plate_path = (((int(InteractionType.REFLECTION), name),)
+                             for name in ("wall", "plate"))
+    sparse, sparse_seq = found(2_000)
+    assert wall_path in sparse_seq and plate_path not in sparse_seq
+    expanded, expanded_seq = found(2_000, expand=4)
+    assert wall_path in expanded_seq and plate_path not in expanded_seq
+
+    dense, dense_seq = found(2_000_000)
+    assert plate_path in dense_seq
+    i = dense_seq.index(plate_path)
+    length = 2.0 * np.hypot(20.0, 2.0)   # A -> (-20, 2, 0) -> B
+    assert dense.delay_s[i] == pytest.approx(length / C0, rel=1e-9)
+    check_real(dense, dense_seq, [i], scene.triangles)
