@@ -1366,10 +1366,9 @@ def _footprints(scene, geom, tx: Radar, optics: _Optics, max_bounces: int) -> _F
             scene, material[pen], k_in[pen], n[pen]))
     face = np.where(hits.tri_history >= 0,
                     geom.faces.tri_face[np.maximum(hits.tri_history, 0)], -1)
-    _, group = np.unique(face, axis=0, return_inverse=True)
     return _Footprints(point=hits.point, normal=n, k_in=k_in, length=hits.length,
                        edge1=edge1, edge2=edge2, area=area, a=a, b=b,
-                       group=group.reshape(-1), triangle=hits.triangle)
+                       group=sbr.face_groups(face), triangle=hits.triangle)
 
 
 def _sbr_footprints(scene, geom, grid: MapGrid, tx: Radar, receiver, optics: _Optics,
@@ -1390,14 +1389,10 @@ def _sbr_footprints(scene, geom, grid: MapGrid, tx: Radar, receiver, optics: _Op
     members = [order[starts[g]:starts[g + 1]] for g in range(len(starts) - 1)]
     group_cells = _lobe_cells(fp, members, centres, lam, settings.sbr_lobe_widths)
     rx_rot = None if receiver is None else np.asarray(receiver.orientation, np.float64)
-    pairs_g, pairs_c = [], []
-    for g, cells in enumerate(group_cells):
-        if len(cells):
-            pairs_g.append(np.full(len(cells), g))
-            pairs_c.append(cells)
-    if not pairs_g:
+    pair_g = np.repeat(np.arange(len(group_cells)), [len(c) for c in group_cells])
+    if not len(pair_g):
         return
-    pair_g, pair_c = np.concatenate(pairs_g), np.concatenate(pairs_c)
+    pair_c = np.concatenate(group_cells)
     size = np.array([len(m) for m in members])
     # the footprint-cell terms a few at a time, summed per pair
     per_pair = size[pair_g]

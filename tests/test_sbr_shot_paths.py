@@ -56,4 +56,4 @@ def test_face_groups_are_unique_rows_inverse():
         f[rng.random((4000, K)) < 0.3] = -1
         f[:1000] = f[1000:2000]
         want = np.unique(f, axis=0, return_inverse=True)[1].reshape(-1)
-        np.testing.assert_array_equal(sbr._face_groups(f), want)
+        np.testing.assert_array_equal(sbr.face_groups(f), want)

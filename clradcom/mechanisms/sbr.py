@@ -1200,7 +1200,7 @@ def block_paths(geom, windows: TubeWindows, sums: BlockSums, tx, rx, *, max_boun
         geom, windows, groups["tube"], groups["nk"], max_bounces))
 
 
-def _face_groups(face) -> np.ndarray:
+def face_groups(face) -> np.ndarray:
     """(N,) each row's group among the distinct rows of ``face`` (N, K) (face ids >= -1),
     numbered in lexicographic order: ``np.unique(face, axis=0, return_inverse=True)``'s
     inverse. Where the rows fit one int64 in base max + 2 (the street's 4,972 faces at
@@ -1237,7 +1237,7 @@ def _block_groups(windows: TubeWindows, sums: BlockSums, tx, rx, min_relative_db
     c_tx = np.asarray(tx.pattern.field(d_tx[seen]), dtype=np.complex128)
     c_rx = np.asarray(rx.pattern.field(d_rx[seen]), dtype=np.complex128)
     gain = np.einsum("pi,pij,pj->p", c_rx, c.matrix, c_tx)
-    group = _face_groups(c.face)
+    group = face_groups(c.face)
     G = int(group.max()) + 1
     # np.add.at's sums, row by row in order, as bincounts of the real and imaginary parts
     g_gain = np.empty(G, np.complex128)
