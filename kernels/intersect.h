@@ -563,4 +563,200 @@ CLR_INLINE float3 slot_normal(__global const Bvh8Node *nodes, __global const flo
 
 #endif
 
+/* Ray packets: closest hits of up to PACKET_MAX coherent rays (the tubes of one SBR
+ * launch block, or those of them that left one face) in one walk of the tree.
+ *
+ * A record is entered once for the whole packet: each child box is tested by interval
+ * arithmetic over the packet's origins and inverse directions (Wald, Boulos & Shirley,
+ * "Ray Tracing Deformable Scenes using Dynamic Bounding Volume Hierarchies", ACM TOG
+ * 26(1), 2007, section 4.2), then every ray of the packet tests the triangles of a
+ * leaf it reaches. Rounding is monotone in each operand, so the interval's nearest
+ * entry and farthest exit bound every ray's own float ones: the packet never culls a
+ * box that ray_box8 would enter for one of its rays (then scaled by the same
+ * ROBUST_TMAX_SCALE), and a subtree is skipped only beyond every ray's closest hit.
+ *
+ * The result is blas_closest's, ray for ray and bit for bit: the same triangle test,
+ * the same strict range and the same choice of lane, so a ray's closest hit is the
+ * same wherever it is unique. Where it is not (two hits within rounding of each other,
+ * a ray through an edge), blas_closest keeps the first it visits, which depends on its
+ * own order of records; a ray that meets such a near tie in the packet's walk is cast
+ * again on its own. Packets whose rays run toward both sides of an axis (or along a
+ * slab plane) are cast ray by ray, as is every ray of a two-level tree. */
+#ifndef PACKET_MAX
+#error "PACKET_MAX must be passed as -D by the host"
+#endif
+
+CLR_INLINE void closest_ray_by_ray(__global const Bvh8Node *nodes, __global const float4 *tri4,
+                                   __global const int *slot_prim, const PreparedRay *pr,
+                                   const int *member, int n, const float *tmin, float *tmax,
+                                   float *u, float *v, int *best)
+{
+    for (int k = 0; k < n; ++k) {
+        int r = member[k];
+        best[r] = bvh_closest(nodes, tri4, slot_prim, &pr[r], tmin[r], &tmax[r], &u[r], &v[r],
+                              -1);
+    }
+}
+
+/* Closest hits of rays pr[member[k]], k < n <= PACKET_MAX: per ray r, on entry its
+ * range (tmin[r], tmax[r]), on return bvh_closest's slot in best[r] (-1: a miss), and
+ * where it hits its t in tmax[r] and u[r], v[r]. No ray ignores a triangle. */
+CLR_INLINE void packet_closest(__global const Bvh8Node *nodes, __global const float4 *tri4,
+                               __global const int *slot_prim, const PreparedRay *pr,
+                               const int *member, int n, const float *tmin, float *tmax,
+                               float *u, float *v, int *best)
+{
+#ifdef BVH_INSTANCED
+    closest_ray_by_ray(nodes, tri4, slot_prim, pr, member, n, tmin, tmax, u, v, best);
+#else
+    if (n < 2) {
+        closest_ray_by_ray(nodes, tri4, slot_prim, pr, member, n, tmin, tmax, u, v, best);
+        return;
+    }
+    const PreparedRay *r0 = &pr[member[0]];
+    float olx = r0->ox, ohx = r0->ox, oly = r0->oy, ohy = r0->oy, olz = r0->oz, ohz = r0->oz;
+    float ilx = r0->ix, ihx = r0->ix, ily = r0->iy, ihy = r0->iy, ilz = r0->iz, ihz = r0->iz;
+    float t_lo = tmin[member[0]];
+    bool together = true;
+    for (int k = 0; k < n; ++k) {
+        int m = member[k];
+        const PreparedRay *r = &pr[m];
+        olx = MINF(olx, r->ox); ohx = MAXF(ohx, r->ox);
+        oly = MINF(oly, r->oy); ohy = MAXF(ohy, r->oy);
+        olz = MINF(olz, r->oz); ohz = MAXF(ohz, r->oz);
+        ilx = MINF(ilx, r->ix); ihx = MAXF(ihx, r->ix);
+        ily = MINF(ily, r->iy); ihy = MAXF(ihy, r->iy);
+        ilz = MINF(ilz, r->iz); ihz = MAXF(ihz, r->iz);
+        t_lo = MINF(t_lo, tmin[m]);
+        together &= (r->nx == r0->nx) & (r->ny == r0->ny) & (r->nz == r0->nz);
+        best[m] = -1;
+    }
+    /* finite inverse directions: no ray along a slab plane (whose 0 * inf the
+     * interval cannot bound) */
+    together &= isfinite(ilx) & isfinite(ihx) & isfinite(ily) & isfinite(ihy)
+                & isfinite(ilz) & isfinite(ihz) & isfinite(olx) & isfinite(ohx)
+                & isfinite(oly) & isfinite(ohy) & isfinite(olz) & isfinite(ohz);
+    if (!together) {
+        closest_ray_by_ray(nodes, tri4, slot_prim, pr, member, n, tmin, tmax, u, v, best);
+        return;
+    }
+    const int nx = r0->nx, ny = r0->ny, nz = r0->nz;
+    bool recast[PACKET_MAX];
+    float tmax_in[PACKET_MAX];
+    float far_all = tmax[member[0]];
+    for (int k = 0; k < n; ++k) {
+        recast[k] = false;
+        tmax_in[k] = tmax[member[k]];
+        far_all = MAXF(far_all, tmax_in[k]);
+    }
+    int stack_code[BVH_STACK_SIZE + 1];
+    float stack_dist[BVH_STACK_SIZE + 1];
+    int sp = 0;
+    int code = 0;
+    for (;;) {
+        if (code < 0) {
+            int packed = -code - 1;
+            int first = packed >> LEAF_GROUP_BITS, last = first + (packed & LEAF_GROUP_MASK);
+            for (int k = 0; k < n; ++k) {
+                int m = member[k];
+                for (int gi = first; gi < last; ++gi) {
+                    float4 T, det, V, W;
+                    /* a little past the ray's closest hit so far: near ties show */
+                    int4 ok = ray_tri4(&pr[m], tri4 + gi * TRI4_ROWS, tmin[m],
+                                       tmax[m] * ROBUST_TMAX_SCALE, &T, &det, &V, &W);
+                    if (!ANY4(ok))
+                        continue;
+                    float4 inv = (float4)(1.0f) / det;
+                    float4 t = ok ? T * inv : (float4)(INFINITY);
+                    if (best[m] >= 0) {
+                        float4 tm = (float4)(tmax[m]);
+                        int4 near = ok & (t <= tm * ROBUST_TMAX_SCALE)
+                                    & (t * ROBUST_TMAX_SCALE >= tm);
+                        recast[k] |= ANY4(near);
+                    }
+                    /* ray_tri4's own range test at the ray's tmax */
+                    float4 sdet = (det < 0.0f) ? (float4)(-1.0f) : (float4)(1.0f);
+                    ok &= (T * sdet < (float4)(tmax[m]) * (det * sdet));
+                    if (!ANY4(ok))
+                        continue;
+                    t = ok ? t : (float4)(INFINITY);
+                    float4 uu = V * inv, vv = W * inv;
+                    float tb = t.s0, ub = uu.s0, vb = vv.s0;
+                    int lane = 0;
+                    if (t.s1 < tb) { tb = t.s1; ub = uu.s1; vb = vv.s1; lane = 1; }
+                    if (t.s2 < tb) { tb = t.s2; ub = uu.s2; vb = vv.s2; lane = 2; }
+                    if (t.s3 < tb) { tb = t.s3; ub = uu.s3; vb = vv.s3; lane = 3; }
+                    tmax[m] = tb;
+                    u[m] = ub;
+                    v[m] = vb;
+                    best[m] = 4 * gi + lane;
+                }
+            }
+            far_all = tmax[member[0]];
+            for (int k = 1; k < n; ++k)
+                far_all = MAXF(far_all, tmax[member[k]]);
+        } else {
+            __global const float8 *q = (__global const float8 *)(nodes + code);
+            float8 a1, a2, near, far;
+            /* per axis the nearest entry and farthest exit over the corners of
+             * (plane - origin interval) x (inverse direction interval) */
+            a1 = q[nx] - (float8)(ohx); a2 = q[nx] - (float8)(olx);
+            near = MINF(MINF(a1 * ilx, a1 * ihx), MINF(a2 * ilx, a2 * ihx));
+            a1 = q[3 - nx] - (float8)(ohx); a2 = q[3 - nx] - (float8)(olx);
+            far = MAXF(MAXF(a1 * ilx, a1 * ihx), MAXF(a2 * ilx, a2 * ihx));
+            float8 t0 = MAXF(near, (float8)(t_lo)), t1 = MINF(far, (float8)(far_all));
+            a1 = q[ny] - (float8)(ohy); a2 = q[ny] - (float8)(oly);
+            near = MINF(MINF(a1 * ily, a1 * ihy), MINF(a2 * ily, a2 * ihy));
+            a1 = q[5 - ny] - (float8)(ohy); a2 = q[5 - ny] - (float8)(oly);
+            far = MAXF(MAXF(a1 * ily, a1 * ihy), MAXF(a2 * ily, a2 * ihy));
+            t0 = MAXF(near, t0); t1 = MINF(far, t1);
+            a1 = q[nz] - (float8)(ohz); a2 = q[nz] - (float8)(olz);
+            near = MINF(MINF(a1 * ilz, a1 * ihz), MINF(a2 * ilz, a2 * ihz));
+            a1 = q[7 - nz] - (float8)(ohz); a2 = q[7 - nz] - (float8)(olz);
+            far = MAXF(MAXF(a1 * ilz, a1 * ihz), MAXF(a2 * ilz, a2 * ihz));
+            t0 = MAXF(near, t0);
+            t1 = MINF(far, t1) * ROBUST_TMAX_SCALE;
+            int8 bits = (t0 <= t1) & (int8)(1, 2, 4, 8, 16, 32, 64, 128);
+            int4 b4 = bits.lo | bits.hi;
+            int2 b2 = b4.lo | b4.hi;
+            int mask = b2.x | b2.y;
+            const float *d = (const float *)&t0;
+            __global const int *cc = (__global const int *)(q + 6);
+            int base = sp;
+            while (mask != 0) {   /* pushed sorted far to near */
+                int i = CLR_CTZ(mask);
+                mask &= mask - 1;
+                int j = sp;
+                while (j > base && stack_dist[j - 1] < d[i]) {
+                    stack_dist[j] = stack_dist[j - 1];
+                    stack_code[j] = stack_code[j - 1];
+                    --j;
+                }
+                stack_dist[j] = d[i];
+                stack_code[j] = cc[i];
+                ++sp;
+            }
+        }
+        /* pop, skipping subtrees that start beyond every ray's closest hit (by the
+         * margin of the near-tie test) */
+        for (;;) {
+            if (sp == 0) {
+                for (int k = 0; k < n; ++k) {
+                    if (!recast[k])
+                        continue;
+                    int m = member[k];
+                    tmax[m] = tmax_in[k];
+                    best[m] = bvh_closest(nodes, tri4, slot_prim, &pr[m], tmin[m], &tmax[m],
+                                          &u[m], &v[m], -1);
+                }
+                return;
+            }
+            --sp;
+            if (stack_dist[sp] <= far_all * ROBUST_TMAX_SCALE) break;
+        }
+        code = stack_code[sp];
+    }
+#endif
+}
+
 #endif

@@ -41,6 +41,7 @@ __kernel void build_constants(__global int *out)
     out[2] = TRI4_ROWS;
     out[3] = LEAF_GROUP_BITS;
     out[4] = SPAWN_OFFSET_ROUNDOFFS;
+    out[5] = PACKET_MAX;
 }
 
 /* The two-level BVH's instance record (clradcom/geometry/instances.py). */

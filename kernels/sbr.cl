@@ -14,9 +14,10 @@
  *                   both tx polarisations at it, replayed from the launch through its
  *                   reflections (the queues carry only what the next hit needs);
  *                   a persistent build (SBR_PERSISTENT, scalar CPU devices) has
- *                   sbr_bounces in place of sbr_launch and sbr_bounce (its last bounce
- *                   cast only where the ray meets a recorded triangle in their own
- *                   tree), and sbr_radiate, one item per footprint, replays the
+ *                   sbr_bounces in place of sbr_launch and sbr_bounce (one item per
+ *                   launch block, its tubes cast in packets; the last bounce cast only
+ *                   where the ray meets a recorded triangle in their own tree), and
+ *                   sbr_radiate, one item per footprint, replays the
  *                   illumination itself where the footprint sees a receiver;
  *   sbr_radiate     per (footprint, receiver): the sight line (float32 any-hit,
  *                   re-decided in float64 where the device has it), the antenna's near
@@ -450,19 +451,15 @@ __kernel void sbr_launch(__global const real *win_f,
     for (int k = 0; k < SBR_TUBE_TRIS; ++k) t->tri[k] = -1;
 }
 
-/* A tube's next hit from pos (its ray starting at org) along d, with the unfolded
- * length L so far: the hit triangle, the exact point on its plane, the length there,
- * the mirrored direction and the next ray's origin. False where the tube ends: it
- * misses, grazes or hits the plane it just left (a corner's edge). */
-inline bool tube_next_hit(__global const Bvh8Node *nodes, __global const float4 *tri4,
-                          __global const int *slot_prim, __global const pelem *tri_v,
-                          __global const pelem *tri_n, real3 d, pvec pos, pvec org,
-                          pscal L, int *tri_hit, pvec *p_hit, pscal *L_hit, real3 *d_out,
-                          pvec *org_out)
+/* A tube's step past the closest hit `slot` (a leaf slot, -1: none) of its ray from org
+ * along d, with the unfolded length L so far at pos: the hit triangle, the exact point on
+ * its plane, the length there, the mirrored direction and the next ray's origin. False
+ * where the tube ends: it misses, grazes or hits the plane it just left (a corner's
+ * edge). */
+inline bool tube_follow(int slot, __global const int *slot_prim, __global const pelem *tri_v,
+                        __global const pelem *tri_n, real3 d, pvec pos, pscal L, int *tri_hit,
+                        pvec *p_hit, pscal *L_hit, real3 *d_out, pvec *org_out)
 {
-    PreparedRay pr = prepare_ray(pv_float3(org), to_float3(d));
-    float tmax = INFINITY, hu = 0.0f, hv = 0.0f;
-    int slot = bvh_closest(nodes, tri4, slot_prim, &pr, 0.0f, &tmax, &hu, &hv, -1);
     if (slot < 0) return false;
     int tri = slot_prim[slot];
     pvec n_p = pv_load(tri_n + 3 * tri);
@@ -478,6 +475,20 @@ inline bool tube_next_hit(__global const Bvh8Node *nodes, __global const float4 
     *d_out = d - 2.0 * dn * n;
     *org_out = spawn(p, n, *d_out);
     return true;
+}
+
+/* A tube's next hit (tube_follow) from its own closest-hit cast. */
+inline bool tube_next_hit(__global const Bvh8Node *nodes, __global const float4 *tri4,
+                          __global const int *slot_prim, __global const pelem *tri_v,
+                          __global const pelem *tri_n, real3 d, pvec pos, pvec org,
+                          pscal L, int *tri_hit, pvec *p_hit, pscal *L_hit, real3 *d_out,
+                          pvec *org_out)
+{
+    PreparedRay pr = prepare_ray(pv_float3(org), to_float3(d));
+    float tmax = INFINITY, hu = 0.0f, hv = 0.0f;
+    int slot = bvh_closest(nodes, tri4, slot_prim, &pr, 0.0f, &tmax, &hu, &hv, -1);
+    return tube_follow(slot, slot_prim, tri_v, tri_n, d, pos, L, tri_hit, p_hit, L_hit, d_out,
+                       org_out);
 }
 
 /* Bounce m of every queued tube, one work item each: its next hit; a footprint where m >=
@@ -532,18 +543,23 @@ __kernel void sbr_bounce(__global const Bvh8Node *nodes,
  * program, Intel's CPU compiler gave NaN points in sbr_bounce's records without fp64 and
  * crashed the process with fp64 (tests/test_no_fp64.py, tests/test_sbr_engines.py). */
 #ifdef SBR_PERSISTENT
-/* Every tube of the batch's cells from its launch through all its bounces in one work
- * item each (sbr_launch's tube and sbr_bounce's steps in a loop, the tube kept in
- * private memory, no queue): bounce m's footprints into region m - 1 of `footprints`
- * (`region` footprints each), counted in counts[m - 1]. For devices that run a work item
- * as scalar code (PoCL's CPU device), where a tube that is not owned or ends early costs
- * nothing and a queue only costs launches and memory traffic. */
+/* The tubes of the batch's blocks from their launch through all their bounces, one work
+ * item per launch block, its SBR_CELLS tubes in private memory (no queue): per bounce the
+ * live tubes cast as packets, those that left one planar face together (all of them at
+ * launch), each packet walking the tree once (intersect.h: packet_closest, whose hits are
+ * bvh_closest's, ray for ray); then each tube as sbr_bounce steps it. Bounce m's
+ * footprints go into region m - 1 of `footprints` (`region` footprints each), counted in
+ * counts[m - 1]; a footprint's tube is block * SBR_CELLS + cell within the batch, as
+ * sbr_launch numbers it. For devices that run a work item as scalar code (PoCL's CPU
+ * device), where a tube that is not owned or ends early costs nothing and a queue only
+ * costs launches and memory traffic. */
 __kernel void sbr_bounces(__global const Bvh8Node *nodes,
                           __global const float4 *tri4,
                           __global const int *slot_prim,
                           __global const pelem *tri_v,       /* T*9 */
                           __global const pelem *tri_n,       /* T*3, unit */
                           __global const uchar *tri_record,
+                          __global const int *tri_face,      /* the packets' key */
                           __global const real *win_f,        /* sbr_launch's windows */
                           __global const int *win_i,
                           __global const uchar *masks,
@@ -552,7 +568,7 @@ __kernel void sbr_bounces(__global const Bvh8Node *nodes,
                           __global const int *overlap_ids,
                           __global const pelem *tx_and_k,
                           const long first_block,
-                          const int n_cells,
+                          const int n_blocks,
                           const int first_bounce,
                           const int max_bounces,
                           __global SbrFootprint *footprints,
@@ -566,46 +582,97 @@ __kernel void sbr_bounces(__global const Bvh8Node *nodes,
                           const int last_filter)
 {
     int gid = get_global_id(0);
-    int item = min(gid, n_cells - 1);   /* past the count: a copy of the last */
-    int cell, blk = quotient(item, SBR_CELLS, &cell);
-    CellTube c = cell_tube(win_f, win_i, blocks, first_block + blk, cell);
-    /* owned unless an earlier window whose cone meets this one holds the direction */
-    for (int o = overlap_first[c.window]; o < overlap_first[c.window + 1]; ++o)
-        if (window_covers(win_f, win_i, masks, overlap_ids[o], c.dir)) return;
-    /* sbr_launch's tube: from tx along the cell's direction */
-    real3 d = c.dir;
-    pvec pos = pv_load(tx_and_k), org = pos;
-    pscal L = ps_zero();
-    int tris[SBR_TUBE_TRIS];
-    for (int k = 0; k < SBR_TUBE_TRIS; ++k) tris[k] = -1;
-    for (int m = 1; m <= max_bounces; ++m) {
+    int item = min(gid, n_blocks - 1);   /* past the count: a copy of the last */
+    pvec pos[SBR_CELLS], org[SBR_CELLS];
+    pscal len[SBR_CELLS];
+    real3 dir[SBR_CELLS];
+    int tris[SBR_CELLS][SBR_TUBE_TRIS];
+    int live[SBR_CELLS], key[SBR_CELLS], slot[SBR_CELLS];
+    PreparedRay pr[SBR_CELLS];
+    float tmin[SBR_CELLS], tmax[SBR_CELLS], hu[SBR_CELLS], hv[SBR_CELLS];
+    int n_live = 0;
+    pvec tx = pv_load(tx_and_k);
+    for (int cell = 0; cell < SBR_CELLS; ++cell) {
+        CellTube c = cell_tube(win_f, win_i, blocks, first_block + item, cell);
+        /* owned unless an earlier window whose cone meets this one holds the direction */
+        bool owned = true;
+        for (int o = overlap_first[c.window]; o < overlap_first[c.window + 1] && owned; ++o)
+            owned = !window_covers(win_f, win_i, masks, overlap_ids[o], c.dir);
+        if (!owned) continue;
+        /* sbr_launch's tube: from tx along the cell's direction */
+        pos[cell] = tx;
+        org[cell] = tx;
+        len[cell] = ps_zero();
+        dir[cell] = c.dir;
+        for (int k = 0; k < SBR_TUBE_TRIS; ++k) tris[cell][k] = -1;
+        live[n_live++] = cell;
+    }
+    for (int m = 1; m <= max_bounces && n_live > 0; ++m) {
         /* The last bounce leaves nothing but a footprint on a recorded triangle. Where
          * the ray meets none of them (any hit over their own tree) the scene's closest
          * hit is not one: the same ray and triangle test find every hit in either tree
          * (the boxes never cull one: intersect.h), so the full cast is skipped without
          * changing a footprint. */
-        if (m == max_bounces && last_filter && m >= first_bounce) {
-            PreparedRay pr = prepare_ray(pv_float3(org), to_float3(d));
-            if (!blas_any(rec_nodes, rec_tri4, rec_slot_prim, &pr, 0, 0.0f, INFINITY, -1, -1))
-                break;
+        bool filter = m == max_bounces && last_filter && m >= first_bounce;
+        int n = 0;
+        for (int k = 0; k < n_live; ++k) {
+            int c = live[k];
+            pr[c] = prepare_ray(pv_float3(org[c]), to_float3(dir[c]));
+            if (filter && !blas_any(rec_nodes, rec_tri4, rec_slot_prim, &pr[c], 0, 0.0f,
+                                    INFINITY, -1, -1))
+                continue;
+            tmin[c] = 0.0f;
+            tmax[c] = INFINITY;
+            live[n] = c;
+            /* the faces it left so far: tubes of one image source stay together */
+            uint h = 0u;
+            for (int j = 0; j < m - 1; ++j) h = (h ^ (uint)tri_face[tris[c][j]]) * 0x9E3779B1u;
+            key[n] = (int)h;
+            ++n;
         }
-        int tri;
-        pvec p;
-        real3 d_out;
-        if (!tube_next_hit(nodes, tri4, slot_prim, tri_v, tri_n, d, pos, org, L, &tri, &p,
-                           &L, &d_out, &org))
-            break;
-        tris[m - 1] = tri;
-        if (gid < n_cells && m >= first_bounce && tri_record[tri]) {
-            __global SbrFootprint *fp =
-                footprints + (size_t)(m - 1) * region + atomic_inc(counts + m - 1);
-            pv_store(fp->point, p);
-            fp->length = ps_out(L);
-            fp->tube = gid;
-            for (int k = 0; k < SBR_TUBE_TRIS; ++k) fp->tri[k] = tris[k];
+        /* the tubes that left one face side by side (insertion sort: at most SBR_CELLS),
+         * each run a packet */
+        for (int k = 1; k < n; ++k) {
+            int c = live[k], kk = key[k], j = k;
+            for (; j > 0 && key[j - 1] > kk; --j) {
+                live[j] = live[j - 1];
+                key[j] = key[j - 1];
+            }
+            live[j] = c;
+            key[j] = kk;
         }
-        pos = p;
-        d = d_out;
+        for (int s = 0; s < n;) {
+            int e = s + 1;
+            while (e < n && key[e] == key[s]) ++e;
+            packet_closest(nodes, tri4, slot_prim, pr, live + s, e - s, tmin, tmax, hu, hv,
+                           slot);
+            s = e;
+        }
+        int n_next = 0;
+        for (int k = 0; k < n; ++k) {
+            int c = live[k], tri;
+            pvec p, o;
+            pscal L;
+            real3 d_out;
+            if (!tube_follow(slot[c], slot_prim, tri_v, tri_n, dir[c], pos[c], len[c], &tri,
+                             &p, &L, &d_out, &o))
+                continue;
+            tris[c][m - 1] = tri;
+            if (gid < n_blocks && m >= first_bounce && tri_record[tri]) {
+                __global SbrFootprint *fp =
+                    footprints + (size_t)(m - 1) * region + atomic_inc(counts + m - 1);
+                pv_store(fp->point, p);
+                fp->length = ps_out(L);
+                fp->tube = item * SBR_CELLS + c;
+                for (int j = 0; j < SBR_TUBE_TRIS; ++j) fp->tri[j] = tris[c][j];
+            }
+            pos[c] = p;
+            org[c] = o;
+            len[c] = L;
+            dir[c] = d_out;
+            live[n_next++] = c;
+        }
+        n_live = n_next;
     }
 }
 #endif

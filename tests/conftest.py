@@ -61,6 +61,7 @@ OCLGRIND_TESTS = frozenset({
     "test_opencl::test_empty_buffers_and_oclgrinds_host_written_ones",
     "test_raycast::test_random_soup_matches_brute_force",
     "test_raycast::test_grazing_rays_hit_on_the_surface",
+    "test_raycast::test_packets_on_a_few_rays",
     "test_image_points",
     "test_visibility_device::test_surface_sight_lines_decide_alike",
     "test_phase_precision::test_scalar_ops_within_published_bounds",

@@ -4,7 +4,13 @@ import pytest
 
 from clradcom.cli import main as cli_main
 from clradcom.device import runtime as opencl
-from clradcom.device.raycast import HIT_DTYPE, KERNEL_DEFINES, RAY_DTYPE, SPAWN_OFFSET_ROUNDOFFS
+from clradcom.device.raycast import (
+    HIT_DTYPE,
+    KERNEL_DEFINES,
+    PACKET_MAX,
+    RAY_DTYPE,
+    SPAWN_OFFSET_ROUNDOFFS,
+)
 from clradcom.device.runtime import (
     OpenCLError,
     Runtime,
@@ -144,7 +150,7 @@ def test_kernels_see_the_hosts_numbers(runtime):
     cl.enqueue_copy(runtime.queue, out, buf)
     expected = {"BVH_WIDTH": layout.BVH_WIDTH, "BVH_STACK_SIZE": layout.BVH_STACK_SIZE,
                 "TRI4_ROWS": layout.TRI4_ROWS, "LEAF_GROUP_BITS": layout.LEAF_GROUP_BITS,
-                "SPAWN_OFFSET_ROUNDOFFS": SPAWN_OFFSET_ROUNDOFFS}
+                "SPAWN_OFFSET_ROUNDOFFS": SPAWN_OFFSET_ROUNDOFFS, "PACKET_MAX": PACKET_MAX}
     assert KERNEL_DEFINES == expected
     assert dict(zip(KERNEL_DEFINES, out.tolist(), strict=True)) == expected
 

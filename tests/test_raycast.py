@@ -492,3 +492,130 @@ def test_a_tree_deeper_than_the_short_stacks_gets_a_deeper_build(runtime):
     across = make_rays(np.column_stack([np.full(n, -1.0), np.zeros((n, 2))]),
                        np.tile([1.0, 0.0, 0.0], (n, 1)), tmax=1.0 + x + 0.05)
     assert caster.occluded(across).all()
+
+
+# ---------------------------------------------------------------------------
+# ray packets (intersect.h: packet_closest): closest_hit's hits, ray for ray
+
+
+def grid_packets(origin, centre, u, v, pitch, n_side, block=8):
+    """Rays from ``origin`` through an n_side x n_side grid of points of ``pitch`` around
+    ``centre`` in the plane of u, v, as packets of block x block neighbours (an SBR
+    launch window's blocks): (rays, packet_first)."""
+    k = (np.arange(n_side) - (n_side - 1) / 2.0) * pitch
+    i, j = np.meshgrid(k, k, indexing="ij")
+    # block-major order: the block x block cells of a block consecutive
+    nb = n_side // block
+    i = i.reshape(nb, block, nb, block).transpose(0, 2, 1, 3).reshape(-1)
+    j = j.reshape(nb, block, nb, block).transpose(0, 2, 1, 3).reshape(-1)
+    target = (np.asarray(centre, float) + i[:, None] * np.asarray(u, float)
+              + j[:, None] * np.asarray(v, float))
+    origins = np.broadcast_to(np.asarray(origin, float), target.shape)
+    first = np.arange(0, len(target) + 1, block * block)
+    return make_rays(origins, target - origins), first
+
+
+def overlapping_planes():
+    """The plane z = 0 twice over: a coarse grid of large triangles and, on top of it, a
+    fine grid of small ones, so most rays hit two coplanar triangles (in different
+    leaves) at the same t, to within rounding; plus a box of 12 triangles above it."""
+    def grid(n, half):
+        xs = np.linspace(-half, half, n + 1)
+        gx, gy = np.meshgrid(xs, xs, indexing="ij")
+        p = np.stack([gx, gy, np.zeros_like(gx)], axis=-1)
+        q = np.stack([p[:-1, :-1], p[1:, :-1], p[1:, 1:], p[:-1, 1:]], axis=2).reshape(-1, 4, 3)
+        return np.concatenate([q[:, [0, 1, 2]], q[:, [0, 2, 3]]])
+
+    box = trimesh.creation.box(extents=(0.6, 0.4, 0.3))
+    box.apply_translation((0.3, -0.2, 0.5))
+    return np.concatenate([grid(4, 2.0), grid(40, 2.0),
+                           np.asarray(box.triangles, np.float64)])
+
+
+def test_packets_are_the_single_ray_hits_bit_for_bit(runtime):
+    """closest_hit_packets returns closest_hit's records byte for byte: coherent 8 x 8
+    packets over coplanar overlapping triangles (exact and near ties between leaves,
+    which the packet resolves by casting those rays again on their own), over a grid's
+    shared edges and vertices (rays aimed through them), with misses beside, and
+    incoherent packets of every size (rays toward both sides of an axis: ray by ray)."""
+    tris = overlapping_planes()
+    caster = RayCaster(tris, runtime=runtime)
+    # through the fine grid's vertices and edges (pitch 0.05: every other ray on a seam),
+    # from a point above and to the side, part of the grid beyond the plane's rim
+    rays, first = grid_packets([0.7, -0.4, 3.0], [0.9, 0.2, 0.0], [1, 0, 0], [0, 1, 0],
+                               0.025, 96)
+    single = caster.closest_hit(rays)
+    packed = caster.closest_hit_packets(rays, first)
+    assert packed.tobytes() == single.tobytes()
+    hit = single["prim"] >= 0
+    assert 0.5 < hit.mean() < 0.99          # hits, and misses past the rim
+    on_box = hit & (single["prim"] >= len(tris) - 12)
+    assert on_box.sum() > 100               # a nearer object in front of the planes
+    # the premise: rays whose coarse and fine triangles lie at the same t within rounding
+    rays_o = rays["org"].astype(np.float64)
+    t_plane = -rays_o[:, 2] / rays["dir"][:, 2].astype(np.float64)
+    on_plane = hit & ~on_box
+    np.testing.assert_allclose(single["t"][on_plane], t_plane[on_plane], rtol=1e-6)
+    coarse = on_plane & (single["prim"] < 32)
+    fine = on_plane & (single["prim"] >= 32)
+    assert coarse.sum() > 100 and fine.sum() > 100   # either of two ties wins, by walk
+
+    # incoherent rays in packets of 1 to 64
+    rng = np.random.default_rng(3)
+    origins = rng.uniform(-2.5, 2.5, (3000, 3))
+    targets = tris[rng.integers(0, len(tris), 3000)].mean(axis=1)
+    rays = make_rays(origins, targets - origins + rng.normal(0, 0.3, (3000, 3)))
+    sizes = rng.integers(1, 65, 200)
+    first = np.concatenate([[0], np.cumsum(sizes)])
+    first = first[first < len(rays)]
+    first = np.append(first, len(rays))
+    assert caster.closest_hit_packets(rays, first).tobytes() == \
+        caster.closest_hit(rays).tobytes()
+
+
+def test_packets_on_a_few_rays(runtime):
+    """A small case for Oclgrind: 4 coherent packets of 64 over the overlapping planes,
+    and one of a single ray; the same records as closest_hit."""
+    caster = RayCaster(overlapping_planes(), runtime=runtime)
+    rays, first = grid_packets([0.3, 0.2, 2.0], [0.1, 0.0, 0.0], [1, 0, 0], [0, 1, 0],
+                               0.05, 16)
+    first = np.append(first, len(rays) + 1)
+    rays = np.concatenate([rays, make_rays([[0.0, 0.0, 1.0]], [[0.01, 0.02, -1.0]])])
+    assert caster.closest_hit_packets(rays, first).tobytes() == \
+        caster.closest_hit(rays).tobytes()
+
+
+def test_packets_of_a_two_level_caster_are_its_hits(runtime):
+    """A two-level tree casts a packet's rays one by one: still closest_hit's records."""
+    from clradcom.device.raycast import InstancedCaster
+
+    rng = np.random.default_rng(5)
+    static = overlapping_planes()
+    mover = rng.uniform(-0.2, 0.2, (60, 3, 3)) + np.array([0.0, 0.0, 0.8])
+    caster = InstancedCaster([(static, np.arange(len(static))),
+                              (mover, np.arange(len(static), len(static) + 60))],
+                             runtime=runtime)
+    # the mover turned a little about z and lifted: a frame of its own
+    c, s_ = np.cos(0.3), np.sin(0.3)
+    rot = np.array([np.eye(3), [[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]]])
+    org = np.array([[0.0, 0.0, 0.0], [0.05, -0.05, 0.1]])
+    caster.place(np.concatenate([static, mover @ rot[1].T + org[1]]), rot, org,
+                 [True, False])
+    rays, first = grid_packets([0.1, 0.1, 3.0], [0.0, 0.0, 0.0], [1, 0, 0], [0, 1, 0],
+                               0.02, 32)
+    hits = caster.closest_hit_packets(rays, first)
+    assert hits.tobytes() == caster.closest_hit(rays).tobytes()
+    assert (hits["prim"] >= len(static)).sum() > 20
+
+
+def test_bad_packets_are_refused(runtime):
+    caster = RayCaster(overlapping_planes()[:8], runtime=runtime)
+    rays = make_rays(np.zeros((70, 3)), np.tile([0.0, 0.0, -1.0], (70, 1)))
+    with pytest.raises(ValueError, match="packet_first"):
+        caster.closest_hit_packets(rays, [0, 10])          # does not end at len(rays)
+    with pytest.raises(ValueError, match="0 to 64 rays"):
+        caster.closest_hit_packets(rays, [0, 70])          # a packet too large
+    with pytest.raises(ValueError, match="0 to 64 rays"):
+        caster.closest_hit_packets(rays, [0, 40, 30, 70])  # falling
+    with pytest.raises(ValueError, match="packet_first"):
+        caster.closest_hit_packets(rays, [0.0, 70.0])      # not integers

@@ -44,12 +44,17 @@ SPAWN_OFFSET_ROUNDOFFS = 8
 
 #: Every kernel build gets these as -D options: the host is the kernels' only source of
 #: them, and kernels/layout.cl reports them back for a test.
+#: Rays per packet at most (kernels/intersect.h: packet_closest; an SBR launch block's
+#: tubes).
+PACKET_MAX = 64
+
 KERNEL_DEFINES = {
     "BVH_WIDTH": layout.BVH_WIDTH,
     "BVH_STACK_SIZE": layout.BVH_STACK_SIZE,
     "TRI4_ROWS": layout.TRI4_ROWS,
     "LEAF_GROUP_BITS": layout.LEAF_GROUP_BITS,
     "SPAWN_OFFSET_ROUNDOFFS": SPAWN_OFFSET_ROUNDOFFS,
+    "PACKET_MAX": PACKET_MAX,
 }
 
 
@@ -291,6 +296,45 @@ class RayCaster:
     def closest_hit(self, rays: np.ndarray, ignore_prim=None) -> np.ndarray:
         """HIT_DTYPE per ray: t (inf on a miss), u, v, prim (-1 on a miss), unit ng."""
         return self._launch("closest_hit", rays, ignore_prim, HIT_DTYPE)
+
+    def closest_hit_packets(self, rays: np.ndarray, packet_first) -> np.ndarray:
+        """:meth:`closest_hit`'s hits, ray for ray and bit for bit, with the rays cast in
+        packets: packet p holds rays ``packet_first[p]`` .. ``packet_first[p + 1] - 1``
+        (at most :data:`PACKET_MAX`; ``packet_first`` rises from 0 to ``len(rays)``) and
+        walks the tree once for all of them (kernels/intersect.h: packet_closest). Faster
+        where a packet's rays are coherent (neighbours of a launch grid, or rays that
+        left one plane), slower where they are not."""
+        import pyopencl as cl
+
+        self._check_ready()
+        rays = np.ascontiguousarray(rays, dtype=RAY_DTYPE)
+        first = np.asarray(packet_first)
+        if (first.ndim != 1 or len(first) < 1 or not np.issubdtype(first.dtype, np.integer)
+                or first[0] != 0 or first[-1] != len(rays)):
+            raise ArgumentError(f"must be integers rising from 0 to the number of rays "
+                                f"({len(rays)})", argument="packet_first",
+                                value=first.tolist() if first.size < 8 else first.shape)
+        sizes = np.diff(first)
+        if np.any(sizes < 0) or np.any(sizes > PACKET_MAX):
+            raise ArgumentError(f"packets must hold 0 to {PACKET_MAX} rays",
+                                argument="packet_first",
+                                value=int(sizes[(sizes < 0) | (sizes > PACKET_MAX)][0]))
+        out = np.empty(len(rays), dtype=HIT_DTYPE)
+        if len(rays) == 0:
+            return out
+        rt = self.runtime
+        kernel = rt.kernel("raycast.cl", "closest_hit_packets", defines=self.kernel_defines())
+        n_packets = len(first) - 1
+        with self._lock, rt.kernel_clock(), rt.guard("ray casting (closest_hit_packets)"):
+            ray_buf = rt.to_device(rays)
+            first_buf = rt.to_device(first.astype(np.int32))
+            out_buf = self._buffer("closest_hit_packets", out.nbytes)
+            # a packet is 64 rays' work: small groups keep both threads of a CPU busy
+            rt.launch(kernel, n_packets, self.local_size(kernel, 8), self._nodes,
+                      self._tri4, self._slot_prim, ray_buf, first_buf, out_buf,
+                      np.int32(n_packets), name="closest_hit_packets")
+            cl.enqueue_copy(rt.queue, out, out_buf, is_blocking=True)
+        return out
 
     def occluded(self, rays: np.ndarray, ignore_prim=None) -> np.ndarray:
         """True where any triangle is hit in (tmin, tmax)."""

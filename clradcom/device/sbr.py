@@ -9,9 +9,9 @@ only the records of footprints that see a receiver come back.  Per batch: ``sbr_
 queues the owned tubes; per bounce ``sbr_bounce`` follows the live ones (a compacted
 queue) and lists the footprints, ``sbr_radiate`` radiates each toward each receiver,
 ``sbr_reduce`` sums them per block, receiver and face sequence in work groups (on a
-device that runs work items as scalar code ``sbr_bounces`` launches and bounces each tube
-in one work item, no queue, its last bounce cast only where :func:`recorded_tree` has a
-hit).  Records
+device that runs work items as scalar code ``sbr_bounces`` launches and bounces the
+tubes of a launch block in one work item, no queue, those that left one face cast as a
+packet, the last bounce cast only where :func:`recorded_tree` has a hit).  Records
 are appended with an atomic counter, so their order within a batch is the device's;
 they are sorted by block and the group's first (tube, bounce, receiver), so every run
 and batch size gives the same records in the same order.
@@ -54,6 +54,9 @@ BATCH_TUBES = 1 << 20
 CPU_BATCH_BYTES = 1 << 26
 #: A batch's buffers take at most this fraction of the device's largest allocation.
 MEMORY_SHARE = 8
+#: sbr_bounces' work-group size: a work item is a whole block of tubes, so a batch has
+#: few of them; small groups keep every thread of a CPU device busy to the end.
+BLOCKS_PER_GROUP = 4
 #: Records the output buffer has room for at first, per block and receiver of a batch,
 #: and at most (about 60 MB); more records grow it and reduce the bounce again.
 RECORDS_PER_BLOCK_RX = 4
@@ -361,9 +364,10 @@ class _Wavefront:
         with rt.kernel_clock():
             rt.launch(kernel, global_size, local_size, *args, name=name, wait=wait)
 
-    def _run_bvh(self, kernel_name, global_size, *args):
+    def _run_bvh(self, kernel_name, global_size, *args, local_size=None):
         self.caster.run_kernel("sbr.cl", kernel_name, global_size, *args,
-                               defines=self.defines, options=self.options)
+                               defines=self.defines, options=self.options,
+                               local_size=local_size)
 
     def shoot(self, first: int, n_blocks: int, max_bounces: int, first_bounce: int):
         """The records of blocks first .. first + n_blocks - 1 (a list of arrays)."""
@@ -417,15 +421,16 @@ class _Wavefront:
     def _bounces(self, first: int, n_blocks: int, first_bounce: int,
                  max_bounces: int) -> list[int]:
         """The tubes of blocks first .. first + n_blocks - 1 launched and taken through
-        every bounce in one launch (sbr_bounces, no queue): the footprints per bounce, in
+        every bounce in one launch (sbr_bounces, no queue, one work item per block whose
+        tubes are cast in packets): the footprints per bounce, in
         :attr:`footprint_regions`."""
         counts = np.zeros(max_bounces, np.int32)
         self.rt.fill(self.bounce_counts, np.int32(0), counts.nbytes)
-        n_cells = n_blocks * self.cells
-        self._run_bvh("sbr_bounces", n_cells, *self.bounce_args, *self.launch_args,
-                      np.int64(first), np.int32(n_cells), np.int32(first_bounce),
-                      np.int32(max_bounces), self.footprint_area, np.int32(self.region),
-                      self.bounce_counts, *self.last_filter_args)
+        self._run_bvh("sbr_bounces", n_blocks, *self.bounce_args, self.tri_face,
+                      *self.launch_args, np.int64(first), np.int32(n_blocks),
+                      np.int32(first_bounce), np.int32(max_bounces), self.footprint_area,
+                      np.int32(self.region), self.bounce_counts, *self.last_filter_args,
+                      local_size=BLOCKS_PER_GROUP)
         with self.rt.guard("SBR bounce counts"):
             self.cl.enqueue_copy(self.rt.queue, counts, self.bounce_counts, is_blocking=True)
         return [int(c) for c in counts]
