@@ -11,6 +11,12 @@ of ~22 k triangles (clradcom.scene.models.street_triangles):
   primary* / bounce*  the same rays in coherent order (clradcom.geometry.ray_order:
            along a Morton curve over the directions' octahedral map, as the tracer
            launches its lattice): neighbouring rays run one after the other
+  tubes    an SBR launch: rays through a square grid of the 10 x 5 deg ahead, in
+           8 x 8 blocks one after the other, as SBR-PO launches its tubes
+  tubes 2  their reflections, those of a block that left one plane side by side
+  tubes[p] / tubes 2[p]  the same rays cast in packets (RayCaster.closest_hit_packets:
+           a block, or the part of it that left one plane, walks the tree once), as
+           the SBR kernels cast them; their hits must be the single rays' bit for bit
 
 Embree (the ``embreex`` package, ``pip install clradcom[bench]``) traces on
 one thread per process, so it runs in as many processes as the machine has
@@ -98,10 +104,47 @@ def embree_once(pool, origins, dirs, n_proc):
             np.concatenate([r[2] for r in results]))
 
 
-def clradcom_once(caster, rays):
+def clradcom_once(caster, rays, packet_first=None):
     t0 = time.perf_counter()
-    hits = caster.closest_hit(rays)
+    if packet_first is None:
+        hits = caster.closest_hit(rays)
+    else:
+        hits = caster.closest_hit_packets(rays, packet_first)
     return time.perf_counter() - t0, hits
+
+
+def tube_grid(n: int, block: int = 8) -> np.ndarray:
+    """About n unit directions through a square grid on the plane x = 1 over +-5 deg of
+    azimuth and +-2.5 of elevation (at 10^6 rays a pitch of 0.006 deg, as the street's
+    SBR tubes have about 0.025 deg), in block x block blocks one after the other (an SBR
+    launch window's order)."""
+    ny = max(block, int(round(np.sqrt(n / 2.0) / block)) * block)
+    nx = 2 * ny
+    y = np.tan(np.radians(5.0)) * ((np.arange(nx) + 0.5) / nx * 2.0 - 1.0)
+    z = np.tan(np.radians(2.5)) * ((np.arange(ny) + 0.5) / ny * 2.0 - 1.0)
+    gy, gz = np.meshgrid(y, z, indexing="ij")
+    gy = gy.reshape(nx // block, block, ny // block, block).transpose(0, 2, 1, 3).ravel()
+    gz = gz.reshape(nx // block, block, ny // block, block).transpose(0, 2, 1, 3).ravel()
+    d = np.stack([np.ones_like(gy), gy, gz], axis=1)
+    return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def runs_of(keys, most: int = 64) -> np.ndarray:
+    """packet_first for rays sorted by key: runs of equal keys, split at ``most``."""
+    starts = np.flatnonzero(np.diff(keys, prepend=keys[:1] - 1))
+    ends = np.append(starts[1:], len(keys))
+    first = np.concatenate([np.arange(a, b, most) for a, b in zip(starts, ends, strict=True)])
+    return np.append(first, len(keys)).astype(np.int64)
+
+
+def reflect_hits(origin_of, dirs, hits):
+    """The specular reflections of the rays that hit (rays leaving the surfaces) and which
+    rays they come from."""
+    ok = np.flatnonzero(hits["prim"] >= 0)
+    p = origin_of(ok) + hits["t"][ok, None] * dirs[ok]
+    n = hits["ng"][ok].astype(np.float64)
+    d_out = dirs[ok] - 2.0 * np.einsum("ij,ij->i", dirs[ok], n)[:, None] * n
+    return make_rays(spawn_origins(p, n, d_out), d_out, tmin=1e-4), ok
 
 
 def kernel_only_seconds(caster, rays) -> float:
@@ -161,18 +204,29 @@ def run(args) -> int:
     caster.closest_hit(primary[:1024])  # compile and warm up
     _, hits = clradcom_once(caster, primary)
 
-    ok = hits["prim"] >= 0
-    p = bumper + hits["t"][ok, None] * dirs[ok]
-    n = hits["ng"][ok].astype(np.float64)
-    d_in = dirs[ok]
-    d_out = d_in - 2.0 * np.einsum("ij,ij->i", d_in, n)[:, None] * n
-    bounce = make_rays(spawn_origins(p, n, d_out), d_out, tmin=1e-4)
+    bounce, ok = reflect_hits(lambda k: bumper, dirs, hits)
+    ok = np.isin(np.arange(len(dirs)), ok)
     # the same rays in coherent order; a bounce ray keeps its primary ray's place
     order = coherent_order(dirs)
     place = np.empty(len(dirs), dtype=np.int64)
     place[order] = np.arange(len(dirs))
+    # an SBR launch: blocks of 8 x 8, then the reflections of a block off one plane
+    tube_dirs = tube_grid(args.rays)
+    tubes = make_rays(np.broadcast_to(bumper, tube_dirs.shape), tube_dirs, tmin=1e-4)
+    tube_first = np.arange(0, len(tubes) + 1, 64)
+    tube_bounce, came = reflect_hits(lambda k: bumper, tube_dirs, caster.closest_hit(tubes))
+    normals = np.round(caster.closest_hit(tubes)["ng"][came].astype(np.float64), 5)
+    plane = np.unique(np.column_stack([normals, np.round(
+        np.einsum("ij,ij->i", normals, tube_bounce["org"].astype(np.float64)), 3)]),
+        axis=0, return_inverse=True)[1].ravel()
+    sort = np.lexsort((plane, came // 64))
+    tube_bounce = tube_bounce[sort]
+    key = (came // 64)[sort] * (int(plane.max(initial=0)) + 1) + plane[sort]
     sets = {"primary": primary, "bounce": bounce, "primary*": primary[order],
-            "bounce*": bounce[np.argsort(place[np.flatnonzero(ok)])]}
+            "bounce*": bounce[np.argsort(place[np.flatnonzero(ok)])],
+            "tubes": tubes, "tubes 2": tube_bounce, "tubes[p]": tubes,
+            "tubes 2[p]": tube_bounce}
+    packets = {"tubes[p]": tube_first, "tubes 2[p]": runs_of(key)}
 
     n_proc = os.cpu_count() or 1
     pool = None
@@ -193,10 +247,12 @@ def run(args) -> int:
     try:
         for _ in range(args.repeat):
             for name, rays in sets.items():
-                t, out[name] = clradcom_once(caster, rays)
+                t, out[name] = clradcom_once(caster, rays, packets.get(name))
                 best[name] = min(best[name], t)
-                best_kernel[name] = min(best_kernel[name], kernel_only_seconds(caster, rays))
-                if pool is not None:
+                if name not in packets:
+                    best_kernel[name] = min(best_kernel[name],
+                                            kernel_only_seconds(caster, rays))
+                if pool is not None and name not in packets:
                     o = np.ascontiguousarray(rays["org"])
                     d = np.ascontiguousarray(rays["dir"])
                     te, prim, tfar = embree_once(pool, o, d, n_proc)
@@ -210,6 +266,10 @@ def run(args) -> int:
     reordered_alike = (np.array_equal(out["primary*"], out["primary"][order])
                        and np.array_equal(out["bounce*"], out["bounce"][
                            np.argsort(place[np.flatnonzero(ok)])]))
+    packed_alike = all(out[name].tobytes() == out[name[:-3]].tobytes() for name in packets)
+    for name in packets:   # Embree's figures for the packets are those of the same rays
+        if name[:-3] in embree:
+            embree[name] = embree[name[:-3]]
 
     print(f"\nBVH build: clradcom {t_build * 1e3:.1f} ms", end="")
     if t_embree_build is not None:
@@ -217,12 +277,13 @@ def run(args) -> int:
               f"{t_embree_build / t_build:.2f})")
     else:
         print()
-    print(f"\n{'rays':<8} {'count':>9} {'clradcom':>14} {'kernel only':>14} "
+    print(f"\n{'rays':<10} {'count':>9} {'clradcom':>14} {'kernel only':>14} "
           f"{'Embree x' + str(n_proc):>14} {'ratio':>7} {'same hit':>9}")
     for name, count, t, h in rows:
         mrays = count / t / 1e6
-        line = (f"{name:<8} {count:>9} {mrays:>9.2f} Mr/s "
-                f"{count / best_kernel[name] / 1e6:>9.2f} Mr/s")
+        kernel = (f"{count / best_kernel[name] / 1e6:>9.2f} Mr/s"
+                  if np.isfinite(best_kernel[name]) else f"{'-':>14}")
+        line = f"{name:<10} {count:>9} {mrays:>9.2f} Mr/s {kernel}"
         if name in embree:
             te, prim, _ = embree[name]
             prim = np.where(prim == np.iinfo(np.uint32).max, -1, prim.astype(np.int64))
@@ -233,7 +294,9 @@ def run(args) -> int:
     print("\nratio = clradcom throughput / Embree throughput on the same cores "
           "(end-to-end for clradcom: upload, kernel, download; kernel only: the device's "
           "profiling clock); *: the same rays in coherent order, hits "
-          f"{'identical ray for ray' if reordered_alike else 'DIFFERENT'}")
+          f"{'identical ray for ray' if reordered_alike else 'DIFFERENT'}; [p]: the rays "
+          f"above cast in packets, hits {'identical' if packed_alike else 'DIFFERENT'} "
+          "(kernel only: not timed)")
     return 0
 
 
