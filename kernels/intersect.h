@@ -582,6 +582,91 @@ CLR_INLINE float3 slot_normal(__global const Bvh8Node *nodes, __global const flo
  * own order of records; a ray that meets such a near tie in the packet's walk is cast
  * again on its own. Packets whose rays run toward both sides of an axis (or along a
  * slab plane) are cast ray by ray, as is every ray of a two-level tree. */
+/* A packet of rays as intervals: origins in [ol, oh] and inverse directions in [il, ih]
+ * per axis (all of one sign), the rows n* of their near planes as in PreparedRay. */
+typedef struct {
+    float olx, ohx, oly, ohy, olz, ohz;
+    float ilx, ihx, ily, ihy, ilz, ihz;
+    int nx, ny, nz;
+} PacketBounds;
+
+/* The bounds of rays pr[member[k]], k < n; false where they cannot be one packet: rays
+ * toward both sides of an axis, or along a slab plane (an infinite inverse, whose
+ * 0 * inf the intervals cannot bound). */
+CLR_INLINE bool packet_bounds(const PreparedRay *pr, const int *member, int n, PacketBounds *b)
+{
+    const PreparedRay *r0 = &pr[member[0]];
+    b->olx = b->ohx = r0->ox; b->oly = b->ohy = r0->oy; b->olz = b->ohz = r0->oz;
+    b->ilx = b->ihx = r0->ix; b->ily = b->ihy = r0->iy; b->ilz = b->ihz = r0->iz;
+    b->nx = r0->nx; b->ny = r0->ny; b->nz = r0->nz;
+    bool together = true;
+    for (int k = 1; k < n; ++k) {
+        const PreparedRay *r = &pr[member[k]];
+        b->olx = MINF(b->olx, r->ox); b->ohx = MAXF(b->ohx, r->ox);
+        b->oly = MINF(b->oly, r->oy); b->ohy = MAXF(b->ohy, r->oy);
+        b->olz = MINF(b->olz, r->oz); b->ohz = MAXF(b->ohz, r->oz);
+        b->ilx = MINF(b->ilx, r->ix); b->ihx = MAXF(b->ihx, r->ix);
+        b->ily = MINF(b->ily, r->iy); b->ihy = MAXF(b->ihy, r->iy);
+        b->ilz = MINF(b->ilz, r->iz); b->ihz = MAXF(b->ihz, r->iz);
+        together &= (r->nx == b->nx) & (r->ny == b->ny) & (r->nz == b->nz);
+    }
+    return together && isfinite(b->ilx) && isfinite(b->ihx) && isfinite(b->ily)
+           && isfinite(b->ihy) && isfinite(b->ilz) && isfinite(b->ihz) && isfinite(b->olx)
+           && isfinite(b->ohx) && isfinite(b->oly) && isfinite(b->ohy) && isfinite(b->olz)
+           && isfinite(b->ohz);
+}
+
+/* ray_box8 for a packet: per axis the nearest entry and farthest exit over the four
+ * corners of (plane - origin interval) x (inverse direction interval), so the mask holds
+ * every child some ray of the packet enters in [t_lo, t_hi] (and maybe more); returns
+ * the nearest entries. */
+CLR_INLINE float8 packet_box8(const PacketBounds *b, __global const float8 *q, float t_lo,
+                              float t_hi, int *mask)
+{
+    float8 a1, a2, near, far;
+    a1 = q[b->nx] - (float8)(b->ohx); a2 = q[b->nx] - (float8)(b->olx);
+    near = MINF(MINF(a1 * b->ilx, a1 * b->ihx), MINF(a2 * b->ilx, a2 * b->ihx));
+    a1 = q[3 - b->nx] - (float8)(b->ohx); a2 = q[3 - b->nx] - (float8)(b->olx);
+    far = MAXF(MAXF(a1 * b->ilx, a1 * b->ihx), MAXF(a2 * b->ilx, a2 * b->ihx));
+    float8 t0 = MAXF(near, (float8)(t_lo)), t1 = MINF(far, (float8)(t_hi));
+    a1 = q[b->ny] - (float8)(b->ohy); a2 = q[b->ny] - (float8)(b->oly);
+    near = MINF(MINF(a1 * b->ily, a1 * b->ihy), MINF(a2 * b->ily, a2 * b->ihy));
+    a1 = q[5 - b->ny] - (float8)(b->ohy); a2 = q[5 - b->ny] - (float8)(b->oly);
+    far = MAXF(MAXF(a1 * b->ily, a1 * b->ihy), MAXF(a2 * b->ily, a2 * b->ihy));
+    t0 = MAXF(near, t0); t1 = MINF(far, t1);
+    a1 = q[b->nz] - (float8)(b->ohz); a2 = q[b->nz] - (float8)(b->olz);
+    near = MINF(MINF(a1 * b->ilz, a1 * b->ihz), MINF(a2 * b->ilz, a2 * b->ihz));
+    a1 = q[7 - b->nz] - (float8)(b->ohz); a2 = q[7 - b->nz] - (float8)(b->olz);
+    far = MAXF(MAXF(a1 * b->ilz, a1 * b->ihz), MAXF(a2 * b->ilz, a2 * b->ihz));
+    t0 = MAXF(near, t0);
+    t1 = MINF(far, t1) * ROBUST_TMAX_SCALE;
+    int8 bits = (t0 <= t1) & (int8)(1, 2, 4, 8, 16, 32, 64, 128);
+    int4 b4 = bits.lo | bits.hi;
+    int2 b2 = b4.lo | b4.hi;
+    *mask = b2.x | b2.y;
+    return t0;
+}
+
+/* Ray packets: closest hits of up to PACKET_MAX coherent rays (the tubes of one SBR
+ * launch block, or those of them that left the same faces) in one walk of the tree.
+ *
+ * A record is entered once for the whole packet: each child box is tested by interval
+ * arithmetic over the packet's origins and inverse directions (packet_box8; Wald,
+ * Boulos & Shirley, "Ray Tracing Deformable Scenes using Dynamic Bounding Volume
+ * Hierarchies", ACM TOG 26(1), 2007, section 4.2), then every ray of the packet tests
+ * the triangles of a leaf it reaches. Rounding is monotone in each operand, so the
+ * intervals' nearest entry and farthest exit bound every ray's own float ones: the
+ * packet never culls a box that ray_box8 would enter for one of its rays (then scaled by
+ * the same ROBUST_TMAX_SCALE), and a subtree is skipped only beyond every ray's closest
+ * hit.
+ *
+ * The result is blas_closest's, ray for ray and bit for bit: the same triangle test,
+ * the same strict range and the same choice of lane, so a ray's closest hit is the
+ * same wherever it is unique. Where it is not (two hits within rounding of each other,
+ * a ray through an edge), blas_closest keeps the first it visits, which depends on its
+ * own order of records; a ray that meets such a near tie in the packet's walk is cast
+ * again on its own. Packets that packet_bounds refuses are cast ray by ray, as is every
+ * ray of a two-level tree. */
 #ifndef PACKET_MAX
 #error "PACKET_MAX must be passed as -D by the host"
 #endif
@@ -609,45 +694,21 @@ CLR_INLINE void packet_closest(__global const Bvh8Node *nodes, __global const fl
 #ifdef BVH_INSTANCED
     closest_ray_by_ray(nodes, tri4, slot_prim, pr, member, n, tmin, tmax, u, v, best);
 #else
-    if (n < 2) {
+    PacketBounds box;
+    if (n < 2 || !packet_bounds(pr, member, n, &box)) {
         closest_ray_by_ray(nodes, tri4, slot_prim, pr, member, n, tmin, tmax, u, v, best);
         return;
     }
-    const PreparedRay *r0 = &pr[member[0]];
-    float olx = r0->ox, ohx = r0->ox, oly = r0->oy, ohy = r0->oy, olz = r0->oz, ohz = r0->oz;
-    float ilx = r0->ix, ihx = r0->ix, ily = r0->iy, ihy = r0->iy, ilz = r0->iz, ihz = r0->iz;
-    float t_lo = tmin[member[0]];
-    bool together = true;
-    for (int k = 0; k < n; ++k) {
-        int m = member[k];
-        const PreparedRay *r = &pr[m];
-        olx = MINF(olx, r->ox); ohx = MAXF(ohx, r->ox);
-        oly = MINF(oly, r->oy); ohy = MAXF(ohy, r->oy);
-        olz = MINF(olz, r->oz); ohz = MAXF(ohz, r->oz);
-        ilx = MINF(ilx, r->ix); ihx = MAXF(ihx, r->ix);
-        ily = MINF(ily, r->iy); ihy = MAXF(ihy, r->iy);
-        ilz = MINF(ilz, r->iz); ihz = MAXF(ihz, r->iz);
-        t_lo = MINF(t_lo, tmin[m]);
-        together &= (r->nx == r0->nx) & (r->ny == r0->ny) & (r->nz == r0->nz);
-        best[m] = -1;
-    }
-    /* finite inverse directions: no ray along a slab plane (whose 0 * inf the
-     * interval cannot bound) */
-    together &= isfinite(ilx) & isfinite(ihx) & isfinite(ily) & isfinite(ihy)
-                & isfinite(ilz) & isfinite(ihz) & isfinite(olx) & isfinite(ohx)
-                & isfinite(oly) & isfinite(ohy) & isfinite(olz) & isfinite(ohz);
-    if (!together) {
-        closest_ray_by_ray(nodes, tri4, slot_prim, pr, member, n, tmin, tmax, u, v, best);
-        return;
-    }
-    const int nx = r0->nx, ny = r0->ny, nz = r0->nz;
     bool recast[PACKET_MAX];
     float tmax_in[PACKET_MAX];
-    float far_all = tmax[member[0]];
+    float t_lo = tmin[member[0]], far_all = tmax[member[0]];
     for (int k = 0; k < n; ++k) {
+        int m = member[k];
+        best[m] = -1;
         recast[k] = false;
-        tmax_in[k] = tmax[member[k]];
-        far_all = MAXF(far_all, tmax_in[k]);
+        tmax_in[k] = tmax[m];
+        t_lo = MINF(t_lo, tmin[m]);
+        far_all = MAXF(far_all, tmax[m]);
     }
     int stack_code[BVH_STACK_SIZE + 1];
     float stack_dist[BVH_STACK_SIZE + 1];
@@ -697,29 +758,8 @@ CLR_INLINE void packet_closest(__global const Bvh8Node *nodes, __global const fl
                 far_all = MAXF(far_all, tmax[member[k]]);
         } else {
             __global const float8 *q = (__global const float8 *)(nodes + code);
-            float8 a1, a2, near, far;
-            /* per axis the nearest entry and farthest exit over the corners of
-             * (plane - origin interval) x (inverse direction interval) */
-            a1 = q[nx] - (float8)(ohx); a2 = q[nx] - (float8)(olx);
-            near = MINF(MINF(a1 * ilx, a1 * ihx), MINF(a2 * ilx, a2 * ihx));
-            a1 = q[3 - nx] - (float8)(ohx); a2 = q[3 - nx] - (float8)(olx);
-            far = MAXF(MAXF(a1 * ilx, a1 * ihx), MAXF(a2 * ilx, a2 * ihx));
-            float8 t0 = MAXF(near, (float8)(t_lo)), t1 = MINF(far, (float8)(far_all));
-            a1 = q[ny] - (float8)(ohy); a2 = q[ny] - (float8)(oly);
-            near = MINF(MINF(a1 * ily, a1 * ihy), MINF(a2 * ily, a2 * ihy));
-            a1 = q[5 - ny] - (float8)(ohy); a2 = q[5 - ny] - (float8)(oly);
-            far = MAXF(MAXF(a1 * ily, a1 * ihy), MAXF(a2 * ily, a2 * ihy));
-            t0 = MAXF(near, t0); t1 = MINF(far, t1);
-            a1 = q[nz] - (float8)(ohz); a2 = q[nz] - (float8)(olz);
-            near = MINF(MINF(a1 * ilz, a1 * ihz), MINF(a2 * ilz, a2 * ihz));
-            a1 = q[7 - nz] - (float8)(ohz); a2 = q[7 - nz] - (float8)(olz);
-            far = MAXF(MAXF(a1 * ilz, a1 * ihz), MAXF(a2 * ilz, a2 * ihz));
-            t0 = MAXF(near, t0);
-            t1 = MINF(far, t1) * ROBUST_TMAX_SCALE;
-            int8 bits = (t0 <= t1) & (int8)(1, 2, 4, 8, 16, 32, 64, 128);
-            int4 b4 = bits.lo | bits.hi;
-            int2 b2 = b4.lo | b4.hi;
-            int mask = b2.x | b2.y;
+            int mask;
+            float8 t0 = packet_box8(&box, q, t_lo, far_all, &mask);
             const float *d = (const float *)&t0;
             __global const int *cc = (__global const int *)(q + 6);
             int base = sp;
