@@ -204,6 +204,22 @@ CLR_INLINE int4 ray_tri4(const PreparedRay *r, __global const float4 *g, float t
     return ~mixed & (det != 0.0f) & (Ts > tmin * adet) & (Ts < tmax * adet);
 }
 
+/* The nearest of a group's four hits t (misses at +inf), the first of equals: its lane,
+ * with its t, u and v in *t_out, *u_out, *v_out. */
+CLR_INLINE int nearest_lane(float4 t, float4 u, float4 v, float *t_out, float *u_out,
+                            float *v_out)
+{
+    float tb = t.s0, ub = u.s0, vb = v.s0;
+    int lane = 0;
+    if (t.s1 < tb) { tb = t.s1; ub = u.s1; vb = v.s1; lane = 1; }
+    if (t.s2 < tb) { tb = t.s2; ub = u.s2; vb = v.s2; lane = 2; }
+    if (t.s3 < tb) { tb = t.s3; ub = u.s3; vb = v.s3; lane = 3; }
+    *t_out = tb;
+    *u_out = ub;
+    *v_out = vb;
+    return lane;
+}
+
 /* Vertex j (0-2) of leaf slot s. */
 CLR_INLINE float3 tri4_vertex(__global const float4 *tri4, int slot, int j)
 {
@@ -294,17 +310,7 @@ CLR_INLINE int blas_closest(__global const Bvh8Node *nodes, __global const float
                     continue;
                 float4 inv = (float4)(1.0f) / det;
                 float4 t = ok ? T * inv : (float4)(INFINITY);
-                float4 u = V * inv, v = W * inv;
-                /* the nearest lane, the first of equals */
-                float tb = t.s0, ub = u.s0, vb = v.s0;
-                int lane = 0;
-                if (t.s1 < tb) { tb = t.s1; ub = u.s1; vb = v.s1; lane = 1; }
-                if (t.s2 < tb) { tb = t.s2; ub = u.s2; vb = v.s2; lane = 2; }
-                if (t.s3 < tb) { tb = t.s3; ub = u.s3; vb = v.s3; lane = 3; }
-                tmax = tb;
-                *u_out = ub;
-                *v_out = vb;
-                best = 4 * gi + lane;
+                best = 4 * gi + nearest_lane(t, V * inv, W * inv, &tmax, u_out, v_out);
             }
         } else {
             __global const float8 *q = (__global const float8 *)(nodes + code);
@@ -378,6 +384,28 @@ CLR_INLINE int push_hit_children(const PreparedRay *r, __global const Bvh8Node *
         int i = CLR_CTZ(mask);
         mask &= mask - 1;
         stack_code[sp++] = cc[i];
+    }
+    return sp;
+}
+
+/* The children of a record in `mask` (entry distances d, codes cc) pushed sorted far to
+ * near, the nearest on top; returns the new stack size. */
+CLR_INLINE int push_sorted(int mask, const float *d, __global const int *cc, int *stack_code,
+                           float *stack_dist, int sp)
+{
+    int base = sp;
+    while (mask != 0) {
+        int i = CLR_CTZ(mask);
+        mask &= mask - 1;
+        int j = sp;
+        while (j > base && stack_dist[j - 1] < d[i]) {
+            stack_dist[j] = stack_dist[j - 1];
+            stack_code[j] = stack_code[j - 1];
+            --j;
+        }
+        stack_dist[j] = d[i];
+        stack_code[j] = cc[i];
+        ++sp;
     }
     return sp;
 }
@@ -494,20 +522,7 @@ CLR_INLINE int bvh_closest(__global const Bvh8Node *nodes, __global const float4
             float8 dv = ray_box8(r, q, tmin, tmax, &mask);
             const float *d = (const float *)&dv;
             __global const int *cc = (__global const int *)(q + 6);
-            int base = sp;
-            while (mask != 0) {   /* push sorted far to near */
-                int i = CLR_CTZ(mask);
-                mask &= mask - 1;
-                int j = sp;
-                while (j > base && stack_dist[j - 1] < d[i]) {
-                    stack_dist[j] = stack_dist[j - 1];
-                    stack_code[j] = stack_code[j - 1];
-                    --j;
-                }
-                stack_dist[j] = d[i];
-                stack_code[j] = cc[i];
-                ++sp;
-            }
+            sp = push_sorted(mask, d, cc, stack_code, stack_dist, sp);
         }
         for (;;) {
             if (sp == 0) { *tmax_io = tmax; return best; }
@@ -741,16 +756,7 @@ CLR_INLINE void packet_closest(__global const Bvh8Node *nodes, __global const fl
                     if (!ANY4(ok))
                         continue;
                     t = ok ? t : (float4)(INFINITY);
-                    float4 uu = V * inv, vv = W * inv;
-                    float tb = t.s0, ub = uu.s0, vb = vv.s0;
-                    int lane = 0;
-                    if (t.s1 < tb) { tb = t.s1; ub = uu.s1; vb = vv.s1; lane = 1; }
-                    if (t.s2 < tb) { tb = t.s2; ub = uu.s2; vb = vv.s2; lane = 2; }
-                    if (t.s3 < tb) { tb = t.s3; ub = uu.s3; vb = vv.s3; lane = 3; }
-                    tmax[m] = tb;
-                    u[m] = ub;
-                    v[m] = vb;
-                    best[m] = 4 * gi + lane;
+                    best[m] = 4 * gi + nearest_lane(t, V * inv, W * inv, &tmax[m], &u[m], &v[m]);
                 }
             }
             far_all = tmax[member[0]];
@@ -762,20 +768,7 @@ CLR_INLINE void packet_closest(__global const Bvh8Node *nodes, __global const fl
             float8 t0 = packet_box8(&box, q, t_lo, far_all, &mask);
             const float *d = (const float *)&t0;
             __global const int *cc = (__global const int *)(q + 6);
-            int base = sp;
-            while (mask != 0) {   /* pushed sorted far to near */
-                int i = CLR_CTZ(mask);
-                mask &= mask - 1;
-                int j = sp;
-                while (j > base && stack_dist[j - 1] < d[i]) {
-                    stack_dist[j] = stack_dist[j - 1];
-                    stack_code[j] = stack_code[j - 1];
-                    --j;
-                }
-                stack_dist[j] = d[i];
-                stack_code[j] = cc[i];
-                ++sp;
-            }
+            sp = push_sorted(mask, d, cc, stack_code, stack_dist, sp);
         }
         /* pop, skipping subtrees that start beyond every ray's closest hit (by the
          * margin of the near-tie test) */
