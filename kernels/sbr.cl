@@ -545,8 +545,8 @@ __kernel void sbr_bounce(__global const Bvh8Node *nodes,
 #ifdef SBR_PERSISTENT
 /* The tubes of the batch's blocks from their launch through all their bounces, one work
  * item per launch block, its SBR_CELLS tubes in private memory (no queue): per bounce the
- * live tubes cast as packets, those that left one planar face together (all of them at
- * launch), each packet walking the tree once (intersect.h: packet_closest, whose hits are
+ * live tubes cast as packets, those that left the same planar faces (one image source)
+ * together, all of them at launch, each packet walking the tree once (intersect.h: packet_closest, whose hits are
  * bvh_closest's, ray for ray); then each tube as sbr_bounce steps it. Bounce m's
  * footprints go into region m - 1 of `footprints` (`region` footprints each), counted in
  * counts[m - 1]; a footprint's tube is block * SBR_CELLS + cell within the batch, as
@@ -630,8 +630,8 @@ __kernel void sbr_bounces(__global const Bvh8Node *nodes,
             key[n] = (int)h;
             ++n;
         }
-        /* the tubes that left one face side by side (insertion sort: at most SBR_CELLS),
-         * each run a packet */
+        /* the tubes that left the same faces side by side (insertion sort: at most
+         * SBR_CELLS), each run a packet */
         for (int k = 1; k < n; ++k) {
             int c = live[k], kk = key[k], j = k;
             for (; j > 0 && key[j - 1] > kk; --j) {

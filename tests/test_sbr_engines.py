@@ -283,8 +283,8 @@ def test_batches_and_runs_give_the_same_records(runtime):
 
 
 def test_bounces_in_one_launch_give_the_wavefront_records(runtime, monkeypatch):
-    """sbr_bounces (a tube's launch and all its bounces in one work item, for scalar CPU
-    devices) and the wavefront (a launch into a queue, then one launch per bounce, the
+    """sbr_bounces (a launch block's tubes and all their bounces in one work item, cast
+    in packets, for scalar CPU devices) and the wavefront (a launch into a queue, then one launch per bounce, the
     live tubes compacted between) give the same records, bit for bit, whichever the
     device would take by itself; each mode is the one that runs (checked by the kernels
     launched). Where the device takes sbr_bounces by itself (PoCL) the records are the

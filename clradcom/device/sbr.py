@@ -10,8 +10,8 @@ queues the owned tubes; per bounce ``sbr_bounce`` follows the live ones (a compa
 queue) and lists the footprints, ``sbr_radiate`` radiates each toward each receiver,
 ``sbr_reduce`` sums them per block, receiver and face sequence in work groups (on a
 device that runs work items as scalar code ``sbr_bounces`` launches and bounces the
-tubes of a launch block in one work item, no queue, those that left one face cast as a
-packet, the last bounce cast only where :func:`recorded_tree` has a hit).  Records
+tubes of a launch block in one work item, no queue, those that left the same faces cast
+as a packet, the last bounce cast only where :func:`recorded_tree` has a hit).  Records
 are appended with an atomic counter, so their order within a batch is the device's;
 they are sorted by block and the group's first (tube, bounce, receiver), so every run
 and batch size gives the same records in the same order.
