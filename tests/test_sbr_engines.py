@@ -283,15 +283,15 @@ def test_batches_and_runs_give_the_same_records(runtime):
 
 
 def test_bounces_in_one_launch_give_the_wavefront_records(runtime, monkeypatch):
-    """sbr_bounces (a launch block's tubes and all their bounces in one work item, cast
-    in packets, for scalar CPU devices) and the wavefront (a launch into a queue, then one launch per bounce, the
-    live tubes compacted between) give the same records, bit for bit, whichever the
-    device would take by itself; each mode is the one that runs (checked by the kernels
-    launched). Where the device takes sbr_bounces by itself (PoCL) the records are the
-    same bit for bit; a device forced into it computes a footprint's illumination in
-    sbr_radiate rather than sbr_illuminate, and Intel's compiler rounds the same formulas
-    in the two kernels a last bit apart (about 3e-16 of the largest matrix): there the
-    faces, tubes, counts, points and lengths are the same and the sums within 1e-13."""
+    """sbr_bounces (a launch block's tubes and all their bounces in one work item, cast in
+    packets, for scalar CPU devices) and the wavefront (a launch into a queue, then one
+    launch per bounce, the live tubes compacted between) give the same records, bit for bit,
+    whichever the device would take by itself; each mode is the one that runs (checked by
+    the kernels launched). Where the device takes sbr_bounces by itself (PoCL) the records
+    are the same bit for bit; a device forced into it computes a footprint's illumination in
+    sbr_radiate rather than sbr_illuminate, and Intel's compiler rounds the same formulas in
+    the two kernels a last bit apart (about 3e-16 of the largest matrix): there the faces,
+    tubes, counts, points and lengths are the same and the sums within 1e-13."""
     run, _ = trihedral_runs(runtime)
     native = device_sbr.persistent_bounces(runtime)
     names = launched_kernels(runtime, monkeypatch)
