@@ -578,25 +578,6 @@ CLR_INLINE float3 slot_normal(__global const Bvh8Node *nodes, __global const flo
 
 #endif
 
-/* Ray packets: closest hits of up to PACKET_MAX coherent rays (the tubes of one SBR
- * launch block, or those of them that left one face) in one walk of the tree.
- *
- * A record is entered once for the whole packet: each child box is tested by interval
- * arithmetic over the packet's origins and inverse directions (Wald, Boulos & Shirley,
- * "Ray Tracing Deformable Scenes using Dynamic Bounding Volume Hierarchies", ACM TOG
- * 26(1), 2007, section 4.2), then every ray of the packet tests the triangles of a
- * leaf it reaches. Rounding is monotone in each operand, so the interval's nearest
- * entry and farthest exit bound every ray's own float ones: the packet never culls a
- * box that ray_box8 would enter for one of its rays (then scaled by the same
- * ROBUST_TMAX_SCALE), and a subtree is skipped only beyond every ray's closest hit.
- *
- * The result is blas_closest's, ray for ray and bit for bit: the same triangle test,
- * the same strict range and the same choice of lane, so a ray's closest hit is the
- * same wherever it is unique. Where it is not (two hits within rounding of each other,
- * a ray through an edge), blas_closest keeps the first it visits, which depends on its
- * own order of records; a ray that meets such a near tie in the packet's walk is cast
- * again on its own. Packets whose rays run toward both sides of an axis (or along a
- * slab plane) are cast ray by ray, as is every ray of a two-level tree. */
 /* A packet of rays as intervals: origins in [ol, oh] and inverse directions in [il, ih]
  * per axis (all of one sign), the rows n* of their near planes as in PreparedRay. */
 typedef struct {
