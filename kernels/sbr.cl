@@ -588,6 +588,7 @@ __kernel void sbr_bounces(__global const Bvh8Node *nodes,
     real3 dir[SBR_CELLS];
     int tris[SBR_CELLS][SBR_TUBE_TRIS];
     int live[SBR_CELLS], key[SBR_CELLS], slot[SBR_CELLS];
+    uint faces_left[SBR_CELLS];
     PreparedRay pr[SBR_CELLS];
     float tmin[SBR_CELLS], tmax[SBR_CELLS], hu[SBR_CELLS], hv[SBR_CELLS];
     int n_live = 0;
@@ -604,6 +605,7 @@ __kernel void sbr_bounces(__global const Bvh8Node *nodes,
         org[cell] = tx;
         len[cell] = ps_zero();
         dir[cell] = c.dir;
+        faces_left[cell] = 0u;
         for (int k = 0; k < SBR_TUBE_TRIS; ++k) tris[cell][k] = -1;
         live[n_live++] = cell;
     }
@@ -624,10 +626,7 @@ __kernel void sbr_bounces(__global const Bvh8Node *nodes,
             tmin[c] = 0.0f;
             tmax[c] = INFINITY;
             live[n] = c;
-            /* the faces it left so far: tubes of one image source stay together */
-            uint h = 0u;
-            for (int j = 0; j < m - 1; ++j) h = (h ^ (uint)tri_face[tris[c][j]]) * 0x9E3779B1u;
-            key[n] = (int)h;
+            key[n] = (int)faces_left[c];
             ++n;
         }
         /* the tubes that left the same faces side by side (insertion sort: at most
@@ -658,6 +657,8 @@ __kernel void sbr_bounces(__global const Bvh8Node *nodes,
                              &p, &L, &d_out, &o))
                 continue;
             tris[c][m - 1] = tri;
+            /* the faces it left so far, hashed: tubes of one image source stay together */
+            faces_left[c] = (faces_left[c] ^ (uint)tri_face[tri]) * 0x9E3779B1u;
             if (gid < n_blocks && m >= first_bounce && tri_record[tri]) {
                 __global SbrFootprint *fp =
                     footprints + (size_t)(m - 1) * region + atomic_inc(counts + m - 1);

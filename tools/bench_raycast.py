@@ -137,11 +137,11 @@ def runs_of(keys, most: int = 64) -> np.ndarray:
     return np.append(first, len(keys)).astype(np.int64)
 
 
-def reflect_hits(origin_of, dirs, hits):
-    """The specular reflections of the rays that hit (rays leaving the surfaces) and which
-    rays they come from."""
+def reflect_hits(origin, dirs, hits):
+    """The specular reflections of the rays from ``origin`` that hit (rays leaving the
+    surfaces) and which rays they come from."""
     ok = np.flatnonzero(hits["prim"] >= 0)
-    p = origin_of(ok) + hits["t"][ok, None] * dirs[ok]
+    p = origin + hits["t"][ok, None] * dirs[ok]
     n = hits["ng"][ok].astype(np.float64)
     d_out = dirs[ok] - 2.0 * np.einsum("ij,ij->i", dirs[ok], n)[:, None] * n
     return make_rays(spawn_origins(p, n, d_out), d_out, tmin=1e-4), ok
@@ -204,8 +204,7 @@ def run(args) -> int:
     caster.closest_hit(primary[:1024])  # compile and warm up
     _, hits = clradcom_once(caster, primary)
 
-    bounce, ok = reflect_hits(lambda k: bumper, dirs, hits)
-    ok = np.isin(np.arange(len(dirs)), ok)
+    bounce, came_from = reflect_hits(bumper, dirs, hits)
     # the same rays in coherent order; a bounce ray keeps its primary ray's place
     order = coherent_order(dirs)
     place = np.empty(len(dirs), dtype=np.int64)
@@ -214,8 +213,9 @@ def run(args) -> int:
     tube_dirs = tube_grid(args.rays)
     tubes = make_rays(np.broadcast_to(bumper, tube_dirs.shape), tube_dirs, tmin=1e-4)
     tube_first = np.arange(0, len(tubes) + 1, 64)
-    tube_bounce, came = reflect_hits(lambda k: bumper, tube_dirs, caster.closest_hit(tubes))
-    normals = np.round(caster.closest_hit(tubes)["ng"][came].astype(np.float64), 5)
+    tube_hits = caster.closest_hit(tubes)
+    tube_bounce, came = reflect_hits(bumper, tube_dirs, tube_hits)
+    normals = np.round(tube_hits["ng"][came].astype(np.float64), 5)
     plane = np.unique(np.column_stack([normals, np.round(
         np.einsum("ij,ij->i", normals, tube_bounce["org"].astype(np.float64)), 3)]),
         axis=0, return_inverse=True)[1].ravel()
@@ -223,7 +223,7 @@ def run(args) -> int:
     tube_bounce = tube_bounce[sort]
     key = (came // 64)[sort] * (int(plane.max(initial=0)) + 1) + plane[sort]
     sets = {"primary": primary, "bounce": bounce, "primary*": primary[order],
-            "bounce*": bounce[np.argsort(place[np.flatnonzero(ok)])],
+            "bounce*": bounce[np.argsort(place[came_from])],
             "tubes": tubes, "tubes 2": tube_bounce, "tubes[p]": tubes,
             "tubes 2[p]": tube_bounce}
     packets = {"tubes[p]": tube_first, "tubes 2[p]": runs_of(key)}
@@ -265,7 +265,7 @@ def run(args) -> int:
     # the order changes which rays run together, never what a ray hits
     reordered_alike = (np.array_equal(out["primary*"], out["primary"][order])
                        and np.array_equal(out["bounce*"], out["bounce"][
-                           np.argsort(place[np.flatnonzero(ok)])]))
+                           np.argsort(place[came_from])]))
     packed_alike = all(out[name].tobytes() == out[name[:-3]].tobytes() for name in packets)
     for name in packets:   # Embree's figures for the packets are those of the same rays
         if name[:-3] in embree:
