@@ -546,8 +546,9 @@ __kernel void sbr_bounce(__global const Bvh8Node *nodes,
 /* The tubes of the batch's blocks from their launch through all their bounces, one work
  * item per launch block, its SBR_CELLS tubes in private memory (no queue): per bounce the
  * live tubes cast as packets, those that left the same planar faces (one image source)
- * together, all of them at launch, each packet walking the tree once (intersect.h: packet_closest, whose hits are
- * bvh_closest's, ray for ray); then each tube as sbr_bounce steps it. Bounce m's
+ * together, all of them at launch, each packet walking the tree once (intersect.h:
+ * packet_closest, whose hits are bvh_closest's, ray for ray); then each tube as
+ * sbr_bounce steps it. Bounce m's
  * footprints go into region m - 1 of `footprints` (`region` footprints each), counted in
  * counts[m - 1]; a footprint's tube is block * SBR_CELLS + cell within the batch, as
  * sbr_launch numbers it. For devices that run a work item as scalar code (PoCL's CPU

@@ -227,6 +227,7 @@ def run(args) -> int:
             "tubes": tubes, "tubes 2": tube_bounce, "tubes[p]": tubes,
             "tubes 2[p]": tube_bounce}
     packets = {"tubes[p]": tube_first, "tubes 2[p]": runs_of(key)}
+    single = {"tubes[p]": "tubes", "tubes 2[p]": "tubes 2"}  # the same rays one by one
 
     n_proc = os.cpu_count() or 1
     pool = None
@@ -266,10 +267,10 @@ def run(args) -> int:
     reordered_alike = (np.array_equal(out["primary*"], out["primary"][order])
                        and np.array_equal(out["bounce*"], out["bounce"][
                            np.argsort(place[came_from])]))
-    packed_alike = all(out[name].tobytes() == out[name[:-3]].tobytes() for name in packets)
-    for name in packets:   # Embree's figures for the packets are those of the same rays
-        if name[:-3] in embree:
-            embree[name] = embree[name[:-3]]
+    packed_alike = all(out[p].tobytes() == out[s].tobytes() for p, s in single.items())
+    for p, s in single.items():   # Embree's figures for the packets are the same rays'
+        if s in embree:
+            embree[p] = embree[s]
 
     print(f"\nBVH build: clradcom {t_build * 1e3:.1f} ms", end="")
     if t_embree_build is not None:

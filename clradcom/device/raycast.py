@@ -42,12 +42,12 @@ _F32_EPS = float(np.finfo(np.float32).eps) * 0.5
 #: host (spawn_origins) and on the device (kernels/reflect.cl) alike.
 SPAWN_OFFSET_ROUNDOFFS = 8
 
-#: Every kernel build gets these as -D options: the host is the kernels' only source of
-#: them, and kernels/layout.cl reports them back for a test.
 #: Rays per packet at most (kernels/intersect.h: packet_closest; an SBR launch block's
 #: tubes).
 PACKET_MAX = 64
 
+#: Every kernel build gets these as -D options: the host is the kernels' only source of
+#: them, and kernels/layout.cl reports them back for a test.
 KERNEL_DEFINES = {
     "BVH_WIDTH": layout.BVH_WIDTH,
     "BVH_STACK_SIZE": layout.BVH_STACK_SIZE,
